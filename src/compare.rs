@@ -1,0 +1,126 @@
+//! Deciding whether two answers for the same ray agree, to the project's standard:
+//! a mismatch is a differing hit/miss, or a differing triangle with |Δt| > 1e-5·max(1, t).
+//! A disagreement that only decides which side of an edge, or of the ray's range end, the ray
+//! passes (within f32 reach of that boundary) is a tie, counted separately and never hidden.
+
+use crate::ray::{Hit, Ray};
+use crate::scene::Scene;
+
+/// Relative tolerance on t and on distances to edges.
+pub const RELATIVE_TOLERANCE: f64 = 1e-5;
+
+/// How two answers for one ray compare.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict {
+    /// Same hit/miss and the same triangle (or both invalid).
+    Same,
+    /// Both hit different triangles at the same depth: the ray passes a shared edge or vertex.
+    SharedEdge,
+    /// One path passed an edge or range end the other stopped at, within f32 reach of it.
+    Boundary,
+    /// A real disagreement.
+    Mismatch,
+}
+
+/// Compares two answers for `ray` over `scene`.
+pub fn classify(scene: &Scene, ray: &Ray, a: &Hit, b: &Hit) -> Verdict {
+    if a.invalid || b.invalid {
+        return if a.invalid == b.invalid {
+            Verdict::Same
+        } else {
+            Verdict::Mismatch
+        };
+    }
+    match (a.hit, b.hit) {
+        (false, false) => return Verdict::Same,
+        (true, true) if (a.object, a.triangle) == (b.object, b.triangle) => return Verdict::Same,
+        (true, true)
+            if (a.t - b.t).abs() <= RELATIVE_TOLERANCE * a.t.abs().min(b.t.abs()).max(1.0) =>
+        {
+            return Verdict::SharedEdge;
+        }
+        _ => {}
+    }
+    let nearer = match (a.hit, b.hit) {
+        (true, true) if a.t <= b.t => a,
+        (true, true) => b,
+        (true, false) => a,
+        _ => b,
+    };
+    if near_boundary(scene, ray, nearer) {
+        Verdict::Boundary
+    } else {
+        Verdict::Mismatch
+    }
+}
+
+/// Whether `hit` lies within f32 reach of its triangle's edges or of the ray's range ends.
+/// The reach is `1e-5·max(1, distance along the ray)`, divided by the sine of the angle between
+/// ray and plane (floored at 1e-3) because a grazing ray moves that much further per error.
+pub fn near_boundary(scene: &Scene, ray: &Ray, hit: &Hit) -> bool {
+    let t_tolerance = RELATIVE_TOLERANCE * hit.t.abs().max(1.0);
+    if (hit.t - ray.tmax).abs() <= t_tolerance || (hit.t - ray.tmin).abs() <= t_tolerance {
+        return true;
+    }
+    let Some(index) = scene.global_index(hit.object, hit.triangle) else {
+        return false;
+    };
+    let [a, b, c] = scene.world_triangle(index);
+    let normal = (b - a).cross(c - a);
+    let twice_area = normal.length();
+    if twice_area == 0.0 {
+        return true;
+    }
+    // Signed distance from the hit to each edge line: barycentric weight times the height.
+    let weights = [1.0 - hit.u - hit.v, hit.u, hit.v];
+    let opposite = [c - b, c - a, b - a];
+    let edge_distance = (0..3)
+        .map(|k| weights[k] * twice_area / opposite[k].length())
+        .fold(f64::INFINITY, f64::min);
+    let dir_length = ray.dir.length();
+    let sine = (normal.dot(ray.dir) / (twice_area * dir_length))
+        .abs()
+        .max(1e-3);
+    let reach = RELATIVE_TOLERANCE * (hit.t * dir_length).abs().max(1.0) / sine;
+    edge_distance.abs() <= reach
+}
+
+/// Counts of verdicts over a batch.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Tally {
+    /// Rays compared.
+    pub rays: usize,
+    /// Rays the first answer says hit.
+    pub hits: usize,
+    /// Rays flagged invalid.
+    pub invalid: usize,
+    /// Shared-edge ties.
+    pub shared_edge: usize,
+    /// Boundary ties.
+    pub boundary: usize,
+    /// Real disagreements.
+    pub mismatches: usize,
+}
+
+impl Tally {
+    /// Compares two batches of answers; also returns the indices of the mismatching rays.
+    pub fn compare(scene: &Scene, rays: &[Ray], a: &[Hit], b: &[Hit]) -> (Tally, Vec<usize>) {
+        let mut tally = Tally::default();
+        let mut bad = Vec::new();
+        for (i, ((ray, x), y)) in rays.iter().zip(a).zip(b).enumerate() {
+            tally.rays += 1;
+            tally.hits += x.hit as usize;
+            tally.invalid += x.invalid as usize;
+            match classify(scene, ray, x, y) {
+                Verdict::Same => {}
+                Verdict::SharedEdge => tally.shared_edge += 1,
+                Verdict::Boundary => tally.boundary += 1,
+                Verdict::Mismatch => {
+                    tally.mismatches += 1;
+                    bad.push(i);
+                }
+            }
+        }
+        (tally, bad)
+    }
+}

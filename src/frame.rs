@@ -1,0 +1,104 @@
+//! Moving between the f64 world and the f32 scene frame: rays go down to f32 offsets from the
+//! scene origin (with a unit direction), hits come back up and are refined in f64 against the
+//! chosen triangle's exact world vertices.
+
+use crate::bvh::Bvh;
+use crate::cpu::ray_triangle::ray_triangle_f64;
+use crate::error::{Error, Result};
+use crate::layout::{CAP_REACHED, GpuHit, GpuRay, NO_HIT};
+use crate::ray::{Hit, Ray};
+use crate::scene::Scene;
+use glam::DVec3;
+
+/// The kernel input for an invalid ray: `tmax < tmin`, so traversal returns at once.
+pub const NEVER_TRACED: GpuRay = GpuRay {
+    origin: [0.0; 3],
+    tmin: 1.0,
+    dir: [1.0, 0.0, 0.0],
+    tmax: -1.0,
+};
+
+/// A world ray in the scene frame: the kernel input plus the length of the world direction
+/// (`t_world = t_local / dir_length`). `None` for an invalid ray.
+pub fn local_ray(scene_origin: DVec3, ray: &Ray) -> Option<(GpuRay, f64)> {
+    if !ray.is_valid() {
+        return None;
+    }
+    // Scale first so that huge or tiny directions neither overflow nor underflow.
+    let scale = ray.dir.abs().max_element();
+    let scaled = ray.dir / scale;
+    let scaled_length = scaled.length();
+    let dir_length = scaled_length * scale;
+    let unit = (scaled / scaled_length).as_vec3();
+    let origin = (ray.origin - scene_origin).as_vec3();
+    let to_f32 = |t: f64| (t * dir_length).clamp(f32::MIN as f64, f32::MAX as f64) as f32;
+    let (tmin, tmax) = (to_f32(ray.tmin), to_f32(ray.tmax));
+    if !origin.is_finite() || !dir_length.is_finite() || unit == glam::Vec3::ZERO || tmin > tmax {
+        return None;
+    }
+    Some((
+        GpuRay {
+            origin: origin.into(),
+            tmin,
+            dir: unit.into(),
+            tmax,
+        },
+        dir_length,
+    ))
+}
+
+/// Converts a batch of world rays to kernel rays; invalid ones become [`NEVER_TRACED`].
+pub fn local_rays(scene_origin: DVec3, rays: &[Ray]) -> Vec<GpuRay> {
+    rays.iter()
+        .map(|r| local_ray(scene_origin, r).map_or(NEVER_TRACED, |(g, _)| g))
+        .collect()
+}
+
+/// Turns a traversal result into the public hit: maps the leaf-order triangle back to its
+/// object and file-order id, and recomputes t, u, v, position and normal in f64.
+pub fn resolve(scene: &Scene, bvh: &Bvh, ray: &Ray, found: &GpuHit) -> Result<Hit> {
+    let Some((_, dir_length)) = local_ray(bvh.origin, ray) else {
+        return Ok(Hit::INVALID);
+    };
+    let stats = Hit {
+        box_tests: found.box_tests,
+        triangle_tests: found.triangle_tests,
+        ..Hit::MISS
+    };
+    match found.prim {
+        NO_HIT => return Ok(stats),
+        CAP_REACHED => {
+            return Err(Error::Invalid(
+                "traversal reached its iteration cap: the tree's links are corrupted".into(),
+            ));
+        }
+        _ => {}
+    }
+    let scene_index = *bvh.triangle_ids.get(found.prim as usize).ok_or_else(|| {
+        Error::Invalid(format!(
+            "traversal returned triangle {} past the end",
+            found.prim
+        ))
+    })?;
+    let vertices = scene.world_triangle(scene_index as usize);
+    let exact = ray_triangle_f64(vertices, ray.origin, ray.dir);
+    let (t, u, v) =
+        if exact.t.is_finite() && exact.u.is_finite() && exact.v.is_finite() && exact.t != 0.0 {
+            (exact.t, exact.u, exact.v)
+        } else {
+            (found.t as f64 / dir_length, found.u as f64, found.v as f64)
+        };
+    let [a, b, c] = vertices;
+    let (object, triangle) = scene.locate(scene_index);
+    Ok(Hit {
+        hit: true,
+        t,
+        object,
+        triangle,
+        u,
+        v,
+        position: ray.at(t),
+        normal: (b - a).cross(c - a).normalize_or_zero(),
+        ..stats
+    })
+}

@@ -1,0 +1,320 @@
+//! The GPU picker: owns the compute pipeline and the resident scene buffers, and runs batches of
+//! any size in chunks that respect the adapter's limits.
+
+use super::context::GpuContext;
+use crate::error::{Error, Result};
+use crate::frame::local_rays;
+use crate::layout::{GpuHit, GpuNode, GpuParams, GpuRay, GpuTriangle};
+use crate::picker::{BuiltScene, Picker};
+use crate::ray::{Hit, Ray};
+use std::mem::size_of;
+use std::sync::Arc;
+use wgpu::util::DeviceExt;
+
+/// The kernel source, compiled into the binary.
+pub const PICK_WGSL: &str = include_str!("../../wgsl/pick.wgsl");
+/// Invocations per workgroup; must match `@workgroup_size` in `wgsl/pick.wgsl`.
+pub const WORKGROUP_SIZE: u32 = 64;
+/// Default most rays per dispatch, so that no single dispatch runs long.
+pub const DEFAULT_CHUNK_RAYS: u32 = 1 << 18;
+
+/// Picks on a GPU. Scene buffers stay resident; ray, hit and readback buffers are reused across
+/// calls and grow only when a larger chunk arrives.
+pub struct GpuPicker {
+    context: GpuContext,
+    built: Arc<BuiltScene>,
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    params: wgpu::Buffer,
+    nodes: wgpu::Buffer,
+    triangles: wgpu::Buffer,
+    batch: Option<BatchBuffers>,
+    chunk_rays: u32,
+}
+
+/// Per-chunk buffers, sized for `capacity` rays.
+struct BatchBuffers {
+    capacity: u32,
+    rays: wgpu::Buffer,
+    hits: wgpu::Buffer,
+    readback: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+}
+
+impl GpuPicker {
+    /// Uploads the scene and compiles the kernel. Fails with [`Error::TooLargeForGpu`] when the
+    /// tree does not fit one storage binding, and with [`Error::Gpu`] if wgpu rejects anything.
+    pub fn new(context: &GpuContext, built: Arc<BuiltScene>) -> Result<Self> {
+        let device = &context.device;
+        let limits = device.limits();
+        let max_binding = limits.max_storage_buffer_binding_size;
+        for (what, bytes) in [
+            (
+                "the tree's node buffer",
+                size_of::<GpuNode>() * built.bvh.nodes.len(),
+            ),
+            (
+                "the triangle buffer",
+                size_of::<GpuTriangle>() * built.bvh.triangles.len(),
+            ),
+        ] {
+            if bytes as u64 > max_binding {
+                return Err(Error::TooLargeForGpu {
+                    what,
+                    needed: bytes as u64,
+                    limit: max_binding,
+                });
+            }
+        }
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("pick.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(PICK_WGSL.into()),
+        });
+        let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("pick bindings"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+                storage(1, true),
+                storage(2, true),
+                storage(3, true),
+                storage(4, false),
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("pick"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("pick"),
+            layout: Some(&pipeline_layout),
+            module: &module,
+            entry_point: Some("pick"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        // Empty scenes still bind one (unused) element: bindings may not be empty.
+        let nodes = storage_init(device, "nodes", &built.bvh.nodes, GpuNode::default());
+        let triangles = storage_init(
+            device,
+            "triangles",
+            &built.bvh.triangles,
+            GpuTriangle::default(),
+        );
+        let params = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("params"),
+            size: size_of::<GpuParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let oom_error = pollster::block_on(oom.pop());
+        let validation_error = pollster::block_on(scope.pop());
+        if let Some(e) = oom_error.or(validation_error) {
+            return Err(Error::Gpu(e.to_string()));
+        }
+        context.take_fault()?;
+        let by_binding = (max_binding / size_of::<GpuRay>() as u64).min(u32::MAX as u64) as u32;
+        Ok(Self {
+            context: context.clone(),
+            built,
+            pipeline,
+            layout,
+            params,
+            nodes,
+            triangles,
+            batch: None,
+            chunk_rays: DEFAULT_CHUNK_RAYS.min(by_binding),
+        })
+    }
+
+    /// Sets the most rays per dispatch (at least 1; capped by the storage binding limit).
+    pub fn set_chunk_rays(&mut self, rays: u32) {
+        let max_binding = self.context.device.limits().max_storage_buffer_binding_size;
+        let by_binding = (max_binding / size_of::<GpuRay>() as u64).min(u32::MAX as u64) as u32;
+        self.chunk_rays = rays.clamp(1, by_binding);
+    }
+
+    /// The scene this picker holds.
+    pub fn built(&self) -> &Arc<BuiltScene> {
+        &self.built
+    }
+
+    /// The device this picker runs on.
+    pub fn context(&self) -> &GpuContext {
+        &self.context
+    }
+
+    /// Runs the kernel over kernel-frame rays and returns the raw traversal results.
+    pub fn trace(&mut self, rays: &[GpuRay]) -> Result<Vec<GpuHit>> {
+        let mut out = Vec::with_capacity(rays.len());
+        for chunk in rays.chunks(self.chunk_rays as usize) {
+            self.trace_chunk(chunk, &mut out)?;
+        }
+        Ok(out)
+    }
+
+    fn trace_chunk(&mut self, rays: &[GpuRay], out: &mut Vec<GpuHit>) -> Result<()> {
+        let count = rays.len() as u32;
+        self.ensure_capacity(count);
+        let device = &self.context.device;
+        let queue = &self.context.queue;
+        let batch = self
+            .batch
+            .as_ref()
+            .expect("ensure_capacity allocates the batch buffers");
+        let groups = count.div_ceil(WORKGROUP_SIZE);
+        let max_groups = device.limits().max_compute_workgroups_per_dimension.max(1);
+        let groups_x = groups.min(max_groups);
+        let groups_y = groups.div_ceil(groups_x);
+        let params = GpuParams {
+            ray_count: count,
+            node_count: self.built.bvh.nodes.len() as u32,
+            iteration_cap: self.built.bvh.iteration_cap(),
+            row_pitch: groups_x * WORKGROUP_SIZE,
+        };
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
+        queue.write_buffer(&batch.rays, 0, bytemuck::cast_slice(rays));
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("pick"),
+        });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("pick"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &batch.bind_group, &[]);
+            pass.dispatch_workgroups(groups_x, groups_y, 1);
+        }
+        let bytes = (rays.len() * size_of::<GpuHit>()) as u64;
+        encoder.copy_buffer_to_buffer(&batch.hits, 0, &batch.readback, 0, bytes);
+        let submission = queue.submit([encoder.finish()]);
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(Error::Gpu(e.to_string()));
+        }
+        let slice = batch.readback.slice(..bytes);
+        let (sender, receiver) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = sender.send(r);
+        });
+        device
+            .poll(wgpu::PollType::Wait {
+                submission_index: Some(submission),
+                timeout: None,
+            })
+            .map_err(|e| Error::Gpu(e.to_string()))?;
+        self.context.take_fault()?;
+        match receiver.recv() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => return Err(Error::Gpu(format!("reading results back failed: {e}"))),
+            Err(_) => return Err(Error::Gpu("reading results back was abandoned".into())),
+        }
+        {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| Error::Gpu(format!("reading results back failed: {e}")))?;
+            out.extend_from_slice(bytemuck::cast_slice(&view));
+        }
+        batch.readback.unmap();
+        Ok(())
+    }
+
+    /// Grows the per-chunk buffers to hold `rays` rays (never shrinks).
+    fn ensure_capacity(&mut self, rays: u32) {
+        if self.batch.as_ref().is_some_and(|b| b.capacity >= rays) {
+            return;
+        }
+        let capacity = rays.next_power_of_two().min(self.chunk_rays).max(rays);
+        let device = &self.context.device;
+        let buffer = |label, size: usize, usage| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: (size * capacity as usize) as u64,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        use wgpu::BufferUsages as U;
+        let rays_buffer = buffer("rays", size_of::<GpuRay>(), U::STORAGE | U::COPY_DST);
+        let hits = buffer("hits", size_of::<GpuHit>(), U::STORAGE | U::COPY_SRC);
+        let readback = buffer("readback", size_of::<GpuHit>(), U::MAP_READ | U::COPY_DST);
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("pick"),
+            layout: &self.layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: self.params.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: self.nodes.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: self.triangles.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: rays_buffer.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: hits.as_entire_binding(),
+                },
+            ],
+        });
+        self.batch = Some(BatchBuffers {
+            capacity,
+            rays: rays_buffer,
+            hits,
+            readback,
+            bind_group,
+        });
+    }
+}
+
+impl Picker for GpuPicker {
+    fn pick(&mut self, rays: &[Ray]) -> Result<Vec<Hit>> {
+        let local = local_rays(self.built.bvh.origin, rays);
+        let found = self.trace(&local)?;
+        self.built.resolve_all(rays, &found)
+    }
+}
+
+fn storage_init<T: bytemuck::Pod>(
+    device: &wgpu::Device,
+    label: &str,
+    data: &[T],
+    filler: T,
+) -> wgpu::Buffer {
+    let filler = [filler];
+    let contents: &[T] = if data.is_empty() { &filler } else { data };
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some(label),
+        contents: bytemuck::cast_slice(contents),
+        usage: wgpu::BufferUsages::STORAGE,
+    })
+}

@@ -1,0 +1,5 @@
+//! Reading scenes and rays from files, and writing hits out.
+
+pub mod obj;
+pub mod output;
+pub mod ray_file;

@@ -1,0 +1,203 @@
+//! Reading ray files: one ray per line, `ox oy oz dx dy dz [tmax]`.
+//!
+//! Numbers are whitespace separated, `#` starts a comment anywhere on a line
+//! and blank lines are skipped. The parser accepts any value Rust parses as
+//! an `f64`, including `nan` and `inf`: deciding what such rays mean (they
+//! come back flagged invalid) is the picker's job, not the reader's.
+
+use std::path::Path;
+
+use glam::DVec3;
+
+use crate::error::Error;
+
+/// One ray read from a ray file.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RayLine {
+    /// The ray's origin `(ox, oy, oz)`.
+    pub origin: DVec3,
+    /// The ray's direction `(dx, dy, dz)`, as written (not normalized).
+    pub dir: DVec3,
+    /// The optional seventh number: the largest ray parameter to accept
+    /// (`inf` is allowed and means unbounded).
+    pub tmax: Option<f64>,
+}
+
+/// Parses the text of a ray file; `path` is only used in error messages.
+///
+/// A line with fewer than 6 or more than 7 numbers, or with a token that is
+/// not a number, is an [`Error::Parse`] naming `path` and the 1-based line.
+pub fn parse_rays(path: &str, text: &str) -> Result<Vec<RayLine>, Error> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let mut rays = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let error = |message: String| Error::Parse {
+            path: path.to_owned(),
+            line: Some(i + 1),
+            message,
+        };
+        let content = raw.split('#').next().unwrap_or_default();
+        let mut values = [0.0f64; 7];
+        let mut count = 0usize;
+        for token in content.split_whitespace() {
+            let value: f64 = token
+                .parse()
+                .map_err(|_| error(format!("'{token}' is not a number")))?;
+            if let Some(slot) = values.get_mut(count) {
+                *slot = value;
+            }
+            count += 1;
+        }
+        match count {
+            0 => {}
+            6 | 7 => rays.push(RayLine {
+                origin: DVec3::new(values[0], values[1], values[2]),
+                dir: DVec3::new(values[3], values[4], values[5]),
+                tmax: (count == 7).then_some(values[6]),
+            }),
+            _ => {
+                return Err(error(format!(
+                    "expected 6 or 7 numbers (ox oy oz dx dy dz [tmax]), found {count}"
+                )));
+            }
+        }
+    }
+    Ok(rays)
+}
+
+/// Reads and parses the ray file at `path` (see [`parse_rays`]).
+pub fn load_rays(path: &Path) -> Result<Vec<RayLine>, Error> {
+    let name = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|source| Error::Io {
+        path: name.clone(),
+        source,
+    })?;
+    let text = std::str::from_utf8(&bytes).map_err(|e| {
+        let valid = bytes.get(..e.valid_up_to()).unwrap_or_default();
+        Error::Parse {
+            path: name.clone(),
+            line: Some(1 + valid.iter().filter(|&&b| b == b'\n').count()),
+            message: "the file is not valid UTF-8 text".to_owned(),
+        }
+    })?;
+    parse_rays(&name, text)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse_err(result: Result<Vec<RayLine>, Error>) -> (String, Option<usize>, String) {
+        match result {
+            Err(Error::Parse {
+                path,
+                line,
+                message,
+            }) => (path, line, message),
+            other => panic!("expected a parse error, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn six_and_seven_numbers() {
+        let rays = parse_rays("r.txt", "0 0 -5 0 0 1\n1 2 3\t4 5 6 7.5\n").unwrap();
+        assert_eq!(
+            rays,
+            vec![
+                RayLine {
+                    origin: DVec3::new(0.0, 0.0, -5.0),
+                    dir: DVec3::Z,
+                    tmax: None,
+                },
+                RayLine {
+                    origin: DVec3::new(1.0, 2.0, 3.0),
+                    dir: DVec3::new(4.0, 5.0, 6.0),
+                    tmax: Some(7.5),
+                },
+            ]
+        );
+    }
+
+    #[test]
+    fn comments_and_blank_lines_are_skipped() {
+        let text = "# header\n\n   \n0 0 0 1 0 0 # trailing\n0 0 0 0 1 0 2#glued\n  # indented\n";
+        let rays = parse_rays("r.txt", text).unwrap();
+        assert_eq!(rays.len(), 2);
+        assert_eq!(rays[0].dir, DVec3::X);
+        assert_eq!(rays[1].tmax, Some(2.0));
+    }
+
+    #[test]
+    fn crlf_and_empty_input() {
+        assert!(parse_rays("r.txt", "").unwrap().is_empty());
+        let rays = parse_rays("r.txt", "0 0 0 1 0 0\r\n0 0 0 0 0 1 3\r\n").unwrap();
+        assert_eq!(rays.len(), 2);
+        assert_eq!(rays[1].tmax, Some(3.0));
+    }
+
+    #[test]
+    fn too_few_numbers() {
+        let text = "0 0 0 1 0 0\n# c\n1 2 3 4 5\n";
+        let (path, line, message) = parse_err(parse_rays("rays.txt", text));
+        assert_eq!((path.as_str(), line), ("rays.txt", Some(3)));
+        assert_eq!(
+            message,
+            "expected 6 or 7 numbers (ox oy oz dx dy dz [tmax]), found 5"
+        );
+        let err = parse_rays("rays.txt", text).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "rays.txt:3: expected 6 or 7 numbers (ox oy oz dx dy dz [tmax]), found 5"
+        );
+    }
+
+    #[test]
+    fn too_many_numbers() {
+        let (_, line, message) = parse_err(parse_rays("r.txt", "1 2 3 4 5 6 7 8\n"));
+        assert_eq!(line, Some(1));
+        assert!(message.ends_with("found 8"), "{message}");
+    }
+
+    #[test]
+    fn bad_token_is_named() {
+        let (_, line, message) = parse_err(parse_rays("r.txt", "\n0 0 0 1 0 0\n0 0 x 1 0 0\n"));
+        assert_eq!(line, Some(3));
+        assert_eq!(message, "'x' is not a number");
+        let (_, _, message) = parse_err(parse_rays("r.txt", "0 0 0 1 0 0 1,5\n"));
+        assert_eq!(message, "'1,5' is not a number");
+    }
+
+    #[test]
+    fn nan_and_inf_are_accepted() {
+        let rays = parse_rays(
+            "r.txt",
+            "nan 0 0 inf -inf 0\n0 0 0 1 0 0 inf\n0 0 0 1 0 0 NaN\n",
+        )
+        .unwrap();
+        assert!(rays[0].origin.x.is_nan());
+        assert_eq!(rays[0].dir.x, f64::INFINITY);
+        assert_eq!(rays[0].dir.y, f64::NEG_INFINITY);
+        assert_eq!(rays[1].tmax, Some(f64::INFINITY));
+        assert!(rays[2].tmax.is_some_and(f64::is_nan));
+    }
+
+    #[test]
+    fn load_rays_reads_a_file() {
+        let path =
+            std::env::temp_dir().join(format!("raypick-rays-test-{}.txt", std::process::id()));
+        std::fs::write(&path, "0 0 0 1 0 0 # r\n0 0\n").unwrap();
+        let result = load_rays(&path);
+        let _ = std::fs::remove_file(&path);
+        let (name, line, _) = parse_err(result);
+        assert_eq!(name, path.display().to_string());
+        assert_eq!(line, Some(2));
+    }
+
+    #[test]
+    fn missing_file_names_the_path() {
+        let path = std::env::temp_dir().join("raypick-rays-test-does-not-exist.txt");
+        let err = load_rays(&path).unwrap_err();
+        assert!(matches!(err, Error::Io { .. }));
+        assert!(err.to_string().contains(&path.display().to_string()));
+    }
+}

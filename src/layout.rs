@@ -1,0 +1,188 @@
+//! The byte layouts shared by the host and `wgsl/pick.wgsl`.
+//!
+//! These `#[repr(C)]` Pod structs are the only way bytes reach the GPU. Each one has a WGSL twin
+//! with the same name; the asserts below pin sizes and offsets at compile time, and
+//! `tests/layout.rs` parses the shader with naga and checks the WGSL side against the same numbers.
+
+use bytemuck::{Pod, Zeroable};
+use std::mem::{offset_of, size_of};
+
+/// Node kinds `0..=MAX_LEAF_SIZE` are leaves holding that many triangles; `KIND_INNER + axis` is an
+/// inner node split along `axis` (0 = x, 1 = y, 2 = z).
+pub const KIND_INNER: u32 = 16;
+/// The largest leaf the node encoding can hold.
+pub const MAX_LEAF_SIZE: u32 = 15;
+/// Bits of `parent_kind` that hold the kind; the parent index sits above them.
+pub const KIND_BITS: u32 = 5;
+/// The largest node index that still fits beside the kind bits.
+pub const MAX_NODES: u32 = u32::MAX >> KIND_BITS;
+/// `GpuHit::prim` of a ray that hit nothing.
+pub const NO_HIT: u32 = u32::MAX;
+/// `GpuHit::prim` of a ray whose traversal reached its iteration cap (a corrupted tree).
+pub const CAP_REACHED: u32 = u32::MAX - 1;
+
+/// One node of the flattened median-cut tree, in depth-first order.
+///
+/// An inner node's left child is the next node (`index + 1`); its right child is `first`.
+/// A leaf's triangles are `first .. first + kind` in the triangle buffer. The root is node 0 and
+/// is its own parent.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuNode {
+    /// Box minimum corner, in scene-local f32 coordinates.
+    pub min: [f32; 3],
+    /// `parent << KIND_BITS | kind`.
+    pub parent_kind: u32,
+    /// Box maximum corner.
+    pub max: [f32; 3],
+    /// Right child (inner node) or first triangle (leaf).
+    pub first: u32,
+}
+
+/// One triangle, its three vertices as f32 offsets from the scene origin, in leaf order.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuTriangle {
+    /// First vertex.
+    pub v0: [f32; 3],
+    /// Second vertex.
+    pub v1: [f32; 3],
+    /// Third vertex.
+    pub v2: [f32; 3],
+}
+
+/// One ray as the kernel sees it: scene-local origin, unit direction and the (tmin, tmax] range in
+/// that unit-direction parameter.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuRay {
+    /// Origin, relative to the scene origin.
+    pub origin: [f32; 3],
+    /// Hits must have t > tmin.
+    pub tmin: f32,
+    /// Unit direction.
+    pub dir: [f32; 3],
+    /// Hits must have t <= tmax. A ray with tmax < tmin is never tested (invalid rays).
+    pub tmax: f32,
+}
+
+/// What traversal found for one ray: the nearest triangle (leaf order) and the work it took.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuHit {
+    /// Ray parameter of the hit, along the unit direction.
+    pub t: f32,
+    /// Index into the leaf-ordered triangle buffer, or `NO_HIT` / `CAP_REACHED`.
+    pub prim: u32,
+    /// Barycentric u (weight of v1).
+    pub u: f32,
+    /// Barycentric v (weight of v2).
+    pub v: f32,
+    /// Ray/box tests made (the paper's b).
+    pub box_tests: u32,
+    /// Ray/triangle tests made (the paper's i).
+    pub triangle_tests: u32,
+}
+
+/// Per-dispatch constants.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuParams {
+    /// Rays in this dispatch.
+    pub ray_count: u32,
+    /// Nodes in the tree (0 for an empty scene).
+    pub node_count: u32,
+    /// Loop iterations after which traversal gives up with `CAP_REACHED`.
+    pub iteration_cap: u32,
+    /// Rays per row of the 2D dispatch grid (workgroups in x times the workgroup size).
+    pub row_pitch: u32,
+}
+
+/// Expected `(size, [(member, offset)])` of each shared struct; `tests/layout.rs` checks the WGSL.
+pub const SHARED_LAYOUTS: &[(&str, usize, &[(&str, usize)])] = &[
+    (
+        "GpuNode",
+        size_of::<GpuNode>(),
+        &[
+            ("min", offset_of!(GpuNode, min)),
+            ("parent_kind", offset_of!(GpuNode, parent_kind)),
+            ("max", offset_of!(GpuNode, max)),
+            ("first", offset_of!(GpuNode, first)),
+        ],
+    ),
+    (
+        "GpuTriangle",
+        size_of::<GpuTriangle>(),
+        &[
+            ("v0", offset_of!(GpuTriangle, v0)),
+            ("v1", offset_of!(GpuTriangle, v1)),
+            ("v2", offset_of!(GpuTriangle, v2)),
+        ],
+    ),
+    (
+        "GpuRay",
+        size_of::<GpuRay>(),
+        &[
+            ("origin", offset_of!(GpuRay, origin)),
+            ("tmin", offset_of!(GpuRay, tmin)),
+            ("dir", offset_of!(GpuRay, dir)),
+            ("tmax", offset_of!(GpuRay, tmax)),
+        ],
+    ),
+    (
+        "GpuHit",
+        size_of::<GpuHit>(),
+        &[
+            ("t", offset_of!(GpuHit, t)),
+            ("prim", offset_of!(GpuHit, prim)),
+            ("u", offset_of!(GpuHit, u)),
+            ("v", offset_of!(GpuHit, v)),
+            ("box_tests", offset_of!(GpuHit, box_tests)),
+            ("triangle_tests", offset_of!(GpuHit, triangle_tests)),
+        ],
+    ),
+    (
+        "GpuParams",
+        size_of::<GpuParams>(),
+        &[
+            ("ray_count", offset_of!(GpuParams, ray_count)),
+            ("node_count", offset_of!(GpuParams, node_count)),
+            ("iteration_cap", offset_of!(GpuParams, iteration_cap)),
+            ("row_pitch", offset_of!(GpuParams, row_pitch)),
+        ],
+    ),
+];
+
+const _: () = {
+    assert!(size_of::<GpuNode>() == 32);
+    assert!(offset_of!(GpuNode, parent_kind) == 12);
+    assert!(offset_of!(GpuNode, max) == 16);
+    assert!(offset_of!(GpuNode, first) == 28);
+    assert!(size_of::<GpuTriangle>() == 36);
+    assert!(offset_of!(GpuTriangle, v1) == 12);
+    assert!(offset_of!(GpuTriangle, v2) == 24);
+    assert!(size_of::<GpuRay>() == 32);
+    assert!(offset_of!(GpuRay, tmin) == 12);
+    assert!(offset_of!(GpuRay, dir) == 16);
+    assert!(offset_of!(GpuRay, tmax) == 28);
+    assert!(size_of::<GpuHit>() == 24);
+    assert!(offset_of!(GpuHit, box_tests) == 16);
+    assert!(size_of::<GpuParams>() == 16);
+    assert!(MAX_LEAF_SIZE < KIND_INNER);
+    assert!(KIND_INNER + 2 < (1 << KIND_BITS));
+};
+
+impl GpuNode {
+    /// The node's kind field: a leaf's triangle count, or `KIND_INNER + axis`.
+    pub fn kind(&self) -> u32 {
+        self.parent_kind & ((1 << KIND_BITS) - 1)
+    }
+    /// Index of the parent node (the root is its own parent).
+    pub fn parent(&self) -> u32 {
+        self.parent_kind >> KIND_BITS
+    }
+    /// Whether this node is a leaf.
+    pub fn is_leaf(&self) -> bool {
+        self.kind() < KIND_INNER
+    }
+}

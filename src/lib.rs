@@ -1,0 +1,43 @@
+//! # raypick
+//!
+//! Exact, fast answers to "what is under this pixel?" for 3D scenes: a median-cut bounding
+//! volume hierarchy, a stackless WGSL compute kernel for batches of pick rays, and a CPU path
+//! that runs the same traversal over the same buffers.
+//!
+//! ```
+//! use std::sync::Arc;
+//! use raypick::{BuildOptions, BuiltScene, CpuPicker, Picker, Ray, synthetic};
+//! use glam::DVec3;
+//!
+//! let scene = synthetic::example_scene();
+//! let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
+//! let mut picker = CpuPicker::new(built);
+//! let hits = picker.pick(&[Ray::new(DVec3::new(34.0, 44.0, 100.0), DVec3::NEG_Z)]).unwrap();
+//! assert!(hits[0].hit);
+//! assert_eq!(hits[0].object, 1); // the tower
+//! ```
+//!
+//! Data flow: [`Scene`] -> [`bvh::median_cut`] -> [`Bvh`] (flat buffers, [`layout`]) ->
+//! [`gpu::GpuPicker`] (`wgsl/pick.wgsl`) or [`CpuPicker`] ([`cpu::traverse`]) ->
+//! [`frame::resolve`] (f64 refinement) -> [`Hit`].
+
+pub mod bvh;
+pub mod compare;
+pub mod cpu;
+pub mod error;
+pub mod frame;
+pub mod gpu;
+pub mod io;
+pub mod layout;
+pub mod oracle;
+pub mod picker;
+pub mod ray;
+pub mod scene;
+pub mod synthetic;
+
+pub use bvh::{BuildOptions, Bvh, SplitAxis};
+pub use error::{Error, Result};
+pub use gpu::{GpuContext, GpuPicker};
+pub use picker::{Backend, BuiltScene, CpuPicker, Picker};
+pub use ray::{Hit, Ray};
+pub use scene::{Mesh, Scene};

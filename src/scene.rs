@@ -1,0 +1,162 @@
+//! The scene model: objects made of triangles, exact f64 world positions, and the f64 origin
+//! that the f32 traversal geometry is measured from.
+
+use crate::error::{Error, Result};
+use glam::DVec3;
+
+/// A triangle mesh as loaded from a file: world positions in f64 and triangles indexing them.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Mesh {
+    /// Vertex positions in world coordinates.
+    pub positions: Vec<DVec3>,
+    /// Triangles as indices into `positions`, in file order.
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// One pickable entity: a contiguous run of the scene's triangles.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Object {
+    /// The id reported in hits (the object's position in the scene, e.g. its file's index on the
+    /// command line).
+    pub id: u32,
+    /// A name for messages, such as the file it came from.
+    pub name: String,
+    /// Index of the object's first triangle in the scene's triangle list.
+    pub first_triangle: u32,
+    /// Number of triangles; local triangle ids are `0..triangle_count`, in file order.
+    pub triangle_count: u32,
+}
+
+/// A set of objects ready to be built into a tree.
+///
+/// World positions are kept in f64 so hits can be refined exactly; the traversal works on f32
+/// offsets from [`Scene::origin`], the centre of the scene's bounds.
+#[derive(Clone, Debug, Default)]
+pub struct Scene {
+    positions: Vec<DVec3>,
+    triangles: Vec<[u32; 3]>,
+    objects: Vec<Object>,
+    bounds_min: DVec3,
+    bounds_max: DVec3,
+}
+
+impl Scene {
+    /// An empty scene: every ray misses it.
+    pub fn new() -> Self {
+        Self {
+            bounds_min: DVec3::INFINITY,
+            bounds_max: DVec3::NEG_INFINITY,
+            ..Self::default()
+        }
+    }
+
+    /// Builds a scene with one object per mesh; object ids are the meshes' positions in `meshes`.
+    pub fn from_meshes(meshes: impl IntoIterator<Item = (String, Mesh)>) -> Result<Self> {
+        let mut scene = Self::new();
+        for (name, mesh) in meshes {
+            scene.add_mesh(name, mesh)?;
+        }
+        Ok(scene)
+    }
+
+    /// Appends a mesh as a new object and returns its id. Fails, naming the object, on an index
+    /// out of range or a non-finite coordinate.
+    pub fn add_mesh(&mut self, name: impl Into<String>, mesh: Mesh) -> Result<u32> {
+        let name = name.into();
+        let id = u32::try_from(self.objects.len())
+            .map_err(|_| Error::Invalid(format!("{name}: too many objects")))?;
+        if let Some((i, p)) = mesh
+            .positions
+            .iter()
+            .enumerate()
+            .find(|(_, p)| !p.is_finite())
+        {
+            return Err(Error::Invalid(format!(
+                "{name}: vertex {i} has a non-finite coordinate {p}"
+            )));
+        }
+        let vertex_base = self.positions.len();
+        let first_triangle = self.triangles.len();
+        let total = vertex_base + mesh.positions.len();
+        if u32::try_from(total).is_err()
+            || u32::try_from(first_triangle + mesh.triangles.len()).is_err()
+        {
+            return Err(Error::Invalid(format!(
+                "{name}: the scene would exceed 2^32 vertices or triangles"
+            )));
+        }
+        for (t, tri) in mesh.triangles.iter().enumerate() {
+            if let Some(&bad) = tri.iter().find(|&&i| i as usize >= mesh.positions.len()) {
+                return Err(Error::Invalid(format!(
+                    "{name}: triangle {t} uses vertex {bad}, but the mesh has {} vertices",
+                    mesh.positions.len()
+                )));
+            }
+        }
+        for p in &mesh.positions {
+            self.bounds_min = self.bounds_min.min(*p);
+            self.bounds_max = self.bounds_max.max(*p);
+        }
+        let base = vertex_base as u32;
+        self.positions.extend_from_slice(&mesh.positions);
+        self.triangles
+            .extend(mesh.triangles.iter().map(|t| t.map(|i| i + base)));
+        self.objects.push(Object {
+            id,
+            name,
+            first_triangle: first_triangle as u32,
+            triangle_count: mesh.triangles.len() as u32,
+        });
+        Ok(id)
+    }
+
+    /// The objects, in id order.
+    pub fn objects(&self) -> &[Object] {
+        &self.objects
+    }
+
+    /// Number of triangles over all objects.
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// World-space bounds `(min, max)`, or `None` for a scene without vertices.
+    pub fn bounds(&self) -> Option<(DVec3, DVec3)> {
+        (self.bounds_min.x <= self.bounds_max.x).then_some((self.bounds_min, self.bounds_max))
+    }
+
+    /// The f64 point that f32 traversal coordinates are offsets from: the centre of the bounds.
+    pub fn origin(&self) -> DVec3 {
+        self.bounds()
+            .map_or(DVec3::ZERO, |(lo, hi)| lo + (hi - lo) * 0.5)
+    }
+
+    /// The three world-space vertices of scene triangle `index`.
+    pub fn world_triangle(&self, index: usize) -> [DVec3; 3] {
+        self.triangles[index].map(|i| self.positions[i as usize])
+    }
+
+    /// Maps a scene triangle index to `(object id, triangle id within the object)`.
+    pub fn locate(&self, index: u32) -> (u32, u32) {
+        let k = self
+            .objects
+            .partition_point(|o| o.first_triangle <= index)
+            .saturating_sub(1);
+        let object = &self.objects[k];
+        (object.id, index - object.first_triangle)
+    }
+
+    /// Whether scene triangle `index` has exactly zero area in f64 (such triangles are never hit).
+    pub fn is_degenerate(&self, index: usize) -> bool {
+        let [a, b, c] = self.world_triangle(index);
+        (b - a).cross(c - a) == DVec3::ZERO
+    }
+}
+
+impl Scene {
+    /// The scene triangle index of `(object id, triangle id within the object)`.
+    pub fn global_index(&self, object: u32, triangle: u32) -> Option<usize> {
+        let o = self.objects.get(object as usize)?;
+        (triangle < o.triangle_count).then_some((o.first_triangle + triangle) as usize)
+    }
+}

@@ -1,0 +1,335 @@
+//! Synthetic scenes and ray sets, seeded so every run replays: the built-in example scene, the
+//! test scenes, and the ray kinds `raypick verify` and the tests check.
+
+use crate::ray::Ray;
+use crate::scene::{Mesh, Scene};
+use glam::DVec3;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use std::f64::consts::TAU;
+
+/// A seeded random generator.
+pub fn rng(seed: u64) -> Pcg64 {
+    Pcg64::seed_from_u64(seed)
+}
+
+/// A height-grid terrain of `cols × rows` samples spaced `cell` apart, sample (r, c) at
+/// `x = x0 + c·cell`, `y = y0 − r·cell` (row 0 north), `z = height(x, y)`. Quad (r, c) becomes
+/// triangles 2k = (NW, SW, SE) and 2k+1 = (NW, SE, NE), k = r·(cols−1) + c.
+pub fn terrain(
+    cols: usize,
+    rows: usize,
+    x0: f64,
+    y0: f64,
+    cell: f64,
+    height: impl Fn(f64, f64) -> f64,
+) -> Mesh {
+    let mut positions = Vec::with_capacity(cols * rows);
+    for r in 0..rows {
+        for c in 0..cols {
+            let (x, y) = (x0 + c as f64 * cell, y0 - r as f64 * cell);
+            positions.push(DVec3::new(x, y, height(x, y)));
+        }
+    }
+    let mut triangles = Vec::with_capacity(2 * cols.saturating_sub(1) * rows.saturating_sub(1));
+    for r in 0..rows.saturating_sub(1) {
+        for c in 0..cols.saturating_sub(1) {
+            let nw = (r * cols + c) as u32;
+            let (ne, sw, se) = (nw + 1, nw + cols as u32, nw + cols as u32 + 1);
+            triangles.push([nw, sw, se]);
+            triangles.push([nw, se, ne]);
+        }
+    }
+    Mesh {
+        positions,
+        triangles,
+    }
+}
+
+/// Rolling hills, for terrains and the example scene.
+pub fn hills(x: f64, y: f64) -> f64 {
+    8.0 * (x * 0.05).sin() * (y * 0.07).cos() + 3.0 * (x * 0.21 + y * 0.13).sin()
+}
+
+/// `count` random triangles with corners in a `size`-wide cube, edges up to `size / 10`.
+pub fn triangle_soup(count: usize, size: f64, seed: u64) -> Mesh {
+    let mut rng = rng(seed);
+    let mut positions = Vec::with_capacity(3 * count);
+    for _ in 0..count {
+        let centre = DVec3::new(rng.random(), rng.random(), rng.random()) * size;
+        for _ in 0..3 {
+            let offset = DVec3::new(rng.random(), rng.random(), rng.random()) - 0.5;
+            positions.push(centre + offset * (size / 10.0));
+        }
+    }
+    let triangles = (0..count as u32)
+        .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
+        .collect();
+    Mesh {
+        positions,
+        triangles,
+    }
+}
+
+/// Thin slivers, zero-area triangles (repeated and collinear vertices) and ordinary ones mixed.
+pub fn thin_and_degenerate(seed: u64) -> Mesh {
+    let mut rng = rng(seed);
+    let mut mesh = Mesh::default();
+    for i in 0..200 {
+        // Integer corners keep the collinear case exactly collinear in f64.
+        let base = DVec3::new(
+            rng.random_range(0..10) as f64,
+            rng.random_range(0..10) as f64,
+            rng.random_range(0..10) as f64,
+        );
+        let along = DVec3::new(
+            rng.random_range(1..4) as f64,
+            rng.random_range(-3..4) as f64,
+            rng.random_range(-3..4) as f64,
+        );
+        let across = DVec3::new(rng.random(), rng.random(), rng.random()) - 0.5;
+        let corners = match i % 4 {
+            0 => [base, base + along, base + along * 2.0], // collinear: zero area
+            1 => [base, base, base + across],              // repeated vertex: zero area
+            2 => [base, base + along * 3.0, base + along * 1.5 + across * 1e-4], // sliver
+            _ => [base, base + along, base + across],      // ordinary
+        };
+        let first = mesh.positions.len() as u32;
+        mesh.positions.extend(corners);
+        mesh.triangles.push([first, first + 1, first + 2]);
+    }
+    mesh
+}
+
+/// One triangle.
+pub fn single_triangle() -> Mesh {
+    Mesh {
+        positions: vec![
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(1.0, 0.0, 0.0),
+            DVec3::new(0.0, 1.0, 0.0),
+        ],
+        triangles: vec![[0, 1, 2]],
+    }
+}
+
+/// The built-in example scene: a 96 × 96 terrain (object 0) with two box "buildings" on it
+/// (objects 1 and 2).
+pub fn example_scene() -> Scene {
+    let ground = terrain(96, 96, 0.0, 95.0, 1.0, hills);
+    let building = |x: f64, y: f64, w: f64, h: f64| {
+        let z0 = hills(x, y) - 2.0;
+        let lo = DVec3::new(x, y, z0);
+        let hi = DVec3::new(x + w, y + w, z0 + h);
+        box_mesh(lo, hi)
+    };
+    Scene::from_meshes([
+        ("terrain".to_string(), ground),
+        ("tower".to_string(), building(30.0, 40.0, 8.0, 30.0)),
+        ("hall".to_string(), building(60.0, 55.0, 14.0, 12.0)),
+    ])
+    .expect("the example scene is well formed")
+}
+
+/// A closed axis-aligned box as 12 outward-facing triangles.
+pub fn box_mesh(lo: DVec3, hi: DVec3) -> Mesh {
+    let positions = (0..8)
+        .map(|i| {
+            DVec3::new(
+                [lo.x, hi.x][i & 1],
+                [lo.y, hi.y][(i >> 1) & 1],
+                [lo.z, hi.z][(i >> 2) & 1],
+            )
+        })
+        .collect();
+    let quads = [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ];
+    let triangles = quads
+        .iter()
+        .flat_map(|&[a, b, c, d]| [[a, b, c], [a, c, d]])
+        .collect();
+    Mesh {
+        positions,
+        triangles,
+    }
+}
+
+/// The kinds of ray the equivalence checks cover.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum RayKind {
+    /// A pinhole camera's pixel grid looking at the scene.
+    Camera,
+    /// Random origins around the scene, random directions.
+    Random,
+    /// Aimed exactly at triangle vertices.
+    Vertex,
+    /// Aimed exactly at edge midpoints.
+    EdgeMidpoint,
+    /// Nearly parallel to the triangle they are aimed at (0.2° to 3°).
+    Grazing,
+    /// Along ±x, ±y or ±z, so two direction components are zero.
+    AxisParallel,
+    /// Starting inside the scene's bounds.
+    InsideBox,
+    /// Aimed at a triangle with `tmax` cutting off before or after it.
+    TmaxCutoff,
+}
+
+impl RayKind {
+    /// Every kind, in report order.
+    pub const ALL: [RayKind; 8] = [
+        RayKind::Camera,
+        RayKind::Random,
+        RayKind::Vertex,
+        RayKind::EdgeMidpoint,
+        RayKind::Grazing,
+        RayKind::AxisParallel,
+        RayKind::InsideBox,
+        RayKind::TmaxCutoff,
+    ];
+
+    /// A short lowercase name for reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            RayKind::Camera => "camera",
+            RayKind::Random => "random",
+            RayKind::Vertex => "vertex",
+            RayKind::EdgeMidpoint => "edge-midpoint",
+            RayKind::Grazing => "grazing",
+            RayKind::AxisParallel => "axis-parallel",
+            RayKind::InsideBox => "inside-box",
+            RayKind::TmaxCutoff => "tmax-cutoff",
+        }
+    }
+}
+
+/// `count` rays of `kind` for `scene`, from `seed`.
+pub fn rays(scene: &Scene, kind: RayKind, count: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = rng(seed ^ (kind as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let (lo, hi) = scene.bounds().unwrap_or((DVec3::ZERO, DVec3::ONE));
+    let centre = (lo + hi) * 0.5;
+    let radius = ((hi - lo).length() * 0.5).max(1e-3);
+    let in_box = |rng: &mut Pcg64, grow: f64| {
+        let f = DVec3::new(rng.random(), rng.random(), rng.random());
+        centre + (lo - centre + (hi - lo) * f) * grow
+    };
+    let triangles = scene.triangle_count();
+    let random_triangle = |rng: &mut Pcg64| {
+        scene.world_triangle(rng.random_range(0..triangles.max(1)).min(triangles - 1))
+    };
+    let around = |rng: &mut Pcg64| centre + unit_vector(rng) * radius * 2.0;
+    if triangles == 0
+        && matches!(
+            kind,
+            RayKind::Vertex | RayKind::EdgeMidpoint | RayKind::Grazing | RayKind::TmaxCutoff
+        )
+    {
+        return rays(scene, RayKind::Random, count, seed);
+    }
+    match kind {
+        RayKind::Camera => {
+            let side = (count as f64).sqrt().ceil().max(1.0) as usize;
+            let eye = centre + DVec3::new(0.6, -1.5, 1.1).normalize() * radius * 2.5;
+            let forward = (centre - eye).normalize();
+            let right = forward.cross(DVec3::Z).normalize();
+            let up = right.cross(forward);
+            let half = (30f64.to_radians()).tan();
+            (0..count)
+                .map(|i| {
+                    let (px, py) = ((i % side) as f64 + 0.5, (i / side) as f64 + 0.5);
+                    let sx = (2.0 * px / side as f64 - 1.0) * half;
+                    let sy = (1.0 - 2.0 * py / side as f64) * half;
+                    Ray::new(eye, forward + right * sx + up * sy)
+                })
+                .collect()
+        }
+        RayKind::Random => (0..count)
+            .map(|_| Ray::new(in_box(&mut rng, 1.5), unit_vector(&mut rng)))
+            .collect(),
+        RayKind::Vertex => (0..count)
+            .map(|_| {
+                let target = random_triangle(&mut rng)[rng.random_range(0..3)];
+                let origin = around(&mut rng);
+                Ray::new(origin, target - origin)
+            })
+            .collect(),
+        RayKind::EdgeMidpoint => (0..count)
+            .map(|_| {
+                let t = random_triangle(&mut rng);
+                let k = rng.random_range(0..3);
+                let target = (t[k] + t[(k + 1) % 3]) * 0.5;
+                let origin = around(&mut rng);
+                Ray::new(origin, target - origin)
+            })
+            .collect(),
+        RayKind::Grazing => (0..count)
+            .map(|_| {
+                let [a, b, c] = random_triangle(&mut rng);
+                let (s, w) = (rng.random::<f64>(), rng.random::<f64>());
+                let (s, w) = if s + w > 1.0 {
+                    (1.0 - s, 1.0 - w)
+                } else {
+                    (s, w)
+                };
+                let target = a + (b - a) * s + (c - a) * w;
+                let normal = (b - a).cross(c - a).normalize_or_zero();
+                let tangent = (b - a).normalize_or_zero();
+                let angle = rng.random_range(0.2f64..3.0).to_radians();
+                let dir = tangent * angle.cos() + normal * angle.sin();
+                let dir = if dir == DVec3::ZERO {
+                    unit_vector(&mut rng)
+                } else {
+                    dir
+                };
+                Ray::new(target - dir * radius, dir * radius)
+            })
+            .collect(),
+        RayKind::AxisParallel => (0..count)
+            .map(|_| {
+                let mut dir = DVec3::ZERO;
+                dir[rng.random_range(0..3)] = if rng.random() { 1.0 } else { -1.0 };
+                Ray::new(in_box(&mut rng, 1.2), dir)
+            })
+            .collect(),
+        RayKind::InsideBox => (0..count)
+            .map(|_| Ray::new(in_box(&mut rng, 1.0), unit_vector(&mut rng)))
+            .collect(),
+        RayKind::TmaxCutoff => (0..count)
+            .map(|_| {
+                let [a, b, c] = random_triangle(&mut rng);
+                let target = (a + b + c) / 3.0;
+                let origin = around(&mut rng);
+                Ray::new(origin, target - origin).with_range(0.0, rng.random_range(0.5..1.5))
+            })
+            .collect(),
+    }
+}
+
+/// `count` rays spread evenly over every kind, with each ray's kind.
+pub fn mixed_rays(scene: &Scene, count: usize, seed: u64) -> Vec<(RayKind, Ray)> {
+    let per_kind = count / RayKind::ALL.len();
+    let extra = count % RayKind::ALL.len();
+    RayKind::ALL
+        .iter()
+        .enumerate()
+        .flat_map(|(k, &kind)| {
+            let n = per_kind + usize::from(k < extra);
+            rays(scene, kind, n, seed)
+                .into_iter()
+                .map(move |r| (kind, r))
+        })
+        .collect()
+}
+
+fn unit_vector(rng: &mut Pcg64) -> DVec3 {
+    let z: f64 = rng.random_range(-1.0..1.0);
+    let phi = rng.random::<f64>() * TAU;
+    let s = (1.0 - z * z).sqrt();
+    DVec3::new(s * phi.cos(), s * phi.sin(), z)
+}

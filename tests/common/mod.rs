@@ -1,0 +1,86 @@
+//! Shared test plumbing: one GPU context per test binary, and the equivalence check run against
+//! every backend and the oracle.
+#![allow(dead_code)]
+
+use raypick::compare::Tally;
+use raypick::oracle::brute_force_all;
+use raypick::synthetic::{RayKind, mixed_rays};
+use raypick::{
+    BuildOptions, BuiltScene, CpuPicker, GpuContext, GpuPicker, Hit, Picker, Ray, Scene,
+};
+use std::sync::{Arc, OnceLock};
+
+/// The GPU for this test binary. GPU tests never pass silently: without an adapter they fail,
+/// saying so (install Mesa lavapipe on machines without a GPU).
+pub fn gpu() -> &'static GpuContext {
+    static CONTEXT: OnceLock<GpuContext> = OnceLock::new();
+    CONTEXT.get_or_init(|| {
+        let context =
+            GpuContext::new().unwrap_or_else(|e| panic!("GPU tests need a GPU adapter: {e}"));
+        eprintln!("gpu adapter: {}", context.describe());
+        context
+    })
+}
+
+/// Picks `rays` on the CPU, the GPU and the brute-force oracle and asserts zero mismatches per
+/// ray kind between every pair. Returns the CPU hits.
+pub fn assert_equivalent(name: &str, built: Arc<BuiltScene>, rays: &[(RayKind, Ray)]) -> Vec<Hit> {
+    built
+        .bvh
+        .validate()
+        .unwrap_or_else(|e| panic!("{name}: invalid tree: {e}"));
+    let plain: Vec<Ray> = rays.iter().map(|(_, r)| *r).collect();
+    let cpu = CpuPicker::new(built.clone())
+        .pick(&plain)
+        .expect("cpu pick");
+    let gpu_hits = GpuPicker::new(gpu(), built.clone())
+        .expect("gpu picker")
+        .pick(&plain)
+        .expect("gpu pick");
+    let oracle = brute_force_all(&built.scene, &plain);
+    let mut failures = Vec::new();
+    for kind in RayKind::ALL {
+        let idx: Vec<usize> = (0..rays.len()).filter(|&i| rays[i].0 == kind).collect();
+        if idx.is_empty() {
+            continue;
+        }
+        let pick = |v: &[Hit]| idx.iter().map(|&i| v[i]).collect::<Vec<_>>();
+        let kind_rays: Vec<Ray> = idx.iter().map(|&i| plain[i]).collect();
+        for (pair, a, b) in [
+            ("cpu/oracle", &cpu, &oracle),
+            ("gpu/cpu", &gpu_hits, &cpu),
+            ("gpu/oracle", &gpu_hits, &oracle),
+        ] {
+            let (tally, bad) = Tally::compare(&built.scene, &kind_rays, &pick(a), &pick(b));
+            eprintln!("{name:>14} {:>13} {pair:>10}: {tally:?}", kind.name());
+            for &j in bad.iter().take(3) {
+                failures.push(format!(
+                    "{name} {} {pair}: ray {:?}\n  first:  {:?}\n  second: {:?}",
+                    kind.name(),
+                    kind_rays[j],
+                    pick(a)[j],
+                    pick(b)[j]
+                ));
+            }
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "{} mismatches:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+    cpu
+}
+
+/// Builds `scene` with `options` and checks it over the mixed ray kinds.
+pub fn check_scene(
+    name: &str,
+    scene: Scene,
+    options: BuildOptions,
+    rays_per_scene: usize,
+) -> Vec<Hit> {
+    let built = Arc::new(BuiltScene::new(scene, &options).expect("build"));
+    let rays = mixed_rays(&built.scene, rays_per_scene, 7);
+    assert_equivalent(name, built, &rays)
+}
