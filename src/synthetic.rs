@@ -239,7 +239,7 @@ pub fn rays(scene: &Scene, kind: RayKind, count: usize, seed: u64) -> Vec<Ray> {
             let forward = (centre - eye).normalize();
             let right = forward.cross(DVec3::Z).normalize();
             let up = right.cross(forward);
-            let half = (30f64.to_radians()).tan();
+            let half = (20f64.to_radians()).tan();
             (0..count)
                 .map(|i| {
                     let (px, py) = ((i % side) as f64 + 0.5, (i / side) as f64 + 0.5);

@@ -18,6 +18,9 @@ pub fn gpu() -> &'static GpuContext {
         let context =
             GpuContext::new().unwrap_or_else(|e| panic!("GPU tests need a GPU adapter: {e}"));
         eprintln!("gpu adapter: {}", context.describe());
+        // Evidence for CI that the GPU tests really ran, and on what.
+        let marker = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("gpu-tests-ran");
+        std::fs::write(&marker, context.describe()).expect("write the GPU marker");
         context
     })
 }
