@@ -98,8 +98,11 @@ pub struct GpuParams {
     pub row_pitch: u32,
 }
 
-/// Expected `(size, [(member, offset)])` of each shared struct; `tests/layout.rs` checks the WGSL.
-pub const SHARED_LAYOUTS: &[(&str, usize, &[(&str, usize)])] = &[
+/// One shared struct's name, size and `(member, offset)` list.
+pub type StructLayout = (&'static str, usize, &'static [(&'static str, usize)]);
+
+/// Expected layout of each shared struct; `tests/layout.rs` checks the WGSL against it.
+pub const SHARED_LAYOUTS: &[StructLayout] = &[
     (
         "GpuNode",
         size_of::<GpuNode>(),

@@ -8,14 +8,21 @@ use raypick::io::output::{Format, write_hits};
 use raypick::io::{obj::load_obj, ray_file::load_rays};
 use raypick::oracle::brute_force_all;
 use raypick::synthetic::{RayKind, example_scene, mixed_rays, rays as synthetic_rays};
-use raypick::{Backend, BuildOptions, BuiltScene, CpuPicker, Error, GpuContext, GpuPicker, Hit, Picker, Ray, Scene, SplitAxis};
+use raypick::{
+    Backend, BuildOptions, BuiltScene, CpuPicker, Error, GpuContext, GpuPicker, Hit, Picker, Ray,
+    Scene, SplitAxis,
+};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::time::Instant;
 
 #[derive(Parser)]
-#[command(name = "raypick", version, about = "Exact, fast ray picking for 3D scenes on any GPU wgpu reaches, with a CPU path that gives the same answers")]
+#[command(
+    name = "raypick",
+    version,
+    about = "Exact, fast ray picking for 3D scenes on any GPU wgpu reaches, with a CPU path that gives the same answers"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -116,7 +123,12 @@ fn load_scene(args: &SceneArgs) -> Result<BuiltScene, Error> {
 }
 
 fn load_mesh(path: &Path) -> Result<raypick::Mesh, Error> {
-    match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+    match path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .as_deref()
+    {
         Some("obj") => load_obj(path),
         _ => Err(Error::Invalid(format!(
             "{}: unknown scene format (expected .obj)",
@@ -148,9 +160,13 @@ fn pick(args: PickArgs) -> Result<ExitCode, Error> {
     let hits = picker(args.backend, built)?.pick(&rays)?;
     let invalid = hits.iter().filter(|h| h.invalid).count();
     if invalid > 0 {
-        eprintln!("warning: {invalid} ray(s) were invalid (NaN or infinite values, zero direction, or tmin > tmax) and are reported as misses");
+        eprintln!(
+            "warning: {invalid} ray(s) were invalid (NaN or infinite values, zero direction, or tmin > tmax) and are reported as misses"
+        );
     }
-    let write = |out: &mut dyn std::io::Write| write_hits(&mut std::io::BufWriter::new(out), &hits, args.format);
+    let write = |out: &mut dyn std::io::Write| {
+        write_hits(&mut std::io::BufWriter::new(out), &hits, args.format)
+    };
     match &args.out {
         Some(path) => {
             let mut file = std::fs::File::create(path).map_err(io_error(path))?;
@@ -188,14 +204,28 @@ fn verify(args: VerifyArgs) -> Result<ExitCode, Error> {
     let mut gpu = GpuPicker::new(&context, built.clone())?;
     let (gpu_hits, gpu_s) = timed(|| gpu.pick(&rays))?;
     let (cpu_hits, cpu_s) = timed(|| CpuPicker::new(built.clone()).pick(&rays))?;
-    println!("gpu path: {} rays in {:.3} s ({:.0} rays/s)", rays.len(), gpu_s, rays.len() as f64 / gpu_s);
-    println!("cpu path: {} rays in {:.3} s ({:.0} rays/s, {} threads)", rays.len(), cpu_s, rays.len() as f64 / cpu_s, rayon::current_num_threads());
+    println!(
+        "gpu path: {} rays in {:.3} s ({:.0} rays/s)",
+        rays.len(),
+        gpu_s,
+        rays.len() as f64 / gpu_s
+    );
+    println!(
+        "cpu path: {} rays in {:.3} s ({:.0} rays/s, {} threads)",
+        rays.len(),
+        cpu_s,
+        rays.len() as f64 / cpu_s,
+        rayon::current_num_threads()
+    );
     let oracle = if triangles as f64 * rays.len() as f64 <= args.oracle_budget {
         let (hits, s) = timed(|| Ok(brute_force_all(&built.scene, &rays)))?;
         println!("brute force: {} rays in {:.3} s", rays.len(), s);
         Some(hits)
     } else {
-        println!("brute force: skipped ({triangles} triangles × {} rays is over --oracle-budget)", rays.len());
+        println!(
+            "brute force: skipped ({triangles} triangles × {} rays is over --oracle-budget)",
+            rays.len()
+        );
         None
     };
 
@@ -206,27 +236,48 @@ fn verify(args: VerifyArgs) -> Result<ExitCode, Error> {
         }
     }
     println!("\nmismatches (ties: shared edge + boundary) per ray kind");
-    println!("{:<14} {:>9} {:>9} {:>8} {:>20} {:>20} {:>20}", "kind", "rays", "hits", "invalid", "gpu/cpu", "gpu/oracle", "cpu/oracle");
+    println!(
+        "{:<14} {:>9} {:>9} {:>8} {:>20} {:>20} {:>20}",
+        "kind", "rays", "hits", "invalid", "gpu/cpu", "gpu/oracle", "cpu/oracle"
+    );
     let mut total_mismatches = 0;
     let mut total_rays = 0;
     for kind in kinds {
-        let idx: Vec<usize> = (0..labelled.len()).filter(|&i| labelled[i].0 == kind).collect();
+        let idx: Vec<usize> = (0..labelled.len())
+            .filter(|&i| labelled[i].0 == kind)
+            .collect();
         let sub = |v: &[Hit]| idx.iter().map(|&i| v[i]).collect::<Vec<_>>();
         let kind_rays: Vec<Ray> = idx.iter().map(|&i| rays[i]).collect();
-        let pair = |a: &[Hit], b: &[Hit]| Tally::compare(&built.scene, &kind_rays, &sub(a), &sub(b)).0;
+        let pair =
+            |a: &[Hit], b: &[Hit]| Tally::compare(&built.scene, &kind_rays, &sub(a), &sub(b)).0;
         let gc = pair(&gpu_hits, &cpu_hits);
         let go = oracle.as_ref().map(|o| pair(&gpu_hits, o));
         let co = oracle.as_ref().map(|o| pair(&cpu_hits, o));
-        let cell = |t: Option<Tally>| t.map_or("-".to_string(), |t| format!("{} ({}+{})", t.mismatches, t.shared_edge, t.boundary));
+        let cell = |t: Option<Tally>| {
+            t.map_or("-".to_string(), |t| {
+                format!("{} ({}+{})", t.mismatches, t.shared_edge, t.boundary)
+            })
+        };
         println!(
             "{:<14} {:>9} {:>9} {:>8} {:>20} {:>20} {:>20}",
-            kind, gc.rays, gc.hits, gc.invalid, cell(Some(gc)), cell(go), cell(co)
+            kind,
+            gc.rays,
+            gc.hits,
+            gc.invalid,
+            cell(Some(gc)),
+            cell(go),
+            cell(co)
         );
-        total_mismatches += gc.mismatches + go.map_or(0, |t| t.mismatches) + co.map_or(0, |t| t.mismatches);
+        total_mismatches +=
+            gc.mismatches + go.map_or(0, |t| t.mismatches) + co.map_or(0, |t| t.mismatches);
         total_rays += gc.rays;
     }
     println!("\n{total_rays} rays, {total_mismatches} mismatches");
-    Ok(if total_mismatches == 0 { ExitCode::SUCCESS } else { ExitCode::from(1) })
+    Ok(if total_mismatches == 0 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
 }
 
 fn io_error(path: &Path) -> impl Fn(std::io::Error) -> Error + '_ {

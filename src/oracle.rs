@@ -69,5 +69,7 @@ fn brute_force_with(scene: &Scene, all: &OracleTriangles, ray: &Ray) -> Hit {
 /// [`brute_force`] over a batch, in parallel.
 pub fn brute_force_all(scene: &Scene, rays: &[Ray]) -> Vec<Hit> {
     let all = OracleTriangles::new(scene);
-    rays.par_iter().map(|r| brute_force_with(scene, &all, r)).collect()
+    rays.par_iter()
+        .map(|r| brute_force_with(scene, &all, r))
+        .collect()
 }

@@ -30,7 +30,14 @@ fn output_is_identical_on_one_and_many_threads() {
 #[test]
 fn paper_defaults_work_leaf_size_one_and_cycling_axes() {
     let s = scene(triangle_soup(5000, 10.0, 5));
-    let bvh = Bvh::build(&s, &BuildOptions { split_axis: SplitAxis::Cycle, leaf_size: 1 }).unwrap();
+    let bvh = Bvh::build(
+        &s,
+        &BuildOptions {
+            split_axis: SplitAxis::Cycle,
+            leaf_size: 1,
+        },
+    )
+    .unwrap();
     bvh.validate().unwrap();
     assert_eq!(bvh.leaf_count(), 5000);
     assert_eq!(bvh.nodes.len(), 2 * 5000 - 1);
@@ -40,7 +47,14 @@ fn paper_defaults_work_leaf_size_one_and_cycling_axes() {
 fn leaf_size_out_of_range_is_an_error() {
     let s = scene(triangle_soup(10, 1.0, 1));
     for leaf_size in [0, 16] {
-        let e = Bvh::build(&s, &BuildOptions { leaf_size, ..Default::default() }).unwrap_err();
+        let e = Bvh::build(
+            &s,
+            &BuildOptions {
+                leaf_size,
+                ..Default::default()
+            },
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("leaf size"), "{e}");
     }
 }
@@ -55,7 +69,11 @@ fn identical_centroids_fall_back_to_the_median() {
     }
     let bvh = Bvh::build(&scene(mesh), &BuildOptions::default()).unwrap();
     bvh.validate().unwrap();
-    assert!(bvh.depth() <= 8, "median fallback keeps the tree balanced: depth {}", bvh.depth());
+    assert!(
+        bvh.depth() <= 8,
+        "median fallback keeps the tree balanced: depth {}",
+        bvh.depth()
+    );
 }
 
 proptest! {

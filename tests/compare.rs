@@ -17,7 +17,11 @@ fn a_hit_deep_inside_versus_a_miss_is_a_mismatch() {
     let hit = brute_force(&scene, &ray);
     assert!(hit.hit);
     assert_eq!(classify(&scene, &ray, &hit, &Hit::MISS), Verdict::Mismatch);
-    let moved = Hit { t: hit.t + 0.5, triangle: 7, ..hit };
+    let moved = Hit {
+        t: hit.t + 0.5,
+        triangle: 7,
+        ..hit
+    };
     assert_eq!(classify(&scene, &ray, &hit, &moved), Verdict::Mismatch);
 }
 
@@ -36,7 +40,10 @@ fn invalid_rays_are_flagged_misses() {
     for ray in [
         Ray::new(DVec3::new(f64::NAN, 0.0, 1.0), DVec3::NEG_Z),
         Ray::new(DVec3::new(0.2, 0.2, 1.0), DVec3::ZERO),
-        Ray::new(DVec3::new(0.2, 0.2, 1.0), DVec3::new(0.0, 0.0, f64::NEG_INFINITY)),
+        Ray::new(
+            DVec3::new(0.2, 0.2, 1.0),
+            DVec3::new(0.0, 0.0, f64::NEG_INFINITY),
+        ),
         Ray::new(DVec3::new(0.2, 0.2, 1.0), DVec3::NEG_Z).with_range(2.0, 1.0),
     ] {
         let hit = brute_force(&scene, &ray);

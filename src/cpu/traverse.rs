@@ -54,6 +54,10 @@ pub struct Buffers<'a> {
 }
 
 /// Finds the nearest triangle hit by `ray`; the same answer the GPU kernel computes.
+#[allow(
+    clippy::neg_cmp_op_on_partial_ord,
+    reason = "as in the WGSL: `!(tmin <= tmax)` also rejects NaN"
+)]
 pub fn trace(buffers: Buffers<'_>, ray: &GpuRay) -> GpuHit {
     let nodes = buffers.nodes;
     let triangles = buffers.triangles;
