@@ -24,6 +24,7 @@
 pub mod bvh;
 pub mod compare;
 pub mod cpu;
+pub mod dem;
 pub mod error;
 pub mod frame;
 pub mod gpu;

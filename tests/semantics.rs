@@ -187,3 +187,40 @@ fn a_corrupted_link_hits_the_iteration_cap_instead_of_hanging() {
         assert!(error.to_string().contains("iteration cap"), "{error}");
     }
 }
+
+#[test]
+fn axis_parallel_rays_on_the_scene_border_hit_on_both_backends() {
+    // Straight-down rays exactly on every border sample of a terrain: the rays lie in the planes
+    // of the boxes' faces (regression: they used to be culled on the max faces).
+    let b = built(vec![terrain(
+        9,
+        7,
+        10.0,
+        26.0,
+        2.0,
+        raypick::synthetic::hills,
+    )]);
+    let (lo, hi) = b.scene.bounds().unwrap();
+    let mut rays = Vec::new();
+    for i in 0..9 {
+        for y in [lo.y, hi.y] {
+            rays.push(Ray::new(
+                DVec3::new(10.0 + 2.0 * i as f64, y, 100.0),
+                DVec3::NEG_Z,
+            ));
+        }
+    }
+    for j in 0..7 {
+        for x in [lo.x, hi.x] {
+            rays.push(Ray::new(
+                DVec3::new(x, 26.0 - 2.0 * j as f64, 100.0),
+                DVec3::NEG_Z,
+            ));
+        }
+    }
+    for hits in both(&b, &rays) {
+        for (ray, hit) in rays.iter().zip(&hits) {
+            assert!(hit.hit, "border ray {:?} missed", ray.origin);
+        }
+    }
+}

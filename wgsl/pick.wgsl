@@ -55,6 +55,8 @@ const CAP_REACHED: u32 = 0xfffffffeu;
 const BOX_PAD: f32 = 1e-6;
 // Direction components smaller than this are treated as this (no infinities in WGSL).
 const MIN_DIR: f32 = 1e-30;
+// Stands in for infinity in slab intervals.
+const HUGE: f32 = 3.0e38;
 
 // Traversal states: how we arrived at `current`.
 const FROM_PARENT: u32 = 0u;  // descending into the near child
@@ -69,11 +71,14 @@ fn safe_inverse(dir: vec3<f32>) -> vec3<f32> {
     return sign / magnitude;
 }
 
-fn ray_box(node: GpuNode, origin: vec3<f32>, inv_dir: vec3<f32>, tmin: f32, tmax: f32) -> bool {
+fn ray_box(node: GpuNode, origin: vec3<f32>, dir: vec3<f32>, inv_dir: vec3<f32>, tmin: f32, tmax: f32) -> bool {
     let t0 = (node.min - origin) * inv_dir;
     let t1 = (node.max - origin) * inv_dir;
-    let near = min(t0, t1);
-    let far = max(t0, t1);
+    // A ray parallel to a slab and inside it (faces included) is unconstrained by that slab;
+    // without this, an origin exactly on a face would give 0 * inverse = 0 and cull the box.
+    let free = abs(dir) < vec3<f32>(MIN_DIR) & origin >= node.min & origin <= node.max;
+    let near = select(min(t0, t1), vec3<f32>(-HUGE), free);
+    let far = select(max(t0, t1), vec3<f32>(HUGE), free);
     let t_near = max(max(near.x, near.y), near.z);
     let t_far = min(min(far.x, far.y), far.z);
     return max(t_near - abs(t_near) * BOX_PAD, tmin) <= min(t_far + abs(t_far) * BOX_PAD, tmax);
@@ -168,7 +173,7 @@ fn trace(ray: GpuRay) -> GpuHit {
         // Arrived from the parent or the sibling: test this node's box.
         best.box_tests += 1u;
         var descend = false;
-        if ray_box(node, ray.origin, inv_dir, ray.tmin, best.t) {
+        if ray_box(node, ray.origin, ray.dir, inv_dir, ray.tmin, best.t) {
             let kind = kind_of(node);
             if kind >= KIND_INNER {
                 descend = true;

@@ -103,7 +103,7 @@ pub fn trace(buffers: Buffers<'_>, ray: &GpuRay) -> GpuHit {
         // Arrived from the parent or the sibling: test this node's box.
         best.box_tests += 1;
         let mut descend = false;
-        if ray_box(node, origin, inv_dir, ray.tmin, best.t) {
+        if ray_box(node, origin, dir, inv_dir, ray.tmin, best.t) {
             let kind = kind_of(node);
             if kind >= KIND_INNER {
                 descend = true;
