@@ -6,6 +6,7 @@ use crate::bvh::Bvh;
 use crate::cpu::ray_triangle::ray_triangle_f64;
 use crate::error::{Error, Result};
 use crate::layout::{CAP_REACHED, GpuHit, GpuRay, NO_HIT};
+use crate::query::Query;
 use crate::ray::{Hit, Ray};
 use crate::scene::Scene;
 use glam::DVec3;
@@ -16,11 +17,14 @@ pub const NEVER_TRACED: GpuRay = GpuRay {
     tmin: 1.0,
     dir: [1.0, 0.0, 0.0],
     tmax: -1.0,
+    mask: 0,
+    flags: 0,
+    pad: [0; 2],
 };
 
 /// A world ray in the scene frame: the kernel input plus the length of the world direction
 /// (`t_world = t_local / dir_length`). `None` for an invalid ray.
-pub fn local_ray(scene_origin: DVec3, ray: &Ray) -> Option<(GpuRay, f64)> {
+pub fn local_ray(scene_origin: DVec3, ray: &Ray, query: &Query) -> Option<(GpuRay, f64)> {
     if !ray.is_valid() {
         return None;
     }
@@ -42,22 +46,30 @@ pub fn local_ray(scene_origin: DVec3, ray: &Ray) -> Option<(GpuRay, f64)> {
             tmin,
             dir: unit.into(),
             tmax,
+            mask: ray.mask,
+            flags: query.flags(),
+            pad: [0; 2],
         },
         dir_length,
     ))
 }
 
-/// Converts a batch of world rays to kernel rays; invalid ones become [`NEVER_TRACED`].
+/// Converts a batch of world rays to closest-hit kernel rays; invalid ones become [`NEVER_TRACED`].
 pub fn local_rays(scene_origin: DVec3, rays: &[Ray]) -> Vec<GpuRay> {
+    local_rays_for(scene_origin, rays, &Query::default())
+}
+
+/// Converts a batch of world rays to kernel rays for `query`.
+pub fn local_rays_for(scene_origin: DVec3, rays: &[Ray], query: &Query) -> Vec<GpuRay> {
     rays.iter()
-        .map(|r| local_ray(scene_origin, r).map_or(NEVER_TRACED, |(g, _)| g))
+        .map(|r| local_ray(scene_origin, r, query).map_or(NEVER_TRACED, |(g, _)| g))
         .collect()
 }
 
 /// Turns a traversal result into the public hit: maps the leaf-order triangle back to its
 /// object and file-order id, and recomputes t, u, v, position and normal in f64.
 pub fn resolve(scene: &Scene, bvh: &Bvh, ray: &Ray, found: &GpuHit) -> Result<Hit> {
-    let Some((_, dir_length)) = local_ray(bvh.origin, ray) else {
+    let Some((_, dir_length)) = local_ray(bvh.origin, ray, &Query::default()) else {
         return Ok(Hit::INVALID);
     };
     let stats = Hit {

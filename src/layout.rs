@@ -51,8 +51,23 @@ pub struct GpuTriangle {
     pub v2: [f32; 3],
 }
 
+/// `GpuRay::flags` bits 0–1: the query mode.
+pub const MODE_CLOSEST: u32 = 0;
+/// Any-hit: stop at the first hit found.
+pub const MODE_ANY: u32 = 1;
+/// All hits along the ray, nearest first, up to `GpuParams::max_hits`.
+pub const MODE_ALL: u32 = 2;
+/// `GpuRay::flags` bits 2–3: face culling (shifted by `CULL_SHIFT`).
+pub const CULL_SHIFT: u32 = 2;
+/// No culling.
+pub const CULL_NONE: u32 = 0;
+/// Skip back faces (clockwise as seen from the ray).
+pub const CULL_BACK: u32 = 1;
+/// Skip front faces (counter-clockwise as seen from the ray).
+pub const CULL_FRONT: u32 = 2;
+
 /// One ray as the kernel sees it: scene-local origin, unit direction and the (tmin, tmax] range in
-/// that unit-direction parameter.
+/// that unit-direction parameter, its layer mask and its query flags.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct GpuRay {
@@ -64,6 +79,26 @@ pub struct GpuRay {
     pub dir: [f32; 3],
     /// Hits must have t <= tmax. A ray with tmax < tmin is never tested (invalid rays).
     pub tmax: f32,
+    /// Layer mask: only triangles whose object mask shares a bit are hit (when masks are on).
+    pub mask: u32,
+    /// Query mode (bits 0–1) and culling (bits 2–3).
+    pub flags: u32,
+    /// Padding to 16 bytes.
+    pub pad: [u32; 2],
+}
+
+/// One entry of an all-hits list.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuHitEntry {
+    /// Ray parameter.
+    pub t: f32,
+    /// Leaf-order triangle.
+    pub prim: u32,
+    /// Barycentric u.
+    pub u: f32,
+    /// Barycentric v.
+    pub v: f32,
 }
 
 /// What traversal found for one ray: the nearest triangle (leaf order) and the work it took.
@@ -82,6 +117,10 @@ pub struct GpuHit {
     pub box_tests: u32,
     /// Ray/triangle tests made (the paper's i).
     pub triangle_tests: u32,
+    /// All-hits mode: entries written to this ray's list (at most `max_hits`).
+    pub count: u32,
+    /// All-hits mode: 1 when the ray had more than `max_hits` hits (the nearest are kept).
+    pub overflow: u32,
 }
 
 /// Per-dispatch constants.
@@ -96,6 +135,14 @@ pub struct GpuParams {
     pub iteration_cap: u32,
     /// Rays per row of the 2D dispatch grid (workgroups in x times the workgroup size).
     pub row_pitch: u32,
+    /// All-hits list length per ray (0 when no ray uses `MODE_ALL`).
+    pub max_hits: u32,
+    /// 1 when the triangle mask buffer holds real masks (0: every triangle matches every ray).
+    pub use_masks: u32,
+    /// 1 for the watertight ray/triangle test (Woop, Benthin, Wald 2013), 0 for Möller–Trumbore.
+    pub watertight: u32,
+    /// Padding to 16 bytes.
+    pub pad: u32,
 }
 
 /// One shared struct's name, size and `(member, offset)` list.
@@ -130,6 +177,19 @@ pub const SHARED_LAYOUTS: &[StructLayout] = &[
             ("tmin", offset_of!(GpuRay, tmin)),
             ("dir", offset_of!(GpuRay, dir)),
             ("tmax", offset_of!(GpuRay, tmax)),
+            ("mask", offset_of!(GpuRay, mask)),
+            ("flags", offset_of!(GpuRay, flags)),
+            ("pad", offset_of!(GpuRay, pad)),
+        ],
+    ),
+    (
+        "GpuHitEntry",
+        size_of::<GpuHitEntry>(),
+        &[
+            ("t", offset_of!(GpuHitEntry, t)),
+            ("prim", offset_of!(GpuHitEntry, prim)),
+            ("u", offset_of!(GpuHitEntry, u)),
+            ("v", offset_of!(GpuHitEntry, v)),
         ],
     ),
     (
@@ -142,6 +202,8 @@ pub const SHARED_LAYOUTS: &[StructLayout] = &[
             ("v", offset_of!(GpuHit, v)),
             ("box_tests", offset_of!(GpuHit, box_tests)),
             ("triangle_tests", offset_of!(GpuHit, triangle_tests)),
+            ("count", offset_of!(GpuHit, count)),
+            ("overflow", offset_of!(GpuHit, overflow)),
         ],
     ),
     (
@@ -152,6 +214,10 @@ pub const SHARED_LAYOUTS: &[StructLayout] = &[
             ("node_count", offset_of!(GpuParams, node_count)),
             ("iteration_cap", offset_of!(GpuParams, iteration_cap)),
             ("row_pitch", offset_of!(GpuParams, row_pitch)),
+            ("max_hits", offset_of!(GpuParams, max_hits)),
+            ("use_masks", offset_of!(GpuParams, use_masks)),
+            ("watertight", offset_of!(GpuParams, watertight)),
+            ("pad", offset_of!(GpuParams, pad)),
         ],
     ),
 ];
@@ -164,13 +230,18 @@ const _: () = {
     assert!(size_of::<GpuTriangle>() == 36);
     assert!(offset_of!(GpuTriangle, v1) == 12);
     assert!(offset_of!(GpuTriangle, v2) == 24);
-    assert!(size_of::<GpuRay>() == 32);
+    assert!(size_of::<GpuRay>() == 48);
     assert!(offset_of!(GpuRay, tmin) == 12);
     assert!(offset_of!(GpuRay, dir) == 16);
     assert!(offset_of!(GpuRay, tmax) == 28);
-    assert!(size_of::<GpuHit>() == 24);
+    assert!(offset_of!(GpuRay, mask) == 32);
+    assert!(offset_of!(GpuRay, flags) == 36);
+    assert!(size_of::<GpuHitEntry>() == 16);
+    assert!(size_of::<GpuHit>() == 32);
     assert!(offset_of!(GpuHit, box_tests) == 16);
-    assert!(size_of::<GpuParams>() == 16);
+    assert!(offset_of!(GpuHit, count) == 24);
+    assert!(size_of::<GpuParams>() == 32);
+    assert!(offset_of!(GpuParams, max_hits) == 16);
     assert!(MAX_LEAF_SIZE < KIND_INNER);
     assert!(KIND_INNER + 2 < (1 << KIND_BITS));
 };

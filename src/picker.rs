@@ -2,10 +2,11 @@
 //! picker. The GPU picker lives in [`crate::gpu::picker`].
 
 use crate::bvh::{BuildOptions, Bvh};
-use crate::cpu::trace_all;
+use crate::cpu::{TraceSettings, trace_batch};
 use crate::error::Result;
-use crate::frame::{local_rays, resolve};
-use crate::layout::GpuHit;
+use crate::frame::{local_rays_for, resolve};
+use crate::layout::{GpuHit, GpuHitEntry};
+use crate::query::{Answers, Intersector, Mode, Query};
 use crate::ray::{Hit, Ray};
 use crate::scene::Scene;
 use rayon::prelude::*;
@@ -17,28 +18,103 @@ pub struct BuiltScene {
     pub scene: Scene,
     /// The flattened tree over the scene's triangles.
     pub bvh: Bvh,
+    /// Layer mask per leaf-order triangle, from the objects' masks; empty when all are all-ones.
+    pub triangle_masks: Vec<u32>,
 }
 
 impl BuiltScene {
     /// Builds the tree over `scene`.
     pub fn new(scene: Scene, options: &BuildOptions) -> Result<Self> {
         let bvh = Bvh::build(&scene, options)?;
-        Ok(Self { scene, bvh })
+        let triangle_masks = if scene.objects().iter().all(|o| o.mask == u32::MAX) {
+            Vec::new()
+        } else {
+            bvh.triangle_ids
+                .iter()
+                .map(|&i| scene.triangle_mask(i))
+                .collect()
+        };
+        Ok(Self {
+            scene,
+            bvh,
+            triangle_masks,
+        })
     }
 
-    /// Turns raw traversal results into public hits, in parallel.
-    pub fn resolve_all(&self, rays: &[Ray], found: &[GpuHit]) -> Result<Vec<Hit>> {
-        rays.par_iter()
+    /// The CPU/GPU trace settings for `query`.
+    pub fn settings(&self, query: &Query) -> TraceSettings<'_> {
+        TraceSettings {
+            triangle_masks: &self.triangle_masks,
+            max_hits: query.list_length(),
+            watertight: query.intersector == Intersector::Watertight,
+        }
+    }
+
+    /// Turns raw traversal results into public answers, refining every hit in f64, in parallel.
+    pub fn answers(
+        &self,
+        rays: &[Ray],
+        query: &Query,
+        found: &[GpuHit],
+        lists: &[GpuHitEntry],
+    ) -> Result<Answers> {
+        let nearest = rays
+            .par_iter()
             .zip(found)
             .map(|(ray, f)| resolve(&self.scene, &self.bvh, ray, f))
-            .collect()
+            .collect::<Result<Vec<Hit>>>()?;
+        if query.mode != Mode::All {
+            return Ok(Answers {
+                nearest,
+                ..Answers::default()
+            });
+        }
+        let k = query.max_hits as usize;
+        let per_ray = rays
+            .par_iter()
+            .zip(found)
+            .enumerate()
+            .map(|(i, (ray, f))| {
+                let mut hits = lists[i * k..i * k + f.count as usize]
+                    .iter()
+                    .map(|e| {
+                        let entry = GpuHit {
+                            t: e.t,
+                            prim: e.prim,
+                            u: e.u,
+                            v: e.v,
+                            ..GpuHit::default()
+                        };
+                        resolve(&self.scene, &self.bvh, ray, &entry)
+                    })
+                    .collect::<Result<Vec<Hit>>>()?;
+                hits.sort_by(|a, b| a.t.total_cmp(&b.t));
+                Ok((hits, f.overflow != 0))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let mut answers = Answers {
+            nearest,
+            list_start: vec![0],
+            ..Answers::default()
+        };
+        for (hits, overflow) in per_ray {
+            answers.lists.extend(hits);
+            answers.list_start.push(answers.lists.len());
+            answers.overflow.push(overflow);
+        }
+        Ok(answers)
     }
 }
 
 /// Something that answers pick rays: the CPU or the GPU path.
 pub trait Picker {
+    /// Answers `rays` as `query` asks; `nearest[i]` answers `rays[i]`.
+    fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers>;
+
     /// The nearest hit for each ray; `out[i]` answers `rays[i]`.
-    fn pick(&mut self, rays: &[Ray]) -> Result<Vec<Hit>>;
+    fn pick(&mut self, rays: &[Ray]) -> Result<Vec<Hit>> {
+        Ok(self.query(rays, &Query::default())?.nearest)
+    }
 }
 
 /// The CPU reference path: the kernel's traversal, run on all cores.
@@ -55,10 +131,11 @@ impl CpuPicker {
 }
 
 impl Picker for CpuPicker {
-    fn pick(&mut self, rays: &[Ray]) -> Result<Vec<Hit>> {
-        let local = local_rays(self.built.bvh.origin, rays);
-        let found = trace_all(&self.built.bvh, &local);
-        self.built.resolve_all(rays, &found)
+    fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers> {
+        query.validate()?;
+        let local = local_rays_for(self.built.bvh.origin, rays, query);
+        let (found, lists) = trace_batch(&self.built.bvh, &local, &self.built.settings(query));
+        self.built.answers(rays, query, &found, &lists)
     }
 }
 

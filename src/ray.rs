@@ -15,6 +15,8 @@ pub struct Ray {
     pub tmin: f64,
     /// Hits need `t <= tmax`; `f64::INFINITY` for an unbounded ray.
     pub tmax: f64,
+    /// Layer mask: the ray only hits objects whose mask shares a bit with it (default: all bits).
+    pub mask: u32,
 }
 
 impl Ray {
@@ -25,7 +27,13 @@ impl Ray {
             dir,
             tmin: 0.0,
             tmax: f64::INFINITY,
+            mask: u32::MAX,
         }
+    }
+
+    /// The same ray with a layer mask.
+    pub fn with_mask(self, mask: u32) -> Self {
+        Self { mask, ..self }
     }
 
     /// The same ray with `t` limited to `(tmin, tmax]`.

@@ -25,6 +25,8 @@ pub struct Object {
     pub first_triangle: u32,
     /// Number of triangles; local triangle ids are `0..triangle_count`, in file order.
     pub triangle_count: u32,
+    /// Layer mask: rays hit this object only when their mask shares a bit with it.
+    pub mask: u32,
 }
 
 /// A set of objects ready to be built into a tree.
@@ -106,8 +108,25 @@ impl Scene {
             name,
             first_triangle: first_triangle as u32,
             triangle_count: mesh.triangles.len() as u32,
+            mask: u32::MAX,
         });
         Ok(id)
+    }
+
+    /// Sets an object's layer mask (rays hit it only when their mask shares a bit).
+    pub fn set_object_mask(&mut self, object: u32, mask: u32) -> Result<()> {
+        let o = self
+            .objects
+            .get_mut(object as usize)
+            .ok_or_else(|| Error::Invalid(format!("there is no object {object}")))?;
+        o.mask = mask;
+        Ok(())
+    }
+
+    /// The layer mask of the object owning scene triangle `index`.
+    pub fn triangle_mask(&self, index: u32) -> u32 {
+        let (object, _) = self.locate(index);
+        self.objects[object as usize].mask
     }
 
     /// The objects, in id order.

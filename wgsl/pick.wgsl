@@ -1,6 +1,7 @@
-// Closest-hit picking: one invocation per ray.
+// Picking: one invocation per ray; closest hit, any hit, or all hits up to max_hits.
 // Stackless, ordered traversal of the median-cut tree with parent links and a three-state
-// automaton (Hapala et al. 2011), Möller–Trumbore per triangle.
+// automaton (Hapala et al. 2011); Möller–Trumbore per triangle, or the watertight test of
+// Woop, Benthin and Wald (2013). Face culling and layer masks per ray.
 // CPU twin, line for line: src/cpu/ray_box.rs, src/cpu/ray_triangle.rs, src/cpu/traverse.rs.
 // Shared struct layouts: src/layout.rs (checked by tests/layout.rs).
 
@@ -22,6 +23,16 @@ struct GpuRay {
     tmin: f32,
     dir: vec3<f32>,
     tmax: f32,
+    mask: u32,
+    flags: u32,
+    pad: vec2<u32>,
+}
+
+struct GpuHitEntry {
+    t: f32,
+    prim: u32,
+    u: f32,
+    v: f32,
 }
 
 struct GpuHit {
@@ -31,6 +42,8 @@ struct GpuHit {
     v: f32,
     box_tests: u32,
     triangle_tests: u32,
+    count: u32,
+    overflow: u32,
 }
 
 struct GpuParams {
@@ -38,6 +51,10 @@ struct GpuParams {
     node_count: u32,
     iteration_cap: u32,
     row_pitch: u32,
+    max_hits: u32,
+    use_masks: u32,
+    watertight: u32,
+    pad: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: GpuParams;
@@ -45,12 +62,20 @@ struct GpuParams {
 @group(0) @binding(2) var<storage, read> triangles: array<GpuTriangle>;
 @group(0) @binding(3) var<storage, read> rays: array<GpuRay>;
 @group(0) @binding(4) var<storage, read_write> hits: array<GpuHit>;
+@group(0) @binding(5) var<storage, read_write> hit_lists: array<GpuHitEntry>;
+@group(0) @binding(6) var<storage, read> triangle_masks: array<u32>;
 
 const KIND_INNER: u32 = 16u;
 const KIND_BITS: u32 = 5u;
 const KIND_MASK: u32 = 31u;
 const NO_HIT: u32 = 0xffffffffu;
 const CAP_REACHED: u32 = 0xfffffffeu;
+const MODE_CLOSEST: u32 = 0u;
+const MODE_ANY: u32 = 1u;
+const MODE_ALL: u32 = 2u;
+const CULL_SHIFT: u32 = 2u;
+const CULL_BACK: u32 = 1u;
+const CULL_FRONT: u32 = 2u;
 // Relative widening of each box's [t_near, t_far] so rounding never culls a box the ray touches.
 const BOX_PAD: f32 = 1e-6;
 // Direction components smaller than this are treated as this (no infinities in WGSL).
@@ -84,25 +109,32 @@ fn ray_box(node: GpuNode, origin: vec3<f32>, dir: vec3<f32>, inv_dir: vec3<f32>,
     return max(t_near - abs(t_near) * BOX_PAD, tmin) <= min(t_far + abs(t_far) * BOX_PAD, tmax);
 }
 
-// ---- ray/triangle, Möller–Trumbore (src/cpu/ray_triangle.rs) ----
+// ---- ray/triangle (src/cpu/ray_triangle.rs) ----
 
+// `det` > 0: the triangle is counter-clockwise as seen from the ray (front-facing).
 struct TriangleHit {
     hit: bool,
     t: f32,
     u: f32,
     v: f32,
+    det: f32,
 }
 
+fn vertex(v: array<f32, 3>) -> vec3<f32> {
+    return vec3<f32>(v[0], v[1], v[2]);
+}
+
+// Möller–Trumbore, as in the paper.
 fn ray_triangle(tri: GpuTriangle, origin: vec3<f32>, dir: vec3<f32>) -> TriangleHit {
-    let v0 = vec3<f32>(tri.v0[0], tri.v0[1], tri.v0[2]);
-    let v1 = vec3<f32>(tri.v1[0], tri.v1[1], tri.v1[2]);
-    let v2 = vec3<f32>(tri.v2[0], tri.v2[1], tri.v2[2]);
+    let v0 = vertex(tri.v0);
+    let v1 = vertex(tri.v1);
+    let v2 = vertex(tri.v2);
     let e1 = v1 - v0;
     let e2 = v2 - v0;
     let p = cross(dir, e2);
     let det = dot(p, e1);
     if det == 0.0 {
-        return TriangleHit(false, 0.0, 0.0, 0.0);
+        return TriangleHit(false, 0.0, 0.0, 0.0, 0.0);
     }
     let inv_det = 1.0 / det;
     let to_origin = origin - v0;
@@ -110,7 +142,70 @@ fn ray_triangle(tri: GpuTriangle, origin: vec3<f32>, dir: vec3<f32>) -> Triangle
     let q = cross(to_origin, e1);
     let v = dot(q, dir) * inv_det;
     let t = dot(q, e2) * inv_det;
-    return TriangleHit(u >= 0.0 && v >= 0.0 && u + v <= 1.0, t, u, v);
+    return TriangleHit(u >= 0.0 && v >= 0.0 && u + v <= 1.0, t, u, v, det);
+}
+
+// Per-ray set-up of the watertight test: the axis the ray runs along most (kz), the two others
+// (kx, ky, swapped to keep the winding when the ray runs down kz) and the shear constants.
+struct Shear {
+    kx: u32,
+    ky: u32,
+    kz: u32,
+    s: vec3<f32>,
+}
+
+fn shear_for(dir: vec3<f32>) -> Shear {
+    let a = abs(dir);
+    var kz = 2u;
+    if a.x >= a.y && a.x >= a.z {
+        kz = 0u;
+    } else if a.y >= a.z {
+        kz = 1u;
+    }
+    var kx = (kz + 1u) % 3u;
+    var ky = (kx + 1u) % 3u;
+    if dir[kz] < 0.0 {
+        let swap = kx;
+        kx = ky;
+        ky = swap;
+    }
+    return Shear(kx, ky, kz, vec3<f32>(dir[kx] / dir[kz], dir[ky] / dir[kz], 1.0 / dir[kz]));
+}
+
+// Watertight ray/triangle test (Woop, Benthin, Wald, JCGT 2013): edge functions in a sheared
+// ray space are computed identically for the two triangles sharing an edge, so a ray can never
+// slip between them. Edges are inclusive.
+fn ray_triangle_watertight(tri: GpuTriangle, origin: vec3<f32>, sh: Shear) -> TriangleHit {
+    let a = vertex(tri.v0) - origin;
+    let b = vertex(tri.v1) - origin;
+    let c = vertex(tri.v2) - origin;
+    let ax = a[sh.kx] - sh.s.x * a[sh.kz];
+    let ay = a[sh.ky] - sh.s.y * a[sh.kz];
+    let bx = b[sh.kx] - sh.s.x * b[sh.kz];
+    let by = b[sh.ky] - sh.s.y * b[sh.kz];
+    let cx = c[sh.kx] - sh.s.x * c[sh.kz];
+    let cy = c[sh.ky] - sh.s.y * c[sh.kz];
+    let u_edge = cx * by - cy * bx;
+    let v_edge = ax * cy - ay * cx;
+    let w_edge = bx * ay - by * ax;
+    let outside = (u_edge < 0.0 || v_edge < 0.0 || w_edge < 0.0) && (u_edge > 0.0 || v_edge > 0.0 || w_edge > 0.0);
+    let det = u_edge + v_edge + w_edge;
+    if outside || det == 0.0 {
+        return TriangleHit(false, 0.0, 0.0, 0.0, 0.0);
+    }
+    let t_scaled = u_edge * sh.s.z * a[sh.kz] + v_edge * sh.s.z * b[sh.kz] + w_edge * sh.s.z * c[sh.kz];
+    let inv_det = 1.0 / det;
+    return TriangleHit(true, t_scaled * inv_det, v_edge * inv_det, w_edge * inv_det, det);
+}
+
+fn facing_allowed(det: f32, cull: u32) -> bool {
+    if cull == CULL_BACK {
+        return det > 0.0;
+    }
+    if cull == CULL_FRONT {
+        return det < 0.0;
+    }
+    return true;
 }
 
 // ---- stackless ordered traversal (src/cpu/traverse.rs) ----
@@ -139,12 +234,19 @@ fn sibling(index: u32, parent: u32, parent_node: GpuNode) -> u32 {
     return parent + 1u;
 }
 
-fn trace(ray: GpuRay) -> GpuHit {
-    var best = GpuHit(ray.tmax, NO_HIT, 0.0, 0.0, 0u, 0u);
+fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
+    var best = GpuHit(ray.tmax, NO_HIT, 0.0, 0.0, 0u, 0u, 0u, 0u);
     if params.node_count == 0u || !(ray.tmin <= ray.tmax) {
         return best;
     }
+    let mode = ray.flags & 3u;
+    let cull = (ray.flags >> CULL_SHIFT) & 3u;
     let inv_dir = safe_inverse(ray.dir);
+    let shear = shear_for(ray.dir);
+    // Hits need t in (tmin, limit]; limit shrinks to the nearest hit (closest), or to the
+    // farthest kept hit once the all-hits list is full and has overflowed.
+    var limit = ray.tmax;
+    var done = false;
     var current = 0u;
     var state = FROM_PARENT;
     var iterations = 0u;
@@ -173,23 +275,44 @@ fn trace(ray: GpuRay) -> GpuHit {
         // Arrived from the parent or the sibling: test this node's box.
         best.box_tests += 1u;
         var descend = false;
-        if ray_box(node, ray.origin, ray.dir, inv_dir, ray.tmin, best.t) {
+        if ray_box(node, ray.origin, ray.dir, inv_dir, ray.tmin, limit) {
             let kind = kind_of(node);
             if kind >= KIND_INNER {
                 descend = true;
             } else {
                 for (var i = 0u; i < kind; i += 1u) {
                     let prim = node.first + i;
+                    if params.use_masks != 0u && (triangle_masks[prim] & ray.mask) == 0u {
+                        continue;
+                    }
                     best.triangle_tests += 1u;
-                    let h = ray_triangle(triangles[prim], ray.origin, ray.dir);
-                    if h.hit && h.t > ray.tmin && h.t <= best.t {
+                    var h: TriangleHit;
+                    if params.watertight != 0u {
+                        h = ray_triangle_watertight(triangles[prim], ray.origin, shear);
+                    } else {
+                        h = ray_triangle(triangles[prim], ray.origin, ray.dir);
+                    }
+                    if !h.hit || !facing_allowed(h.det, cull) || !(h.t > ray.tmin) || !(h.t <= limit) {
+                        continue;
+                    }
+                    if mode == MODE_ALL {
+                        limit = insert_hit(&best, list_base, GpuHitEntry(h.t, prim, h.u, h.v), ray.tmax);
+                    } else {
                         best.t = h.t;
                         best.prim = prim;
                         best.u = h.u;
                         best.v = h.v;
+                        limit = h.t;
+                        if mode == MODE_ANY {
+                            done = true;
+                            break;
+                        }
                     }
                 }
             }
+        }
+        if done {
+            break;
         }
         if descend {
             current = near_child(current, node, ray.dir);
@@ -205,7 +328,39 @@ fn trace(ray: GpuRay) -> GpuHit {
             state = FROM_CHILD;
         }
     }
+    if mode == MODE_ALL && best.count > 0u && best.prim != CAP_REACHED {
+        let nearest = hit_lists[list_base];
+        best.t = nearest.t;
+        best.prim = nearest.prim;
+        best.u = nearest.u;
+        best.v = nearest.v;
+    }
     return best;
+}
+
+// Inserts a hit into the ray's list, kept sorted by t; when the list is full the farthest entry
+// is dropped and the ray is flagged as overflowing. Returns the new limit for t.
+fn insert_hit(best: ptr<function, GpuHit>, base: u32, entry: GpuHitEntry, tmax: f32) -> f32 {
+    let max_hits = params.max_hits;
+    var slot = (*best).count;
+    if slot == max_hits {
+        (*best).overflow = 1u;
+        slot = max_hits - 1u;
+        if entry.t >= hit_lists[base + slot].t {
+            return hit_lists[base + slot].t;
+        }
+    } else {
+        (*best).count += 1u;
+    }
+    while slot > 0u && hit_lists[base + slot - 1u].t > entry.t {
+        hit_lists[base + slot] = hit_lists[base + slot - 1u];
+        slot -= 1u;
+    }
+    hit_lists[base + slot] = entry;
+    if (*best).overflow != 0u {
+        return hit_lists[base + max_hits - 1u].t;
+    }
+    return tmax;
 }
 
 @compute @workgroup_size(64)
@@ -214,5 +369,5 @@ fn pick(@builtin(global_invocation_id) gid: vec3<u32>) {
     if index >= params.ray_count {
         return;
     }
-    hits[index] = trace(rays[index]);
+    hits[index] = trace(rays[index], index * params.max_hits);
 }

@@ -6,18 +6,53 @@ pub mod ray_triangle;
 pub mod traverse;
 
 use crate::bvh::Bvh;
-use crate::layout::{GpuHit, GpuRay};
+use crate::layout::{GpuHit, GpuHitEntry, GpuRay};
 use rayon::prelude::*;
 
-/// Traces each ray through `bvh` on the CPU, in parallel; `out[i]` answers `rays[i]`.
+/// Settings shared by a batch: the kernel's `GpuParams` minus the dispatch geometry.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct TraceSettings<'a> {
+    /// Layer mask per leaf-order triangle; empty when every object has the all-ones mask.
+    pub triangle_masks: &'a [u32],
+    /// All-hits list length per ray (0 outside all-hits mode).
+    pub max_hits: u32,
+    /// Watertight triangle test instead of Möller–Trumbore.
+    pub watertight: bool,
+}
+
+/// Closest-hit traversal of each ray with Möller–Trumbore, in parallel; `out[i]` answers `rays[i]`.
 pub fn trace_all(bvh: &Bvh, rays: &[GpuRay]) -> Vec<GpuHit> {
+    trace_batch(bvh, rays, &TraceSettings::default()).0
+}
+
+/// Traces each ray as its flags say, in parallel. Returns the per-ray records and the all-hits
+/// lists (`max_hits` entries per ray).
+pub fn trace_batch(
+    bvh: &Bvh,
+    rays: &[GpuRay],
+    settings: &TraceSettings<'_>,
+) -> (Vec<GpuHit>, Vec<GpuHitEntry>) {
     let buffers = traverse::Buffers {
         nodes: &bvh.nodes,
         triangles: &bvh.triangles,
+        triangle_masks: settings.triangle_masks,
         iteration_cap: bvh.iteration_cap(),
+        max_hits: settings.max_hits,
+        watertight: settings.watertight,
     };
-    rays.par_iter()
-        .with_min_len(256)
-        .map(|ray| traverse::trace(buffers, ray))
-        .collect()
+    let k = settings.max_hits as usize;
+    let mut lists = vec![GpuHitEntry::default(); rays.len() * k];
+    let hits = if k == 0 {
+        rays.par_iter()
+            .with_min_len(256)
+            .map(|ray| traverse::trace(buffers, ray, &mut []))
+            .collect()
+    } else {
+        rays.par_iter()
+            .zip(lists.par_chunks_mut(k))
+            .with_min_len(256)
+            .map(|(ray, list)| traverse::trace(buffers, ray, list))
+            .collect()
+    };
+    (hits, lists)
 }

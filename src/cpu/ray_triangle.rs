@@ -1,9 +1,11 @@
-//! Möller–Trumbore ray/triangle intersection, as in the paper:
+//! Ray/triangle tests. Möller–Trumbore, as in the paper:
 //! E1 = V1−V0, E2 = V2−V0, T = O−V0, P = D×E2, Q = T×E1;
 //! t = Q·E2 / P·E1, u = P·T / P·E1, v = Q·D / P·E1; hit when u ≥ 0, v ≥ 0, u+v ≤ 1.
 //!
-//! [`ray_triangle`] is the f32 twin of `ray_triangle` in `wgsl/pick.wgsl`;
+//! [`ray_triangle`] is the f32 twin of `ray_triangle` in `wgsl/pick.wgsl`, and
+//! [`ray_triangle_watertight`] the twin of the watertight test (Woop, Benthin, Wald 2013);
 //! [`ray_triangle_f64`] is the exact version used to refine hits and by the brute-force oracle.
+//! In all of them `det > 0` means the triangle is counter-clockwise as seen from the ray.
 
 use crate::layout::GpuTriangle;
 use glam::{DVec3, Vec3};
@@ -20,6 +22,20 @@ pub struct TriangleHit<F> {
     pub u: F,
     /// Barycentric weight of v2.
     pub v: F,
+    /// Positive when the triangle is counter-clockwise (front-facing) as seen from the ray.
+    pub det: F,
+}
+
+impl<F: Default> TriangleHit<F> {
+    fn miss() -> Self {
+        Self {
+            hit: false,
+            t: F::default(),
+            u: F::default(),
+            v: F::default(),
+            det: F::default(),
+        }
+    }
 }
 
 /// f32 Möller–Trumbore, the twin of the WGSL function.
@@ -32,12 +48,7 @@ pub fn ray_triangle(tri: &GpuTriangle, origin: Vec3, dir: Vec3) -> TriangleHit<f
     let p = dir.cross(e2);
     let det = p.dot(e1);
     if det == 0.0 {
-        return TriangleHit {
-            hit: false,
-            t: 0.0,
-            u: 0.0,
-            v: 0.0,
-        };
+        return TriangleHit::miss();
     }
     let inv_det = 1.0 / det;
     let to_origin = origin - v0;
@@ -50,6 +61,73 @@ pub fn ray_triangle(tri: &GpuTriangle, origin: Vec3, dir: Vec3) -> TriangleHit<f
         t,
         u,
         v,
+        det,
+    }
+}
+
+/// Per-ray set-up of the watertight test: the axis the ray runs along most (`kz`), the two
+/// others (swapped to keep the winding when the ray runs down `kz`) and the shear constants.
+#[derive(Clone, Copy, Debug)]
+pub struct Shear {
+    kx: usize,
+    ky: usize,
+    kz: usize,
+    s: Vec3,
+}
+
+/// The twin of `shear_for` in the WGSL.
+pub fn shear_for(dir: Vec3) -> Shear {
+    let a = dir.abs();
+    let mut kz = 2;
+    if a.x >= a.y && a.x >= a.z {
+        kz = 0;
+    } else if a.y >= a.z {
+        kz = 1;
+    }
+    let mut kx = (kz + 1) % 3;
+    let mut ky = (kx + 1) % 3;
+    if dir[kz] < 0.0 {
+        std::mem::swap(&mut kx, &mut ky);
+    }
+    Shear {
+        kx,
+        ky,
+        kz,
+        s: Vec3::new(dir[kx] / dir[kz], dir[ky] / dir[kz], 1.0 / dir[kz]),
+    }
+}
+
+/// Watertight ray/triangle test (Woop, Benthin, Wald, JCGT 2013): edge functions in a sheared
+/// ray space are computed identically for the two triangles sharing an edge, so a ray can never
+/// slip between them. Edges are inclusive.
+pub fn ray_triangle_watertight(tri: &GpuTriangle, origin: Vec3, sh: &Shear) -> TriangleHit<f32> {
+    let a = Vec3::from(tri.v0) - origin;
+    let b = Vec3::from(tri.v1) - origin;
+    let c = Vec3::from(tri.v2) - origin;
+    let ax = a[sh.kx] - sh.s.x * a[sh.kz];
+    let ay = a[sh.ky] - sh.s.y * a[sh.kz];
+    let bx = b[sh.kx] - sh.s.x * b[sh.kz];
+    let by = b[sh.ky] - sh.s.y * b[sh.kz];
+    let cx = c[sh.kx] - sh.s.x * c[sh.kz];
+    let cy = c[sh.ky] - sh.s.y * c[sh.kz];
+    let u_edge = cx * by - cy * bx;
+    let v_edge = ax * cy - ay * cx;
+    let w_edge = bx * ay - by * ax;
+    let outside = (u_edge < 0.0 || v_edge < 0.0 || w_edge < 0.0)
+        && (u_edge > 0.0 || v_edge > 0.0 || w_edge > 0.0);
+    let det = u_edge + v_edge + w_edge;
+    if outside || det == 0.0 {
+        return TriangleHit::miss();
+    }
+    let t_scaled =
+        u_edge * sh.s.z * a[sh.kz] + v_edge * sh.s.z * b[sh.kz] + w_edge * sh.s.z * c[sh.kz];
+    let inv_det = 1.0 / det;
+    TriangleHit {
+        hit: true,
+        t: t_scaled * inv_det,
+        u: v_edge * inv_det,
+        v: w_edge * inv_det,
+        det,
     }
 }
 
@@ -61,12 +139,7 @@ pub fn ray_triangle_f64([v0, v1, v2]: [DVec3; 3], origin: DVec3, dir: DVec3) -> 
     let p = dir.cross(e2);
     let det = p.dot(e1);
     if det == 0.0 {
-        return TriangleHit {
-            hit: false,
-            t: 0.0,
-            u: 0.0,
-            v: 0.0,
-        };
+        return TriangleHit::miss();
     }
     let to_origin = origin - v0;
     let u = p.dot(to_origin) / det;
@@ -78,5 +151,6 @@ pub fn ray_triangle_f64([v0, v1, v2]: [DVec3; 3], origin: DVec3, dir: DVec3) -> 
         t,
         u,
         v,
+        det,
     }
 }

@@ -7,9 +7,10 @@
 )]
 
 use super::ray_box::{ray_box, safe_inverse};
-use super::ray_triangle::ray_triangle;
+use super::ray_triangle::{TriangleHit, ray_triangle, ray_triangle_watertight, shear_for};
 use crate::layout::{
-    CAP_REACHED, GpuHit, GpuNode, GpuRay, GpuTriangle, KIND_BITS, KIND_INNER, NO_HIT,
+    CAP_REACHED, CULL_BACK, CULL_FRONT, CULL_SHIFT, GpuHit, GpuHitEntry, GpuNode, GpuRay,
+    GpuTriangle, KIND_BITS, KIND_INNER, MODE_ALL, MODE_ANY, NO_HIT,
 };
 use glam::Vec3;
 
@@ -42,23 +43,40 @@ fn sibling(index: u32, parent: u32, parent_node: &GpuNode) -> u32 {
     parent + 1
 }
 
-/// The tree, as the kernel's storage buffers hold it.
+fn facing_allowed(det: f32, cull: u32) -> bool {
+    if cull == CULL_BACK {
+        return det > 0.0;
+    }
+    if cull == CULL_FRONT {
+        return det < 0.0;
+    }
+    true
+}
+
+/// The tree and per-dispatch settings, as the kernel's bindings hold them.
 #[derive(Clone, Copy, Debug)]
 pub struct Buffers<'a> {
     /// Nodes, depth-first, root at 0.
     pub nodes: &'a [GpuNode],
     /// Triangles in leaf order.
     pub triangles: &'a [GpuTriangle],
+    /// Layer mask of each leaf-order triangle (ignored when empty).
+    pub triangle_masks: &'a [u32],
     /// Iterations after which the walk gives up with `CAP_REACHED`.
     pub iteration_cap: u32,
+    /// Length of each ray's all-hits list.
+    pub max_hits: u32,
+    /// Use the watertight triangle test instead of Möller–Trumbore.
+    pub watertight: bool,
 }
 
-/// Finds the nearest triangle hit by `ray`; the same answer the GPU kernel computes.
+/// Traces `ray`: the same answer the GPU kernel computes. `hit_list` (length `max_hits`) receives
+/// the all-hits list in `MODE_ALL`.
 #[allow(
     clippy::neg_cmp_op_on_partial_ord,
     reason = "as in the WGSL: `!(tmin <= tmax)` also rejects NaN"
 )]
-pub fn trace(buffers: Buffers<'_>, ray: &GpuRay) -> GpuHit {
+pub fn trace(buffers: Buffers<'_>, ray: &GpuRay, hit_list: &mut [GpuHitEntry]) -> GpuHit {
     let nodes = buffers.nodes;
     let triangles = buffers.triangles;
     let origin = Vec3::from(ray.origin);
@@ -66,15 +84,19 @@ pub fn trace(buffers: Buffers<'_>, ray: &GpuRay) -> GpuHit {
     let mut best = GpuHit {
         t: ray.tmax,
         prim: NO_HIT,
-        u: 0.0,
-        v: 0.0,
-        box_tests: 0,
-        triangle_tests: 0,
+        ..GpuHit::default()
     };
     if nodes.is_empty() || !(ray.tmin <= ray.tmax) {
         return best;
     }
+    let mode = ray.flags & 3;
+    let cull = (ray.flags >> CULL_SHIFT) & 3;
     let inv_dir = safe_inverse(dir);
+    let shear = shear_for(dir);
+    // Hits need t in (tmin, limit]; limit shrinks to the nearest hit (closest), or to the
+    // farthest kept hit once the all-hits list is full and has overflowed.
+    let mut limit = ray.tmax;
+    let mut done = false;
     let mut current = 0u32;
     let mut state = FROM_PARENT;
     let mut iterations = 0u32;
@@ -103,23 +125,59 @@ pub fn trace(buffers: Buffers<'_>, ray: &GpuRay) -> GpuHit {
         // Arrived from the parent or the sibling: test this node's box.
         best.box_tests += 1;
         let mut descend = false;
-        if ray_box(node, origin, dir, inv_dir, ray.tmin, best.t) {
+        if ray_box(node, origin, dir, inv_dir, ray.tmin, limit) {
             let kind = kind_of(node);
             if kind >= KIND_INNER {
                 descend = true;
             } else {
                 for i in 0..kind {
                     let prim = node.first + i;
+                    if !buffers.triangle_masks.is_empty()
+                        && (buffers.triangle_masks[prim as usize] & ray.mask) == 0
+                    {
+                        continue;
+                    }
                     best.triangle_tests += 1;
-                    let h = ray_triangle(&triangles[prim as usize], origin, dir);
-                    if h.hit && h.t > ray.tmin && h.t <= best.t {
+                    let h: TriangleHit<f32> = if buffers.watertight {
+                        ray_triangle_watertight(&triangles[prim as usize], origin, &shear)
+                    } else {
+                        ray_triangle(&triangles[prim as usize], origin, dir)
+                    };
+                    if !h.hit
+                        || !facing_allowed(h.det, cull)
+                        || !(h.t > ray.tmin)
+                        || !(h.t <= limit)
+                    {
+                        continue;
+                    }
+                    if mode == MODE_ALL {
+                        limit = insert_hit(
+                            &mut best,
+                            hit_list,
+                            GpuHitEntry {
+                                t: h.t,
+                                prim,
+                                u: h.u,
+                                v: h.v,
+                            },
+                            ray.tmax,
+                        );
+                    } else {
                         best.t = h.t;
                         best.prim = prim;
                         best.u = h.u;
                         best.v = h.v;
+                        limit = h.t;
+                        if mode == MODE_ANY {
+                            done = true;
+                            break;
+                        }
                     }
                 }
             }
+        }
+        if done {
+            break;
         }
         if descend {
             current = near_child(current, node, dir);
@@ -135,5 +193,37 @@ pub fn trace(buffers: Buffers<'_>, ray: &GpuRay) -> GpuHit {
             state = FROM_CHILD;
         }
     }
+    if mode == MODE_ALL && best.count > 0 && best.prim != CAP_REACHED {
+        let nearest = hit_list[0];
+        best.t = nearest.t;
+        best.prim = nearest.prim;
+        best.u = nearest.u;
+        best.v = nearest.v;
+    }
     best
+}
+
+/// Inserts a hit into the ray's list, kept sorted by t; when the list is full the farthest entry
+/// is dropped and the ray is flagged as overflowing. Returns the new limit for t.
+fn insert_hit(best: &mut GpuHit, list: &mut [GpuHitEntry], entry: GpuHitEntry, tmax: f32) -> f32 {
+    let max_hits = list.len();
+    let mut slot = best.count as usize;
+    if slot == max_hits {
+        best.overflow = 1;
+        slot = max_hits - 1;
+        if entry.t >= list[slot].t {
+            return list[slot].t;
+        }
+    } else {
+        best.count += 1;
+    }
+    while slot > 0 && list[slot - 1].t > entry.t {
+        list[slot] = list[slot - 1];
+        slot -= 1;
+    }
+    list[slot] = entry;
+    if best.overflow != 0 {
+        return list[max_hits - 1].t;
+    }
+    tmax
 }

@@ -3,10 +3,11 @@
 
 use super::context::GpuContext;
 use crate::error::{Error, Result};
-use crate::frame::local_rays;
-use crate::layout::{GpuHit, GpuNode, GpuParams, GpuRay, GpuTriangle};
+use crate::frame::local_rays_for;
+use crate::layout::{GpuHit, GpuHitEntry, GpuNode, GpuParams, GpuRay, GpuTriangle};
 use crate::picker::{BuiltScene, Picker};
-use crate::ray::{Hit, Ray};
+use crate::query::{Answers, Intersector, Query};
+use crate::ray::Ray;
 use std::mem::size_of;
 use std::sync::Arc;
 use wgpu::util::DeviceExt;
@@ -28,15 +29,18 @@ pub struct GpuPicker {
     params: wgpu::Buffer,
     nodes: wgpu::Buffer,
     triangles: wgpu::Buffer,
+    triangle_masks: wgpu::Buffer,
     batch: Option<BatchBuffers>,
     chunk_rays: u32,
 }
 
-/// Per-chunk buffers, sized for `capacity` rays.
+/// Per-chunk buffers, sized for `capacity` rays with `list_length` all-hits entries each.
 struct BatchBuffers {
     capacity: u32,
+    list_length: u32,
     rays: wgpu::Buffer,
     hits: wgpu::Buffer,
+    lists: wgpu::Buffer,
     readback: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
 }
@@ -99,6 +103,8 @@ impl GpuPicker {
                 storage(2, true),
                 storage(3, true),
                 storage(4, false),
+                storage(5, false),
+                storage(6, true),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -122,6 +128,7 @@ impl GpuPicker {
             &built.bvh.triangles,
             GpuTriangle::default(),
         );
+        let triangle_masks = storage_init(device, "triangle masks", &built.triangle_masks, 0u32);
         let params = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("params"),
             size: size_of::<GpuParams>() as u64,
@@ -143,6 +150,7 @@ impl GpuPicker {
             params,
             nodes,
             triangles,
+            triangle_masks,
             batch: None,
             chunk_rays: DEFAULT_CHUNK_RAYS.min(by_binding),
         })
@@ -165,18 +173,45 @@ impl GpuPicker {
         &self.context
     }
 
-    /// Runs the kernel over kernel-frame rays and returns the raw traversal results.
+    /// Runs the closest-hit kernel (Möller–Trumbore) over kernel-frame rays; raw results.
     pub fn trace(&mut self, rays: &[GpuRay]) -> Result<Vec<GpuHit>> {
-        let mut out = Vec::with_capacity(rays.len());
-        for chunk in rays.chunks(self.chunk_rays as usize) {
-            self.trace_chunk(chunk, &mut out)?;
-        }
-        Ok(out)
+        Ok(self.trace_batch(rays, 0, false)?.0)
     }
 
-    fn trace_chunk(&mut self, rays: &[GpuRay], out: &mut Vec<GpuHit>) -> Result<()> {
+    /// Runs the kernel over kernel-frame rays (each with its own flags), with all-hits lists of
+    /// `max_hits` entries per ray. Returns the per-ray records and the lists.
+    pub fn trace_batch(
+        &mut self,
+        rays: &[GpuRay],
+        max_hits: u32,
+        watertight: bool,
+    ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
+        let mut hits = Vec::with_capacity(rays.len());
+        let mut lists = Vec::with_capacity(rays.len() * max_hits as usize);
+        let max_binding = self.context.device.limits().max_storage_buffer_binding_size;
+        let by_lists = if max_hits == 0 {
+            u32::MAX
+        } else {
+            (max_binding / (size_of::<GpuHitEntry>() as u64 * max_hits as u64))
+                .clamp(1, u32::MAX as u64) as u32
+        };
+        let chunk = self.chunk_rays.min(by_lists) as usize;
+        for part in rays.chunks(chunk) {
+            self.trace_chunk(part, max_hits, watertight, &mut hits, &mut lists)?;
+        }
+        Ok((hits, lists))
+    }
+
+    fn trace_chunk(
+        &mut self,
+        rays: &[GpuRay],
+        max_hits: u32,
+        watertight: bool,
+        hits_out: &mut Vec<GpuHit>,
+        lists_out: &mut Vec<GpuHitEntry>,
+    ) -> Result<()> {
         let count = rays.len() as u32;
-        self.ensure_capacity(count);
+        self.ensure_capacity(count, max_hits);
         let device = &self.context.device;
         let queue = &self.context.queue;
         let batch = self
@@ -192,6 +227,10 @@ impl GpuPicker {
             node_count: self.built.bvh.nodes.len() as u32,
             iteration_cap: self.built.bvh.iteration_cap(),
             row_pitch: groups_x * WORKGROUP_SIZE,
+            max_hits,
+            use_masks: u32::from(!self.built.triangle_masks.is_empty()),
+            watertight: u32::from(watertight),
+            pad: 0,
         };
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
@@ -208,13 +247,29 @@ impl GpuPicker {
             pass.set_bind_group(0, &batch.bind_group, &[]);
             pass.dispatch_workgroups(groups_x, groups_y, 1);
         }
-        let bytes = (rays.len() * size_of::<GpuHit>()) as u64;
-        encoder.copy_buffer_to_buffer(&batch.hits, 0, &batch.readback, 0, bytes);
+        let hit_bytes = (rays.len() * size_of::<GpuHit>()) as u64;
+        let list_bytes = (rays.len() * max_hits as usize * size_of::<GpuHitEntry>()) as u64;
+        let list_offset = batch.capacity as u64 * size_of::<GpuHit>() as u64;
+        encoder.copy_buffer_to_buffer(&batch.hits, 0, &batch.readback, 0, hit_bytes);
+        if list_bytes > 0 {
+            encoder.copy_buffer_to_buffer(
+                &batch.lists,
+                0,
+                &batch.readback,
+                list_offset,
+                list_bytes,
+            );
+        }
         let submission = queue.submit([encoder.finish()]);
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(Error::Gpu(e.to_string()));
         }
-        let slice = batch.readback.slice(..bytes);
+        let mapped_end = if list_bytes > 0 {
+            list_offset + list_bytes
+        } else {
+            hit_bytes
+        };
+        let slice = batch.readback.slice(..mapped_end);
         let (sender, receiver) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = sender.send(r);
@@ -232,21 +287,38 @@ impl GpuPicker {
             Err(_) => return Err(Error::Gpu("reading results back was abandoned".into())),
         }
         {
-            let view = slice
+            let read_error = |e| Error::Gpu(format!("reading results back failed: {e}"));
+            let view = batch
+                .readback
+                .slice(..hit_bytes)
                 .get_mapped_range()
-                .map_err(|e| Error::Gpu(format!("reading results back failed: {e}")))?;
-            out.extend_from_slice(bytemuck::cast_slice(&view));
+                .map_err(read_error)?;
+            hits_out.extend_from_slice(bytemuck::cast_slice(&view));
+            if list_bytes > 0 {
+                let view = batch
+                    .readback
+                    .slice(list_offset..list_offset + list_bytes)
+                    .get_mapped_range()
+                    .map_err(read_error)?;
+                lists_out.extend_from_slice(bytemuck::cast_slice(&view));
+            }
         }
         batch.readback.unmap();
         Ok(())
     }
 
-    /// Grows the per-chunk buffers to hold `rays` rays (never shrinks).
-    fn ensure_capacity(&mut self, rays: u32) {
-        if self.batch.as_ref().is_some_and(|b| b.capacity >= rays) {
+    /// Grows the per-chunk buffers to hold `rays` rays with `list_length` list entries each
+    /// (never shrinks).
+    fn ensure_capacity(&mut self, rays: u32, list_length: u32) {
+        if self
+            .batch
+            .as_ref()
+            .is_some_and(|b| b.capacity >= rays && b.list_length >= list_length)
+        {
             return;
         }
         let capacity = rays.next_power_of_two().min(self.chunk_rays).max(rays);
+        let list_length = list_length.max(self.batch.as_ref().map_or(0, |b| b.list_length));
         let device = &self.context.device;
         let buffer = |label, size: usize, usage| {
             device.create_buffer(&wgpu::BufferDescriptor {
@@ -259,7 +331,13 @@ impl GpuPicker {
         use wgpu::BufferUsages as U;
         let rays_buffer = buffer("rays", size_of::<GpuRay>(), U::STORAGE | U::COPY_DST);
         let hits = buffer("hits", size_of::<GpuHit>(), U::STORAGE | U::COPY_SRC);
-        let readback = buffer("readback", size_of::<GpuHit>(), U::MAP_READ | U::COPY_DST);
+        let entry = size_of::<GpuHitEntry>() * list_length.max(1) as usize;
+        let lists = buffer("hit lists", entry, U::STORAGE | U::COPY_SRC);
+        let readback = buffer(
+            "readback",
+            size_of::<GpuHit>() + size_of::<GpuHitEntry>() * list_length as usize,
+            U::MAP_READ | U::COPY_DST,
+        );
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("pick"),
             layout: &self.layout,
@@ -284,12 +362,22 @@ impl GpuPicker {
                     binding: 4,
                     resource: hits.as_entire_binding(),
                 },
+                wgpu::BindGroupEntry {
+                    binding: 5,
+                    resource: lists.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 6,
+                    resource: self.triangle_masks.as_entire_binding(),
+                },
             ],
         });
         self.batch = Some(BatchBuffers {
             capacity,
+            list_length,
             rays: rays_buffer,
             hits,
+            lists,
             readback,
             bind_group,
         });
@@ -297,10 +385,13 @@ impl GpuPicker {
 }
 
 impl Picker for GpuPicker {
-    fn pick(&mut self, rays: &[Ray]) -> Result<Vec<Hit>> {
-        let local = local_rays(self.built.bvh.origin, rays);
-        let found = self.trace(&local)?;
-        self.built.resolve_all(rays, &found)
+    fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers> {
+        query.validate()?;
+        let local = local_rays_for(self.built.bvh.origin, rays, query);
+        let watertight = query.intersector == Intersector::Watertight;
+        let (found, lists) = self.trace_batch(&local, query.list_length(), watertight)?;
+        let built = self.built.clone();
+        built.answers(rays, query, &found, &lists)
     }
 }
 

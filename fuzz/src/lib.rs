@@ -1,0 +1,107 @@
+//! Helpers shared by the fuzz targets in `fuzz_targets/`.
+//!
+//! Besides "no panic", the targets check the guarantees the loaders document
+//! for a successful result (see `ElevationGrid` and `Mesh`); a failed check
+//! panics, so libFuzzer reports it like any other crash.
+
+use std::path::PathBuf;
+
+use raypick::Mesh;
+use raypick::dem::ElevationGrid;
+
+/// Asserts what `ElevationGrid`'s docs say every loader guarantees:
+/// `dx > 0`, `dy > 0`, finite origin, `heights.len() == ncols * nrows`
+/// and finite `Some` heights.
+pub fn check_grid(grid: &ElevationGrid) {
+    assert!(grid.ncols > 0 && grid.nrows > 0, "empty grid accepted");
+    assert!(grid.dx > 0.0 && grid.dy > 0.0, "non-positive spacing");
+    assert!(grid.dx.is_finite() && grid.dy.is_finite(), "non-finite spacing");
+    assert!(grid.x0.is_finite() && grid.y0.is_finite(), "non-finite origin");
+    assert_eq!(
+        Some(grid.heights.len()),
+        grid.ncols.checked_mul(grid.nrows),
+        "heights.len() != ncols * nrows"
+    );
+    assert!(
+        grid.heights.iter().flatten().all(|h| h.is_finite()),
+        "non-finite Some height"
+    );
+}
+
+/// Asserts that every triangle of a loaded mesh indexes an existing vertex
+/// and that every position is finite (what `load_obj` promises).
+pub fn check_mesh(mesh: &Mesh) {
+    let n = mesh.positions.len();
+    for t in &mesh.triangles {
+        for &i in t {
+            assert!((i as usize) < n, "triangle index {i} >= {n} vertices");
+        }
+    }
+    assert!(
+        mesh.positions.iter().all(|p| p.is_finite()),
+        "non-finite vertex position"
+    );
+}
+
+/// A per-process scratch file for targets whose loader only takes a path
+/// (`load_obj`). Prefers `/dev/shm` (tmpfs) to keep the per-run write cheap.
+pub fn scratch_path(extension: &str) -> PathBuf {
+    let dir = std::env::var_os("RAYPICK_FUZZ_TMPDIR")
+        .map(PathBuf::from)
+        .or_else(|| {
+            let shm = PathBuf::from("/dev/shm");
+            shm.is_dir().then_some(shm)
+        })
+        .unwrap_or_else(std::env::temp_dir);
+    dir.join(format!(
+        "raypick-fuzz-{}.{extension}",
+        std::process::id()
+    ))
+}
+
+/// CRC-32 (ISO-HDLC, as used by PNG chunks).
+fn crc32(bytes: &[u8]) -> u32 {
+    static TABLE: std::sync::OnceLock<[u32; 256]> = std::sync::OnceLock::new();
+    let table = TABLE.get_or_init(|| {
+        let mut t = [0u32; 256];
+        for (n, slot) in t.iter_mut().enumerate() {
+            let mut c = n as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 { 0xedb8_8320 ^ (c >> 1) } else { c >> 1 };
+            }
+            *slot = c;
+        }
+        t
+    });
+    !bytes
+        .iter()
+        .fold(!0u32, |c, &b| table[((c ^ u32::from(b)) & 0xff) as usize] ^ (c >> 8))
+}
+
+/// Rewrites the CRC of every complete chunk of a PNG stream in place, so that
+/// mutations of chunk contents are not all rejected by the CRC check and the
+/// fuzzer reaches the decoder proper. Stops at the first chunk that does not
+/// fit in `data` (the rest is left as is, truncated files stay truncated).
+pub fn fix_png_crcs(data: &mut [u8]) {
+    let mut pos = 8; // PNG signature
+    while let Some(header) = data.get(pos..pos + 8) {
+        let len = u32::from_be_bytes([header[0], header[1], header[2], header[3]]) as usize;
+        let Some(crc_at) = pos.checked_add(8).and_then(|p| p.checked_add(len)) else {
+            return;
+        };
+        if crc_at + 4 > data.len() {
+            return;
+        }
+        let crc = crc32(&data[pos + 4..crc_at]);
+        data[crc_at..crc_at + 4].copy_from_slice(&crc.to_be_bytes());
+        pos = crc_at + 4;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn crc_of_iend() {
+        assert_eq!(super::crc32(b"IEND"), 0xae42_6082);
+    }
+}
