@@ -3,6 +3,7 @@
 //! A disagreement that only decides which side of an edge, or of the ray's range end, the ray
 //! passes (within f32 reach of that boundary) is a tie, counted separately and never hidden.
 
+use crate::query::{Answers, Mode};
 use crate::ray::{Hit, Ray};
 use crate::scene::Scene;
 
@@ -10,7 +11,7 @@ use crate::scene::Scene;
 pub const RELATIVE_TOLERANCE: f64 = 1e-5;
 
 /// How two answers for one ray compare.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Verdict {
     /// Same hit/miss and the same triangle (or both invalid).
     Same,
@@ -52,6 +53,124 @@ pub fn classify(scene: &Scene, ray: &Ray, a: &Hit, b: &Hit) -> Verdict {
     } else {
         Verdict::Mismatch
     }
+}
+
+/// Compares two any-hit answers: only hit/miss counts. When one side missed, the other side's
+/// hit and every hit in `reference` (all hits of the ray, e.g. from the oracle) must lie at a
+/// boundary for a tie.
+pub fn classify_any(scene: &Scene, ray: &Ray, a: &Hit, b: &Hit, reference: &[Hit]) -> Verdict {
+    if a.invalid || b.invalid {
+        return if a.invalid == b.invalid {
+            Verdict::Same
+        } else {
+            Verdict::Mismatch
+        };
+    }
+    if a.hit == b.hit {
+        return Verdict::Same;
+    }
+    let found = if a.hit { a } else { b };
+    if near_boundary(scene, ray, found) && reference.iter().all(|h| near_boundary(scene, ray, h)) {
+        Verdict::Boundary
+    } else {
+        Verdict::Mismatch
+    }
+}
+
+/// Compares two all-hits lists (each sorted by t). Hits pair up by triangle, or by equal t
+/// (a shared edge); a hit left without a partner is a tie only at a boundary. When a list
+/// overflowed, only hits nearer than its farthest kept hit are compared.
+pub fn classify_lists(scene: &Scene, ray: &Ray, a: (&[Hit], bool), b: (&[Hit], bool)) -> Verdict {
+    let cutoff = [a, b]
+        .iter()
+        .filter(|(list, overflow)| *overflow && !list.is_empty())
+        .map(|(list, _)| list[list.len() - 1].t * (1.0 - RELATIVE_TOLERANCE))
+        .fold(f64::INFINITY, f64::min);
+    let a: Vec<&Hit> = a.0.iter().filter(|h| h.t < cutoff).collect();
+    let b: Vec<&Hit> = b.0.iter().filter(|h| h.t < cutoff).collect();
+    let mut used = vec![false; b.len()];
+    let mut verdict = Verdict::Same;
+    let mut unmatched: Vec<&Hit> = Vec::new();
+    for x in &a {
+        let same = (0..b.len())
+            .find(|&j| !used[j] && (b[j].object, b[j].triangle) == (x.object, x.triangle));
+        let edge = || {
+            (0..b.len()).find(|&j| {
+                !used[j] && (b[j].t - x.t).abs() <= RELATIVE_TOLERANCE * x.t.abs().max(1.0)
+            })
+        };
+        match same
+            .map(|j| (j, Verdict::Same))
+            .or_else(|| edge().map(|j| (j, Verdict::SharedEdge)))
+        {
+            Some((j, v)) => {
+                used[j] = true;
+                verdict = verdict.max(v);
+            }
+            None => unmatched.push(x),
+        }
+    }
+    unmatched.extend(b.iter().zip(&used).filter(|(_, u)| !**u).map(|(h, _)| *h));
+    for h in unmatched {
+        if near_boundary(scene, ray, h) {
+            verdict = verdict.max(Verdict::Boundary);
+        } else {
+            return Verdict::Mismatch;
+        }
+    }
+    verdict
+}
+
+/// Compares two batches of answers to the same query, ray by ray. `reference_lists` (all hits
+/// per ray, e.g. the oracle's) backs any-hit ties. Returns the tally and the mismatching rays.
+pub fn compare_answers(
+    scene: &Scene,
+    rays: &[Ray],
+    mode: Mode,
+    a: &Answers,
+    b: &Answers,
+    reference_lists: Option<&Answers>,
+) -> (Tally, Vec<usize>) {
+    let mut tally = Tally::default();
+    let mut bad = Vec::new();
+    for (i, ray) in rays.iter().enumerate() {
+        let (x, y) = (&a.nearest[i], &b.nearest[i]);
+        tally.rays += 1;
+        tally.hits += x.hit as usize;
+        tally.invalid += x.invalid as usize;
+        let verdict = match mode {
+            Mode::Closest => classify(scene, ray, x, y),
+            Mode::Any => classify_any(
+                scene,
+                ray,
+                x,
+                y,
+                reference_lists.map_or(&[], |r| r.hits_of(i)),
+            ),
+            Mode::All => {
+                if x.invalid != y.invalid {
+                    Verdict::Mismatch
+                } else {
+                    classify_lists(
+                        scene,
+                        ray,
+                        (a.hits_of(i), a.overflow[i]),
+                        (b.hits_of(i), b.overflow[i]),
+                    )
+                }
+            }
+        };
+        match verdict {
+            Verdict::Same => {}
+            Verdict::SharedEdge => tally.shared_edge += 1,
+            Verdict::Boundary => tally.boundary += 1,
+            Verdict::Mismatch => {
+                tally.mismatches += 1;
+                bad.push(i);
+            }
+        }
+    }
+    (tally, bad)
 }
 
 /// Whether `hit` lies within f32 reach of its triangle's edges or of the ray's range ends.

@@ -22,6 +22,7 @@
 //! [`frame::resolve`] (f64 refinement) -> [`Hit`].
 
 pub mod bvh;
+pub mod camera;
 pub mod compare;
 pub mod cpu;
 pub mod dem;

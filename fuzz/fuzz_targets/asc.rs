@@ -5,7 +5,9 @@ use libfuzzer_sys::fuzz_target;
 use raypick::dem::read_asc;
 
 fuzz_target!(|data: &[u8]| {
-    if let Ok(grid) = read_asc(data, "fuzz.asc") {
+    let result = read_asc(data, "fuzz.asc");
+    raypick_fuzz::debug(&result, raypick_fuzz::grid_summary);
+    if let Ok(grid) = result {
         raypick_fuzz::check_grid(&grid);
     }
 });

@@ -21,7 +21,9 @@ const GRID: PngGrid = PngGrid {
 fuzz_target!(|data: &[u8]| {
     let mut bytes = data.to_vec();
     raypick_fuzz::fix_png_crcs(&mut bytes);
-    if let Ok(grid) = read_png16(Cursor::new(bytes), "fuzz.png", GRID) {
+    let result = read_png16(Cursor::new(bytes), "fuzz.png", GRID);
+    raypick_fuzz::debug(&result, raypick_fuzz::grid_summary);
+    if let Ok(grid) = result {
         raypick_fuzz::check_grid(&grid);
     }
 });

@@ -9,7 +9,9 @@ use raypick::io::ray_file::parse_rays;
 
 fuzz_target!(|data: &[u8]| {
     let text = String::from_utf8_lossy(data);
-    if let Ok(rays) = parse_rays("fuzz.txt", &text) {
+    let result = parse_rays("fuzz.txt", &text);
+    raypick_fuzz::debug(&result, |r: &Vec<_>| format!("{} rays", r.len()));
+    if let Ok(rays) = result {
         // At most one ray per line.
         assert!(rays.len() <= text.lines().count());
     }

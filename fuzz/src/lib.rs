@@ -28,6 +28,15 @@ pub fn check_grid(grid: &ElevationGrid) {
     );
 }
 
+/// A one-line description of a grid for [`debug`].
+pub fn grid_summary(grid: &ElevationGrid) -> String {
+    let nodata = grid.heights.iter().filter(|h| h.is_none()).count();
+    format!(
+        "{}x{} grid at ({}, {}) spacing ({}, {}), {nodata} nodata",
+        grid.ncols, grid.nrows, grid.x0, grid.y0, grid.dx, grid.dy
+    )
+}
+
 /// Asserts that every triangle of a loaded mesh indexes an existing vertex
 /// and that every position is finite (what `load_obj` promises).
 pub fn check_mesh(mesh: &Mesh) {
@@ -41,6 +50,19 @@ pub fn check_mesh(mesh: &Mesh) {
         mesh.positions.iter().all(|p| p.is_finite()),
         "non-finite vertex position"
     );
+}
+
+/// When `RAYPICK_FUZZ_DEBUG` is set, prints what the loader returned (the
+/// error message, or the size of the result) to stderr; useful with
+/// `cargo fuzz run <target> <file>` to see why an input is rejected.
+pub fn debug<T, E: std::fmt::Display>(result: &Result<T, E>, size: impl Fn(&T) -> String) {
+    static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    if *ON.get_or_init(|| std::env::var_os("RAYPICK_FUZZ_DEBUG").is_some()) {
+        match result {
+            Ok(value) => eprintln!("raypick-fuzz: Ok({})", size(value)),
+            Err(e) => eprintln!("raypick-fuzz: Err({e})"),
+        }
+    }
 }
 
 /// A per-process scratch file for targets whose loader only takes a path

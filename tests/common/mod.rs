@@ -2,11 +2,12 @@
 //! every backend and the oracle.
 #![allow(dead_code)]
 
-use raypick::compare::Tally;
-use raypick::oracle::brute_force_all;
+use raypick::compare::{Tally, compare_answers};
+use raypick::oracle::{brute_force_all, brute_force_query};
 use raypick::synthetic::{RayKind, mixed_rays};
 use raypick::{
-    BuildOptions, BuiltScene, CpuPicker, GpuContext, GpuPicker, Hit, Picker, Ray, Scene,
+    Answers, BuildOptions, BuiltScene, CpuPicker, GpuContext, GpuPicker, Hit, Mode, Picker, Query,
+    Ray, Scene,
 };
 use std::sync::{Arc, OnceLock};
 
@@ -86,4 +87,93 @@ pub fn check_scene(
     let built = Arc::new(BuiltScene::new(scene, &options).expect("build"));
     let rays = mixed_rays(&built.scene, rays_per_scene, 7);
     assert_equivalent(name, built, &rays)
+}
+
+/// Answers `rays` to `query` on the CPU, the GPU and the oracle and asserts zero mismatches per
+/// ray kind between every pair. Returns the CPU answers.
+pub fn assert_query_equivalent(
+    name: &str,
+    built: Arc<BuiltScene>,
+    rays: &[(RayKind, Ray)],
+    query: &Query,
+) -> Answers {
+    built
+        .bvh
+        .validate()
+        .unwrap_or_else(|e| panic!("{name}: invalid tree: {e}"));
+    let plain: Vec<Ray> = rays.iter().map(|(_, r)| *r).collect();
+    let cpu = CpuPicker::new(built.clone())
+        .query(&plain, query)
+        .expect("cpu query");
+    let gpu_answers = GpuPicker::new(gpu(), built.clone())
+        .expect("gpu picker")
+        .query(&plain, query)
+        .expect("gpu query");
+    let oracle = brute_force_query(&built.scene, &plain, query);
+    let every_hit = brute_force_query(
+        &built.scene,
+        &plain,
+        &Query {
+            mode: Mode::Any,
+            ..*query
+        },
+    );
+    let mut failures = Vec::new();
+    for kind in RayKind::ALL {
+        let idx: Vec<usize> = (0..rays.len()).filter(|&i| rays[i].0 == kind).collect();
+        if idx.is_empty() {
+            continue;
+        }
+        let kind_rays: Vec<Ray> = idx.iter().map(|&i| plain[i]).collect();
+        let pick = |a: &Answers| subset(a, &idx);
+        let reference = pick(&every_hit);
+        for (pair, a, b) in [
+            ("cpu/oracle", &cpu, &oracle),
+            ("gpu/cpu", &gpu_answers, &cpu),
+            ("gpu/oracle", &gpu_answers, &oracle),
+        ] {
+            let (tally, bad) = compare_answers(
+                &built.scene,
+                &kind_rays,
+                query.mode,
+                &pick(a),
+                &pick(b),
+                Some(&reference),
+            );
+            eprintln!("{name:>14} {:>13} {pair:>10}: {tally:?}", kind.name());
+            for &j in bad.iter().take(3) {
+                failures.push(format!(
+                    "{name} {query:?} {} {pair}: ray {:?}\n  first:  {:?}\n  second: {:?}",
+                    kind.name(),
+                    kind_rays[j],
+                    pick(a).hits_of(j),
+                    pick(b).hits_of(j)
+                ));
+            }
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "{} mismatches:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+    cpu
+}
+
+/// The answers of the rays at `idx`, in that order.
+pub fn subset(a: &Answers, idx: &[usize]) -> Answers {
+    let mut out = Answers {
+        nearest: idx.iter().map(|&i| a.nearest[i]).collect(),
+        ..Answers::default()
+    };
+    if !a.list_start.is_empty() {
+        out.list_start.push(0);
+        for &i in idx {
+            out.lists.extend_from_slice(a.hits_of(i));
+            out.list_start.push(out.lists.len());
+            out.overflow.push(a.overflow[i]);
+        }
+    }
+    out
 }

@@ -1,0 +1,259 @@
+#!/usr/bin/env python3
+"""Writes the seed corpora for the fuzz targets into fuzz/corpus/<target>/.
+
+Only the Python standard library is used. Run from anywhere:
+
+    python3 fuzz/make_seeds.py
+
+Seeds: the real test files (tests/data; the bunny cut to its first 200 lines,
+plus a variant with the faces that only use those vertices), small
+hand-written text inputs, tiny GeoTIFFs covering the sample types,
+byte orders, BigTIFF, strips/tiles, deflate and the three georeferencing tags,
+and tiny 16-bit / 8-bit grayscale PNGs.
+"""
+
+import shutil
+import struct
+import zlib
+from pathlib import Path
+
+FUZZ = Path(__file__).resolve().parent
+ROOT = FUZZ.parent
+DATA = ROOT / "tests" / "data"
+CORPUS = FUZZ / "corpus"
+
+
+def put(target: str, name: str, data) -> None:
+    d = CORPUS / target
+    d.mkdir(parents=True, exist_ok=True)
+    if isinstance(data, str):
+        data = data.encode()
+    (d / name).write_bytes(data)
+
+
+# --- obj ---------------------------------------------------------------------
+
+def obj_seeds() -> None:
+    lines = (DATA / "bunny.obj").read_text().splitlines(keepends=True)
+    head = lines[:200]
+    put("obj", "bunny_head200.obj", "".join(head))
+    n = sum(1 for l in head if l.startswith("v "))
+    faces = [
+        l for l in lines
+        if l.startswith("f ") and all(int(t) <= n for t in l.split()[1:])
+    ]
+    put("obj", "bunny_head200_faces.obj", "".join(head + faces))
+    put("obj", "polygons.obj",
+        "v 1 1 0.5\nv 2 4 0.5\nv 3 9 0.5\nv 4 16 0.5\nv 5 25 0.5\n"
+        "f 1 2 3 4\nf 5 3 1 2 4\nf 2 4 5\n")
+    put("obj", "negative.obj",
+        "v 1 1 0.5\nv 2 4 0.5\nv 3 9 0.5\nf -3 -2 -1\nv 4 16 0.5\n"
+        "v 5 25 0.5\nv 6 36 0.5\nv 7 49 0.5\nf -4 -3 -2 -1\nf 1 -1 2\n")
+    put("obj", "attributes.obj",
+        "# header\nmtllib a.mtl\no a\nv 2 2 2 2\nv 2 0 0 1 0 0\nv 0 1 0\n"
+        "vt 0 0\nvn 0 0 1\nusemtl m\ng b\ns 1\nf 1/1/1 2//1 3/1\n"
+        "l 1 2 3\np 1\nf 1 2\n")
+    put("obj", "crlf_bom.obj",
+        "\ufeffv 1 1 0.5\r\nv 2 4 0.5\r\nv 3 9 0.5\r\nf 1 2 3\r\n")
+
+
+# --- ray_file ----------------------------------------------------------------
+
+def ray_seeds() -> None:
+    put("ray_file", "basic.txt",
+        "0 0 -5 0 0 1\n1 2 3\t4 5 6 7.5\n# comment\n\n"
+        "  -1e3 2.5E-2 +3 0 -1 0 inf # trailing\nnan 0 0 1 1 1\n")
+    put("ray_file", "crlf_bom.txt",
+        "\ufeff0 0 1 0 0 -1\r\n0.5 0.5 10 0 0 -1 100\r\n")
+
+
+# --- asc -----------------------------------------------------------------------
+
+def asc_seeds() -> None:
+    shutil.copy(DATA / "jacksboro_fault_dem_utm.asc",
+                CORPUS / "asc" / "jacksboro_fault_dem_utm.asc")
+    put("asc", "small_corner.asc",
+        "ncols 3\nnrows 2\nxllcorner 100\nyllcorner 200\ncellsize 10\n1 2 3\n4 5 6\n")
+    put("asc", "small_center.asc",
+        "ncols 3\nnrows 2\nxllcenter 100\nyllcenter 200\ncellsize 10\n1 2 3 4 5 6\n")
+    put("asc", "dxdy_nodata.asc",
+        "\ufeffNCOLS 2\r\nNRows 3\r\nXLLCorner 0\r\nyllCORNER 0\r\nDX 2\r\ndy 4\r\n"
+        "NODATA_value -9999\r\n1\r\n2 -9999\r\n3.5 4e1\r\n\r\n-9999.0\r\n")
+    rows = (DATA / "jacksboro_fault_dem_utm.asc").read_text().splitlines()[5:9]
+    put("asc", "jacksboro_5x4.asc",
+        "ncols 5\nnrows 4\nxllcorner 512730\nyllcorner 4032150\ncellsize 30\n"
+        "nodata_value nan\n" + "".join(" ".join(r.split()[:5]) + "\n" for r in rows))
+
+
+# --- geotiff -------------------------------------------------------------------
+
+# TIFF field types: (code, struct format)
+SHORT, LONG, ASCII, DOUBLE, LONG8 = (3, "H"), (4, "I"), (2, "s"), (12, "d"), (16, "Q")
+
+
+def tiff(entries, data_blocks, big=False, be=False):
+    """Builds a TIFF with one IFD.
+
+    entries: list of (tag, type, values); values may be the string
+    "@k"/"#k" to mean "offsets of"/"byte counts of" data_blocks[k] (list).
+    """
+    e = ">" if be else "<"
+    head = (b"MM" if be else b"II") + (
+        struct.pack(e + "HHHQ", 43, 8, 0, 16) if big else struct.pack(e + "HI", 42, 8))
+    ifd_at = len(head)
+    n = len(entries)
+    entry_size, count_fmt, inline = (20, "Q", 8) if big else (12, "I", 4)
+    ifd_size = (8 if big else 2) + n * entry_size + (8 if big else 4)
+    extra = bytearray()
+    extra_at = ifd_at + ifd_size
+    # image data goes after the IFD's out-of-line values; reserve by two passes
+    blocks_len = sum(len(b) for blks in data_blocks for b in blks)
+
+    def encode(typ, values):
+        code, fmt = typ
+        if fmt == "s":
+            raw = values.encode() + b"\0"
+            return code, len(raw), raw
+        return code, len(values), struct.pack(e + fmt * len(values), *values)
+
+    # first pass: sizes of out-of-line values
+    def build(data_at):
+        offsets = []
+        pos = data_at
+        for blks in data_blocks:
+            o = []
+            for b in blks:
+                o.append(pos)
+                pos += len(b)
+            offsets.append(o)
+        out_entries = []
+        extra = bytearray()
+        for tag, typ, values in sorted(entries, key=lambda t: t[0]):
+            if isinstance(values, str) and values[0] in "@#":
+                k = int(values[1:])
+                values = offsets[k] if values[0] == "@" else [len(b) for b in data_blocks[k]]
+            code, count, raw = encode(typ, values)
+            if len(raw) <= inline:
+                field = raw.ljust(inline, b"\0")
+            else:
+                field = struct.pack(e + count_fmt, extra_at + len(extra))
+                extra += raw
+                if len(extra) % 2:
+                    extra += b"\0"
+            out_entries.append(struct.pack(e + "HH" + count_fmt, tag, code, count) + field)
+        ifd = struct.pack(e + ("Q" if big else "H"), n) + b"".join(out_entries) + \
+            struct.pack(e + ("Q" if big else "I"), 0)
+        return ifd, extra
+
+    ifd, extra = build(0)
+    data_at = extra_at + len(extra)
+    ifd, extra = build(data_at)
+    assert len(ifd) == ifd_size and data_at == extra_at + len(extra)
+    out = head + ifd + extra + b"".join(b for blks in data_blocks for b in blks)
+    assert len(out) == data_at + blocks_len
+    return bytes(out)
+
+
+def geokeys(raster_type):
+    keys = [1, 1, 0, 0]
+    body = [1024, 0, 1, 1]  # GTModelTypeGeoKey = projected
+    if raster_type is not None:
+        body += [1025, 0, 1, raster_type]
+    body += [3072, 0, 1, 32617]  # ProjectedCSTypeGeoKey = UTM 17N
+    keys[3] = len(body) // 4
+    return keys + body
+
+
+def geotiff_seeds() -> None:
+    for f in DATA.glob("*.tif"):
+        shutil.copy(f, CORPUS / "geotiff" / f.name)
+    w, h = 4, 3
+    vals = [483, 487, 491, 493, 475, -9999, 489, 490, 479, 485, 488, 487]
+    georef_tp = [
+        (33550, DOUBLE, [30.0, 30.0, 0.0]),
+        (33922, DOUBLE, [0.0, 0.0, 0.0, 512730.0, 4042470.0, 0.0]),
+    ]
+
+    def base(bits, fmt, strip, extra_tags, compression=1):
+        return [
+            (256, SHORT, [w]), (257, SHORT, [h]), (258, SHORT, [bits]),
+            (259, SHORT, [compression]), (262, SHORT, [1]), (273, LONG, "@0"),
+            (277, SHORT, [1]), (278, SHORT, [h]), (279, LONG, "#0"),
+            (284, SHORT, [1]), (339, SHORT, [fmt]),
+        ] + extra_tags
+
+    # Int16, PixelIsArea, GDAL nodata, little-endian
+    for be in (False, True):
+        e = ">" if be else "<"
+        strip = struct.pack(e + "h" * len(vals), *vals)
+        tags = base(16, 2, strip, georef_tp + [(34735, SHORT, geokeys(1)),
+                                               (42113, ASCII, "-9999")])
+        put("geotiff", f"int16_area_nodata_{'be' if be else 'le'}.tif",
+            tiff(tags, [[strip]], be=be))
+    # Float32, PixelIsPoint, ModelTransformationTag, deflate
+    strip = zlib.compress(struct.pack("<" + "f" * len(vals), *[v + 0.25 for v in vals]))
+    m = [30.0, 0, 0, 512745.0, 0, -30.0, 0, 4042455.0, 0, 0, 0, 0, 0, 0, 0, 1]
+    tags = base(32, 3, strip, [(34264, DOUBLE, m), (34735, SHORT, geokeys(2))], compression=8)
+    put("geotiff", "f32_point_matrix_deflate.tif", tiff(tags, [[strip]]))
+    # Float64, no GeoKeyDirectory, BigTIFF
+    strip = struct.pack("<" + "d" * len(vals), *[float(v) for v in vals])
+    tags = base(64, 3, strip, georef_tp, compression=1)
+    tags = [(t, LONG8 if t in (273, 279) else typ, v) for t, typ, v in tags]
+    put("geotiff", "f64_bigtiff.tif", tiff(tags, [[strip]], big=True))
+    # UInt8 / Int32 / UInt32
+    for bits, fmt, code in ((8, 1, "B"), (32, 2, "i"), (32, 1, "I")):
+        strip = struct.pack("<" + code * len(vals), *[abs(v) % (1 << bits) for v in vals])
+        tags = base(bits, fmt, strip, georef_tp + [(34735, SHORT, geokeys(1))])
+        put("geotiff", f"{'u' if fmt == 1 else 'i'}{bits}.tif", tiff(tags, [[strip]]))
+    # UInt16, tiled 16x16 (image 20x18 -> 2x2 tiles), deflate
+    tw, th, W, H = 16, 16, 20, 18
+    tiles = []
+    for ty in range(2):
+        for tx in range(2):
+            px = [((ty * th + y) * W + tx * tw + x) % 65536 for y in range(th) for x in range(tw)]
+            tiles.append(zlib.compress(struct.pack("<" + "H" * len(px), *px)))
+    tags = [
+        (256, SHORT, [W]), (257, SHORT, [H]), (258, SHORT, [16]), (259, SHORT, [8]),
+        (262, SHORT, [1]), (277, SHORT, [1]), (284, SHORT, [1]), (339, SHORT, [1]),
+        (322, SHORT, [tw]), (323, SHORT, [th]), (324, LONG, "@0"), (325, LONG, "#0"),
+    ] + georef_tp + [(34735, SHORT, geokeys(1))]
+    put("geotiff", "u16_tiled_deflate.tif", tiff(tags, [tiles]))
+
+
+# --- png16 ---------------------------------------------------------------------
+
+def png(width, height, bit_depth, rows, color_type=0, interlace=0, filters=(0,)):
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + \
+            struct.pack(">I", zlib.crc32(kind + body) & 0xffffffff)
+    ihdr = struct.pack(">IIBBBBB", width, height, bit_depth, color_type, 0, 0, interlace)
+    raw = b"".join(bytes([filters[i % len(filters)]]) + r for i, r in enumerate(rows))
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + \
+        chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+
+
+def png_seeds() -> None:
+    w, h = 5, 4
+    rows16 = [struct.pack(">" + "H" * w, *[(y * 9000 + x * 1111) % 65536 for x in range(w)])
+              for y in range(h)]
+    put("png16", "gray16_5x4.png", png(w, h, 16, rows16))
+    rows8 = [bytes((y * 50 + x * 7) % 256 for x in range(w)) for y in range(h)]
+    put("png16", "gray8_5x4.png", png(w, h, 8, rows8))
+    # A 16-bit 1x1 and a filtered (Sub filter) 16-bit image.
+    put("png16", "gray16_1x1.png", png(1, 1, 16, [b"\xff\xfe"]))
+    # Rows with filter types 1..4 (Sub, Up, Average, Paeth) instead of 0.
+    put("png16", "gray16_filters.png", png(w, h, 16, rows16, filters=[1, 2, 3, 4]))
+    # An RGB image (rejected: unsupported format) to give the fuzzer that path.
+    put("png16", "rgb8_2x2.png", png(2, 2, 8, [b"\x10\x20\x30" * 2] * 2, color_type=2))
+
+
+if __name__ == "__main__":
+    for t in ("obj", "ray_file", "asc", "geotiff", "png16"):
+        (CORPUS / t).mkdir(parents=True, exist_ok=True)
+    obj_seeds()
+    ray_seeds()
+    asc_seeds()
+    geotiff_seeds()
+    png_seeds()
+    for t in sorted(CORPUS.iterdir()):
+        print(t.name, len(list(t.iterdir())), "files")

@@ -1,0 +1,148 @@
+//! Every query mode and option agrees on GPU, CPU and brute force: closest, any and all hits;
+//! back- and front-face culling; layer masks; the watertight intersector.
+
+mod common;
+
+use common::assert_query_equivalent;
+use raypick::io::obj::load_obj;
+use raypick::synthetic::{example_scene, hills, mixed_rays, terrain, triangle_soup};
+use raypick::{BuildOptions, BuiltScene, Cull, Intersector, Mode, Query, Scene};
+use std::path::Path;
+use std::sync::Arc;
+
+fn scenes() -> Vec<(&'static str, Scene)> {
+    let one = |name: &str, mesh| Scene::from_meshes([(name.to_string(), mesh)]).unwrap();
+    let bunny =
+        load_obj(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/bunny.obj")).unwrap();
+    vec![
+        ("soup", one("soup", triangle_soup(1500, 10.0, 2))),
+        (
+            "terrain",
+            one("terrain", terrain(30, 30, 0.0, 29.0, 1.0, hills)),
+        ),
+        ("bunny", one("bunny", bunny)),
+        ("example", example_scene()),
+    ]
+}
+
+fn check_all_scenes(query: Query) {
+    for (name, scene) in scenes() {
+        let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
+        let rays = mixed_rays(&built.scene, 1600, 11);
+        assert_query_equivalent(name, built, &rays, &query);
+    }
+}
+
+#[test]
+fn closest_with_back_face_culling() {
+    check_all_scenes(Query {
+        cull: Cull::Back,
+        ..Query::default()
+    });
+}
+
+#[test]
+fn closest_with_front_face_culling() {
+    check_all_scenes(Query {
+        cull: Cull::Front,
+        ..Query::default()
+    });
+}
+
+#[test]
+fn any_hit() {
+    check_all_scenes(Query {
+        mode: Mode::Any,
+        ..Query::default()
+    });
+}
+
+#[test]
+fn all_hits_with_room_to_spare() {
+    check_all_scenes(Query {
+        mode: Mode::All,
+        max_hits: 64,
+        ..Query::default()
+    });
+}
+
+#[test]
+fn all_hits_overflowing() {
+    let answers = {
+        let built =
+            Arc::new(BuiltScene::new(scenes().remove(0).1, &BuildOptions::default()).unwrap());
+        let rays = mixed_rays(&built.scene, 1600, 11);
+        assert_query_equivalent(
+            "soup",
+            built,
+            &rays,
+            &Query {
+                mode: Mode::All,
+                max_hits: 2,
+                ..Query::default()
+            },
+        )
+    };
+    assert!(
+        answers.overflow.iter().any(|&o| o),
+        "some rays have more than 2 hits"
+    );
+    check_all_scenes(Query {
+        mode: Mode::All,
+        max_hits: 3,
+        cull: Cull::Back,
+        ..Query::default()
+    });
+}
+
+#[test]
+fn watertight_intersector() {
+    check_all_scenes(Query {
+        intersector: Intersector::Watertight,
+        ..Query::default()
+    });
+    check_all_scenes(Query {
+        intersector: Intersector::Watertight,
+        mode: Mode::All,
+        max_hits: 8,
+        cull: Cull::Front,
+    });
+}
+
+#[test]
+fn layer_masks_select_objects() {
+    let mut scene = example_scene();
+    scene.set_object_mask(0, 0b001).unwrap(); // terrain
+    scene.set_object_mask(1, 0b010).unwrap(); // tower
+    scene.set_object_mask(2, 0b110).unwrap(); // hall
+    let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
+    for (mask, allowed) in [
+        (0b010u32, vec![1, 2]),
+        (0b100, vec![2]),
+        (0b001, vec![0]),
+        (0, vec![]),
+    ] {
+        let rays: Vec<_> = mixed_rays(&built.scene, 1600, 5)
+            .into_iter()
+            .map(|(k, r)| (k, r.with_mask(mask)))
+            .collect();
+        for query in [
+            Query::default(),
+            Query {
+                mode: Mode::All,
+                max_hits: 16,
+                ..Query::default()
+            },
+        ] {
+            let answers = assert_query_equivalent("masked", built.clone(), &rays, &query);
+            let hits: Vec<_> = (0..rays.len())
+                .flat_map(|i| answers.hits_of(i).to_vec())
+                .collect();
+            assert!(
+                hits.iter().all(|h| allowed.contains(&h.object)),
+                "mask {mask:#b} hit a filtered object"
+            );
+            assert_eq!(hits.is_empty(), allowed.is_empty(), "mask {mask:#b}");
+        }
+    }
+}
