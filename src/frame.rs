@@ -102,6 +102,10 @@ pub fn resolve(scene: &Scene, bvh: &Bvh, ray: &Ray, found: &GpuHit) -> Result<Hi
         };
     let [a, b, c] = vertices;
     let (object, triangle) = scene.locate(scene_index);
+    let cell = scene.objects()[object as usize]
+        .grid
+        .map(|g| g.cell_of(triangle))
+        .map(|(r, c)| [r, c]);
     Ok(Hit {
         hit: true,
         t,
@@ -111,6 +115,7 @@ pub fn resolve(scene: &Scene, bvh: &Bvh, ray: &Ray, found: &GpuHit) -> Result<Hi
         v,
         position: ray.at(t),
         normal: (b - a).cross(c - a).normalize_or_zero(),
+        cell,
         ..stats
     })
 }

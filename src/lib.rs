@@ -36,6 +36,7 @@ pub mod picker;
 pub mod query;
 pub mod ray;
 pub mod scene;
+pub mod select;
 pub mod synthetic;
 
 pub use bvh::{BuildOptions, Bvh, SplitAxis};
@@ -44,4 +45,4 @@ pub use gpu::{GpuContext, GpuPicker};
 pub use picker::{Backend, BuiltScene, CpuPicker, Picker};
 pub use query::{Answers, Cull, Intersector, Mode, Query};
 pub use ray::{Hit, Ray};
-pub use scene::{Mesh, Scene};
+pub use scene::{GridShape, Mesh, Scene};

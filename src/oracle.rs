@@ -50,6 +50,10 @@ pub fn all_hits(scene: &Scene, all: &OracleTriangles, ray: &Ray, cull: Cull) -> 
             (h.hit && facing && h.t > ray.tmin && h.t <= ray.tmax).then(|| {
                 let [a, b, c] = vertices;
                 let (object, triangle) = scene.locate(i);
+                let cell = scene.objects()[object as usize].grid.map(|g| {
+                    let (r, c) = g.cell_of(triangle);
+                    [r, c]
+                });
                 Hit {
                     hit: true,
                     invalid: false,
@@ -60,6 +64,7 @@ pub fn all_hits(scene: &Scene, all: &OracleTriangles, ray: &Ray, cull: Cull) -> 
                     v: h.v,
                     position: ray.at(h.t),
                     normal: (b - a).cross(c - a).normalize_or_zero(),
+                    cell,
                     box_tests: 0,
                     triangle_tests: all.total,
                 }

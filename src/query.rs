@@ -151,4 +151,21 @@ impl Answers {
             &self.lists[self.list_start[i]..self.list_start[i + 1]]
         }
     }
+
+    /// The answers of the rays at `idx`, in that order.
+    pub fn subset(&self, idx: &[usize]) -> Answers {
+        let mut out = Answers {
+            nearest: idx.iter().map(|&i| self.nearest[i]).collect(),
+            ..Answers::default()
+        };
+        if !self.list_start.is_empty() {
+            out.list_start.push(0);
+            for &i in idx {
+                out.lists.extend_from_slice(self.hits_of(i));
+                out.list_start.push(out.lists.len());
+                out.overflow.push(self.overflow[i]);
+            }
+        }
+        out
+    }
 }

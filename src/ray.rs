@@ -88,6 +88,8 @@ pub struct Hit {
     pub position: DVec3,
     /// Unit geometric normal, `normalize((v1 - v0) x (v2 - v0))` in world space.
     pub normal: DVec3,
+    /// For a terrain grid hit: the `[row, col]` of the cell (quad) hit.
+    pub cell: Option<[u32; 2]>,
     /// Ray/box tests made (the paper's b).
     pub box_tests: u32,
     /// Ray/triangle tests made (the paper's i).
@@ -106,6 +108,7 @@ impl Hit {
         v: 0.0,
         position: DVec3::ZERO,
         normal: DVec3::ZERO,
+        cell: None,
         box_tests: 0,
         triangle_tests: 0,
     };

@@ -25,8 +25,32 @@ pub struct Object {
     pub first_triangle: u32,
     /// Number of triangles; local triangle ids are `0..triangle_count`, in file order.
     pub triangle_count: u32,
+    /// Index of the object's first vertex in the scene's vertex list (for a grid: sample (0, 0);
+    /// samples follow in row-major order).
+    pub first_vertex: u32,
     /// Layer mask: rays hit this object only when their mask shares a bit with it.
     pub mask: u32,
+    /// For a height-grid terrain: its shape, so hits can report the cell's row and column.
+    pub grid: Option<GridShape>,
+}
+
+/// The shape of a height-grid terrain object: quad (r, c) holds triangles 2k and 2k + 1 with
+/// k = r·(columns − 1) + c.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GridShape {
+    /// Samples per row.
+    pub columns: u32,
+    /// Rows of samples.
+    pub rows: u32,
+}
+
+impl GridShape {
+    /// The `(row, col)` of the quad holding triangle `triangle`.
+    pub fn cell_of(&self, triangle: u32) -> (u32, u32) {
+        let k = triangle / 2;
+        let quads_per_row = self.columns.saturating_sub(1).max(1);
+        (k / quads_per_row, k % quads_per_row)
+    }
 }
 
 /// A set of objects ready to be built into a tree.
@@ -108,8 +132,34 @@ impl Scene {
             name,
             first_triangle: first_triangle as u32,
             triangle_count: mesh.triangles.len() as u32,
+            first_vertex: base,
             mask: u32::MAX,
+            grid: None,
         });
+        Ok(id)
+    }
+
+    /// Appends a height-grid terrain mesh (triangles numbered by the grid convention) as a new
+    /// object whose hits report their cell's row and column.
+    pub fn add_grid_mesh(
+        &mut self,
+        name: impl Into<String>,
+        mesh: Mesh,
+        grid: GridShape,
+    ) -> Result<u32> {
+        let expected =
+            2 * grid.columns.saturating_sub(1) as usize * grid.rows.saturating_sub(1) as usize;
+        let name = name.into();
+        if mesh.triangles.len() != expected {
+            return Err(Error::Invalid(format!(
+                "{name}: a {}×{} grid has {expected} triangles, but the mesh has {}",
+                grid.columns,
+                grid.rows,
+                mesh.triangles.len()
+            )));
+        }
+        let id = self.add_mesh(name, mesh)?;
+        self.objects[id as usize].grid = Some(grid);
         Ok(id)
     }
 
@@ -148,6 +198,11 @@ impl Scene {
     pub fn origin(&self) -> DVec3 {
         self.bounds()
             .map_or(DVec3::ZERO, |(lo, hi)| lo + (hi - lo) * 0.5)
+    }
+
+    /// The world position of scene vertex `index`.
+    pub fn position(&self, index: usize) -> DVec3 {
+        self.positions[index]
     }
 
     /// The three world-space vertices of scene triangle `index`.

@@ -235,7 +235,7 @@ pub fn rays(scene: &Scene, kind: RayKind, count: usize, seed: u64) -> Vec<Ray> {
     match kind {
         RayKind::Camera => {
             let side = (count as f64).sqrt().ceil().max(1.0) as usize;
-            let eye = centre + DVec3::new(0.6, -1.5, 1.1).normalize() * radius * 2.5;
+            let eye = centre + DVec3::new(0.4, -1.0, 1.6).normalize() * radius * 2.5;
             let forward = (centre - eye).normalize();
             let right = forward.cross(DVec3::Z).normalize();
             let up = right.cross(forward);

@@ -104,3 +104,219 @@ fn verify_reports_zero_mismatches_on_the_example() {
         assert!(out.contains(kind), "{kind} missing from\n{out}");
     }
 }
+
+#[test]
+fn modes_culling_masks_and_ranges_on_the_command_line() {
+    // Through the tower's roof away from every edge, then its floor and the terrain.
+    let rays = temp_file(
+        "modes.txt",
+        "33.3 45.1 100 0 0 -1\n33.3 45.1 100 0 0 -1 50\n",
+    );
+    let (code, out, err) = raypick(&["pick", "--rays", &rays, "--mode", "all", "--max-hits", "8"]);
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(
+        lines[0],
+        "ray,rank,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz"
+    );
+    let ray0: Vec<&str> = lines
+        .iter()
+        .filter(|l| l.starts_with("0,"))
+        .copied()
+        .collect();
+    assert_eq!(ray0.len(), 3, "tower roof, terrain, tower floor: {ray0:?}");
+    assert_eq!(
+        ray0.iter()
+            .map(|l| l.split(',').nth(1).unwrap())
+            .collect::<Vec<_>>(),
+        ["0", "1", "2"]
+    );
+    let ray1: Vec<&str> = lines
+        .iter()
+        .filter(|l| l.starts_with("1,"))
+        .copied()
+        .collect();
+    assert_eq!(ray1.len(), 1, "tmax 50 stops at the roof: {ray1:?}");
+    // The roof faces up (outward, counter-clockwise from above): culling front faces skips it,
+    // and the ray meets the tower's floor from inside (a back face) next.
+    let (code, out, _) = raypick(&[
+        "pick",
+        "--rays",
+        &rays,
+        "--backend",
+        "cpu",
+        "--cull",
+        "front",
+    ]);
+    assert_eq!(code, 0);
+    let row: Vec<&str> = out.lines().nth(1).unwrap().split(',').collect();
+    assert_eq!(row[3], "1", "{out}");
+    let (_, closest, _) = raypick(&["pick", "--rays", &rays, "--backend", "cpu"]);
+    let closest_t: f64 = closest
+        .lines()
+        .nth(1)
+        .unwrap()
+        .split(',')
+        .nth(2)
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(
+        row[2].parse::<f64>().unwrap() > closest_t,
+        "the floor lies below the roof"
+    );
+    let (code, out, _) = raypick(&["pick", "--rays", &rays, "--tmin", "60", "--backend", "cpu"]);
+    assert_eq!(code, 0);
+    let row: Vec<&str> = out.lines().nth(1).unwrap().split(',').collect();
+    assert!(row[2].parse::<f64>().unwrap() > 60.0);
+}
+
+#[test]
+fn scene_masks_pair_with_the_scene_before_them() {
+    let quad = |z: f64| format!("v 0 0 {z}\nv 1 0 {z}\nv 1 1 {z}\nv 0 1 {z}\nf 1 2 3 4\n");
+    let low = temp_file("low.obj", &quad(0.0));
+    let high = temp_file("high.obj", &quad(1.0));
+    let rays = temp_file("down.txt", "0.5 0.25 5 0 0 -1\n");
+    let pick = |extra: &[&str]| {
+        let mut args = vec![
+            "pick",
+            "--backend",
+            "cpu",
+            "--rays",
+            &rays,
+            "--scene",
+            &low,
+            "--mask",
+            "1",
+            "--scene",
+            &high,
+            "--mask",
+            "2",
+        ];
+        args.extend_from_slice(extra);
+        let (code, out, err) = raypick(&args);
+        assert_eq!(code, 0, "{err}");
+        out.lines()
+            .nth(1)
+            .unwrap()
+            .split(',')
+            .nth(3)
+            .unwrap()
+            .to_string()
+    };
+    assert_eq!(pick(&[]), "1", "the high quad is nearer");
+    assert_eq!(
+        pick(&["--ray-mask", "1"]),
+        "0",
+        "mask 1 sees only the low quad"
+    );
+    assert_eq!(pick(&["--ray-mask", "0b10"]), "1");
+    let description = temp_file(
+        "scene.json",
+        &format!(
+            "{{\"objects\": [{{\"file\": \"{low}\", \"mask\": 1}}, {{\"file\": \"{high}\", \"mask\": 2}}]}}"
+        ),
+    );
+    let (code, out, err) = raypick(&[
+        "pick",
+        "--backend",
+        "cpu",
+        "--rays",
+        &rays,
+        "--scenes",
+        &description,
+        "--ray-mask",
+        "1",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out.lines().nth(1).unwrap().split(',').nth(3), Some("0"));
+}
+
+#[test]
+fn line_of_sight_viewshed_select_and_idbuffer() {
+    let pairs = temp_file("pairs.txt", "10 10 60 60 60 60\n31 41 5 90 90 5\n");
+    let (code, out, err) = raypick(&["los", "--pairs", &pairs]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out, "pair,visible\n0,1\n1,0\n");
+    let targets = temp_file("targets.txt", "34 44 200\n20 20 -50\n");
+    let (code, out, err) = raypick(&[
+        "viewshed",
+        "--observer",
+        "50",
+        "50",
+        "150",
+        "--targets",
+        &targets,
+        "--backend",
+        "cpu",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let visible: Vec<&str> = out
+        .lines()
+        .skip(1)
+        .map(|l| l.rsplit(',').next().unwrap())
+        .collect();
+    assert_eq!(visible, ["1", "0"], "{out}");
+    let camera = temp_file(
+        "camera.json",
+        "{\"perspective\": {\"eye\": [34, 44, 300], \"target\": [34, 44, 0], \"up\": [0, 1, 0], \"fov_y_deg\": 10, \"width\": 40, \"height\": 30}}",
+    );
+    let (code, out, err) = raypick(&[
+        "select", "--camera", &camera, "--rect", "15", "10", "25", "20",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let objects: Vec<&str> = out
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap())
+        .collect();
+    assert_eq!(
+        objects,
+        ["0", "1"],
+        "terrain around the tower, no hall: {out}"
+    );
+    assert!(out.contains("\n1,tower,"), "{out}");
+    let (code, out, err) = raypick(&["idbuffer", "--camera", &camera, "--backend", "cpu"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out.lines().count(), 30);
+    assert!(out.lines().all(|l| l.split(',').count() == 40));
+    assert_eq!(out.lines().nth(15).unwrap().split(',').nth(20), Some("1"));
+}
+
+#[test]
+fn camera_pixels_on_a_real_dem_report_row_and_col() {
+    let dem = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/jacksboro_fault_dem_utm.asc"
+    );
+    let camera = temp_file(
+        "dem-camera.json",
+        "{\"perspective\": {\"eye\": [518775, 4030000, 4000], \"target\": [518775, 4037310, 300], \"up\": [0, 0, 1], \"fov_y_deg\": 40, \"width\": 64, \"height\": 48}}",
+    );
+    let pixels = temp_file("pixels.txt", "# x y\n32 24\n0 47\n63 40\n");
+    let (code, out, err) = raypick(&[
+        "pick", "--scene", dem, "--camera", &camera, "--pixels", &pixels,
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(
+        lines[0],
+        "ray,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz,row,col"
+    );
+    for line in &lines[1..] {
+        let f: Vec<&str> = line.split(',').collect();
+        assert_eq!(f[1], "1", "{line}");
+        let (triangle, row, col): (u32, u32, u32) = (
+            f[4].parse().unwrap(),
+            f[13].parse().unwrap(),
+            f[14].parse().unwrap(),
+        );
+        assert_eq!(
+            triangle / 2,
+            row * 402 + col,
+            "row/col follow the grid convention"
+        );
+        let x: f64 = f[7].parse().unwrap();
+        assert!((512730.0..512730.0 + 403.0 * 30.0).contains(&x));
+    }
+}

@@ -3,3 +3,4 @@
 pub mod obj;
 pub mod output;
 pub mod ray_file;
+pub mod scene_files;

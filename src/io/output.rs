@@ -1,65 +1,122 @@
-//! Writing hits as CSV (`ray,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz`) or JSON.
+//! Writing answers as CSV or JSON.
 //!
-//! Numbers are printed in Rust's shortest round-trip form, so an f64 world coordinate keeps every
-//! digit it has (well below a millimetre at map coordinates). A miss keeps its row with `hit` 0
-//! and the other fields empty.
+//! CSV: one row per ray, `ray,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz`; in all-hits mode one row
+//! per hit with `rank` (0-based order along the ray) after `ray`, and a ray with no hit keeps one
+//! row with `hit` 0. Scenes with a terrain grid add `row,col` at the end (empty off the grid).
+//! A miss keeps its row with the other fields empty. Numbers are printed in Rust's shortest
+//! round-trip form, so an f64 world coordinate keeps every digit (well below a millimetre at map
+//! coordinates).
 
+use crate::query::{Answers, Mode};
 use crate::ray::Hit;
 use std::io::Write;
 
 /// Output formats.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum Format {
-    /// One row per ray with the header `ray,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz`.
+    /// Comma-separated values with a header line.
     #[default]
     Csv,
     /// A JSON array with one object per ray.
     Json,
 }
 
-/// The CSV header line.
+/// The CSV header line of closest and any-hit answers.
 pub const CSV_HEADER: &str = "ray,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz";
 
-/// Writes `hits` (answering rays `0..`) in `format`.
-pub fn write_hits(out: &mut impl Write, hits: &[Hit], format: Format) -> std::io::Result<()> {
-    match format {
+/// How to write a batch of answers.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct OutputOptions {
+    /// CSV or JSON.
+    pub format: Format,
+    /// The query mode the answers are for.
+    pub mode: Mode,
+    /// Add `row,col` (the scene has a terrain grid).
+    pub cells: bool,
+}
+
+/// Writes closest-hit answers (one hit per ray) as CSV or JSON.
+pub fn write_hits(
+    out: &mut (impl Write + ?Sized),
+    hits: &[Hit],
+    format: Format,
+) -> std::io::Result<()> {
+    let answers = Answers {
+        nearest: hits.to_vec(),
+        ..Answers::default()
+    };
+    write_answers(
+        out,
+        &answers,
+        &OutputOptions {
+            format,
+            ..OutputOptions::default()
+        },
+    )
+}
+
+/// Writes a batch of answers.
+pub fn write_answers(
+    out: &mut (impl Write + ?Sized),
+    answers: &Answers,
+    options: &OutputOptions,
+) -> std::io::Result<()> {
+    let all = options.mode == Mode::All;
+    match options.format {
         Format::Csv => {
-            writeln!(out, "{CSV_HEADER}")?;
-            for (i, h) in hits.iter().enumerate() {
-                if h.hit {
+            let rank = if all { "ray,rank," } else { "ray," };
+            let cells = if options.cells { ",row,col" } else { "" };
+            writeln!(out, "{rank}{}{cells}", &CSV_HEADER["ray,".len()..])?;
+            for (i, nearest) in answers.nearest.iter().enumerate() {
+                let hits = answers.hits_of(i);
+                if hits.is_empty() {
+                    let empty_cells = if options.cells { ",," } else { "" };
+                    let rank = if all { "," } else { "" };
+                    writeln!(out, "{i},{rank}0,,,,,,,,,,,{empty_cells}")?;
+                    debug_assert!(!nearest.hit || all);
+                    continue;
+                }
+                for (r, h) in hits.iter().enumerate() {
+                    let rank = if all { format!("{r},") } else { String::new() };
                     let (p, n) = (h.position, h.normal);
-                    writeln!(
+                    write!(
                         out,
-                        "{i},1,{},{},{},{},{},{},{},{},{},{},{}",
+                        "{i},{rank}1,{},{},{},{},{},{},{},{},{},{},{}",
                         h.t, h.object, h.triangle, h.u, h.v, p.x, p.y, p.z, n.x, n.y, n.z
                     )?;
-                } else {
-                    writeln!(out, "{i},0,,,,,,,,,,,")?;
+                    if options.cells {
+                        match h.cell {
+                            Some([row, col]) => write!(out, ",{row},{col}")?,
+                            None => write!(out, ",,")?,
+                        }
+                    }
+                    writeln!(out)?;
                 }
             }
         }
         Format::Json => {
             writeln!(out, "[")?;
-            for (i, h) in hits.iter().enumerate() {
-                let sep = if i + 1 < hits.len() { "," } else { "" };
-                let record = if h.hit {
-                    let (p, n) = (h.position, h.normal);
-                    format!(
-                        "{{\"ray\":{i},\"hit\":true,\"t\":{},\"object\":{},\"triangle\":{},\"u\":{},\"v\":{},\"position\":[{},{},{}],\"normal\":[{},{},{}]}}",
-                        json_number(h.t),
-                        h.object,
-                        h.triangle,
-                        json_number(h.u),
-                        json_number(h.v),
-                        json_number(p.x),
-                        json_number(p.y),
-                        json_number(p.z),
-                        json_number(n.x),
-                        json_number(n.y),
-                        json_number(n.z)
-                    )
+            for (i, nearest) in answers.nearest.iter().enumerate() {
+                let sep = if i + 1 < answers.nearest.len() {
+                    ","
                 } else {
-                    format!("{{\"ray\":{i},\"hit\":false,\"invalid\":{}}}", h.invalid)
+                    ""
+                };
+                let record = if all {
+                    let hits: Vec<String> = answers.hits_of(i).iter().map(json_hit).collect();
+                    format!(
+                        "{{\"ray\":{i},\"invalid\":{},\"overflow\":{},\"hits\":[{}]}}",
+                        nearest.invalid,
+                        answers.overflow[i],
+                        hits.join(",")
+                    )
+                } else if nearest.hit {
+                    format!("{{\"ray\":{i},{}", &json_hit(nearest)[1..])
+                } else {
+                    format!(
+                        "{{\"ray\":{i},\"hit\":false,\"invalid\":{}}}",
+                        nearest.invalid
+                    )
                 };
                 writeln!(out, "  {record}{sep}")?;
             }
@@ -67,6 +124,27 @@ pub fn write_hits(out: &mut impl Write, hits: &[Hit], format: Format) -> std::io
         }
     }
     Ok(())
+}
+
+fn json_hit(h: &Hit) -> String {
+    let (p, n) = (h.position, h.normal);
+    let cell = h
+        .cell
+        .map_or(String::new(), |[r, c]| format!(",\"row\":{r},\"col\":{c}"));
+    format!(
+        "{{\"hit\":true,\"t\":{},\"object\":{},\"triangle\":{},\"u\":{},\"v\":{},\"position\":[{},{},{}],\"normal\":[{},{},{}]{cell}}}",
+        json_number(h.t),
+        h.object,
+        h.triangle,
+        json_number(h.u),
+        json_number(h.v),
+        json_number(p.x),
+        json_number(p.y),
+        json_number(p.z),
+        json_number(n.x),
+        json_number(n.y),
+        json_number(n.z)
+    )
 }
 
 /// A JSON number in shortest round-trip form (`null` for non-finite values).

@@ -1,4 +1,5 @@
-//! Reading ray files: one ray per line, `ox oy oz dx dy dz [tmax]`.
+//! Reading ray files (one ray per line, `ox oy oz dx dy dz [tmax]`), and the point (`x y z`)
+//! and pair (`x1 y1 z1 x2 y2 z2`) files of the line-of-sight commands.
 //!
 //! Numbers are whitespace separated, `#` starts a comment anywhere on a line
 //! and blank lines are skipped. The parser accepts any value Rust parses as
@@ -28,8 +29,46 @@ pub struct RayLine {
 /// A line with fewer than 6 or more than 7 numbers, or with a token that is
 /// not a number, is an [`Error::Parse`] naming `path` and the 1-based line.
 pub fn parse_rays(path: &str, text: &str) -> Result<Vec<RayLine>, Error> {
+    let lines = parse_number_lines(
+        path,
+        text,
+        &[6, 7],
+        "6 or 7 numbers (ox oy oz dx dy dz [tmax])",
+    )?;
+    Ok(lines
+        .iter()
+        .map(|v| RayLine {
+            origin: DVec3::new(v[0], v[1], v[2]),
+            dir: DVec3::new(v[3], v[4], v[5]),
+            tmax: v.get(6).copied(),
+        })
+        .collect())
+}
+
+/// Parses a point file: one `x y z` per line, same comment rules as ray files.
+pub fn parse_points(path: &str, text: &str) -> Result<Vec<DVec3>, Error> {
+    let lines = parse_number_lines(path, text, &[3], "3 numbers (x y z)")?;
+    Ok(lines.iter().map(|v| DVec3::new(v[0], v[1], v[2])).collect())
+}
+
+/// Parses a pair file: one `x1 y1 z1 x2 y2 z2` per line, same comment rules as ray files.
+pub fn parse_pairs(path: &str, text: &str) -> Result<Vec<(DVec3, DVec3)>, Error> {
+    let lines = parse_number_lines(path, text, &[6], "6 numbers (x1 y1 z1 x2 y2 z2)")?;
+    Ok(lines
+        .iter()
+        .map(|v| (DVec3::new(v[0], v[1], v[2]), DVec3::new(v[3], v[4], v[5])))
+        .collect())
+}
+
+/// The numbers of each non-blank line; each line must hold one of `counts` numbers.
+fn parse_number_lines(
+    path: &str,
+    text: &str,
+    counts: &[usize],
+    expected: &str,
+) -> Result<Vec<Vec<f64>>, Error> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    let mut rays = Vec::new();
+    let mut lines = Vec::new();
     for (i, raw) in text.lines().enumerate() {
         let error = |message: String| Error::Parse {
             path: path.to_owned(),
@@ -37,50 +76,64 @@ pub fn parse_rays(path: &str, text: &str) -> Result<Vec<RayLine>, Error> {
             message,
         };
         let content = raw.split('#').next().unwrap_or_default();
-        let mut values = [0.0f64; 7];
-        let mut count = 0usize;
-        for token in content.split_whitespace() {
-            let value: f64 = token
-                .parse()
-                .map_err(|_| error(format!("'{token}' is not a number")))?;
-            if let Some(slot) = values.get_mut(count) {
-                *slot = value;
-            }
-            count += 1;
+        let values = content
+            .split_whitespace()
+            .map(|token| {
+                token
+                    .parse::<f64>()
+                    .map_err(|_| error(format!("'{token}' is not a number")))
+            })
+            .collect::<Result<Vec<f64>, Error>>()?;
+        if values.is_empty() {
+            continue;
         }
-        match count {
-            0 => {}
-            6 | 7 => rays.push(RayLine {
-                origin: DVec3::new(values[0], values[1], values[2]),
-                dir: DVec3::new(values[3], values[4], values[5]),
-                tmax: (count == 7).then_some(values[6]),
-            }),
-            _ => {
-                return Err(error(format!(
-                    "expected 6 or 7 numbers (ox oy oz dx dy dz [tmax]), found {count}"
-                )));
-            }
+        if !counts.contains(&values.len()) {
+            return Err(error(format!(
+                "expected {expected}, found {}",
+                values.len()
+            )));
         }
+        lines.push(values);
     }
-    Ok(rays)
+    Ok(lines)
 }
 
 /// Reads and parses the ray file at `path` (see [`parse_rays`]).
 pub fn load_rays(path: &Path) -> Result<Vec<RayLine>, Error> {
     let name = path.display().to_string();
+    parse_rays(&name, &read_text(path)?)
+}
+
+/// Reads and parses the point file at `path` (see [`parse_points`]).
+pub fn load_points(path: &Path) -> Result<Vec<DVec3>, Error> {
+    let name = path.display().to_string();
+    parse_points(&name, &read_text(path)?)
+}
+
+/// Reads and parses the pair file at `path` (see [`parse_pairs`]).
+pub fn load_pairs(path: &Path) -> Result<Vec<(DVec3, DVec3)>, Error> {
+    let name = path.display().to_string();
+    parse_pairs(&name, &read_text(path)?)
+}
+
+/// The file as UTF-8 text; errors name the file (and the line of the first invalid byte).
+fn read_text(path: &Path) -> Result<String, Error> {
+    let name = path.display().to_string();
     let bytes = std::fs::read(path).map_err(|source| Error::Io {
         path: name.clone(),
         source,
     })?;
-    let text = std::str::from_utf8(&bytes).map_err(|e| {
-        let valid = bytes.get(..e.valid_up_to()).unwrap_or_default();
+    String::from_utf8(bytes).map_err(|e| {
+        let bytes = e.as_bytes();
+        let valid = bytes
+            .get(..e.utf8_error().valid_up_to())
+            .unwrap_or_default();
         Error::Parse {
-            path: name.clone(),
+            path: name,
             line: Some(1 + valid.iter().filter(|&&b| b == b'\n').count()),
             message: "the file is not valid UTF-8 text".to_owned(),
         }
-    })?;
-    parse_rays(&name, text)
+    })
 }
 
 #[cfg(test)]

@@ -125,7 +125,7 @@ pub fn assert_query_equivalent(
             continue;
         }
         let kind_rays: Vec<Ray> = idx.iter().map(|&i| plain[i]).collect();
-        let pick = |a: &Answers| subset(a, &idx);
+        let pick = |a: &Answers| a.subset(&idx);
         let reference = pick(&every_hit);
         for (pair, a, b) in [
             ("cpu/oracle", &cpu, &oracle),
@@ -159,21 +159,4 @@ pub fn assert_query_equivalent(
         failures.join("\n")
     );
     cpu
-}
-
-/// The answers of the rays at `idx`, in that order.
-pub fn subset(a: &Answers, idx: &[usize]) -> Answers {
-    let mut out = Answers {
-        nearest: idx.iter().map(|&i| a.nearest[i]).collect(),
-        ..Answers::default()
-    };
-    if !a.list_start.is_empty() {
-        out.list_start.push(0);
-        for &i in idx {
-            out.lists.extend_from_slice(a.hits_of(i));
-            out.list_start.push(out.lists.len());
-            out.overflow.push(a.overflow[i]);
-        }
-    }
-    out
 }

@@ -1,0 +1,167 @@
+//! `raypick los` (line of sight between pairs of points) and `raypick viewshed` (which targets an
+//! observer can see), both as batched any-hit queries.
+//!
+//! A segment from A to B is visible when no triangle is hit with t in (ε, 1 − ε), where the ray
+//! is A + t·(B − A) and ε = `--epsilon` (default 1e-6), so surfaces the end points lie on do not
+//! block the view.
+
+use super::scene_args::{SceneArgs, parse_mask};
+use super::{make_picker, write_output};
+use clap::{ArgMatches, Args};
+use glam::DVec3;
+use raypick::dem::cell_of_triangle;
+use raypick::io::ray_file::{load_pairs, load_points};
+use raypick::{Backend, BuiltScene, Error, Mode, Query, Ray};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+
+#[derive(Args, Debug)]
+pub struct LosArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Pairs file: one pair per line, `x1 y1 z1 x2 y2 z2`, `#` starts a comment.
+    #[arg(long)]
+    pub pairs: PathBuf,
+    #[command(flatten)]
+    pub sight: SightArgs,
+}
+
+#[derive(Args, Debug)]
+pub struct ViewshedArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Observer position `x y z`.
+    #[arg(long, num_args = 3, value_names = ["X", "Y", "Z"], allow_negative_numbers = true)]
+    pub observer: Vec<f64>,
+    /// Targets file: one `x y z` per line. Default: every sample of every terrain grid in the scene.
+    #[arg(long)]
+    pub targets: Option<PathBuf>,
+    /// Height added to each target's z (e.g. a person's eye height).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub target_height: f64,
+    #[command(flatten)]
+    pub sight: SightArgs,
+}
+
+#[derive(Args, Debug)]
+pub struct SightArgs {
+    /// End-point margin ε, as a fraction of the segment: hits with t in (ε, 1 − ε) block it.
+    #[arg(long, default_value_t = 1e-6)]
+    pub epsilon: f64,
+    /// Layer mask of the sight lines: only objects sharing a bit can block them.
+    #[arg(long, value_parser = parse_mask, default_value = "0xffffffff")]
+    pub ray_mask: u32,
+    /// Which path answers.
+    #[arg(long, value_enum, default_value_t = Backend::Gpu)]
+    pub backend: Backend,
+    /// Output file (default: standard output).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Any-hit visibility of each segment `(from, to)`.
+fn visible(
+    built: Arc<BuiltScene>,
+    segments: &[(DVec3, DVec3)],
+    sight: &SightArgs,
+) -> Result<Vec<bool>, Error> {
+    let eps = sight.epsilon;
+    if !(0.0..0.5).contains(&eps) {
+        return Err(Error::Invalid(format!(
+            "--epsilon {eps} must be in [0, 0.5)"
+        )));
+    }
+    let rays: Vec<Ray> = segments
+        .iter()
+        .map(|&(a, b)| {
+            Ray::new(a, b - a)
+                .with_range(eps, 1.0 - eps)
+                .with_mask(sight.ray_mask)
+        })
+        .collect();
+    let query = Query {
+        mode: Mode::Any,
+        ..Query::default()
+    };
+    let answers = make_picker(sight.backend, built)?.query(&rays, &query)?;
+    Ok(answers
+        .nearest
+        .iter()
+        .map(|h| !h.hit && !h.invalid)
+        .collect())
+}
+
+pub fn run_los(args: LosArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    let built = Arc::new(args.scene.build(matches)?);
+    let segments = load_pairs(&args.pairs)?;
+    let seen = visible(built, &segments, &args.sight)?;
+    write_output(args.sight.out.as_deref(), |out| {
+        writeln!(out, "pair,visible")?;
+        for (i, v) in seen.iter().enumerate() {
+            writeln!(out, "{i},{}", u8::from(*v))?;
+        }
+        Ok(())
+    })?;
+    Ok(ExitCode::SUCCESS)
+}
+
+pub fn run_viewshed(args: ViewshedArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    let built = Arc::new(args.scene.build(matches)?);
+    let observer = DVec3::new(args.observer[0], args.observer[1], args.observer[2]);
+    let lift = DVec3::Z * args.target_height;
+    // (target, terrain cell label) pairs.
+    let targets: Vec<(DVec3, String)> = match &args.targets {
+        Some(path) => load_points(path)?
+            .into_iter()
+            .map(|p| (p + lift, String::new()))
+            .collect(),
+        None => grid_targets(&built, lift)?,
+    };
+    let segments: Vec<(DVec3, DVec3)> = targets.iter().map(|(t, _)| (observer, *t)).collect();
+    let seen = visible(built, &segments, &args.sight)?;
+    write_output(args.sight.out.as_deref(), |out| {
+        writeln!(out, "target,x,y,z,object,row,col,visible")?;
+        for (i, ((p, label), v)) in targets.iter().zip(&seen).enumerate() {
+            let label = if label.is_empty() {
+                ",,"
+            } else {
+                label.as_str()
+            };
+            writeln!(out, "{i},{},{},{},{label},{}", p.x, p.y, p.z, u8::from(*v))?;
+        }
+        Ok(())
+    })?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Every sample of every terrain grid that a hittable triangle uses (NODATA samples are
+/// skipped), labelled `object,row,col`.
+fn grid_targets(built: &BuiltScene, lift: DVec3) -> Result<Vec<(DVec3, String)>, Error> {
+    let scene = &built.scene;
+    let mut targets = Vec::new();
+    for object in scene.objects() {
+        let Some(grid) = object.grid else { continue };
+        let (cols, rows) = (grid.columns as usize, grid.rows as usize);
+        let mut used = vec![false; cols * rows];
+        for t in 0..object.triangle_count {
+            if !scene.is_degenerate((object.first_triangle + t) as usize) {
+                let (r, c) = cell_of_triangle(cols, t);
+                for (dr, dc) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
+                    used[(r + dr) * cols + c + dc] = true;
+                }
+            }
+        }
+        for (sample, _) in used.iter().enumerate().filter(|(_, u)| **u) {
+            let p = scene.position(object.first_vertex as usize + sample);
+            let (r, c) = (sample / cols, sample % cols);
+            targets.push((p + lift, format!("{},{r},{c}", object.id)));
+        }
+    }
+    if targets.is_empty() {
+        return Err(Error::Invalid(
+            "the scene has no terrain grid: give --targets FILE".into(),
+        ));
+    }
+    Ok(targets)
+}

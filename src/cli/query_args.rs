@@ -1,0 +1,43 @@
+//! Query options shared by `pick` and `verify`: mode, culling, list length, intersector, ray
+//! mask and range defaults.
+
+use super::scene_args::parse_mask;
+use clap::Args;
+use raypick::{Cull, Intersector, Mode, Query};
+
+#[derive(Args, Debug)]
+pub struct QueryArgs {
+    /// closest: the nearest hit; any: stop at the first hit found; all: every hit, sorted by t.
+    #[arg(long, value_enum, default_value_t = Mode::Closest)]
+    pub mode: Mode,
+    /// In `--mode all`, the most hits kept per ray (the nearest); more are flagged as overflow.
+    #[arg(long, default_value_t = 16)]
+    pub max_hits: u32,
+    /// Skip back faces or front faces (front = counter-clockwise as seen from the ray).
+    #[arg(long, value_enum, default_value_t = Cull::None)]
+    pub cull: Cull,
+    /// The ray/triangle test.
+    #[arg(long, value_enum, default_value_t = Intersector::MollerTrumbore)]
+    pub intersector: Intersector,
+    /// Layer mask of every ray (decimal, 0x.. or 0b..): only objects sharing a bit are hit.
+    #[arg(long, value_parser = parse_mask, default_value = "0xffffffff")]
+    pub ray_mask: u32,
+    /// Default tmin of every ray (hits need t > tmin).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub tmin: f64,
+    /// Default tmax of every ray (hits need t <= tmax); a ray line's 7th number overrides it.
+    #[arg(long, default_value_t = f64::INFINITY, allow_negative_numbers = true)]
+    pub tmax: f64,
+}
+
+impl QueryArgs {
+    /// The query these options describe.
+    pub fn query(&self) -> Query {
+        Query {
+            mode: self.mode,
+            cull: self.cull,
+            max_hits: self.max_hits,
+            intersector: self.intersector,
+        }
+    }
+}

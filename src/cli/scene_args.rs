@@ -1,0 +1,99 @@
+//! Scene options shared by every command: `--scene FILE [--mask M]` (repeatable; a `--mask`
+//! applies to the `--scene` just before it), `--scenes DESCRIPTION.json`, and the builder settings.
+
+use clap::{ArgMatches, Args};
+use raypick::io::scene_files::{SceneFile, load_description, load_scene};
+use raypick::synthetic::example_scene;
+use raypick::{BuildOptions, BuiltScene, Error, SplitAxis};
+use std::path::PathBuf;
+
+#[derive(Args, Debug)]
+pub struct SceneArgs {
+    /// Scene file: Wavefront .obj, or an elevation grid (.asc ESRI ASCII grid, .tif/.tiff
+    /// GeoTIFF). Repeat for several. Object ids follow the order given. Default: the built-in
+    /// example scene (a terrain with two buildings).
+    #[arg(long, action = clap::ArgAction::Append)]
+    pub scene: Vec<PathBuf>,
+    /// Layer mask (decimal, 0x.. or 0b..) for the objects of the `--scene` just before it.
+    #[arg(long, value_parser = parse_mask, action = clap::ArgAction::Append)]
+    pub mask: Vec<u32>,
+    /// A scene description file (JSON): `{"objects": [{"file": "dem.asc", "mask": 1}, ...]}`.
+    #[arg(long, conflicts_with = "scene")]
+    pub scenes: Option<PathBuf>,
+    /// Split-axis policy of the median-cut builder.
+    #[arg(long, value_enum, default_value_t = BuildOptions::default().split_axis)]
+    pub split: SplitAxis,
+    /// Most triangles per leaf (1 ..= 15).
+    #[arg(long, default_value_t = BuildOptions::default().leaf_size)]
+    pub leaf_size: u32,
+}
+
+/// Parses a mask in decimal, hexadecimal (`0x`) or binary (`0b`).
+pub fn parse_mask(text: &str) -> Result<u32, String> {
+    let t = text.trim();
+    let parsed = if let Some(hex) = t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
+        u32::from_str_radix(hex, 16)
+    } else if let Some(bin) = t.strip_prefix("0b").or_else(|| t.strip_prefix("0B")) {
+        u32::from_str_radix(bin, 2)
+    } else {
+        t.parse::<u32>()
+    };
+    parsed.map_err(|_| format!("'{text}' is not a 32-bit mask (decimal, 0x.. or 0b..)"))
+}
+
+impl SceneArgs {
+    /// The files with their masks; `matches` are the subcommand's, used to pair each `--mask`
+    /// with the `--scene` before it.
+    pub fn files(&self, matches: &ArgMatches) -> Result<Vec<SceneFile>, Error> {
+        if let Some(path) = &self.scenes {
+            return load_description(path);
+        }
+        let scene_at: Vec<usize> = matches
+            .indices_of("scene")
+            .map(|i| i.collect())
+            .unwrap_or_default();
+        let mask_at: Vec<usize> = matches
+            .indices_of("mask")
+            .map(|i| i.collect())
+            .unwrap_or_default();
+        let mut files: Vec<SceneFile> = self
+            .scene
+            .iter()
+            .map(|file| SceneFile {
+                file: file.clone(),
+                mask: None,
+            })
+            .collect();
+        for (mask, at) in self.mask.iter().zip(mask_at) {
+            let Some(k) = scene_at.iter().rposition(|&s| s < at) else {
+                return Err(Error::Invalid(format!(
+                    "--mask {mask} comes before any --scene"
+                )));
+            };
+            if files[k].mask.replace(*mask).is_some() {
+                return Err(Error::Invalid(format!(
+                    "{} has two --mask values",
+                    files[k].file.display()
+                )));
+            }
+        }
+        Ok(files)
+    }
+
+    /// Loads the scene (or the example) and builds the tree.
+    pub fn build(&self, matches: &ArgMatches) -> Result<BuiltScene, Error> {
+        let files = self.files(matches)?;
+        let scene = if files.is_empty() {
+            example_scene()
+        } else {
+            load_scene(&files)?
+        };
+        BuiltScene::new(
+            scene,
+            &BuildOptions {
+                split_axis: self.split,
+                leaf_size: self.leaf_size,
+            },
+        )
+    }
+}

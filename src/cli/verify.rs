@@ -1,0 +1,180 @@
+//! `raypick verify`: the GPU path, the CPU path and (for small scenes) brute force on the same
+//! rays, compared per ray kind; also the traversal statistics b and i of the paper's cost model.
+
+use super::query_args::QueryArgs;
+use super::read_rays;
+use super::scene_args::SceneArgs;
+use clap::{ArgMatches, Args};
+use raypick::compare::{Tally, compare_answers};
+use raypick::oracle::brute_force_query;
+use raypick::synthetic::mixed_rays;
+use raypick::{Answers, CpuPicker, Error, GpuContext, GpuPicker, Mode, Picker, Query, Ray};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::time::Instant;
+
+#[derive(Args, Debug)]
+pub struct VerifyArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Ray file to check (reported as one ray kind, "file").
+    #[arg(long, conflicts_with = "random")]
+    pub rays: Option<PathBuf>,
+    /// Number of synthetic rays, spread over every ray kind (camera, random, vertex,
+    /// edge-midpoint, grazing, axis-parallel, inside-box, tmax-cutoff).
+    #[arg(long, default_value_t = 100_000)]
+    pub random: usize,
+    /// Seed for the synthetic rays.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Run the brute-force oracle only when triangles × rays is at most this (it is O(N) per ray).
+    #[arg(long, default_value_t = 5e9)]
+    pub oracle_budget: f64,
+    #[command(flatten)]
+    pub query: QueryArgs,
+}
+
+pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    let started = Instant::now();
+    let built = Arc::new(args.scene.build(matches)?);
+    let bvh = &built.bvh;
+    let triangles = built.scene.triangle_count();
+    println!(
+        "scene: {} object(s), {triangles} triangles; tree: {} nodes, depth {}, {:.1} GPU bytes/triangle; loaded and built in {:.0} ms",
+        built.scene.objects().len(),
+        bvh.nodes.len(),
+        bvh.depth(),
+        bvh.gpu_bytes() as f64 / triangles.max(1) as f64,
+        started.elapsed().as_secs_f64() * 1e3
+    );
+    let q = &args.query;
+    let query = q.query();
+    println!("query: {query:?}, ray mask {:#x}", q.ray_mask);
+    let labelled: Vec<(&str, Ray)> = match &args.rays {
+        Some(path) => read_rays(path, q.tmin, q.tmax, q.ray_mask)?
+            .into_iter()
+            .map(|r| ("file", r))
+            .collect(),
+        None => mixed_rays(&built.scene, args.random, args.seed)
+            .into_iter()
+            .map(|(k, r)| (k.name(), r.with_mask(q.ray_mask)))
+            .collect(),
+    };
+    let rays: Vec<Ray> = labelled.iter().map(|(_, r)| *r).collect();
+
+    let context = GpuContext::new()?;
+    println!("gpu: {}", context.describe());
+    let mut gpu = GpuPicker::new(&context, built.clone())?;
+    let (gpu_answers, gpu_s) = timed(|| gpu.query(&rays, &query))?;
+    let (cpu_answers, cpu_s) = timed(|| CpuPicker::new(built.clone()).query(&rays, &query))?;
+    let n = rays.len() as f64;
+    println!(
+        "gpu path: {} rays in {gpu_s:.3} s ({:.0} rays/s)",
+        rays.len(),
+        n / gpu_s
+    );
+    println!(
+        "cpu path: {} rays in {cpu_s:.3} s ({:.0} rays/s, {} threads)",
+        rays.len(),
+        n / cpu_s,
+        rayon::current_num_threads()
+    );
+    for (name, a) in [("gpu", &gpu_answers), ("cpu", &cpu_answers)] {
+        let b: u64 = a.nearest.iter().map(|h| h.box_tests as u64).sum();
+        let i: u64 = a.nearest.iter().map(|h| h.triangle_tests as u64).sum();
+        println!(
+            "{name} statistics: mean box tests b = {:.2}, mean triangle tests i = {:.2} per ray (T = bB + iI)",
+            b as f64 / n,
+            i as f64 / n
+        );
+    }
+    let oracle = if triangles as f64 * n <= args.oracle_budget {
+        let (answers, s) = timed(|| Ok(brute_force_query(&built.scene, &rays, &query)))?;
+        let every = if query.mode == Mode::Any {
+            None
+        } else {
+            Some(brute_force_query(
+                &built.scene,
+                &rays,
+                &Query {
+                    mode: Mode::Any,
+                    ..query
+                },
+            ))
+        };
+        println!("brute force: {} rays in {s:.3} s", rays.len());
+        Some((answers, every))
+    } else {
+        println!(
+            "brute force: skipped ({triangles} triangles × {} rays is over --oracle-budget)",
+            rays.len()
+        );
+        None
+    };
+
+    let mut kinds: Vec<&str> = Vec::new();
+    for (k, _) in &labelled {
+        if !kinds.contains(k) {
+            kinds.push(k);
+        }
+    }
+    println!("\nmismatches (ties: shared edge + boundary) per ray kind");
+    println!(
+        "{:<14} {:>9} {:>9} {:>8} {:>20} {:>20} {:>20}",
+        "kind", "rays", "hits", "invalid", "gpu/cpu", "gpu/oracle", "cpu/oracle"
+    );
+    let mut total_mismatches = 0;
+    for kind in kinds {
+        let idx: Vec<usize> = (0..labelled.len())
+            .filter(|&i| labelled[i].0 == kind)
+            .collect();
+        let kind_rays: Vec<Ray> = idx.iter().map(|&i| rays[i]).collect();
+        let reference = oracle
+            .as_ref()
+            .map(|(a, every)| every.as_ref().unwrap_or(a).subset(&idx));
+        let pair = |a: &Answers, b: &Answers| {
+            compare_answers(
+                &built.scene,
+                &kind_rays,
+                query.mode,
+                &a.subset(&idx),
+                &b.subset(&idx),
+                reference.as_ref(),
+            )
+            .0
+        };
+        let gc = pair(&gpu_answers, &cpu_answers);
+        let go = oracle.as_ref().map(|(o, _)| pair(&gpu_answers, o));
+        let co = oracle.as_ref().map(|(o, _)| pair(&cpu_answers, o));
+        let cell = |t: Option<Tally>| {
+            t.map_or("-".to_string(), |t| {
+                format!("{} ({}+{})", t.mismatches, t.shared_edge, t.boundary)
+            })
+        };
+        println!(
+            "{:<14} {:>9} {:>9} {:>8} {:>20} {:>20} {:>20}",
+            kind,
+            gc.rays,
+            gc.hits,
+            gc.invalid,
+            cell(Some(gc)),
+            cell(go),
+            cell(co)
+        );
+        total_mismatches +=
+            gc.mismatches + go.map_or(0, |t| t.mismatches) + co.map_or(0, |t| t.mismatches);
+    }
+    println!("\n{} rays, {total_mismatches} mismatches", rays.len());
+    Ok(if total_mismatches == 0 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
+fn timed<T>(f: impl FnOnce() -> Result<T, Error>) -> Result<(T, f64), Error> {
+    let start = Instant::now();
+    let value = f()?;
+    Ok((value, start.elapsed().as_secs_f64()))
+}
