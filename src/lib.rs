@@ -21,6 +21,7 @@
 //! [`gpu::GpuPicker`] (`wgsl/pick.wgsl`) or [`CpuPicker`] ([`cpu::traverse`]) ->
 //! [`frame::resolve`] (f64 refinement) -> [`Hit`].
 
+pub mod auto;
 pub mod bvh;
 pub mod camera;
 pub mod compare;
@@ -33,6 +34,7 @@ pub mod io;
 pub mod layout;
 pub mod oracle;
 pub mod picker;
+pub mod probe;
 pub mod query;
 pub mod ray;
 pub mod scene;

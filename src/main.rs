@@ -34,6 +34,12 @@ enum Command {
     Select(cli::select::SelectArgs),
     /// The object id under every pixel of a camera view.
     Idbuffer(cli::select::IdBufferArgs),
+    /// Watertightness probes at shared edges and vertices, through both intersectors; exits 1
+    /// if the watertight test leaks.
+    Probe(cli::probe::ProbeArgs),
+    /// Many batches through the GPU picker: memory must stay flat, and a sample of each batch
+    /// must match the CPU path.
+    Soak(cli::soak::SoakArgs),
 }
 
 fn main() -> ExitCode {
@@ -50,6 +56,8 @@ fn main() -> ExitCode {
         Command::Viewshed(args) => cli::los::run_viewshed(args, sub),
         Command::Select(args) => cli::select::run_select(args, sub),
         Command::Idbuffer(args) => cli::select::run_idbuffer(args, sub),
+        Command::Probe(args) => cli::probe::run(args, sub),
+        Command::Soak(args) => cli::soak::run(args, sub),
     };
     match result {
         Ok(code) => code,

@@ -115,6 +115,30 @@ pub trait Picker {
     fn pick(&mut self, rays: &[Ray]) -> Result<Vec<Hit>> {
         Ok(self.query(rays, &Query::default())?.nearest)
     }
+
+    /// Answers `rays` `chunk` rays at a time, handing each chunk's answers to `sink` with the
+    /// index of its first ray, so memory stays bounded however many rays there are.
+    fn query_chunked(
+        &mut self,
+        rays: &[Ray],
+        query: &Query,
+        chunk: usize,
+        sink: &mut dyn FnMut(usize, Answers) -> Result<()>,
+    ) -> Result<()> {
+        for (k, part) in rays.chunks(chunk.max(1)).enumerate() {
+            sink(k * chunk.max(1), self.query(part, query)?)?;
+        }
+        Ok(())
+    }
+
+    /// Which path this picker runs on, for messages.
+    fn describe(&self) -> String;
+
+    /// Messages about fallbacks since the last call (the automatic backend's), for the caller
+    /// to show.
+    fn take_notes(&mut self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 /// The CPU reference path: the kernel's traversal, run on all cores.
@@ -137,6 +161,10 @@ impl Picker for CpuPicker {
         let (found, lists) = trace_batch(&self.built.bvh, &local, &self.built.settings(query));
         self.built.answers(rays, query, &found, &lists)
     }
+
+    fn describe(&self) -> String {
+        format!("cpu ({} threads)", rayon::current_num_threads())
+    }
 }
 
 /// Which path answers picks.
@@ -147,4 +175,7 @@ pub enum Backend {
     Gpu,
     /// The CPU reference path.
     Cpu,
+    /// Small batches on the CPU, large ones on the GPU (see [`crate::auto::AutoPicker`]); the CPU
+    /// alone, saying so, when no GPU can be opened.
+    Auto,
 }

@@ -205,6 +205,11 @@ impl Scene {
         self.positions[index]
     }
 
+    /// The scene vertex indices of triangle `index`.
+    pub fn triangle_vertices(&self, index: usize) -> [u32; 3] {
+        self.triangles[index]
+    }
+
     /// The three world-space vertices of scene triangle `index`.
     pub fn world_triangle(&self, index: usize) -> [DVec3; 3] {
         self.triangles[index].map(|i| self.positions[i as usize])

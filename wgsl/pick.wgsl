@@ -146,12 +146,18 @@ fn ray_triangle(tri: GpuTriangle, origin: vec3<f32>, dir: vec3<f32>) -> Triangle
 }
 
 // Per-ray set-up of the watertight test: the axis the ray runs along most (kz), the two others
-// (kx, ky, swapped to keep the winding when the ray runs down kz) and the shear constants.
+// (kx, ky, swapped to keep the winding when the ray runs down kz), folded into three rows so that
+// a vertex v (relative to the origin) maps to ray space as (dot(v, x), dot(v, y), dot(v, z)):
+// x = e_kx − (d_kx/d_kz)·e_kz, y = e_ky − (d_ky/d_kz)·e_kz, z = e_kz / d_kz. Every vertex is
+// mapped the same way whichever triangle it belongs to, which is what makes the test watertight.
 struct Shear {
-    kx: u32,
-    ky: u32,
-    kz: u32,
-    s: vec3<f32>,
+    x: vec3<f32>,
+    y: vec3<f32>,
+    z: vec3<f32>,
+}
+
+fn unit_axis(k: u32) -> vec3<f32> {
+    return vec3<f32>(select(0.0, 1.0, k == 0u), select(0.0, 1.0, k == 1u), select(0.0, 1.0, k == 2u));
 }
 
 fn shear_for(dir: vec3<f32>) -> Shear {
@@ -169,7 +175,8 @@ fn shear_for(dir: vec3<f32>) -> Shear {
         kx = ky;
         ky = swap;
     }
-    return Shear(kx, ky, kz, vec3<f32>(dir[kx] / dir[kz], dir[ky] / dir[kz], 1.0 / dir[kz]));
+    let ez = unit_axis(kz);
+    return Shear(unit_axis(kx) - (dir[kx] / dir[kz]) * ez, unit_axis(ky) - (dir[ky] / dir[kz]) * ez, ez / dir[kz]);
 }
 
 // Watertight ray/triangle test (Woop, Benthin, Wald, JCGT 2013): edge functions in a sheared
@@ -179,12 +186,12 @@ fn ray_triangle_watertight(tri: GpuTriangle, origin: vec3<f32>, sh: Shear) -> Tr
     let a = vertex(tri.v0) - origin;
     let b = vertex(tri.v1) - origin;
     let c = vertex(tri.v2) - origin;
-    let ax = a[sh.kx] - sh.s.x * a[sh.kz];
-    let ay = a[sh.ky] - sh.s.y * a[sh.kz];
-    let bx = b[sh.kx] - sh.s.x * b[sh.kz];
-    let by = b[sh.ky] - sh.s.y * b[sh.kz];
-    let cx = c[sh.kx] - sh.s.x * c[sh.kz];
-    let cy = c[sh.ky] - sh.s.y * c[sh.kz];
+    let ax = dot(a, sh.x);
+    let ay = dot(a, sh.y);
+    let bx = dot(b, sh.x);
+    let by = dot(b, sh.y);
+    let cx = dot(c, sh.x);
+    let cy = dot(c, sh.y);
     let u_edge = cx * by - cy * bx;
     let v_edge = ax * cy - ay * cx;
     let w_edge = bx * ay - by * ax;
@@ -193,7 +200,7 @@ fn ray_triangle_watertight(tri: GpuTriangle, origin: vec3<f32>, sh: Shear) -> Tr
     if outside || det == 0.0 {
         return TriangleHit(false, 0.0, 0.0, 0.0, 0.0);
     }
-    let t_scaled = u_edge * sh.s.z * a[sh.kz] + v_edge * sh.s.z * b[sh.kz] + w_edge * sh.s.z * c[sh.kz];
+    let t_scaled = u_edge * dot(a, sh.z) + v_edge * dot(b, sh.z) + w_edge * dot(c, sh.z);
     let inv_det = 1.0 / det;
     return TriangleHit(true, t_scaled * inv_det, v_edge * inv_det, w_edge * inv_det, det);
 }

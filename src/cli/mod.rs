@@ -2,23 +2,42 @@
 
 pub mod los;
 pub mod pick;
+pub mod probe;
 pub mod query_args;
 pub mod scene_args;
 pub mod select;
+pub mod soak;
 pub mod verify;
 
+use raypick::auto::AutoPicker;
 use raypick::io::ray_file::load_rays;
 use raypick::{Backend, BuiltScene, CpuPicker, Error, GpuContext, GpuPicker, Picker, Ray};
+
+/// Rays answered per chunk by commands that stream their output.
+pub const STREAM_CHUNK_RAYS: usize = 1 << 20;
 use std::io::Write;
 use std::path::Path;
 use std::sync::Arc;
 
-/// A picker for `backend`.
+/// A picker for `backend`. The automatic backend prints on standard error when it falls back to
+/// the CPU path.
 pub fn make_picker(backend: Backend, built: Arc<BuiltScene>) -> Result<Box<dyn Picker>, Error> {
     Ok(match backend {
         Backend::Cpu => Box::new(CpuPicker::new(built)),
         Backend::Gpu => Box::new(GpuPicker::new(&GpuContext::new()?, built)?),
+        Backend::Auto => {
+            let mut auto = AutoPicker::new(built);
+            show_notes(&mut auto);
+            Box::new(auto)
+        }
     })
+}
+
+/// Prints the picker's fallback notes on standard error.
+pub fn show_notes(picker: &mut dyn Picker) {
+    for note in picker.take_notes() {
+        eprintln!("note: {note}");
+    }
 }
 
 /// Reads a ray file; rays get `tmin`, `mask`, and `tmax` unless the line gives one.

@@ -2,10 +2,10 @@
 
 use super::query_args::QueryArgs;
 use super::scene_args::SceneArgs;
-use super::{make_picker, read_rays, write_output};
+use super::{STREAM_CHUNK_RAYS, make_picker, read_rays, show_notes, write_output};
 use clap::{ArgMatches, Args};
 use raypick::camera::{Camera, load_pixel_indices_as_centers};
-use raypick::io::output::{Format, OutputOptions, write_answers};
+use raypick::io::output::{AnswerWriter, Format, OutputOptions};
 use raypick::synthetic::{RayKind, rays as synthetic_rays};
 use raypick::{Backend, Error, Ray};
 use std::path::PathBuf;
@@ -62,21 +62,39 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             .map(|r| r.with_range(q.tmin, q.tmax).with_mask(q.ray_mask))
             .collect(),
     };
-    let cells = built.scene.objects().iter().any(|o| o.grid.is_some());
-    let answers = make_picker(args.backend, built)?.query(&rays, &q.query())?;
-    let invalid = answers.nearest.iter().filter(|h| h.invalid).count();
+    let options = OutputOptions {
+        format: args.format,
+        mode: q.mode,
+        cells: built.scene.objects().iter().any(|o| o.grid.is_some()),
+    };
+    let mut picker = make_picker(args.backend, built)?;
+    let query = q.query();
+    let mut invalid = 0;
+    let mut failure = None;
+    // Large batches stream: answers are written chunk by chunk, so memory stays bounded.
+    write_output(args.out.as_deref(), |out| {
+        let mut writer = AnswerWriter::begin(out, options)?;
+        let result = picker.query_chunked(&rays, &query, STREAM_CHUNK_RAYS, &mut |_, answers| {
+            invalid += answers.nearest.iter().filter(|h| h.invalid).count();
+            writer.write(out, &answers).map_err(|source| Error::Io {
+                path: "output".into(),
+                source,
+            })
+        });
+        if let Err(e) = result {
+            failure = Some(e);
+            return Ok(());
+        }
+        writer.finish(out)
+    })?;
+    show_notes(picker.as_mut());
+    if let Some(e) = failure {
+        return Err(e);
+    }
     if invalid > 0 {
         eprintln!(
             "warning: {invalid} ray(s) were invalid (NaN or infinite values, zero direction, or tmin > tmax) and are reported as misses"
         );
     }
-    let options = OutputOptions {
-        format: args.format,
-        mode: q.mode,
-        cells,
-    };
-    write_output(args.out.as_deref(), |out| {
-        write_answers(out, &answers, &options)
-    })?;
     Ok(ExitCode::SUCCESS)
 }

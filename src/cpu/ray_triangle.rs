@@ -66,13 +66,22 @@ pub fn ray_triangle(tri: &GpuTriangle, origin: Vec3, dir: Vec3) -> TriangleHit<f
 }
 
 /// Per-ray set-up of the watertight test: the axis the ray runs along most (`kz`), the two
-/// others (swapped to keep the winding when the ray runs down `kz`) and the shear constants.
+/// others (swapped to keep the winding when the ray runs down `kz`), folded into three rows so
+/// that a vertex `v` (relative to the origin) maps to ray space as `(v·x, v·y, v·z)`. Every
+/// vertex is mapped the same way whichever triangle it belongs to: the test is watertight.
 #[derive(Clone, Copy, Debug)]
 pub struct Shear {
-    kx: usize,
-    ky: usize,
-    kz: usize,
-    s: Vec3,
+    x: Vec3,
+    y: Vec3,
+    z: Vec3,
+}
+
+fn unit_axis(k: usize) -> Vec3 {
+    Vec3::new(
+        if k == 0 { 1.0 } else { 0.0 },
+        if k == 1 { 1.0 } else { 0.0 },
+        if k == 2 { 1.0 } else { 0.0 },
+    )
 }
 
 /// The twin of `shear_for` in the WGSL.
@@ -89,11 +98,11 @@ pub fn shear_for(dir: Vec3) -> Shear {
     if dir[kz] < 0.0 {
         std::mem::swap(&mut kx, &mut ky);
     }
+    let ez = unit_axis(kz);
     Shear {
-        kx,
-        ky,
-        kz,
-        s: Vec3::new(dir[kx] / dir[kz], dir[ky] / dir[kz], 1.0 / dir[kz]),
+        x: unit_axis(kx) - (dir[kx] / dir[kz]) * ez,
+        y: unit_axis(ky) - (dir[ky] / dir[kz]) * ez,
+        z: ez / dir[kz],
     }
 }
 
@@ -104,12 +113,12 @@ pub fn ray_triangle_watertight(tri: &GpuTriangle, origin: Vec3, sh: &Shear) -> T
     let a = Vec3::from(tri.v0) - origin;
     let b = Vec3::from(tri.v1) - origin;
     let c = Vec3::from(tri.v2) - origin;
-    let ax = a[sh.kx] - sh.s.x * a[sh.kz];
-    let ay = a[sh.ky] - sh.s.y * a[sh.kz];
-    let bx = b[sh.kx] - sh.s.x * b[sh.kz];
-    let by = b[sh.ky] - sh.s.y * b[sh.kz];
-    let cx = c[sh.kx] - sh.s.x * c[sh.kz];
-    let cy = c[sh.ky] - sh.s.y * c[sh.kz];
+    let ax = a.dot(sh.x);
+    let ay = a.dot(sh.y);
+    let bx = b.dot(sh.x);
+    let by = b.dot(sh.y);
+    let cx = c.dot(sh.x);
+    let cy = c.dot(sh.y);
     let u_edge = cx * by - cy * bx;
     let v_edge = ax * cy - ay * cx;
     let w_edge = bx * ay - by * ax;
@@ -119,8 +128,7 @@ pub fn ray_triangle_watertight(tri: &GpuTriangle, origin: Vec3, sh: &Shear) -> T
     if outside || det == 0.0 {
         return TriangleHit::miss();
     }
-    let t_scaled =
-        u_edge * sh.s.z * a[sh.kz] + v_edge * sh.s.z * b[sh.kz] + w_edge * sh.s.z * c[sh.kz];
+    let t_scaled = u_edge * a.dot(sh.z) + v_edge * b.dot(sh.z) + w_edge * c.dot(sh.z);
     let inv_det = 1.0 / det;
     TriangleHit {
         hit: true,

@@ -393,6 +393,10 @@ impl Picker for GpuPicker {
         let built = self.built.clone();
         built.answers(rays, query, &found, &lists)
     }
+
+    fn describe(&self) -> String {
+        format!("gpu {}", self.context.describe())
+    }
 }
 
 fn storage_init<T: bytemuck::Pod>(

@@ -55,75 +55,114 @@ pub fn write_hits(
     )
 }
 
-/// Writes a batch of answers.
+/// Writes a whole batch of answers.
 pub fn write_answers(
     out: &mut (impl Write + ?Sized),
     answers: &Answers,
     options: &OutputOptions,
 ) -> std::io::Result<()> {
-    let all = options.mode == Mode::All;
-    match options.format {
-        Format::Csv => {
-            let rank = if all { "ray,rank," } else { "ray," };
-            let cells = if options.cells { ",row,col" } else { "" };
-            writeln!(out, "{rank}{}{cells}", &CSV_HEADER["ray,".len()..])?;
-            for (i, nearest) in answers.nearest.iter().enumerate() {
-                let hits = answers.hits_of(i);
-                if hits.is_empty() {
+    let mut writer = AnswerWriter::begin(out, *options)?;
+    writer.write(out, answers)?;
+    writer.finish(out)
+}
+
+/// Writes answers chunk after chunk (for batches too large to hold at once): `begin`, then
+/// `write` for each chunk in ray order, then `finish`.
+#[derive(Debug)]
+pub struct AnswerWriter {
+    options: OutputOptions,
+    rays_written: usize,
+}
+
+impl AnswerWriter {
+    /// Writes the CSV header or opens the JSON array.
+    pub fn begin(out: &mut (impl Write + ?Sized), options: OutputOptions) -> std::io::Result<Self> {
+        match options.format {
+            Format::Csv => {
+                let rank = if options.mode == Mode::All {
+                    "ray,rank,"
+                } else {
+                    "ray,"
+                };
+                let cells = if options.cells { ",row,col" } else { "" };
+                writeln!(out, "{rank}{}{cells}", &CSV_HEADER["ray,".len()..])?;
+            }
+            Format::Json => write!(out, "[")?,
+        }
+        Ok(Self {
+            options,
+            rays_written: 0,
+        })
+    }
+
+    /// Writes the answers of the next rays.
+    pub fn write(
+        &mut self,
+        out: &mut (impl Write + ?Sized),
+        answers: &Answers,
+    ) -> std::io::Result<()> {
+        let options = self.options;
+        let all = options.mode == Mode::All;
+        for (k, nearest) in answers.nearest.iter().enumerate() {
+            let i = self.rays_written + k;
+            let hits = answers.hits_of(k);
+            match options.format {
+                Format::Csv if hits.is_empty() => {
                     let empty_cells = if options.cells { ",," } else { "" };
                     let rank = if all { "," } else { "" };
                     writeln!(out, "{i},{rank}0,,,,,,,,,,,{empty_cells}")?;
-                    debug_assert!(!nearest.hit || all);
-                    continue;
                 }
-                for (r, h) in hits.iter().enumerate() {
-                    let rank = if all { format!("{r},") } else { String::new() };
-                    let (p, n) = (h.position, h.normal);
-                    write!(
-                        out,
-                        "{i},{rank}1,{},{},{},{},{},{},{},{},{},{},{}",
-                        h.t, h.object, h.triangle, h.u, h.v, p.x, p.y, p.z, n.x, n.y, n.z
-                    )?;
-                    if options.cells {
-                        match h.cell {
-                            Some([row, col]) => write!(out, ",{row},{col}")?,
-                            None => write!(out, ",,")?,
+                Format::Csv => {
+                    for (r, h) in hits.iter().enumerate() {
+                        let rank = if all { format!("{r},") } else { String::new() };
+                        let (p, n) = (h.position, h.normal);
+                        write!(
+                            out,
+                            "{i},{rank}1,{},{},{},{},{},{},{},{},{},{},{}",
+                            h.t, h.object, h.triangle, h.u, h.v, p.x, p.y, p.z, n.x, n.y, n.z
+                        )?;
+                        if options.cells {
+                            match h.cell {
+                                Some([row, col]) => write!(out, ",{row},{col}")?,
+                                None => write!(out, ",,")?,
+                            }
                         }
+                        writeln!(out)?;
                     }
-                    writeln!(out)?;
+                }
+                Format::Json => {
+                    let sep = if i == 0 { "\n" } else { ",\n" };
+                    let record = if all {
+                        let hits: Vec<String> = hits.iter().map(json_hit).collect();
+                        format!(
+                            "{{\"ray\":{i},\"invalid\":{},\"overflow\":{},\"hits\":[{}]}}",
+                            nearest.invalid,
+                            answers.overflow[k],
+                            hits.join(",")
+                        )
+                    } else if nearest.hit {
+                        format!("{{\"ray\":{i},{}", &json_hit(nearest)[1..])
+                    } else {
+                        format!(
+                            "{{\"ray\":{i},\"hit\":false,\"invalid\":{}}}",
+                            nearest.invalid
+                        )
+                    };
+                    write!(out, "{sep}  {record}")?;
                 }
             }
         }
-        Format::Json => {
-            writeln!(out, "[")?;
-            for (i, nearest) in answers.nearest.iter().enumerate() {
-                let sep = if i + 1 < answers.nearest.len() {
-                    ","
-                } else {
-                    ""
-                };
-                let record = if all {
-                    let hits: Vec<String> = answers.hits_of(i).iter().map(json_hit).collect();
-                    format!(
-                        "{{\"ray\":{i},\"invalid\":{},\"overflow\":{},\"hits\":[{}]}}",
-                        nearest.invalid,
-                        answers.overflow[i],
-                        hits.join(",")
-                    )
-                } else if nearest.hit {
-                    format!("{{\"ray\":{i},{}", &json_hit(nearest)[1..])
-                } else {
-                    format!(
-                        "{{\"ray\":{i},\"hit\":false,\"invalid\":{}}}",
-                        nearest.invalid
-                    )
-                };
-                writeln!(out, "  {record}{sep}")?;
-            }
-            writeln!(out, "]")?;
-        }
+        self.rays_written += answers.nearest.len();
+        Ok(())
     }
-    Ok(())
+
+    /// Closes the JSON array.
+    pub fn finish(self, out: &mut (impl Write + ?Sized)) -> std::io::Result<()> {
+        if self.options.format == Format::Json {
+            writeln!(out, "\n]")?;
+        }
+        Ok(())
+    }
 }
 
 fn json_hit(h: &Hit) -> String {

@@ -1,0 +1,73 @@
+//! `raypick probe`: watertightness probes (rays aimed exactly at shared edges and interior
+//! vertices) through both intersectors on both paths; reports leaks and throughput.
+
+use super::scene_args::SceneArgs;
+use clap::{ArgMatches, Args};
+use raypick::probe::{edge_probes, leaks};
+use raypick::{CpuPicker, Error, GpuContext, GpuPicker, Intersector, Picker, Query};
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::time::Instant;
+
+#[derive(Args, Debug)]
+pub struct ProbeArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Number of probes.
+    #[arg(long, default_value_t = 1_000_000)]
+    pub probes: usize,
+    /// Seed for the probes.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+pub fn run(args: ProbeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    let built = Arc::new(args.scene.build(matches)?);
+    let probes = edge_probes(&built.scene, args.probes, args.seed);
+    if probes.is_empty() {
+        return Err(Error::Invalid(
+            "the scene has no edge shared by two triangles to probe".into(),
+        ));
+    }
+    let context = GpuContext::new()?;
+    println!(
+        "{} probes at shared edges and interior vertices; gpu: {}",
+        probes.len(),
+        context.describe()
+    );
+    let mut gpu = GpuPicker::new(&context, built.clone())?;
+    let mut cpu = CpuPicker::new(built);
+    let mut watertight_leaks = 0;
+    println!(
+        "{:<16} {:<5} {:>9} {:>14}",
+        "intersector", "path", "leaks", "rays/s"
+    );
+    for intersector in [Intersector::MollerTrumbore, Intersector::Watertight] {
+        let query = Query {
+            intersector,
+            ..Query::default()
+        };
+        for (name, picker) in [
+            ("cpu", &mut cpu as &mut dyn Picker),
+            ("gpu", &mut gpu as &mut dyn Picker),
+        ] {
+            let start = Instant::now();
+            let answers = picker.query(&probes, &query)?;
+            let seconds = start.elapsed().as_secs_f64();
+            let leaked = leaks(&answers.nearest);
+            if intersector == Intersector::Watertight {
+                watertight_leaks += leaked;
+            }
+            println!(
+                "{:<16} {name:<5} {leaked:>9} {:>14.0}",
+                format!("{intersector:?}"),
+                probes.len() as f64 / seconds
+            );
+        }
+    }
+    Ok(if watertight_leaks == 0 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}

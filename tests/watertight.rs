@@ -1,0 +1,71 @@
+//! Watertightness: probes aimed exactly at shared edges and interior vertices of a closed sphere
+//! and of a terrain never slip through with the watertight intersector, on either path.
+
+mod common;
+
+use glam::DVec3;
+use raypick::probe::{edge_probes, leaks};
+use raypick::synthetic::{hills, icosphere, terrain};
+use raypick::{BuildOptions, BuiltScene, CpuPicker, GpuPicker, Intersector, Picker, Query, Scene};
+use std::sync::Arc;
+
+const PROBES: usize = 100_000;
+
+fn leak_counts(name: &str, mesh: raypick::Mesh) -> [[usize; 2]; 2] {
+    let scene = Scene::from_meshes([(name.to_string(), mesh)]).unwrap();
+    let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
+    let probes = edge_probes(&built.scene, PROBES, 3);
+    assert_eq!(probes.len(), PROBES);
+    let mut gpu = GpuPicker::new(common::gpu(), built.clone()).unwrap();
+    let mut cpu = CpuPicker::new(built);
+    let mut counts = [[0; 2]; 2];
+    for (row, intersector) in [Intersector::MollerTrumbore, Intersector::Watertight]
+        .into_iter()
+        .enumerate()
+    {
+        let query = Query {
+            intersector,
+            ..Query::default()
+        };
+        counts[row] = [
+            leaks(&cpu.query(&probes, &query).unwrap().nearest),
+            leaks(&gpu.query(&probes, &query).unwrap().nearest),
+        ];
+    }
+    eprintln!(
+        "{name}: leaks [cpu, gpu]: Möller–Trumbore {:?}, watertight {:?}",
+        counts[0], counts[1]
+    );
+    counts
+}
+
+#[test]
+fn no_probe_slips_through_a_closed_sphere() {
+    let counts = leak_counts("sphere", icosphere(DVec3::new(3.7, -1.2, 2.9), 2.3, 4));
+    assert_eq!(counts[1], [0, 0], "watertight leaks");
+}
+
+#[test]
+fn no_probe_slips_through_a_terrain() {
+    let counts = leak_counts("terrain", terrain(64, 64, 1000.0, 2000.0, 3.0, hills));
+    assert_eq!(counts[1], [0, 0], "watertight leaks");
+}
+
+#[test]
+fn probes_hit_their_targets() {
+    // The probes really aim at the surface: the watertight hits land on the targets.
+    let scene = Scene::from_meshes([("s".to_string(), icosphere(DVec3::ZERO, 1.0, 2))]).unwrap();
+    let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
+    let probes = edge_probes(&built.scene, 2000, 9);
+    let query = Query {
+        intersector: Intersector::Watertight,
+        ..Query::default()
+    };
+    let hits = CpuPicker::new(built)
+        .query(&probes, &query)
+        .unwrap()
+        .nearest;
+    for (p, h) in probes.iter().zip(&hits) {
+        assert!((h.position - p.at(1.0)).length() < 1e-5, "{p:?} -> {h:?}");
+    }
+}
