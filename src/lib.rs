@@ -37,6 +37,7 @@ pub mod picker;
 pub mod probe;
 pub mod query;
 pub mod ray;
+pub mod render;
 pub mod scene;
 pub mod select;
 pub mod synthetic;

@@ -1,6 +1,7 @@
 //! The `raypick` command line. `pick` answers rays (or camera pixels), `verify` checks the GPU
 //! path, the CPU path and the brute-force oracle against each other, `los` and `viewshed` test
-//! lines of sight, `select` and `idbuffer` pick objects on screen. Every command uses a built-in
+//! lines of sight, `select` and `idbuffer` pick objects on screen, `render` draws the scene,
+//! `probe` and `soak` check watertightness and endurance. Every command uses a built-in
 //! example scene when no `--scene` is given. Errors print as one sentence and exit with code 2.
 
 mod cli;
@@ -40,6 +41,8 @@ enum Command {
     /// Many batches through the GPU picker: memory must stay flat, and a sample of each batch
     /// must match the CPU path.
     Soak(cli::soak::SoakArgs),
+    /// A ray-cast picture of the scene as a PNG, shaded by normal (hillshade), depth or object.
+    Render(cli::render::RenderArgs),
 }
 
 fn main() -> ExitCode {
@@ -58,6 +61,7 @@ fn main() -> ExitCode {
         Command::Idbuffer(args) => cli::select::run_idbuffer(args, sub),
         Command::Probe(args) => cli::probe::run(args, sub),
         Command::Soak(args) => cli::soak::run(args, sub),
+        Command::Render(args) => cli::render::run(args, sub),
     };
     match result {
         Ok(code) => code,

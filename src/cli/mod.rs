@@ -4,6 +4,7 @@ pub mod los;
 pub mod pick;
 pub mod probe;
 pub mod query_args;
+pub mod render;
 pub mod scene_args;
 pub mod select;
 pub mod soak;
