@@ -16,8 +16,9 @@ pub struct QueryArgs {
     /// Skip back faces or front faces (front = counter-clockwise as seen from the ray).
     #[arg(long, value_enum, default_value_t = Cull::None)]
     pub cull: Cull,
-    /// The ray/triangle test.
-    #[arg(long, value_enum, default_value_t = Intersector::MollerTrumbore)]
+    /// The ray/triangle test (watertight: rays never slip between triangles; moller-trumbore: the
+    /// paper's test).
+    #[arg(long, value_enum, default_value_t = Intersector::Watertight)]
     pub intersector: Intersector,
     /// Layer mask of every ray (decimal, 0x.. or 0b..): only objects sharing a bit are hit.
     #[arg(long, value_parser = parse_mask, default_value = "0xffffffff")]

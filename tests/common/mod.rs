@@ -2,12 +2,12 @@
 //! every backend and the oracle.
 #![allow(dead_code)]
 
-use raypick::compare::{Tally, compare_answers};
-use raypick::oracle::{brute_force_all, brute_force_query};
+use raypick::compare::compare_answers;
+use raypick::oracle::brute_force_query;
 use raypick::synthetic::{RayKind, mixed_rays};
 use raypick::{
-    Answers, BuildOptions, BuiltScene, CpuPicker, GpuContext, GpuPicker, Hit, Mode, Picker, Query,
-    Ray, Scene,
+    Answers, BuildOptions, BuiltScene, CpuPicker, GpuContext, GpuPicker, Hit, Intersector, Mode,
+    Picker, Query, Ray, Scene,
 };
 use std::sync::{Arc, OnceLock};
 
@@ -26,55 +26,16 @@ pub fn gpu() -> &'static GpuContext {
     })
 }
 
-/// Picks `rays` on the CPU, the GPU and the brute-force oracle and asserts zero mismatches per
-/// ray kind between every pair. Returns the CPU hits.
+/// Closest-hit picks of `rays` with both intersectors on the CPU, the GPU and the brute-force
+/// oracle, asserting zero mismatches per ray kind between every pair. Returns the CPU hits of
+/// the default (watertight) intersector.
 pub fn assert_equivalent(name: &str, built: Arc<BuiltScene>, rays: &[(RayKind, Ray)]) -> Vec<Hit> {
-    built
-        .bvh
-        .validate()
-        .unwrap_or_else(|e| panic!("{name}: invalid tree: {e}"));
-    let plain: Vec<Ray> = rays.iter().map(|(_, r)| *r).collect();
-    let cpu = CpuPicker::new(built.clone())
-        .pick(&plain)
-        .expect("cpu pick");
-    let gpu_hits = GpuPicker::new(gpu(), built.clone())
-        .expect("gpu picker")
-        .pick(&plain)
-        .expect("gpu pick");
-    let oracle = brute_force_all(&built.scene, &plain);
-    let mut failures = Vec::new();
-    for kind in RayKind::ALL {
-        let idx: Vec<usize> = (0..rays.len()).filter(|&i| rays[i].0 == kind).collect();
-        if idx.is_empty() {
-            continue;
-        }
-        let pick = |v: &[Hit]| idx.iter().map(|&i| v[i]).collect::<Vec<_>>();
-        let kind_rays: Vec<Ray> = idx.iter().map(|&i| plain[i]).collect();
-        for (pair, a, b) in [
-            ("cpu/oracle", &cpu, &oracle),
-            ("gpu/cpu", &gpu_hits, &cpu),
-            ("gpu/oracle", &gpu_hits, &oracle),
-        ] {
-            let (tally, bad) = Tally::compare(&built.scene, &kind_rays, &pick(a), &pick(b));
-            eprintln!("{name:>14} {:>13} {pair:>10}: {tally:?}", kind.name());
-            for &j in bad.iter().take(3) {
-                failures.push(format!(
-                    "{name} {} {pair}: ray {:?}\n  first:  {:?}\n  second: {:?}",
-                    kind.name(),
-                    kind_rays[j],
-                    pick(a)[j],
-                    pick(b)[j]
-                ));
-            }
-        }
-    }
-    assert!(
-        failures.is_empty(),
-        "{} mismatches:\n{}",
-        failures.len(),
-        failures.join("\n")
-    );
-    cpu
+    let mt = Query {
+        intersector: Intersector::MollerTrumbore,
+        ..Query::default()
+    };
+    assert_query_equivalent(name, built.clone(), rays, &mt);
+    assert_query_equivalent(name, built, rays, &Query::default()).nearest
 }
 
 /// Builds `scene` with `options` and checks it over the mixed ray kinds.
