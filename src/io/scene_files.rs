@@ -1,10 +1,11 @@
 //! Turning files into a scene: each OBJ file is one object, each elevation grid (ESRI ASCII
 //! `.asc`, GeoTIFF `.tif`/`.tiff`) one terrain object whose hits report row and column, and each
-//! glTF primitive one object. Object ids follow the order of the files, then of the objects
+//! glTF (`.gltf`, `.glb`) mesh primitive one object, with node transforms applied. Object ids follow the order of the files, then of the objects
 //! inside a file. A scene description file (JSON) lists files with their layer masks.
 
 use crate::dem::{grid_to_mesh, load_elevation};
 use crate::error::{Error, Result};
+use crate::io::gltf::load_gltf;
 use crate::io::obj::load_obj;
 use crate::scene::{GridShape, Scene};
 use serde::Deserialize;
@@ -76,6 +77,11 @@ fn add_file(scene: &mut Scene, path: &Path) -> Result<()> {
         Some("obj") => {
             scene.add_mesh(name, load_obj(path)?)?;
         }
+        Some("gltf" | "glb") => {
+            for (object_name, mesh) in load_gltf(path)? {
+                scene.add_mesh(object_name, mesh)?;
+            }
+        }
         Some("asc" | "tif" | "tiff") => {
             let grid = load_elevation(path)?;
             let shape = GridShape {
@@ -86,7 +92,7 @@ fn add_file(scene: &mut Scene, path: &Path) -> Result<()> {
         }
         _ => {
             return Err(Error::Invalid(format!(
-                "{name}: unknown scene format (expected .obj, .asc, .tif or .tiff)"
+                "{name}: unknown scene format (expected .obj, .gltf, .glb, .asc, .tif or .tiff)"
             )));
         }
     }

@@ -1,0 +1,982 @@
+//! Loading triangle meshes from glTF 2.0 files (`.gltf` and `.glb`).
+//!
+//! [`load_gltf`] turns every triangle primitive placed in the scene into its
+//! own named [`Mesh`], with world positions in f64. The JSON is parsed and
+//! validated by the `gltf` crate; the GLB container, buffer loading (the
+//! GLB `BIN` chunk, external files, `data:` URIs) and every accessor read
+//! are done here, with all sizes checked, so malformed files give an
+//! [`Error`] instead of a panic.
+//!
+//! # Which nodes, in which order
+//!
+//! - The default scene (`"scene"`) is walked. Without one, the roots of
+//!   every scene are walked, scene by scene; a file without any scene uses
+//!   every node that is nobody's child, in node order.
+//! - Each root's subtree is walked depth first: a node's own mesh comes
+//!   before its children, children in the order listed. The objects come
+//!   out in this order, and within a node in primitive order, so with
+//!   [`crate::Scene::from_meshes`] the object ids follow it too.
+//! - A node's world transform is `parent world · node local` composed in
+//!   f64, where the local transform is its `matrix` or
+//!   `translation · rotation · scale` (the quaternion is normalised in f64;
+//!   the bottom row of a `matrix` is ignored, as glTF requires it to be
+//!   affine). A node reached twice within one scene (a cycle, or a node
+//!   with two parents) is an error.
+//!
+//! # Names
+//!
+//! An object is named `<file>#<mesh>/<primitive>`, where `<file>` is the
+//! path as given, `<mesh>` the mesh's name (its index when unnamed or
+//! empty) and `<primitive>` the primitive's index within the mesh. When a
+//! mesh is placed by several nodes, every instance is its own object and
+//! `<mesh>` becomes `<mesh>@node<k>` (`<mesh>@scene<s>.node<k>` when node
+//! `k` itself is walked in several scenes).
+//!
+//! # Triangles
+//!
+//! Triangle ids are the order the primitive defines them in: `TRIANGLES`
+//! takes vertices three at a time; `TRIANGLE_STRIP` triangle `i` is
+//! `(v[i], v[i+1], v[i+2])` for even `i` and `(v[i], v[i+2], v[i+1])` for
+//! odd `i`; `TRIANGLE_FAN` triangle `i` is `(v[i+1], v[i+2], v[0])` (the
+//! glTF 2.0 rules). `v` is the index accessor, or `0, 1, 2, …` for a
+//! non-indexed primitive. Degenerate triangles are kept, so ids stay
+//! aligned with the file. Each object holds all of its primitive's `POSITION`
+//! vertices, used or not.
+//!
+//! # Not read
+//!
+//! `POINTS`, `LINES`, `LINE_LOOP` and `LINE_STRIP` primitives are skipped
+//! (they make no object, and the primitive indices in names still count
+//! them). Skins, morph targets, animations, cameras, lights, materials and
+//! `EXT_mesh_gpu_instancing` are ignored: positions are the rest positions
+//! under the node transforms. Files that *require* an extension changing
+//! geometry (Draco, meshopt, `KHR_mesh_quantization`, …) are rejected;
+//! required material, texture and light extensions are accepted. Buffers
+//! are only loaded when a walked primitive reads them. The spec's rule that
+//! `POSITION` accessors carry `min`/`max` is not enforced.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use ::gltf::accessor::sparse::IndexType;
+use ::gltf::accessor::{DataType, Dimensions};
+use ::gltf::buffer::{Source, View};
+use ::gltf::json;
+use ::gltf::mesh::{Mode, Semantic};
+use ::gltf::scene::Transform;
+use ::gltf::{Accessor, Document, Node, Primitive};
+use glam::{DMat4, DQuat, DVec3};
+
+use crate::error::Error;
+use crate::scene::Mesh;
+
+/// Elements of an accessor without a `bufferView` (zeros plus sparse
+/// values) are limited to this many, so a tiny file cannot ask for an
+/// arbitrarily large allocation.
+const MAX_ZERO_FILLED: usize = 1 << 24;
+
+/// Loads every triangle primitive placed in the scene of the glTF 2.0 file
+/// at `path` (`.gltf` with external or `data:` buffers, or binary `.glb`),
+/// as `(name, mesh)` pairs with f64 world positions.
+///
+/// See the [module documentation](self) for the walk order, the names and
+/// the triangle numbering. A missing file (the glTF or a buffer it needs)
+/// is an [`Error::Io`] naming that file; malformed content (bad JSON or GLB,
+/// failed glTF validation, accessors outside their buffers, indices out of
+/// range, non-finite positions or transforms, unsupported required
+/// extensions) is an [`Error::Parse`] naming the file and the mesh,
+/// primitive, accessor or node at fault.
+pub fn load_gltf(path: &Path) -> Result<Vec<(String, Mesh)>, Error> {
+    let name = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|source| Error::Io {
+        path: name.clone(),
+        source,
+    })?;
+    let parse = |line: Option<usize>, message: String| Error::Parse {
+        path: name.clone(),
+        line,
+        message,
+    };
+    let (json_bytes, blob, is_glb) = if bytes.starts_with(b"glTF") {
+        let (json, blob) = split_glb(&bytes).map_err(|m| parse(None, m))?;
+        (json, blob, true)
+    } else {
+        (bytes.as_slice(), None, false)
+    };
+    let json_bytes = json_bytes
+        .strip_prefix(b"\xEF\xBB\xBF".as_slice())
+        .unwrap_or(json_bytes);
+    let root: json::Root = json::deserialize::from_slice(json_bytes).map_err(|e| {
+        if is_glb {
+            parse(
+                None,
+                format!(
+                    "the JSON chunk is not valid glTF JSON (line {}, column {}): {e}",
+                    e.line(),
+                    e.column()
+                ),
+            )
+        } else {
+            parse(
+                (e.line() > 0).then_some(e.line()),
+                format!("not valid glTF JSON: {e}"),
+            )
+        }
+    })?;
+    validate(&root).map_err(|m| parse(None, m))?;
+    let document = Document::from_json_without_validation(root);
+    let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let mut loader = Loader {
+        file: &name,
+        dir,
+        document: &document,
+        blob,
+        buffers: vec![None; document.buffers().len()],
+        primitives: HashMap::new(),
+    };
+    loader.load()
+}
+
+/// Splits a GLB container into its JSON chunk and optional `BIN` chunk.
+fn split_glb(bytes: &[u8]) -> Result<(&[u8], Option<&[u8]>), String> {
+    let word = |at: usize| -> Option<u32> {
+        let b = bytes.get(at..at.checked_add(4)?)?;
+        Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    let truncated = || "the GLB file is truncated".to_owned();
+    let version = word(4).ok_or_else(truncated)?;
+    if version != 2 {
+        return Err(format!(
+            "GLB version {version} is not supported (expected 2)"
+        ));
+    }
+    let length = word(8).ok_or_else(truncated)? as usize;
+    if length < 12 || length > bytes.len() {
+        return Err(format!(
+            "the GLB header gives a length of {length} bytes, but the file has {}",
+            bytes.len()
+        ));
+    }
+    let mut at = 12;
+    let mut json = None;
+    let mut bin = None;
+    while at < length {
+        let chunk_length = word(at).ok_or_else(truncated)? as usize;
+        let kind = bytes.get(at + 4..at + 8).ok_or_else(truncated)?;
+        let start = at + 8;
+        let end = start
+            .checked_add(chunk_length)
+            .filter(|&end| end <= length)
+            .ok_or_else(|| {
+                format!(
+                    "a GLB chunk at byte {at} runs past the end of the file ({chunk_length} bytes)"
+                )
+            })?;
+        let data = &bytes[start..end];
+        match kind {
+            b"JSON" if json.is_none() && at == 12 => json = Some(data),
+            b"BIN\0" if json.is_some() && bin.is_none() => bin = Some(data),
+            b"JSON" | b"BIN\0" => {
+                return Err(format!("unexpected GLB chunk at byte {at}"));
+            }
+            _ => {} // Unknown chunk types are skipped, as the spec asks.
+        }
+        // Chunks start on 4-byte boundaries.
+        at = end.div_ceil(4) * 4;
+    }
+    let json = json.ok_or_else(|| "the GLB file has no JSON chunk".to_owned())?;
+    Ok((json, bin))
+}
+
+/// Required extensions that do not change triangles or positions.
+fn is_harmless_extension(name: &str) -> bool {
+    [
+        "KHR_materials_",
+        "KHR_texture_",
+        "EXT_texture_",
+        "MSFT_texture_",
+    ]
+    .iter()
+    .any(|prefix| name.starts_with(prefix))
+        || name == "KHR_lights_punctual"
+}
+
+/// Runs the `gltf` crate's validation (after the checks it needs to not
+/// panic itself), dropping what this loader handles on its own.
+fn validate(root: &json::Root) -> Result<(), String> {
+    use json::validation::Validate;
+    // The crate's primitive check indexes `accessors` with the POSITION
+    // index before bounds are checked.
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, primitive) in mesh.primitives.iter().enumerate() {
+            for (semantic, index) in &primitive.attributes {
+                if index.value() >= root.accessors.len() {
+                    return Err(format!(
+                        "invalid glTF: mesh {m} primitive {p}: attribute {} uses accessor {}, but the file has {} accessors",
+                        semantic.to_string(),
+                        index.value(),
+                        root.accessors.len()
+                    ));
+                }
+            }
+        }
+    }
+    if let Some(name) = root
+        .extensions_required
+        .iter()
+        .find(|name| !is_harmless_extension(name))
+    {
+        return Err(format!(
+            "the file requires the extension {name}, which this loader does not support"
+        ));
+    }
+    let mut errors = Vec::new();
+    root.validate(root, json::Path::new, &mut |path, error| {
+        let path = path().to_string();
+        let ignored = path.starts_with("extensionsRequired")
+            || (error == json::validation::Error::Missing
+                && (path.ends_with("[\"POSITION\"].min") || path.ends_with("[\"POSITION\"].max")));
+        if !ignored {
+            errors.push(format!("{path}: {error}"));
+        }
+    });
+    if errors.is_empty() {
+        Ok(())
+    } else {
+        Err(format!("invalid glTF: {}", errors.join("; ")))
+    }
+}
+
+/// A primitive in its own frame: local positions and triangles.
+#[derive(Clone)]
+struct LocalPrimitive {
+    positions: Vec<DVec3>,
+    triangles: Vec<[u32; 3]>,
+}
+
+/// One placement of a mesh by a node.
+struct Instance {
+    scene: usize,
+    node: usize,
+    mesh: usize,
+    world: DMat4,
+}
+
+/// State of one load: the document, its buffers (loaded on first use) and
+/// the primitives read so far.
+struct Loader<'a> {
+    file: &'a str,
+    dir: PathBuf,
+    document: &'a Document,
+    blob: Option<&'a [u8]>,
+    buffers: Vec<Option<Vec<u8>>>,
+    /// Keyed by `(mesh, primitive)`; `None` for skipped (non-triangle) ones.
+    primitives: HashMap<(usize, usize), Option<LocalPrimitive>>,
+}
+
+impl Loader<'_> {
+    fn parse(&self, message: String) -> Error {
+        Error::Parse {
+            path: self.file.to_owned(),
+            line: None,
+            message,
+        }
+    }
+
+    fn load(&mut self) -> Result<Vec<(String, Mesh)>, Error> {
+        let instances = self.instances()?;
+        let mut per_mesh: HashMap<usize, usize> = HashMap::new();
+        let mut node_scenes: HashMap<usize, Vec<usize>> = HashMap::new();
+        for instance in &instances {
+            *per_mesh.entry(instance.mesh).or_default() += 1;
+            let scenes = node_scenes.entry(instance.node).or_default();
+            if !scenes.contains(&instance.scene) {
+                scenes.push(instance.scene);
+            }
+        }
+        let mut per_mesh_left = per_mesh.clone();
+        let document = self.document;
+        let mut out = Vec::new();
+        for instance in &instances {
+            let Some(mesh) = document.meshes().nth(instance.mesh) else {
+                continue; // Validation guarantees the index.
+            };
+            let mut label = match mesh.name() {
+                Some(name) if !name.is_empty() => name.to_owned(),
+                _ => instance.mesh.to_string(),
+            };
+            if per_mesh[&instance.mesh] > 1 {
+                if node_scenes[&instance.node].len() > 1 {
+                    label.push_str(&format!("@scene{}.node{}", instance.scene, instance.node));
+                } else {
+                    label.push_str(&format!("@node{}", instance.node));
+                }
+            }
+            let remaining = per_mesh_left.entry(instance.mesh).or_default();
+            *remaining -= 1;
+            let last = *remaining == 0;
+            for primitive in mesh.primitives() {
+                let key = (instance.mesh, primitive.index());
+                if !self.primitives.contains_key(&key) {
+                    let read = self.read_primitive(&primitive, instance.mesh)?;
+                    self.primitives.insert(key, read);
+                }
+                // The last instance of a mesh takes its primitives; earlier ones copy them.
+                let local = if last {
+                    self.primitives.remove(&key).flatten()
+                } else {
+                    self.primitives.get(&key).cloned().flatten()
+                };
+                let Some(LocalPrimitive {
+                    mut positions,
+                    triangles,
+                }) = local
+                else {
+                    continue;
+                };
+                for (i, p) in positions.iter_mut().enumerate() {
+                    let w = instance.world.transform_point3(*p);
+                    if !w.is_finite() {
+                        return Err(self.parse(format!(
+                            "mesh {} primitive {}: vertex {i} {p} is not finite after node {}'s world transform",
+                            describe_mesh(&mesh),
+                            primitive.index(),
+                            instance.node
+                        )));
+                    }
+                    *p = w;
+                }
+                out.push((
+                    format!("{}#{label}/{}", self.file, primitive.index()),
+                    Mesh {
+                        positions,
+                        triangles,
+                    },
+                ));
+            }
+        }
+        Ok(out)
+    }
+
+    /// The mesh placements in walk order (see the module documentation).
+    fn instances(&self) -> Result<Vec<Instance>, Error> {
+        let document = self.document;
+        let walks: Vec<(usize, Vec<Node<'_>>)> = if let Some(scene) = document.default_scene() {
+            vec![(scene.index(), scene.nodes().collect())]
+        } else if document.scenes().len() > 0 {
+            document
+                .scenes()
+                .map(|s| (s.index(), s.nodes().collect()))
+                .collect()
+        } else {
+            let mut is_child = vec![false; document.nodes().len()];
+            for node in document.nodes() {
+                for child in node.children() {
+                    is_child[child.index()] = true;
+                }
+            }
+            let roots = document.nodes().filter(|n| !is_child[n.index()]).collect();
+            vec![(0, roots)]
+        };
+        let mut instances = Vec::new();
+        for (scene, roots) in walks {
+            let mut visited = vec![false; document.nodes().len()];
+            let mut stack: Vec<(Node<'_>, DMat4)> = roots
+                .into_iter()
+                .rev()
+                .map(|n| (n, DMat4::IDENTITY))
+                .collect();
+            while let Some((node, parent)) = stack.pop() {
+                let k = node.index();
+                if std::mem::replace(&mut visited[k], true) {
+                    return Err(self.parse(format!(
+                        "node {k} is reached twice from scene {scene} (a cycle, a node with two parents, or a root listed twice)"
+                    )));
+                }
+                let world = parent * self.local_transform(&node)?;
+                if !world.is_finite() {
+                    return Err(self.parse(format!(
+                        "node {k}: the world transform (parent · node) is not finite"
+                    )));
+                }
+                if let Some(mesh) = node.mesh() {
+                    instances.push(Instance {
+                        scene,
+                        node: k,
+                        mesh: mesh.index(),
+                        world,
+                    });
+                }
+                let children: Vec<Node<'_>> = node.children().collect();
+                stack.extend(children.into_iter().rev().map(|c| (c, world)));
+            }
+        }
+        Ok(instances)
+    }
+
+    /// The node's own transform, in f64.
+    fn local_transform(&self, node: &Node<'_>) -> Result<DMat4, Error> {
+        let bad = |what: &str| {
+            self.parse(format!(
+                "node {}{}: {what}",
+                node.index(),
+                node.name().map(|n| format!(" ('{n}')")).unwrap_or_default()
+            ))
+        };
+        let m = match node.transform() {
+            Transform::Matrix { matrix } => {
+                let cols = matrix.map(|c| c.map(f64::from));
+                if cols.iter().flatten().any(|v| !v.is_finite()) {
+                    return Err(bad("the matrix has a non-finite value"));
+                }
+                DMat4::from_cols_array_2d(&cols)
+            }
+            Transform::Decomposed {
+                translation,
+                rotation,
+                scale,
+            } => {
+                let t = DVec3::from_array(translation.map(f64::from));
+                let s = DVec3::from_array(scale.map(f64::from));
+                let q = DQuat::from_array(rotation.map(f64::from));
+                if !t.is_finite() || !s.is_finite() || !q.is_finite() {
+                    return Err(bad("the translation, rotation or scale is not finite"));
+                }
+                let length = q.length();
+                if length == 0.0 || !length.is_finite() {
+                    return Err(bad("the rotation quaternion has zero length"));
+                }
+                DMat4::from_scale_rotation_translation(s, q / length, t)
+            }
+        };
+        Ok(m)
+    }
+
+    /// Reads a primitive's local positions and triangles; `None` for point
+    /// and line primitives.
+    fn read_primitive(
+        &mut self,
+        primitive: &Primitive<'_>,
+        mesh_index: usize,
+    ) -> Result<Option<LocalPrimitive>, Error> {
+        let mode = primitive.mode();
+        if !matches!(
+            mode,
+            Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+        ) {
+            return Ok(None);
+        }
+        let mesh = self.document.meshes().nth(mesh_index);
+        let at = format!(
+            "mesh {} primitive {}",
+            mesh.as_ref().map(describe_mesh).unwrap_or_default(),
+            primitive.index()
+        );
+        let fail = |this: &Self, message: String| this.parse(format!("{at}: {message}"));
+
+        let Some(accessor) = primitive.get(&Semantic::Positions) else {
+            return Err(fail(self, "has no POSITION attribute".to_owned()));
+        };
+        let what = format!("POSITION accessor {}", accessor.index());
+        if accessor.data_type() != DataType::F32 || accessor.dimensions() != Dimensions::Vec3 {
+            return Err(fail(
+                self,
+                format!(
+                    "{what} holds {} {}; only FLOAT VEC3 positions are supported",
+                    type_name(accessor.dimensions()),
+                    component_name(accessor.data_type())
+                ),
+            ));
+        }
+        let raw = self.read_accessor(
+            &accessor,
+            12,
+            |b| [0, 4, 8].map(|o| f32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]])),
+            &at,
+            &what,
+        )?;
+        let mut positions = Vec::with_capacity(raw.len());
+        for (i, p) in raw.iter().enumerate() {
+            let p = DVec3::from_array(p.map(f64::from));
+            if !p.is_finite() {
+                return Err(fail(self, format!("{what}: vertex {i} {p} is not finite")));
+            }
+            positions.push(p);
+        }
+        let vertex_count = u32::try_from(positions.len())
+            .map_err(|_| fail(self, format!("{what} has more than {} vertices", u32::MAX)))?;
+
+        let indices: Vec<u32> = match primitive.indices() {
+            None => (0..vertex_count).collect(),
+            Some(accessor) => {
+                let what = format!("index accessor {}", accessor.index());
+                if accessor.dimensions() != Dimensions::Scalar {
+                    return Err(fail(
+                        self,
+                        format!(
+                            "{what} is {}; indices must be SCALAR",
+                            type_name(accessor.dimensions())
+                        ),
+                    ));
+                }
+                let indices = match accessor.data_type() {
+                    DataType::U8 => {
+                        self.read_accessor(&accessor, 1, |b| u32::from(b[0]), &at, &what)?
+                    }
+                    DataType::U16 => self.read_accessor(
+                        &accessor,
+                        2,
+                        |b| u32::from(u16::from_le_bytes([b[0], b[1]])),
+                        &at,
+                        &what,
+                    )?,
+                    DataType::U32 => self.read_accessor(
+                        &accessor,
+                        4,
+                        |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+                        &at,
+                        &what,
+                    )?,
+                    other => {
+                        return Err(fail(
+                            self,
+                            format!(
+                                "{what} has component type {}; indices must be UNSIGNED_BYTE, UNSIGNED_SHORT or UNSIGNED_INT",
+                                component_name(other)
+                            ),
+                        ));
+                    }
+                };
+                if let Some((i, v)) = indices
+                    .iter()
+                    .enumerate()
+                    .find(|(_, v)| **v >= vertex_count)
+                {
+                    return Err(fail(
+                        self,
+                        format!(
+                            "{what}: index {i} is {v}, out of range (POSITION has {vertex_count} vertices)"
+                        ),
+                    ));
+                }
+                indices
+            }
+        };
+
+        let triangles = match mode {
+            Mode::Triangles => {
+                if !indices.len().is_multiple_of(3) {
+                    return Err(fail(
+                        self,
+                        format!(
+                            "TRIANGLES needs a multiple of 3 vertices, but it has {}",
+                            indices.len()
+                        ),
+                    ));
+                }
+                indices
+                    .chunks_exact(3)
+                    .map(|t| [t[0], t[1], t[2]])
+                    .collect()
+            }
+            Mode::TriangleStrip => indices
+                .windows(3)
+                .enumerate()
+                .map(|(i, w)| {
+                    if i % 2 == 0 {
+                        [w[0], w[1], w[2]]
+                    } else {
+                        [w[0], w[2], w[1]]
+                    }
+                })
+                .collect(),
+            _ => match indices.split_first() {
+                Some((&first, rest)) => rest.windows(2).map(|w| [w[0], w[1], first]).collect(),
+                None => Vec::new(),
+            },
+        };
+        Ok(Some(LocalPrimitive {
+            positions,
+            triangles,
+        }))
+    }
+
+    /// Reads every element of `accessor` (`size` bytes each, decoded by
+    /// `decode`), applying sparse substitution, with every range checked.
+    fn read_accessor<T: Copy + Default>(
+        &mut self,
+        accessor: &Accessor<'_>,
+        size: usize,
+        decode: impl Fn(&[u8]) -> T,
+        at: &str,
+        what: &str,
+    ) -> Result<Vec<T>, Error> {
+        let count = accessor.count();
+        let fail = |this: &Self, message: String| this.parse(format!("{at}: {what}: {message}"));
+        let sparse = accessor.sparse();
+        // Load every buffer this accessor touches first.
+        let mut views = Vec::new();
+        views.extend(accessor.view());
+        if let Some(s) = &sparse {
+            views.push(s.indices().view());
+            views.push(s.values().view());
+        }
+        for view in &views {
+            self.ensure_buffer(view, at, what)?;
+        }
+
+        let mut out = match accessor.view() {
+            Some(view) => {
+                let s = self
+                    .strided(&view, accessor.offset(), count, size)
+                    .map_err(|m| fail(self, m))?;
+                let mut out = Vec::new();
+                out.try_reserve_exact(count)
+                    .map_err(|_| fail(self, format!("{count} elements do not fit in memory")))?;
+                out.extend((0..count).map(|i| decode(s.get(i))));
+                out
+            }
+            None => {
+                if count > MAX_ZERO_FILLED {
+                    return Err(fail(
+                        self,
+                        format!(
+                            "has no bufferView and {count} elements (at most {MAX_ZERO_FILLED} are read from zero-filled accessors)"
+                        ),
+                    ));
+                }
+                vec![T::default(); count]
+            }
+        };
+        if let Some(sparse) = sparse {
+            let n = sparse.count();
+            let indices = sparse.indices();
+            let index_size = match indices.index_type() {
+                IndexType::U8 => 1,
+                IndexType::U16 => 2,
+                IndexType::U32 => 4,
+            };
+            let index_view = indices.view();
+            let index_data = self
+                .strided(&index_view, indices.offset(), n, index_size)
+                .map_err(|m| fail(self, format!("sparse indices: {m}")))?;
+            let values = sparse.values();
+            let value_view = values.view();
+            let value_data = self
+                .strided(&value_view, values.offset(), n, size)
+                .map_err(|m| fail(self, format!("sparse values: {m}")))?;
+            for k in 0..n {
+                let b = index_data.get(k);
+                let target = match index_size {
+                    1 => usize::from(b[0]),
+                    2 => usize::from(u16::from_le_bytes([b[0], b[1]])),
+                    _ => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize,
+                };
+                let Some(slot) = out.get_mut(target) else {
+                    return Err(fail(
+                        self,
+                        format!(
+                            "sparse index {k} is {target}, but the accessor has {count} elements"
+                        ),
+                    ));
+                };
+                *slot = decode(value_data.get(k));
+            }
+        }
+        Ok(out)
+    }
+
+    /// Checks that `count` elements of `size` bytes, `offset` bytes into
+    /// `view`, lie inside the view and its buffer.
+    fn strided(
+        &self,
+        view: &View<'_>,
+        offset: usize,
+        count: usize,
+        size: usize,
+    ) -> Result<Strided<'_>, String> {
+        let buffer = view.buffer().index();
+        let data = self.buffer_data(buffer);
+        let view_end = view
+            .offset()
+            .checked_add(view.length())
+            .filter(|&end| end <= data.len())
+            .ok_or_else(|| {
+                format!(
+                    "bufferView {} (bytes {}..+{}) runs past the end of buffer {buffer} ({} bytes)",
+                    view.index(),
+                    view.offset(),
+                    view.length(),
+                    data.len()
+                )
+            })?;
+        let view_data = &data[view.offset()..view_end];
+        let stride = view.stride().unwrap_or(size);
+        let needed = if count == 0 {
+            Some(offset)
+        } else {
+            (count - 1)
+                .checked_mul(stride)
+                .and_then(|n| n.checked_add(size))
+                .and_then(|n| n.checked_add(offset))
+        };
+        match needed {
+            Some(end) if end <= view_data.len() => Ok(Strided {
+                data: &view_data[offset..end],
+                stride,
+                size,
+            }),
+            _ => Err(format!(
+                "{count} elements of {size} bytes (stride {stride}) from byte {offset} do not fit in bufferView {} ({} bytes)",
+                view.index(),
+                view_data.len()
+            )),
+        }
+    }
+
+    fn buffer_data(&self, index: usize) -> &[u8] {
+        match self.buffers.get(index) {
+            Some(Some(data)) => data,
+            _ if index == 0 => self.blob.unwrap_or_default(),
+            _ => &[],
+        }
+    }
+
+    /// Loads the buffer under `view` if it is not loaded yet.
+    fn ensure_buffer(&mut self, view: &View<'_>, at: &str, what: &str) -> Result<(), Error> {
+        let buffer = view.buffer();
+        let index = buffer.index();
+        if matches!(self.buffers.get(index), Some(Some(_))) {
+            return Ok(());
+        }
+        let context = || format!("buffer {index} of {}, read by {at}, {what}", self.file);
+        let data = match buffer.source() {
+            Source::Bin => {
+                let blob = self.blob.filter(|_| index == 0).ok_or_else(|| {
+                    self.parse(format!(
+                        "{}: the buffer has no uri and the file has no GLB BIN chunk for it",
+                        context()
+                    ))
+                })?;
+                if blob.len() < buffer.length() {
+                    return Err(self.parse(format!(
+                        "{}: the BIN chunk has {} bytes, but the buffer's byteLength is {}",
+                        context(),
+                        blob.len(),
+                        buffer.length()
+                    )));
+                }
+                // The blob is read in place (see `buffer_data`).
+                return Ok(());
+            }
+            Source::Uri(uri) => {
+                if let Some(rest) = uri.strip_prefix("data:") {
+                    decode_data_uri(rest)
+                        .map_err(|m| self.parse(format!("{}: bad data URI: {m}", context())))?
+                } else if has_scheme(uri) {
+                    return Err(self.parse(format!(
+                        "{}: the URI '{uri}' is neither relative nor a data URI",
+                        context()
+                    )));
+                } else {
+                    let relative = percent_decode(uri)
+                        .map_err(|m| self.parse(format!("{}: bad URI '{uri}': {m}", context())))?;
+                    let file = self.dir.join(relative);
+                    std::fs::read(&file).map_err(|e| Error::Io {
+                        path: file.display().to_string(),
+                        source: std::io::Error::new(e.kind(), format!("{e} ({})", context())),
+                    })?
+                }
+            }
+        };
+        if data.len() < buffer.length() {
+            return Err(self.parse(format!(
+                "{}: it has {} bytes, but its byteLength is {}",
+                context(),
+                data.len(),
+                buffer.length()
+            )));
+        }
+        if let Some(slot) = self.buffers.get_mut(index) {
+            *slot = Some(data);
+        }
+        Ok(())
+    }
+}
+
+/// Elements at a fixed stride in a byte slice whose bounds were checked.
+struct Strided<'d> {
+    data: &'d [u8],
+    stride: usize,
+    size: usize,
+}
+
+impl Strided<'_> {
+    /// Element `i`; `i` must be below the count the slice was checked for.
+    fn get(&self, i: usize) -> &[u8] {
+        let start = i * self.stride;
+        &self.data[start..start + self.size]
+    }
+}
+
+/// The glTF spelling of an accessor's component type.
+fn component_name(t: DataType) -> &'static str {
+    match t {
+        DataType::I8 => "BYTE",
+        DataType::U8 => "UNSIGNED_BYTE",
+        DataType::I16 => "SHORT",
+        DataType::U16 => "UNSIGNED_SHORT",
+        DataType::U32 => "UNSIGNED_INT",
+        DataType::F32 => "FLOAT",
+    }
+}
+
+/// The glTF spelling of an accessor's type.
+fn type_name(t: Dimensions) -> &'static str {
+    match t {
+        Dimensions::Scalar => "SCALAR",
+        Dimensions::Vec2 => "VEC2",
+        Dimensions::Vec3 => "VEC3",
+        Dimensions::Vec4 => "VEC4",
+        Dimensions::Mat2 => "MAT2",
+        Dimensions::Mat3 => "MAT3",
+        Dimensions::Mat4 => "MAT4",
+    }
+}
+
+/// `index` or `index ('name')`.
+fn describe_mesh(mesh: &::gltf::Mesh<'_>) -> String {
+    match mesh.name() {
+        Some(name) => format!("{} ('{name}')", mesh.index()),
+        None => mesh.index().to_string(),
+    }
+}
+
+/// Whether `uri` starts with a URI scheme (`letter *(letter / digit / + - .) :`).
+fn has_scheme(uri: &str) -> bool {
+    match uri.split_once(':') {
+        Some((scheme, _)) => {
+            let mut chars = scheme.chars();
+            chars.next().is_some_and(|c| c.is_ascii_alphabetic())
+                && chars.all(|c| c.is_ascii_alphanumeric() || matches!(c, '+' | '-' | '.'))
+        }
+        None => false,
+    }
+}
+
+/// Decodes `%XX` escapes in a relative URI into a path string.
+fn percent_decode(uri: &str) -> Result<String, String> {
+    let bytes = percent_decode_bytes(uri)?;
+    String::from_utf8(bytes).map_err(|_| "the decoded path is not UTF-8".to_owned())
+}
+
+fn percent_decode_bytes(text: &str) -> Result<Vec<u8>, String> {
+    let bytes = text.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        if bytes[i] == b'%' {
+            let hex = bytes
+                .get(i + 1..i + 3)
+                .and_then(|h| std::str::from_utf8(h).ok())
+                .and_then(|h| u8::from_str_radix(h, 16).ok())
+                .ok_or_else(|| format!("bad percent escape at byte {i}"))?;
+            out.push(hex);
+            i += 3;
+        } else {
+            out.push(bytes[i]);
+            i += 1;
+        }
+    }
+    Ok(out)
+}
+
+/// Decodes the part of a `data:` URI after `data:`.
+fn decode_data_uri(rest: &str) -> Result<Vec<u8>, String> {
+    let (header, payload) = rest
+        .split_once(',')
+        .ok_or_else(|| "no ',' before the data".to_owned())?;
+    if header
+        .rsplit(';')
+        .next()
+        .is_some_and(|p| p.eq_ignore_ascii_case("base64"))
+    {
+        decode_base64(payload)
+    } else {
+        percent_decode_bytes(payload)
+    }
+}
+
+/// Standard base64 (RFC 4648 alphabet, `=` padding optional).
+fn decode_base64(text: &str) -> Result<Vec<u8>, String> {
+    let text = text.trim_end_matches('=');
+    let mut out = Vec::with_capacity(text.len() / 4 * 3 + 2);
+    let mut acc = 0u32;
+    let mut bits = 0;
+    for (i, c) in text.bytes().enumerate() {
+        let v = match c {
+            b'A'..=b'Z' => c - b'A',
+            b'a'..=b'z' => c - b'a' + 26,
+            b'0'..=b'9' => c - b'0' + 52,
+            b'+' => 62,
+            b'/' => 63,
+            _ => return Err(format!("invalid base64 character at position {i}")),
+        };
+        acc = (acc << 6) | u32::from(v);
+        bits += 6;
+        if bits >= 8 {
+            bits -= 8;
+            out.push((acc >> bits) as u8);
+            acc &= (1 << bits) - 1;
+        }
+    }
+    if bits >= 6 {
+        return Err("the base64 data has a stray final character".to_owned());
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_round_trips_known_vectors() {
+        for (plain, coded) in [
+            ("", ""),
+            ("f", "Zg=="),
+            ("fo", "Zm8="),
+            ("foo", "Zm9v"),
+            ("foob", "Zm9vYg"),
+            ("fooba", "Zm9vYmE="),
+            ("foobar", "Zm9vYmFy"),
+        ] {
+            assert_eq!(decode_base64(coded).unwrap(), plain.as_bytes(), "{coded}");
+        }
+        assert!(decode_base64("Zm9v!").is_err());
+        assert!(decode_base64("Z").is_err());
+    }
+
+    #[test]
+    fn uri_helpers() {
+        assert!(has_scheme("http://x/y.bin"));
+        assert!(!has_scheme("y.bin"));
+        assert!(!has_scheme("dir/a:b.bin"));
+        assert_eq!(percent_decode("a%20b.bin").unwrap(), "a b.bin");
+        assert!(percent_decode("a%2").is_err());
+        assert_eq!(decode_data_uri(",a%41").unwrap(), b"aA");
+        assert_eq!(
+            decode_data_uri("application/octet-stream;base64,AAEC").unwrap(),
+            [0, 1, 2]
+        );
+    }
+
+    #[test]
+    fn glb_headers_are_checked() {
+        assert!(split_glb(b"glTF").is_err());
+        let mut short = b"glTF".to_vec();
+        short.extend(2u32.to_le_bytes());
+        short.extend(4u32.to_le_bytes());
+        assert!(split_glb(&short).is_err());
+    }
+}
