@@ -21,6 +21,8 @@
 //! [`gpu::GpuPicker`] (`wgsl/pick.wgsl`) or [`CpuPicker`] ([`cpu::traverse`]) ->
 //! [`frame::resolve`] (f64 refinement) -> [`Hit`].
 
+#![warn(missing_docs)]
+
 pub mod auto;
 pub mod bvh;
 pub mod camera;

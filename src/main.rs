@@ -16,6 +16,9 @@ use std::process::ExitCode;
     about = "Exact, fast ray picking for 3D scenes on any GPU wgpu reaches, with a CPU path that gives the same answers"
 )]
 struct Cli {
+    /// Show no progress on standard error.
+    #[arg(long, short, global = true)]
+    quiet: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -51,6 +54,7 @@ fn main() -> ExitCode {
         Ok(cli) => cli,
         Err(e) => e.exit(),
     };
+    cli::progress::set_quiet(cli.quiet);
     let (_, sub) = matches.subcommand().expect("a subcommand is required");
     let result = match cli.command {
         Command::Pick(args) => cli::pick::run(args, sub),

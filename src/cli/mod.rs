@@ -3,6 +3,7 @@
 pub mod los;
 pub mod pick;
 pub mod probe;
+pub mod progress;
 pub mod query_args;
 pub mod render;
 pub mod scene_args;

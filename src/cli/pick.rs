@@ -2,7 +2,7 @@
 
 use super::query_args::QueryArgs;
 use super::scene_args::SceneArgs;
-use super::{STREAM_CHUNK_RAYS, make_picker, read_rays, show_notes, write_output};
+use super::{STREAM_CHUNK_RAYS, make_picker, progress, read_rays, show_notes, write_output};
 use clap::{ArgMatches, Args};
 use raypick::camera::{Camera, load_pixel_indices_as_centers};
 use raypick::io::output::{AnswerWriter, Format, OutputOptions};
@@ -72,9 +72,11 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let mut invalid = 0;
     let mut failure = None;
     // Large batches stream: answers are written chunk by chunk, so memory stays bounded.
+    let bar = progress::rays_bar(rays.len() as u64, "picking");
     write_output(args.out.as_deref(), |out| {
         let mut writer = AnswerWriter::begin(out, options)?;
         let result = picker.query_chunked(&rays, &query, STREAM_CHUNK_RAYS, &mut |_, answers| {
+            bar.inc(answers.nearest.len() as u64);
             invalid += answers.nearest.iter().filter(|h| h.invalid).count();
             writer.write(out, &answers).map_err(|source| Error::Io {
                 path: "output".into(),
@@ -87,6 +89,7 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         }
         writer.finish(out)
     })?;
+    bar.finish_and_clear();
     show_notes(picker.as_mut());
     if let Some(e) = failure {
         return Err(e);

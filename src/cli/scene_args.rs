@@ -83,18 +83,25 @@ impl SceneArgs {
 
     /// Loads the scene (or the example) and builds the tree.
     pub fn build(&self, matches: &ArgMatches) -> Result<BuiltScene, Error> {
+        self.build_timed(matches).map(|(built, _, _)| built)
+    }
+
+    /// Like [`SceneArgs::build`], also returning the seconds spent loading and building.
+    pub fn build_timed(&self, matches: &ArgMatches) -> Result<(BuiltScene, f64, f64), Error> {
+        let start = std::time::Instant::now();
         let files = self.files(matches)?;
         let scene = if files.is_empty() {
             example_scene()
         } else {
-            load_scene(&files)?
+            super::progress::phase("loading the scene", || load_scene(&files))?
         };
-        BuiltScene::new(
-            scene,
-            &BuildOptions {
-                split_axis: self.split,
-                leaf_size: self.leaf_size,
-            },
-        )
+        let loaded = start.elapsed().as_secs_f64();
+        let options = BuildOptions {
+            split_axis: self.split,
+            leaf_size: self.leaf_size,
+        };
+        let built =
+            super::progress::phase("building the tree", || BuiltScene::new(scene, &options))?;
+        Ok((built, loaded, start.elapsed().as_secs_f64() - loaded))
     }
 }

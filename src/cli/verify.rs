@@ -36,17 +36,18 @@ pub struct VerifyArgs {
 }
 
 pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
-    let started = Instant::now();
-    let built = Arc::new(args.scene.build(matches)?);
+    let (built, load_s, build_s) = args.scene.build_timed(matches)?;
+    let built = Arc::new(built);
     let bvh = &built.bvh;
     let triangles = built.scene.triangle_count();
     println!(
-        "scene: {} object(s), {triangles} triangles; tree: {} nodes, depth {}, {:.1} GPU bytes/triangle; loaded and built in {:.0} ms",
+        "scene: {} object(s), {triangles} triangles, loaded in {:.0} ms; tree: {} nodes, depth {}, {:.1} GPU bytes/triangle, built in {:.0} ms",
         built.scene.objects().len(),
+        load_s * 1e3,
         bvh.nodes.len(),
         bvh.depth(),
         bvh.gpu_bytes() as f64 / triangles.max(1) as f64,
-        started.elapsed().as_secs_f64() * 1e3
+        build_s * 1e3
     );
     let q = &args.query;
     let query = q.query();
@@ -66,8 +67,11 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let context = GpuContext::new()?;
     println!("gpu: {}", context.describe());
     let mut gpu = GpuPicker::new(&context, built.clone())?;
-    let (gpu_answers, gpu_s) = timed(|| gpu.query(&rays, &query))?;
-    let (cpu_answers, cpu_s) = timed(|| CpuPicker::new(built.clone()).query(&rays, &query))?;
+    let (gpu_answers, gpu_s) =
+        super::progress::phase("gpu path", || timed(|| gpu.query(&rays, &query)))?;
+    let (cpu_answers, cpu_s) = super::progress::phase("cpu path", || {
+        timed(|| CpuPicker::new(built.clone()).query(&rays, &query))
+    })?;
     let n = rays.len() as f64;
     println!(
         "gpu path: {} rays in {gpu_s:.3} s ({:.0} rays/s)",
@@ -90,7 +94,9 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         );
     }
     let oracle = if triangles as f64 * n <= args.oracle_budget {
-        let (answers, s) = timed(|| Ok(brute_force_query(&built.scene, &rays, &query)))?;
+        let (answers, s) = super::progress::phase("brute force", || {
+            timed(|| Ok(brute_force_query(&built.scene, &rays, &query)))
+        })?;
         let every = if query.mode == Mode::Any {
             None
         } else {
