@@ -100,3 +100,21 @@ fn every_split_policy_and_leaf_size_agrees() {
         }
     }
 }
+
+#[test]
+fn real_elevation_grid_agrees() {
+    // The Jacksboro fault DEM (403 × 344 samples at UTM-sized coordinates), from a GeoTIFF.
+    let dem = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/jacksboro_fault_dem_utm_f32_deflate.tif");
+    let scene = raypick::io::scene_files::load_scene(&[raypick::io::scene_files::SceneFile {
+        file: dem,
+        mask: None,
+    }])
+    .unwrap();
+    let hits = check_scene("jacksboro", scene, BuildOptions::default(), 800);
+    assert!(hits.iter().filter(|h| h.hit).count() > 200);
+    assert!(
+        hits.iter().filter(|h| h.hit).all(|h| h.cell.is_some()),
+        "terrain hits carry row and col"
+    );
+}
