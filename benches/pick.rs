@@ -7,6 +7,8 @@
 //!
 //! Rays: 65,536 camera rays and 65,536 random rays from `synthetic::rays`.
 //!
+//! `benches/peers.rs` compares the CPU traversal with obvhs, `bvh` and parry3d on four more scenes.
+//!
 //! Run everything with `cargo bench --bench pick`, or one group with e.g.
 //! `cargo bench --bench pick -- pick_cpu`.
 

@@ -65,6 +65,8 @@ def ray_seeds() -> None:
         "  -1e3 2.5E-2 +3 0 -1 0 inf # trailing\nnan 0 0 1 1 1\n")
     put("ray_file", "crlf_bom.txt",
         "\ufeff0 0 1 0 0 -1\r\n0.5 0.5 10 0 0 -1 100\r\n")
+    put("ray_file", "points.txt",
+        "# x y z\n512745 4042455 400\n512800.5 4042000 -1e-3 # comment\n\n0 0 0\n")
 
 
 # --- asc -----------------------------------------------------------------------

@@ -42,6 +42,7 @@ pub mod ray;
 pub mod render;
 pub mod scene;
 pub mod select;
+pub mod server;
 pub mod synthetic;
 
 pub use bvh::{BuildOptions, Bvh, SplitAxis};

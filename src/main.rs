@@ -46,6 +46,11 @@ enum Command {
     Soak(cli::soak::SoakArgs),
     /// A ray-cast picture of the scene as a PNG, shaded by normal (hillshade), depth or object.
     Render(cli::render::RenderArgs),
+    /// Serve an HTTP JSON API (pick, scene, render) and a viewer page over one resident scene.
+    Serve(cli::serve::ServeArgs),
+    /// Build time, memory, throughput, end-to-end time and single-ray latency of every path
+    /// (CPU at 1 and 2 threads, GPU, auto), and the CPU/GPU crossover batch size.
+    Bench(cli::bench::BenchArgs),
 }
 
 fn main() -> ExitCode {
@@ -66,6 +71,8 @@ fn main() -> ExitCode {
         Command::Probe(args) => cli::probe::run(args, sub),
         Command::Soak(args) => cli::soak::run(args, sub),
         Command::Render(args) => cli::render::run(args, sub),
+        Command::Serve(args) => cli::serve::run(args, sub),
+        Command::Bench(args) => cli::bench::run(args, sub),
     };
     match result {
         Ok(code) => code,

@@ -1,5 +1,6 @@
 //! The command-line front end: one file per command, shared scene and query options.
 
+pub mod bench;
 pub mod los;
 pub mod pick;
 pub mod probe;
@@ -8,6 +9,7 @@ pub mod query_args;
 pub mod render;
 pub mod scene_args;
 pub mod select;
+pub mod serve;
 pub mod soak;
 pub mod verify;
 

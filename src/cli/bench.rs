@@ -1,0 +1,353 @@
+//! `raypick bench`: build time, memory, throughput, end-to-end time and single-ray latency of
+//! every pick path on one scene, and the CPU/GPU crossover batch size, as plain text tables.
+
+use super::scene_args::SceneArgs;
+use clap::{ArgMatches, Args};
+use raypick::auto::AutoPicker;
+use raypick::synthetic::{RayKind, rays};
+use raypick::{BuildOptions, BuiltScene, CpuPicker, Error, GpuContext, GpuPicker, Picker, Ray};
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Camera rays in the small batch, the end-to-end figure and the crossover's largest-but-one size.
+const CAMERA_RAYS: usize = 4096;
+/// Batch sizes of the CPU/GPU crossover table.
+const CROSSOVER_SIZES: [usize; 5] = [1, 16, 256, 4096, 65_536];
+/// Single-ray picks before the latency samples.
+const WARM_UP_PICKS: usize = 50;
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Random rays in the large batch.
+    #[arg(long, default_value_t = 1_000_000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub rays: u64,
+    /// Repetitions per timed figure (builds, batches, end to end); the median is reported.
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..))]
+    pub repeat: u32,
+    /// Single-ray picks timed per path for the latency percentiles (after a warm-up).
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub picks: u64,
+    /// Seed for the synthetic rays.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+/// One row of the main table; `None` prints as "-".
+#[derive(Default)]
+struct Row {
+    path: String,
+    camera_rays_per_s: Option<f64>,
+    random_rays_per_s: Option<f64>,
+    end_to_end_ms: Option<f64>,
+    p50_us: Option<f64>,
+    p99_us: Option<f64>,
+}
+
+pub fn run(args: BenchArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    let repeat = args.repeat as usize;
+    let (built, load_s, _) = args.scene.build_timed(matches)?;
+    let options = BuildOptions {
+        split_axis: args.scene.split,
+        leaf_size: args.scene.leaf_size,
+    };
+    let build_ms = super::progress::phase("timing builds", || {
+        median_ms(repeat, || {
+            let scene = built.scene.clone();
+            let start = Instant::now();
+            let rebuilt = BuiltScene::new(scene, &options)?;
+            let s = start.elapsed().as_secs_f64();
+            drop(rebuilt);
+            Ok(s)
+        })
+    })?;
+    let built = Arc::new(built);
+    let triangles = built.scene.triangle_count();
+    println!(
+        "scene: {} object(s), {triangles} triangles (loaded in {:.0} ms); tree: {} nodes, depth {}",
+        built.scene.objects().len(),
+        load_s * 1e3,
+        built.bvh.nodes.len(),
+        built.bvh.depth(),
+    );
+    println!(
+        "build: {build_ms:.1} ms (median of {repeat}, {} threads); {:.1} GPU bytes/triangle ({:.1} MiB)",
+        rayon::current_num_threads(),
+        built.bvh.gpu_bytes() as f64 / triangles.max(1) as f64,
+        built.bvh.gpu_bytes() as f64 / (1024.0 * 1024.0),
+    );
+
+    let camera = rays(&built.scene, RayKind::Camera, CAMERA_RAYS, args.seed);
+    let random = rays(&built.scene, RayKind::Random, args.rays as usize, args.seed);
+    let singles: Vec<Ray> = camera
+        .iter()
+        .copied()
+        .cycle()
+        .take(args.picks as usize + WARM_UP_PICKS)
+        .collect();
+    let sets = Sets {
+        camera: &camera,
+        random: &random,
+        singles: &singles,
+        repeat,
+    };
+
+    let mut table = Vec::new();
+    for threads in [1, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .map_err(|e| Error::Invalid(format!("cannot start {threads} CPU threads: {e}")))?;
+        let mut row = super::progress::phase(&format!("cpu, {threads} thread(s)"), || {
+            pool.install(|| sets.measure(&mut CpuPicker::new(built.clone())))
+        })?;
+        row.path = format!(
+            "cpu, {threads} thread{}",
+            if threads == 1 { "" } else { "s" }
+        );
+        row.end_to_end_ms = Some(pool.install(|| {
+            median_ms(repeat, || {
+                let scene = built.scene.clone();
+                let start = Instant::now();
+                let fresh = Arc::new(BuiltScene::new(scene, &options)?);
+                CpuPicker::new(fresh).pick(&camera)?;
+                Ok(start.elapsed().as_secs_f64())
+            })
+        })?);
+        table.push(row);
+    }
+
+    let context = GpuContext::new();
+    let mut gpu = match &context {
+        Ok(context) => {
+            println!("gpu: {}", context.describe());
+            Some(GpuPicker::new(context, built.clone())?)
+        }
+        Err(e) => {
+            println!("gpu: none ({e}); GPU figures are left out");
+            None
+        }
+    };
+    if let (Some(picker), Ok(context)) = (&mut gpu, &context) {
+        let mut row = super::progress::phase("gpu", || sets.measure(picker))?;
+        row.path = "gpu".to_string();
+        row.end_to_end_ms = Some(super::progress::phase("gpu, end to end", || {
+            median_ms(repeat, || {
+                let scene = built.scene.clone();
+                let start = Instant::now();
+                let fresh = Arc::new(BuiltScene::new(scene, &options)?);
+                GpuPicker::new(context, fresh)?.pick(&camera)?;
+                Ok(start.elapsed().as_secs_f64())
+            })
+        })?);
+        table.push(row);
+    } else {
+        table.push(Row {
+            path: "gpu".to_string(),
+            ..Row::default()
+        });
+    }
+
+    let mut auto = AutoPicker::new(built.clone());
+    super::show_notes(&mut auto);
+    let auto_crossover = auto.crossover();
+    let mut row = super::progress::phase("auto", || sets.measure(&mut auto))?;
+    row.path = "auto".to_string();
+    super::show_notes(&mut auto);
+    table.push(row);
+    println!(
+        "{}; GPU used from: {}",
+        auto.describe(),
+        if auto_crossover == usize::MAX {
+            "never".to_string()
+        } else {
+            format!("{auto_crossover} rays")
+        }
+    );
+    drop(auto);
+
+    println!();
+    print_table(&table, args.rays, repeat, args.picks);
+
+    println!();
+    crossover(&built, gpu.as_mut(), args.seed, repeat)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The ray sets every path runs, and how often.
+struct Sets<'a> {
+    camera: &'a [Ray],
+    random: &'a [Ray],
+    singles: &'a [Ray],
+    repeat: usize,
+}
+
+impl Sets<'_> {
+    /// Throughput on both batches (one warm-up call, then the median of `repeat`) and single-ray
+    /// latency (after a warm-up).
+    fn measure(&self, picker: &mut dyn Picker) -> Result<Row, Error> {
+        let mut rays_per_s = |rays: &[Ray]| -> Result<f64, Error> {
+            picker.pick(rays)?;
+            let s = median_ms(self.repeat, || {
+                let start = Instant::now();
+                picker.pick(rays)?;
+                Ok(start.elapsed().as_secs_f64())
+            })? / 1e3;
+            Ok(rays.len() as f64 / s)
+        };
+        let camera_rays_per_s = Some(rays_per_s(self.camera)?);
+        let random_rays_per_s = Some(rays_per_s(self.random)?);
+        let mut samples = Vec::with_capacity(self.singles.len());
+        for (i, ray) in self.singles.iter().enumerate() {
+            let start = Instant::now();
+            picker.pick(std::slice::from_ref(ray))?;
+            if i >= WARM_UP_PICKS {
+                samples.push(start.elapsed().as_secs_f64() * 1e6);
+            }
+        }
+        samples.sort_by(f64::total_cmp);
+        Ok(Row {
+            camera_rays_per_s,
+            random_rays_per_s,
+            p50_us: Some(percentile(&samples, 50.0)),
+            p99_us: Some(percentile(&samples, 99.0)),
+            ..Row::default()
+        })
+    }
+}
+
+fn print_table(table: &[Row], random_rays: u64, repeat: usize, picks: u64) {
+    let headers = [
+        "path".to_string(),
+        format!("{CAMERA_RAYS} camera rays/s"),
+        format!("{random_rays} random rays/s"),
+        format!("build+{CAMERA_RAYS} camera ms"),
+        "1-ray p50 us".to_string(),
+        "1-ray p99 us".to_string(),
+    ];
+    let cells: Vec<[String; 6]> = table
+        .iter()
+        .map(|r| {
+            [
+                r.path.clone(),
+                cell(r.camera_rays_per_s, |v| format!("{:.3}M", v / 1e6)),
+                cell(r.random_rays_per_s, |v| format!("{:.3}M", v / 1e6)),
+                cell(r.end_to_end_ms, |v| format!("{v:.1}")),
+                cell(r.p50_us, |v| format!("{v:.1}")),
+                cell(r.p99_us, |v| format!("{v:.1}")),
+            ]
+        })
+        .collect();
+    let widths: Vec<usize> = (0..headers.len())
+        .map(|c| {
+            cells
+                .iter()
+                .map(|row| row[c].len())
+                .chain([headers[c].len()])
+                .max()
+                .unwrap_or(0)
+        })
+        .collect();
+    let line = |row: &[String]| {
+        let mut text = format!("{:<w$}", row[0], w = widths[0]);
+        for (c, value) in row.iter().enumerate().skip(1) {
+            text.push_str(&format!("  {value:>w$}", w = widths[c]));
+        }
+        println!("{}", text.trim_end());
+    };
+    line(&headers);
+    for row in &cells {
+        line(row);
+    }
+    println!(
+        "(throughput and end to end: median of {repeat}; end to end = build + upload (GPU) + \
+         pick, GPU context already open; latency: {picks} single-ray picks, scene resident)"
+    );
+}
+
+fn cell(value: Option<f64>, format: impl Fn(f64) -> String) -> String {
+    value.map_or("-".to_string(), format)
+}
+
+/// Time per batch on the CPU (all threads) and the GPU for each crossover size, and the first
+/// size from which the GPU is faster.
+fn crossover(
+    built: &Arc<BuiltScene>,
+    mut gpu: Option<&mut GpuPicker>,
+    seed: u64,
+    repeat: usize,
+) -> Result<(), Error> {
+    let mut cpu = CpuPicker::new(built.clone());
+    println!(
+        "cpu/gpu crossover (camera rays; ms per batch, median of {repeat}; cpu on {} threads)",
+        rayon::current_num_threads()
+    );
+    println!(
+        "{:>8}  {:>10}  {:>10}  {:>8}",
+        "rays", "cpu ms", "gpu ms", "gpu/cpu"
+    );
+    let mut first_faster = None;
+    for size in CROSSOVER_SIZES {
+        let batch = rays(&built.scene, RayKind::Camera, size, seed);
+        let time = |picker: &mut dyn Picker| -> Result<f64, Error> {
+            picker.pick(&batch)?;
+            median_ms(repeat, || {
+                let start = Instant::now();
+                picker.pick(&batch)?;
+                Ok(start.elapsed().as_secs_f64())
+            })
+        };
+        let cpu_ms =
+            super::progress::phase(&format!("crossover, cpu, {size} rays"), || time(&mut cpu))?;
+        let gpu_ms = match gpu.as_deref_mut() {
+            Some(g) => Some(super::progress::phase(
+                &format!("crossover, gpu, {size} rays"),
+                || time(g),
+            )?),
+            None => None,
+        };
+        if first_faster.is_none() && gpu_ms.is_some_and(|g| g < cpu_ms) {
+            first_faster = Some(size);
+        }
+        println!(
+            "{size:>8}  {cpu_ms:>10.3}  {:>10}  {:>8}",
+            cell(gpu_ms, |g| format!("{g:.3}")),
+            cell(gpu_ms, |g| format!("{:.2}", g / cpu_ms)),
+        );
+    }
+    match (first_faster, gpu.is_some()) {
+        (Some(size), _) => println!("the GPU is faster from {size} rays per batch"),
+        (None, true) => println!(
+            "the GPU is faster from: never (up to {} rays)",
+            CROSSOVER_SIZES[4]
+        ),
+        (None, false) => println!("the GPU is faster from: - (no GPU)"),
+    }
+    Ok(())
+}
+
+/// The median, in milliseconds, of `repeat` runs of `run` (each returning seconds).
+fn median_ms(repeat: usize, mut run: impl FnMut() -> Result<f64, Error>) -> Result<f64, Error> {
+    let mut samples = (0..repeat.max(1))
+        .map(|_| run())
+        .collect::<Result<Vec<f64>, Error>>()?;
+    samples.sort_by(f64::total_cmp);
+    let n = samples.len();
+    let median = if n % 2 == 1 {
+        samples[n / 2]
+    } else {
+        (samples[n / 2 - 1] + samples[n / 2]) / 2.0
+    };
+    Ok(median * 1e3)
+}
+
+/// Nearest-rank percentile of sorted `samples`.
+fn percentile(samples: &[f64], p: f64) -> f64 {
+    if samples.is_empty() {
+        return f64::NAN;
+    }
+    let rank = ((p / 100.0) * samples.len() as f64).ceil() as usize;
+    samples[rank.clamp(1, samples.len()) - 1]
+}

@@ -1,0 +1,73 @@
+//! `raypick serve`: builds the scene once, keeps it resident in one picker, and answers HTTP
+//! requests (JSON picks, scene facts, rendered views, the viewer page) until interrupted.
+
+use super::scene_args::SceneArgs;
+use clap::{ArgMatches, Args};
+use raypick::server::{Server, ServerConfig};
+use raypick::{Backend, Error};
+use std::io::Write;
+use std::net::SocketAddr;
+use std::process::ExitCode;
+use std::sync::Arc;
+
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Address to listen on. Loopback by default; port 0 picks a free port (the address is
+    /// printed). Anyone who can reach a non-loopback address can use the server.
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub addr: SocketAddr,
+    /// Which path answers picks.
+    #[arg(long, value_enum, default_value_t = Backend::Gpu)]
+    pub backend: Backend,
+    /// Most rays (or pixels) per request.
+    #[arg(long, default_value_t = ServerConfig::default().max_rays)]
+    pub max_rays: usize,
+    /// Largest request body, in bytes.
+    #[arg(long, default_value_t = ServerConfig::default().max_body_bytes)]
+    pub max_body_bytes: usize,
+}
+
+pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    let built = Arc::new(args.scene.build(matches)?);
+    let config = ServerConfig {
+        max_rays: args.max_rays.max(1),
+        max_body_bytes: args.max_body_bytes,
+        ..ServerConfig::default()
+    };
+    let triangles = built.scene.triangle_count();
+    let server = Server::new(built, args.backend, config)?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|source| Error::Io {
+            path: "the async runtime".into(),
+            source,
+        })?;
+    runtime.block_on(async {
+        let listener = tokio::net::TcpListener::bind(args.addr)
+            .await
+            .map_err(|source| Error::Io {
+                path: args.addr.to_string(),
+                source,
+            })?;
+        let bound = listener.local_addr().map_err(|source| Error::Io {
+            path: args.addr.to_string(),
+            source,
+        })?;
+        if !bound.ip().is_loopback() {
+            eprintln!(
+                "warning: listening on {bound}, which is not a loopback address: anyone who can \
+                 reach it can use this server"
+            );
+        }
+        println!(
+            "raypick serve: {triangles} triangles on {}; listening on http://{bound}/",
+            server.device()
+        );
+        let _ = std::io::stdout().flush();
+        server.serve(listener).await
+    })?;
+    Ok(ExitCode::SUCCESS)
+}

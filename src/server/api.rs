@@ -1,0 +1,567 @@
+//! The HTTP routes and their JSON: request parsing and checking, the response records, and
+//! errors as `{"error": "sentence"}` with a 4xx/5xx status. The wire format is documented in
+//! the [module docs](super).
+
+use super::ServerConfig;
+use super::batcher::{Job, Stats, Worker};
+use super::page;
+use crate::camera::{Camera, CameraSpec};
+use crate::picker::{Backend, BuiltScene};
+use crate::query::{Answers, Cull, Intersector, Mode, Query};
+use crate::ray::{Hit, Ray};
+use crate::render::Shade;
+use axum::Router;
+use axum::body::{Body, Bytes};
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Query as UrlQuery, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use clap::ValueEnum;
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use std::sync::Arc;
+use tokio::sync::oneshot;
+
+/// What every handler shares: the picking worker, the scene and the limits.
+pub(crate) struct AppState {
+    /// The picking worker.
+    pub(crate) worker: Worker,
+    /// The scene the worker's picker holds.
+    pub(crate) built: Arc<BuiltScene>,
+    /// Which path answers picks.
+    pub(crate) backend: Backend,
+    /// Limits and defaults.
+    pub(crate) config: ServerConfig,
+}
+
+/// The routes over `state`.
+pub(crate) fn router(state: Arc<AppState>) -> Router {
+    Router::new()
+        .route("/", get(page::viewer))
+        .route("/pick", post(pick))
+        .route("/scene", get(scene))
+        .route("/stats", get(stats))
+        .route("/render", get(render_view))
+        .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
+        .with_state(state)
+}
+
+/// An error answer: a status and a sentence, sent as `{"error": "sentence"}`.
+#[derive(Debug)]
+pub(crate) struct ApiError {
+    status: StatusCode,
+    message: String,
+}
+
+impl ApiError {
+    fn new(status: StatusCode, message: impl Into<String>) -> Self {
+        Self {
+            status,
+            message: message.into(),
+        }
+    }
+
+    fn bad_request(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::BAD_REQUEST, message)
+    }
+
+    fn too_large(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::PAYLOAD_TOO_LARGE, message)
+    }
+
+    fn internal(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::INTERNAL_SERVER_ERROR, message)
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        json_response(self.status, &json!({ "error": self.message }))
+    }
+}
+
+/// `value` as a JSON response with `status`.
+fn json_response(status: StatusCode, value: &impl Serialize) -> Response {
+    match serde_json::to_vec(value) {
+        Ok(body) => (
+            status,
+            [(
+                header::CONTENT_TYPE,
+                HeaderValue::from_static("application/json"),
+            )],
+            body,
+        )
+            .into_response(),
+        Err(e) => (
+            StatusCode::INTERNAL_SERVER_ERROR,
+            [(
+                header::CONTENT_TYPE,
+                HeaderValue::from_static("application/json"),
+            )],
+            format!("{{\"error\":\"the answer could not be written as JSON: {e}\"}}"),
+        )
+            .into_response(),
+    }
+}
+
+async fn not_found() -> ApiError {
+    ApiError::new(
+        StatusCode::NOT_FOUND,
+        "there is no such page; the API is GET /, GET /scene, GET /stats, GET /render and POST /pick",
+    )
+}
+
+async fn method_not_allowed() -> ApiError {
+    ApiError::new(
+        StatusCode::METHOD_NOT_ALLOWED,
+        "this path does not take that method: /pick takes POST; /, /scene, /stats and /render take GET",
+    )
+}
+
+/// The body of a `POST /pick`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PickRequest {
+    /// Explicit world rays.
+    rays: Option<Vec<RayRequest>>,
+    /// A camera whose `pixels` are picked.
+    camera: Option<CameraSpec>,
+    /// Pixel indices `[x, y]` of `camera` (integers name whole pixels, picked at their centres).
+    pixels: Option<Vec<[f64; 2]>>,
+    #[serde(default)]
+    mode: Mode,
+    #[serde(default)]
+    cull: Cull,
+    max_hits: Option<u32>,
+    intersector: Option<String>,
+    /// Default `tmin` for rays without one, and for pixel rays.
+    tmin: Option<f64>,
+    /// Default `tmax` (`null` or absent: unbounded).
+    tmax: Option<f64>,
+    /// Default layer mask.
+    mask: Option<u32>,
+}
+
+/// One ray of a `POST /pick`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RayRequest {
+    origin: [f64; 3],
+    dir: [f64; 3],
+    tmin: Option<f64>,
+    tmax: Option<f64>,
+    mask: Option<u32>,
+}
+
+impl PickRequest {
+    /// The rays and query this request asks for, checked against `config`'s ray limit.
+    fn into_rays(self, config: &ServerConfig) -> Result<(Vec<Ray>, Query), ApiError> {
+        let intersector = match self.intersector.as_deref() {
+            None => Intersector::default(),
+            Some(name) => Intersector::from_str(&name.replace('_', "-"), true).map_err(|_| {
+                ApiError::bad_request(format!(
+                    "unknown intersector '{name}'; expected 'moller-trumbore' or 'watertight'"
+                ))
+            })?,
+        };
+        let query = Query {
+            mode: self.mode,
+            cull: self.cull,
+            max_hits: self.max_hits.unwrap_or(Query::default().max_hits),
+            intersector,
+        };
+        query
+            .validate()
+            .map_err(|e| ApiError::bad_request(e.to_string()))?;
+        let tmin = self.tmin.unwrap_or(0.0);
+        let tmax = self.tmax.unwrap_or(f64::INFINITY);
+        let mask = self.mask.unwrap_or(u32::MAX);
+        let check_count = |count: usize| {
+            if count > config.max_rays {
+                return Err(ApiError::too_large(format!(
+                    "the request has {count} rays, more than this server's limit of {} per \
+                     request; split it into several requests",
+                    config.max_rays
+                )));
+            }
+            let entries = count.saturating_mul(query.list_length() as usize);
+            if entries > config.max_hit_entries() {
+                return Err(ApiError::too_large(format!(
+                    "mode all with max_hits {} over {count} rays could keep {entries} hits, more \
+                     than this server's limit of {} per request; lower max_hits or send fewer \
+                     rays",
+                    query.max_hits,
+                    config.max_hit_entries()
+                )));
+            }
+            Ok(())
+        };
+        let rays = match (self.rays, self.camera, self.pixels) {
+            (Some(rays), None, None) => {
+                check_count(rays.len())?;
+                rays.into_iter()
+                    .map(|r| {
+                        Ray::new(DVec3::from_array(r.origin), DVec3::from_array(r.dir))
+                            .with_range(r.tmin.unwrap_or(tmin), r.tmax.unwrap_or(tmax))
+                            .with_mask(r.mask.unwrap_or(mask))
+                    })
+                    .collect()
+            }
+            (None, Some(spec), Some(pixels)) => {
+                check_count(pixels.len())?;
+                let camera =
+                    Camera::from_spec(spec).map_err(|e| ApiError::bad_request(e.to_string()))?;
+                pixels
+                    .into_iter()
+                    .map(|[x, y]| {
+                        camera
+                            .pixel_ray(x + 0.5, y + 0.5)
+                            .with_range(tmin, tmax)
+                            .with_mask(mask)
+                    })
+                    .collect()
+            }
+            (None, Some(_), None) => {
+                return Err(ApiError::bad_request(
+                    "the request has a `camera` but no `pixels`: give the pixels to pick as \
+                     [[x, y], ...]",
+                ));
+            }
+            (None, None, Some(_)) => {
+                return Err(ApiError::bad_request(
+                    "the request has `pixels` but no `camera` to turn them into rays",
+                ));
+            }
+            (Some(_), _, _) => {
+                return Err(ApiError::bad_request(
+                    "the request has both `rays` and a camera: give either `rays`, or \
+                     `camera` with `pixels`",
+                ));
+            }
+            (None, None, None) => {
+                return Err(ApiError::bad_request(
+                    "the request has no rays: give `rays` ([{\"origin\": [x, y, z], \"dir\": \
+                     [x, y, z]}, ...]), or `camera` and `pixels`",
+                ));
+            }
+        };
+        Ok((rays, query))
+    }
+}
+
+/// Reads a request body of at most `limit` bytes.
+async fn read_body(headers: &HeaderMap, body: Body, limit: usize) -> Result<Bytes, ApiError> {
+    let too_large = || {
+        ApiError::too_large(format!(
+            "the request body is larger than this server's limit of {limit} bytes; send fewer \
+             rays per request"
+        ))
+    };
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|s| s.trim().parse::<u64>().ok());
+    if declared.is_some_and(|n| n > limit as u64) {
+        return Err(too_large());
+    }
+    axum::body::to_bytes(body, limit).await.map_err(|e| {
+        let mut source: Option<&dyn std::error::Error> = Some(&e);
+        while let Some(err) = source {
+            if err.to_string().contains("length limit exceeded") {
+                return too_large();
+            }
+            source = err.source();
+        }
+        ApiError::bad_request(format!("the request body could not be read: {e}"))
+    })
+}
+
+/// `POST /pick`.
+async fn pick(
+    State(state): State<Arc<AppState>>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    let bytes = read_body(&headers, body, state.config.max_body_bytes).await?;
+    let request: PickRequest = serde_json::from_slice(&bytes).map_err(|e| {
+        ApiError::bad_request(format!("the request body is not a valid pick request: {e}"))
+    })?;
+    let (rays, query) = request.into_rays(&state.config)?;
+    let answers = if rays.is_empty() {
+        empty_answers(query.mode)
+    } else {
+        let (reply, answer) = oneshot::channel();
+        state
+            .worker
+            .submit(Job::Pick { rays, query, reply })
+            .map_err(ApiError::internal)?;
+        answer
+            .await
+            .map_err(|_| ApiError::internal("the picking worker dropped the request"))?
+            .map_err(ApiError::internal)?
+    };
+    let names: Vec<&str> = state
+        .built
+        .scene
+        .objects()
+        .iter()
+        .map(|o| o.name.as_str())
+        .collect();
+    Ok(if query.mode == Mode::All {
+        let results: Vec<ListOut> = (0..answers.nearest.len())
+            .map(|i| ListOut {
+                invalid: answers.nearest[i].invalid,
+                overflow: answers.overflow.get(i).copied().unwrap_or(false),
+                hits: answers
+                    .hits_of(i)
+                    .iter()
+                    .map(|h| HitOut::new(h, &names))
+                    .collect(),
+            })
+            .collect();
+        json_response(StatusCode::OK, &PickResponse { results })
+    } else {
+        let results: Vec<HitOut> = answers
+            .nearest
+            .iter()
+            .map(|h| HitOut::new(h, &names))
+            .collect();
+        json_response(StatusCode::OK, &PickResponse { results })
+    })
+}
+
+/// Answers for zero rays.
+fn empty_answers(mode: Mode) -> Answers {
+    Answers {
+        list_start: if mode == Mode::All { vec![0] } else { vec![] },
+        ..Answers::default()
+    }
+}
+
+/// The body of a pick answer.
+#[derive(Serialize)]
+struct PickResponse<T> {
+    results: Vec<T>,
+}
+
+/// One hit (or miss) as JSON.
+#[derive(Serialize)]
+struct HitOut<'a> {
+    hit: bool,
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    invalid: bool,
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    details: Option<HitDetails<'a>>,
+}
+
+/// Where a hit is.
+#[derive(Serialize)]
+struct HitDetails<'a> {
+    t: f64,
+    object: u32,
+    object_name: &'a str,
+    triangle: u32,
+    u: f64,
+    v: f64,
+    position: [f64; 3],
+    normal: [f64; 3],
+    #[serde(skip_serializing_if = "Option::is_none")]
+    row: Option<u32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    col: Option<u32>,
+}
+
+impl<'a> HitOut<'a> {
+    fn new(hit: &Hit, names: &[&'a str]) -> Self {
+        Self {
+            hit: hit.hit,
+            invalid: hit.invalid,
+            details: hit.hit.then(|| HitDetails {
+                t: hit.t,
+                object: hit.object,
+                object_name: names.get(hit.object as usize).copied().unwrap_or(""),
+                triangle: hit.triangle,
+                u: hit.u,
+                v: hit.v,
+                position: hit.position.to_array(),
+                normal: hit.normal.to_array(),
+                row: hit.cell.map(|c| c[0]),
+                col: hit.cell.map(|c| c[1]),
+            }),
+        }
+    }
+}
+
+/// One ray's all-hits answer as JSON.
+#[derive(Serialize)]
+struct ListOut<'a> {
+    hits: Vec<HitOut<'a>>,
+    overflow: bool,
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    invalid: bool,
+}
+
+/// `GET /scene`.
+async fn scene(State(state): State<Arc<AppState>>) -> Response {
+    let built = &state.built;
+    let scene = &built.scene;
+    let bvh = &built.bvh;
+    let triangles = scene.triangle_count();
+    let objects: Vec<_> = scene
+        .objects()
+        .iter()
+        .map(|o| {
+            json!({
+                "id": o.id,
+                "name": o.name,
+                "triangles": o.triangle_count,
+                "mask": o.mask,
+                "grid": o.grid.map(|g| json!({"columns": g.columns, "rows": g.rows})),
+            })
+        })
+        .collect();
+    let bounds = scene
+        .bounds()
+        .map(|(lo, hi)| json!({"min": lo.to_array(), "max": hi.to_array()}));
+    let gpu_bytes = bvh.gpu_bytes();
+    json_response(
+        StatusCode::OK,
+        &json!({
+            "backend": match state.backend {
+                Backend::Gpu => "gpu",
+                Backend::Cpu => "cpu",
+                Backend::Auto => "auto",
+            },
+            "device": state.worker.description(),
+            "bounds": bounds,
+            "origin": bvh.origin.to_array(),
+            "triangles": triangles,
+            "objects": objects,
+            "tree": {
+                "nodes": bvh.nodes.len(),
+                "leaves": bvh.leaf_count(),
+                "depth": bvh.depth(),
+                "gpu_bytes": gpu_bytes,
+                "gpu_bytes_per_triangle":
+                    (triangles > 0).then(|| gpu_bytes as f64 / triangles as f64),
+            },
+            "camera": default_camera(&state, None),
+            "limits": {
+                "max_body_bytes": state.config.max_body_bytes,
+                "max_rays": state.config.max_rays,
+            },
+            "stats": state.worker.stats(),
+        }),
+    )
+}
+
+/// The framing camera of the scene ([`Camera::frame_bounds`]), at `size` or the configured
+/// view size.
+fn default_camera(state: &AppState, size: Option<(u32, u32)>) -> Camera {
+    let (width, height) = size.unwrap_or((state.config.view_width, state.config.view_height));
+    let (lo, hi) = state
+        .built
+        .scene
+        .bounds()
+        .unwrap_or((DVec3::INFINITY, DVec3::NEG_INFINITY));
+    Camera::frame_bounds(lo, hi, width, height)
+}
+
+/// `GET /stats`.
+async fn stats(State(state): State<Arc<AppState>>) -> Response {
+    let stats: Stats = state.worker.stats();
+    json_response(StatusCode::OK, &stats)
+}
+
+/// The query string of `GET /render`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RenderParams {
+    /// Camera JSON (a [`CameraSpec`]).
+    camera: Option<String>,
+    /// `normal`, `depth` or `object`.
+    shade: Option<String>,
+    /// Image width of the framing camera (without `camera`).
+    width: Option<u32>,
+    /// Image height of the framing camera (without `camera`).
+    height: Option<u32>,
+}
+
+/// `GET /render`.
+async fn render_view(
+    State(state): State<Arc<AppState>>,
+    params: Result<UrlQuery<RenderParams>, QueryRejection>,
+) -> Result<Response, ApiError> {
+    let UrlQuery(params) = params.map_err(|e| {
+        ApiError::bad_request(format!(
+            "the /render query is not valid: {}; it takes camera (camera JSON), shade \
+             (normal, depth or object), width and height",
+            e.body_text()
+        ))
+    })?;
+    let shade = match params.shade.as_deref() {
+        None => Shade::default(),
+        Some(name) => Shade::from_str(name, true).map_err(|_| {
+            ApiError::bad_request(format!(
+                "unknown shade '{name}'; expected normal, depth or object"
+            ))
+        })?,
+    };
+    let camera = match (&params.camera, params.width, params.height) {
+        (Some(text), None, None) => Camera::from_json_str("camera", text)
+            .map_err(|e| ApiError::bad_request(e.to_string()))?,
+        (Some(_), _, _) => {
+            return Err(ApiError::bad_request(
+                "give the image size inside the camera JSON, not as width/height parameters",
+            ));
+        }
+        (None, width, height) => {
+            let (width, height) = (
+                width.unwrap_or(state.config.view_width),
+                height.unwrap_or(state.config.view_height),
+            );
+            if width == 0 || height == 0 {
+                return Err(ApiError::bad_request(format!(
+                    "the image is {width} x {height} pixels; width and height must be at least 1"
+                )));
+            }
+            default_camera(&state, Some((width, height)))
+        }
+    };
+    let pixels = u64::from(camera.width()) * u64::from(camera.height());
+    if pixels > state.config.max_rays as u64 {
+        return Err(ApiError::too_large(format!(
+            "the image has {pixels} pixels, more than this server's limit of {} rays per request",
+            state.config.max_rays
+        )));
+    }
+    let (reply, answer) = oneshot::channel();
+    state
+        .worker
+        .submit(Job::Render {
+            camera: Box::new(camera),
+            shade,
+            reply,
+        })
+        .map_err(ApiError::internal)?;
+    let image = answer
+        .await
+        .map_err(|_| ApiError::internal("the picking worker dropped the request"))?
+        .map_err(ApiError::internal)?;
+    let png = tokio::task::spawn_blocking(move || image.to_png())
+        .await
+        .map_err(|e| ApiError::internal(format!("encoding the PNG failed: {e}")))?
+        .map_err(|e| ApiError::internal(format!("encoding the PNG failed: {e}")))?;
+    Ok((
+        StatusCode::OK,
+        [
+            (header::CONTENT_TYPE, HeaderValue::from_static("image/png")),
+            (header::CACHE_CONTROL, HeaderValue::from_static("no-store")),
+        ],
+        png,
+    )
+        .into_response())
+}
