@@ -93,6 +93,18 @@ pub fn run(args: BenchArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         singles: &singles,
         repeat,
     };
+    // The paper's cost model T = bB + iI: mean box tests b and triangle tests i per ray.
+    for (name, set) in [("camera", &camera), ("random", &random)] {
+        let hits = CpuPicker::new(built.clone()).pick(set)?;
+        let n = hits.len().max(1) as f64;
+        let b: u64 = hits.iter().map(|h| u64::from(h.box_tests)).sum();
+        let i: u64 = hits.iter().map(|h| u64::from(h.triangle_tests)).sum();
+        println!(
+            "{name} rays: mean box tests b = {:.2}, triangle tests i = {:.2} per ray (T = bB + iI)",
+            b as f64 / n,
+            i as f64 / n
+        );
+    }
 
     let mut table = Vec::new();
     for threads in [1, 2] {
