@@ -835,40 +835,23 @@ fn read_text(path: &Path, name: &str) -> Result<String> {
 /// A line with other than 2 numbers, a token that is not a number, or a non-finite value is an
 /// [`Error::Parse`] naming `path` and the 1-based line.
 pub fn parse_pixel_indices_as_centers(path: &str, text: &str) -> Result<Vec<(f64, f64)>> {
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    let mut pixels = Vec::new();
-    for (i, raw) in text.lines().enumerate() {
-        let error = |message: String| Error::Parse {
-            path: path.to_owned(),
-            line: Some(i + 1),
-            message,
-        };
-        let content = raw.split('#').next().unwrap_or_default();
-        let mut values = [0.0f64; 2];
-        let mut count = 0usize;
-        for token in content.split_whitespace() {
-            let value: f64 = token
-                .parse()
-                .map_err(|_| error(format!("'{token}' is not a number")))?;
-            if !value.is_finite() {
-                return Err(error(format!("'{token}' is not a finite pixel coordinate")));
-            }
-            if let Some(slot) = values.get_mut(count) {
-                *slot = value;
-            }
-            count += 1;
-        }
-        match count {
-            0 => {}
-            2 => pixels.push((values[0] + 0.5, values[1] + 0.5)),
-            _ => {
-                return Err(error(format!(
-                    "expected 2 numbers (pixel column x and row y), found {count}"
-                )));
-            }
-        }
-    }
-    Ok(pixels)
+    let lines = crate::io::ray_file::parse_number_lines(
+        path,
+        text,
+        &[2],
+        "2 numbers (pixel column x and row y)",
+    )?;
+    lines
+        .into_iter()
+        .map(|(line, v)| match v.iter().find(|x| !x.is_finite()) {
+            Some(bad) => Err(Error::Parse {
+                path: path.to_owned(),
+                line: Some(line),
+                message: format!("'{bad}' is not a finite pixel coordinate"),
+            }),
+            None => Ok((v[0] + 0.5, v[1] + 0.5)),
+        })
+        .collect()
 }
 
 /// Reads the pixel list file at `path` and returns its pixels' centres in pixel space (see

@@ -14,7 +14,13 @@ fuzz_target!(|data: &[u8]| {
     let path = PATH.get_or_init(|| raypick_fuzz::scratch_path("obj"));
     std::fs::write(path, data).expect("write scratch file");
     let result = load_obj(path);
-    raypick_fuzz::debug(&result, |m: &raypick::Mesh| format!("{} vertices, {} triangles", m.positions.len(), m.triangles.len()));
+    raypick_fuzz::debug(&result, |m: &raypick::Mesh| {
+        format!(
+            "{} vertices, {} triangles",
+            m.positions.len(),
+            m.triangles.len()
+        )
+    });
     if let Ok(mesh) = result {
         raypick_fuzz::check_mesh(&mesh);
     }

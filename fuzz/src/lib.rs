@@ -15,8 +15,14 @@ use raypick::dem::ElevationGrid;
 pub fn check_grid(grid: &ElevationGrid) {
     assert!(grid.ncols > 0 && grid.nrows > 0, "empty grid accepted");
     assert!(grid.dx > 0.0 && grid.dy > 0.0, "non-positive spacing");
-    assert!(grid.dx.is_finite() && grid.dy.is_finite(), "non-finite spacing");
-    assert!(grid.x0.is_finite() && grid.y0.is_finite(), "non-finite origin");
+    assert!(
+        grid.dx.is_finite() && grid.dy.is_finite(),
+        "non-finite spacing"
+    );
+    assert!(
+        grid.x0.is_finite() && grid.y0.is_finite(),
+        "non-finite origin"
+    );
     assert_eq!(
         Some(grid.heights.len()),
         grid.ncols.checked_mul(grid.nrows),
@@ -75,10 +81,7 @@ pub fn scratch_path(extension: &str) -> PathBuf {
             shm.is_dir().then_some(shm)
         })
         .unwrap_or_else(std::env::temp_dir);
-    dir.join(format!(
-        "raypick-fuzz-{}.{extension}",
-        std::process::id()
-    ))
+    dir.join(format!("raypick-fuzz-{}.{extension}", std::process::id()))
 }
 
 /// CRC-32 (ISO-HDLC, as used by PNG chunks).
@@ -89,15 +92,19 @@ fn crc32(bytes: &[u8]) -> u32 {
         for (n, slot) in t.iter_mut().enumerate() {
             let mut c = n as u32;
             for _ in 0..8 {
-                c = if c & 1 != 0 { 0xedb8_8320 ^ (c >> 1) } else { c >> 1 };
+                c = if c & 1 != 0 {
+                    0xedb8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
             }
             *slot = c;
         }
         t
     });
-    !bytes
-        .iter()
-        .fold(!0u32, |c, &b| table[((c ^ u32::from(b)) & 0xff) as usize] ^ (c >> 8))
+    !bytes.iter().fold(!0u32, |c, &b| {
+        table[((c ^ u32::from(b)) & 0xff) as usize] ^ (c >> 8)
+    })
 }
 
 /// Rewrites the CRC of every complete chunk of a PNG stream in place, so that

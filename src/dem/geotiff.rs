@@ -60,14 +60,10 @@ pub fn read_geotiff(reader: impl Read + Seek, name: &str) -> Result<ElevationGri
     let fail = |message: String| parse_error(name, None, message);
     let tiff_fail = |what: &str, e: TiffError| tiff_error(name, what, e);
 
-    let mut limits = Limits::default();
-    // The size guard below bounds the image; let the decoder hold any image
-    // that passes it (at most 8 bytes per sample).
-    limits.decoding_buffer_size = MAX_SAMPLES.saturating_mul(8);
-    limits.intermediate_buffer_size = MAX_SAMPLES.saturating_mul(8);
-    let mut decoder = Decoder::new(reader)
-        .map_err(|e| tiff_fail("reading the TIFF header", e))?
-        .with_limits(limits);
+    // Tags are read under the decoder's default limits, so a tag claiming a huge value count
+    // cannot make it reserve gigabytes before reading anything (found by fuzzing: a 98-byte
+    // file asked for 16 GiB). The limits are raised only for the raster itself, below.
+    let mut decoder = Decoder::new(reader).map_err(|e| tiff_fail("reading the TIFF header", e))?;
 
     let (width, height) = decoder
         .dimensions()
@@ -112,6 +108,12 @@ pub fn read_geotiff(reader: impl Read + Seek, name: &str) -> Result<ElevationGri
         ));
     }
 
+    // The size guard above bounds the image; let the decoder hold any image that passes it (at
+    // most 8 bytes per sample).
+    let mut limits = Limits::default();
+    limits.decoding_buffer_size = MAX_SAMPLES.saturating_mul(8);
+    limits.intermediate_buffer_size = MAX_SAMPLES.saturating_mul(8);
+    let mut decoder = decoder.with_limits(limits);
     let decoded = decoder
         .read_image()
         .map_err(|e| tiff_fail("decoding the raster data", e))?;
@@ -1025,5 +1027,17 @@ mod tests {
             }
             let _ = read(&f); // Ok or Err, but no panic.
         }
+    }
+
+    /// Regression (fuzzing): a ModelPixelScaleTag claiming 2^29 values must be refused without
+    /// the decoder reserving 16 GiB for it first.
+    #[test]
+    fn a_tag_with_a_huge_count_is_refused_cheaply() {
+        let hex = "49492a0008000000070000010300010000000100000001010300010000000100000002010300010000001000000006010300010000000100000011010400010000000000000017010400010000000200000000e830c00000000200000000000000000";
+        let bytes: Vec<u8> = (0..hex.len() / 2)
+            .map(|i| u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).unwrap())
+            .collect();
+        let result = read_geotiff(std::io::Cursor::new(bytes), "huge-tag.tif");
+        assert!(result.is_err());
     }
 }

@@ -37,7 +37,7 @@ pub fn parse_rays(path: &str, text: &str) -> Result<Vec<RayLine>, Error> {
     )?;
     Ok(lines
         .iter()
-        .map(|v| RayLine {
+        .map(|(_, v)| RayLine {
             origin: DVec3::new(v[0], v[1], v[2]),
             dir: DVec3::new(v[3], v[4], v[5]),
             tmax: v.get(6).copied(),
@@ -48,7 +48,10 @@ pub fn parse_rays(path: &str, text: &str) -> Result<Vec<RayLine>, Error> {
 /// Parses a point file: one `x y z` per line, same comment rules as ray files.
 pub fn parse_points(path: &str, text: &str) -> Result<Vec<DVec3>, Error> {
     let lines = parse_number_lines(path, text, &[3], "3 numbers (x y z)")?;
-    Ok(lines.iter().map(|v| DVec3::new(v[0], v[1], v[2])).collect())
+    Ok(lines
+        .iter()
+        .map(|(_, v)| DVec3::new(v[0], v[1], v[2]))
+        .collect())
 }
 
 /// Parses a pair file: one `x1 y1 z1 x2 y2 z2` per line, same comment rules as ray files.
@@ -56,17 +59,18 @@ pub fn parse_pairs(path: &str, text: &str) -> Result<Vec<(DVec3, DVec3)>, Error>
     let lines = parse_number_lines(path, text, &[6], "6 numbers (x1 y1 z1 x2 y2 z2)")?;
     Ok(lines
         .iter()
-        .map(|v| (DVec3::new(v[0], v[1], v[2]), DVec3::new(v[3], v[4], v[5])))
+        .map(|(_, v)| (DVec3::new(v[0], v[1], v[2]), DVec3::new(v[3], v[4], v[5])))
         .collect())
 }
 
-/// The numbers of each non-blank line; each line must hold one of `counts` numbers.
-fn parse_number_lines(
+/// The numbers of each non-blank line with its 1-based line number; each line must hold one of
+/// `counts` numbers. `#` starts a comment; a leading byte-order mark is skipped.
+pub(crate) fn parse_number_lines(
     path: &str,
     text: &str,
     counts: &[usize],
     expected: &str,
-) -> Result<Vec<Vec<f64>>, Error> {
+) -> Result<Vec<(usize, Vec<f64>)>, Error> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines = Vec::new();
     for (i, raw) in text.lines().enumerate() {
@@ -93,7 +97,7 @@ fn parse_number_lines(
                 values.len()
             )));
         }
-        lines.push(values);
+        lines.push((i + 1, values));
     }
     Ok(lines)
 }
