@@ -222,24 +222,12 @@ pub struct Tally {
 }
 
 impl Tally {
-    /// Compares two batches of answers; also returns the indices of the mismatching rays.
+    /// Compares two batches of closest hits; also returns the indices of the mismatching rays.
     pub fn compare(scene: &Scene, rays: &[Ray], a: &[Hit], b: &[Hit]) -> (Tally, Vec<usize>) {
-        let mut tally = Tally::default();
-        let mut bad = Vec::new();
-        for (i, ((ray, x), y)) in rays.iter().zip(a).zip(b).enumerate() {
-            tally.rays += 1;
-            tally.hits += x.hit as usize;
-            tally.invalid += x.invalid as usize;
-            match classify(scene, ray, x, y) {
-                Verdict::Same => {}
-                Verdict::SharedEdge => tally.shared_edge += 1,
-                Verdict::Boundary => tally.boundary += 1,
-                Verdict::Mismatch => {
-                    tally.mismatches += 1;
-                    bad.push(i);
-                }
-            }
-        }
-        (tally, bad)
+        let answers = |hits: &[Hit]| Answers {
+            nearest: hits.to_vec(),
+            ..Answers::default()
+        };
+        compare_answers(scene, rays, Mode::Closest, &answers(a), &answers(b), None)
     }
 }
