@@ -19,17 +19,17 @@
 
 use bvh::aabb::{Aabb, Bounded};
 use bvh::bounding_hierarchy::{BHShape, BoundingHierarchy};
+#[path = "common/obvhs_peer.rs"]
+mod obvhs_peer;
+
 use criterion::{
     BenchmarkGroup, Criterion, SamplingMode, Throughput, criterion_group, criterion_main,
     measurement::WallTime,
 };
 use glam::Vec3A;
 use nalgebra::{Point3, Vector3};
-use obvhs::BvhBuildParams;
-use obvhs::cwbvh::CwBvh;
-use obvhs::cwbvh::builder::build_cwbvh_from_tris;
-use obvhs::ray::RayHit;
 use obvhs::triangle::Triangle;
+use obvhs_peer::{obvhs_build, obvhs_trace};
 use parry3d::query::RayCast;
 use rayon::prelude::*;
 use raypick::frame::local_rays;
@@ -99,37 +99,6 @@ fn local_triangles(built: &BuiltScene) -> Vec<[Vec3A; 3]> {
                 .scene
                 .world_triangle(i)
                 .map(|p| Vec3A::from((p - origin).as_vec3()))
-        })
-        .collect()
-}
-
-// ---------------------------------------------------------------------------------------------
-// obvhs
-
-/// obvhs's recommended set-up for triangle meshes (its `obj_cwbvh` example): a CWBVH from
-/// `fast_build`, with the triangles reordered into leaf order so traversal needs no indirection.
-fn obvhs_build(triangles: &[Triangle]) -> (CwBvh, Vec<Triangle>) {
-    let bvh = build_cwbvh_from_tris(
-        triangles,
-        BvhBuildParams::fast_build(),
-        &mut Duration::default(),
-    );
-    let ordered = bvh
-        .primitive_indices
-        .iter()
-        .map(|&i| triangles[i as usize])
-        .collect();
-    (bvh, ordered)
-}
-
-/// Closest hit per ray (None on a miss).
-fn obvhs_trace(bvh: &CwBvh, triangles: &[Triangle], rays: &[obvhs::ray::Ray]) -> Vec<Option<f32>> {
-    rays.par_iter()
-        .with_min_len(MIN_LEN)
-        .map(|ray| {
-            let mut hit = RayHit::none();
-            bvh.ray_traverse(*ray, &mut hit, |ray, id| triangles[id].intersect(ray));
-            hit.t.is_finite().then_some(hit.t)
         })
         .collect()
 }
@@ -363,7 +332,10 @@ fn bench_scene(c: &mut Criterion, name: &str, scene: Scene) {
             "obvhs",
             kind_name,
             &reference,
-            &obvhs_trace(&obvhs_bvh, &obvhs_ordered, &obvhs_rays),
+            &obvhs_trace(&obvhs_bvh, &obvhs_ordered, &obvhs_rays)
+                .iter()
+                .map(|h| h.t.is_finite().then_some(h.t))
+                .collect::<Vec<_>>(),
         );
         report_agreement(
             name,

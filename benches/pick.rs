@@ -12,17 +12,17 @@
 //! Run everything with `cargo bench --bench pick`, or one group with e.g.
 //! `cargo bench --bench pick -- pick_cpu`.
 
+#[path = "common/obvhs_peer.rs"]
+mod obvhs_peer;
+
 use criterion::{
     BatchSize, BenchmarkGroup, Criterion, SamplingMode, Throughput, criterion_group,
     criterion_main, measurement::WallTime,
 };
 use glam::Vec3A;
-use obvhs::BvhBuildParams;
-use obvhs::cwbvh::CwBvh;
-use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::ray::RayHit;
 use obvhs::triangle::Triangle;
-use rayon::prelude::*;
+use obvhs_peer::{obvhs_build, obvhs_trace};
 use raypick::frame::local_rays;
 use raypick::layout::{GpuRay, NO_HIT};
 use raypick::synthetic::{RayKind, hills, rays, terrain};
@@ -160,34 +160,6 @@ fn obvhs_triangles(built: &BuiltScene) -> Vec<Triangle> {
                 .world_triangle(i)
                 .map(|p| Vec3A::from((p - origin).as_vec3()));
             Triangle { v0, v1, v2 }
-        })
-        .collect()
-}
-
-/// obvhs's recommended set-up for triangle meshes (its `obj_cwbvh` example): a CWBVH from
-/// `fast_build`, with the triangles reordered into leaf order so traversal needs no indirection.
-fn obvhs_build(triangles: &[Triangle]) -> (CwBvh, Vec<Triangle>) {
-    let bvh = build_cwbvh_from_tris(
-        triangles,
-        BvhBuildParams::fast_build(),
-        &mut Duration::default(),
-    );
-    let ordered = bvh
-        .primitive_indices
-        .iter()
-        .map(|&i| triangles[i as usize])
-        .collect();
-    (bvh, ordered)
-}
-
-/// Closest hit per ray: one `ray_traverse` call per ray, parallel over rays like ours.
-fn obvhs_trace(bvh: &CwBvh, triangles: &[Triangle], rays: &[obvhs::ray::Ray]) -> Vec<RayHit> {
-    rays.par_iter()
-        .with_min_len(256)
-        .map(|ray| {
-            let mut hit = RayHit::none();
-            bvh.ray_traverse(*ray, &mut hit, |ray, id| triangles[id].intersect(ray));
-            hit
         })
         .collect()
 }
