@@ -45,7 +45,7 @@ pub mod select;
 pub mod server;
 pub mod synthetic;
 
-pub use bvh::{BuildOptions, Bvh, SplitAxis};
+pub use bvh::{BuildOptions, Builder, Bvh, SplitAxis};
 pub use error::{Error, Result};
 pub use gpu::{GpuContext, GpuPicker};
 pub use picker::{Backend, BuiltScene, CpuPicker, Picker};

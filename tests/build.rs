@@ -35,6 +35,7 @@ fn paper_defaults_work_leaf_size_one_and_cycling_axes() {
         &BuildOptions {
             split_axis: SplitAxis::Cycle,
             leaf_size: 1,
+            ..Default::default()
         },
     )
     .unwrap();
@@ -87,7 +88,7 @@ proptest! {
         let positions: Vec<DVec3> = points.iter().map(|&(x, y, z)| DVec3::new(x, y, z)).collect();
         let triangles = (0..positions.len() as u32 / 3).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect();
         let s = scene(Mesh { positions, triangles });
-        let options = BuildOptions { split_axis: if cycle { SplitAxis::Cycle } else { SplitAxis::Longest }, leaf_size };
+        let options = BuildOptions { split_axis: if cycle { SplitAxis::Cycle } else { SplitAxis::Longest }, leaf_size, ..Default::default() };
         let bvh = Bvh::build(&s, &options).unwrap();
         prop_assert_eq!(bvh.validate(), Ok(()));
         let hittable = (0..s.triangle_count()).filter(|&i| !s.is_degenerate(i)).count();

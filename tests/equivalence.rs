@@ -5,7 +5,7 @@ mod common;
 use common::check_scene;
 use raypick::io::obj::load_obj;
 use raypick::synthetic::{hills, single_triangle, terrain, thin_and_degenerate, triangle_soup};
-use raypick::{BuildOptions, Scene, SplitAxis};
+use raypick::{BuildOptions, Builder, Scene, SplitAxis};
 use std::path::Path;
 
 fn one(name: &str, mesh: raypick::Mesh) -> Scene {
@@ -86,6 +86,7 @@ fn every_split_policy_and_leaf_size_agrees() {
     for split_axis in [SplitAxis::Cycle, SplitAxis::Longest] {
         for leaf_size in [1, 2, 8, 15] {
             let options = BuildOptions {
+                builder: Builder::MedianCut,
                 split_axis,
                 leaf_size,
             };

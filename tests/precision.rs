@@ -9,7 +9,10 @@ use raypick::camera::Camera;
 use raypick::cpu::ray_triangle::ray_triangle_f64;
 use raypick::io::scene_files::{SceneFile, load_scene};
 use raypick::synthetic::{hills, terrain};
-use raypick::{BuildOptions, BuiltScene, CpuPicker, GpuPicker, Hit, Mesh, Picker, Ray, Scene};
+use raypick::{
+    BuildOptions, Builder, BuiltScene, CpuPicker, GpuPicker, GridShape, Hit, Mesh, Picker, Ray,
+    Scene,
+};
 use std::sync::Arc;
 
 const MILLIMETRE: f64 = 1e-3;
@@ -52,16 +55,34 @@ fn patch(centre: DVec3, frame: DMat3) -> Mesh {
     mesh
 }
 
+/// Checks the patch as a height grid built over blocks and as a plain mesh built by median cut.
 fn check_patch(name: &str, centre: DVec3, frame: DMat3) {
-    let scene = Scene::from_meshes([(name.to_string(), patch(centre, frame))]).unwrap();
-    let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
+    let mut grid = Scene::new();
+    let shape = GridShape {
+        columns: 200,
+        rows: 200,
+    };
+    grid.add_grid_mesh(name, patch(centre, frame), shape)
+        .unwrap();
+    let mesh = Scene::from_meshes([(name.to_string(), patch(centre, frame))]).unwrap();
+    for (builder, scene) in [(Builder::Grid, grid), (Builder::MedianCut, mesh)] {
+        let options = BuildOptions {
+            builder,
+            ..BuildOptions::default()
+        };
+        let built = Arc::new(BuiltScene::new(scene, &options).unwrap());
+        check_view(&format!("{name}, {builder:?}"), &built, centre, frame);
+    }
+}
+
+fn check_view(name: &str, built: &Arc<BuiltScene>, centre: DVec3, frame: DMat3) {
     // A camera 1.2 km above the patch, looking obliquely down at its centre.
     let up = frame * DVec3::Z;
     let eye = centre + frame * DVec3::new(-300.0, -900.0, 1200.0);
     let camera = Camera::perspective(eye, centre, up, 50.0, 96, 72).unwrap();
     let rays: Vec<Ray> = camera.pixel_center_rays().collect();
-    for (path, hits) in both(&built, &rays) {
-        let checked = assert_exact(&built, &rays, &hits, path);
+    for (path, hits) in both(built, &rays) {
+        let checked = assert_exact(built, &rays, &hits, path);
         // The top of the view is sky; the patch fills the rest.
         assert!(
             checked > rays.len() / 4,

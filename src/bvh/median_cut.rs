@@ -5,41 +5,15 @@
 //! The result is deterministic: the partition depends only on the input order, and parallel
 //! subtrees are stitched together in a fixed order.
 
-use super::Bvh;
-use crate::error::{Error, Result};
-use crate::layout::{GpuNode, GpuTriangle, KIND_BITS, KIND_INNER, MAX_LEAF_SIZE, MAX_NODES};
+use super::{
+    BuildOptions, Bvh, SplitAxis, check_node_count, inner_node, leaf_node, link_parents,
+    local_triangle, traceable_triangle,
+};
+use crate::error::Result;
+use crate::layout::GpuNode;
 use crate::scene::Scene;
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 use rayon::prelude::*;
-
-/// How the builder picks the axis to split a node along.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-pub enum SplitAxis {
-    /// x, then y, then z, by depth, as in the paper.
-    Cycle,
-    /// The longest axis of the node's box.
-    #[default]
-    Longest,
-}
-
-/// Builder settings.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct BuildOptions {
-    /// Split-axis policy.
-    pub split_axis: SplitAxis,
-    /// Most triangles per leaf, 1 ..= 15 (1 is the paper's one object per leaf).
-    pub leaf_size: u32,
-}
-
-impl Default for BuildOptions {
-    /// The defaults chosen by measurement (see BENCHMARKS.md).
-    fn default() -> Self {
-        Self {
-            split_axis: SplitAxis::Longest,
-            leaf_size: 4,
-        }
-    }
-}
 
 /// Ranges at least this long are split into two parallel tasks.
 const PARALLEL_MIN: usize = 8 * 1024;
@@ -53,67 +27,42 @@ struct PrimRef {
     scene_index: u32,
 }
 
-impl Bvh {
-    /// Builds the tree over every non-degenerate triangle of `scene`.
-    pub fn build(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
-        if !(1..=MAX_LEAF_SIZE).contains(&options.leaf_size) {
-            return Err(Error::Invalid(format!(
-                "leaf size {} is out of range; it must be 1 ..= {MAX_LEAF_SIZE}",
-                options.leaf_size
-            )));
-        }
-        let origin = scene.origin();
-        let local = |p: DVec3| (p - origin).as_vec3();
-        let mut prims: Vec<PrimRef> = (0..scene.triangle_count())
-            .into_par_iter()
-            .filter_map(|i| {
-                let [a, b, c] = scene.world_triangle(i).map(local);
-                let f32_area_zero = (b - a).as_dvec3().cross((c - a).as_dvec3()) == DVec3::ZERO;
-                if scene.is_degenerate(i) || f32_area_zero {
-                    return None;
-                }
-                let (min, max) = (a.min(b).min(c), a.max(b).max(c));
-                Some(PrimRef {
-                    min,
-                    max,
-                    centroid: (a + b + c) / 3.0,
-                    scene_index: i as u32,
-                })
+/// Builds the tree over every traceable triangle of `scene` (see [`super::traceable_triangle`]).
+pub fn build(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
+    let origin = scene.origin();
+    let mut prims: Vec<PrimRef> = (0..scene.triangle_count())
+        .into_par_iter()
+        .filter_map(|i| {
+            let [a, b, c] = traceable_triangle(scene, origin, i)?;
+            Some(PrimRef {
+                min: a.min(b).min(c),
+                max: a.max(b).max(c),
+                centroid: (a + b + c) / 3.0,
+                scene_index: i as u32,
             })
-            .collect();
-        if prims.is_empty() {
-            return Ok(Bvh {
-                origin,
-                ..Bvh::default()
-            });
-        }
-        let mut nodes = build_subtree(&mut prims, 0, 0, options);
-        if nodes.len() > MAX_NODES as usize {
-            return Err(Error::Invalid(format!(
-                "the tree needs {} nodes, more than the {MAX_NODES} the node format can address; raise the leaf size",
-                nodes.len()
-            )));
-        }
-        link_parents(&mut nodes);
-        let triangles = prims
-            .par_iter()
-            .map(|p| {
-                let [v0, v1, v2] = scene.world_triangle(p.scene_index as usize).map(local);
-                GpuTriangle {
-                    v0: v0.into(),
-                    v1: v1.into(),
-                    v2: v2.into(),
-                }
-            })
-            .collect();
-        let triangle_ids = prims.iter().map(|p| p.scene_index).collect();
-        Ok(Bvh {
-            origin,
-            nodes,
-            triangles,
-            triangle_ids,
         })
+        .collect();
+    if prims.is_empty() {
+        return Ok(Bvh {
+            origin,
+            ..Bvh::default()
+        });
     }
+    let mut nodes = build_subtree(&mut prims, 0, 0, options);
+    check_node_count(nodes.len())?;
+    link_parents(&mut nodes);
+    let triangles = prims
+        .par_iter()
+        .map(|p| local_triangle(scene, origin, p.scene_index as usize))
+        .collect();
+    let triangle_ids = prims.iter().map(|p| p.scene_index).collect();
+    Ok(Bvh {
+        origin,
+        nodes,
+        triangles,
+        triangle_ids,
+        blocks: Vec::new(),
+    })
 }
 
 /// Builds the subtree over `prims` (which start at leaf-order index `first`) in depth-first order,
@@ -137,7 +86,7 @@ fn build_subtree(
         || build_subtree(right_prims, first + split as u32, depth + 1, options),
     );
     let mut nodes = Vec::with_capacity(1 + left.len() + right.len());
-    nodes.push(inner(min, max, axis, 1 + left.len() as u32));
+    nodes.push(inner_node(min, max, axis, 1 + left.len() as u32));
     append_shifted(&mut nodes, &left);
     append_shifted(&mut nodes, &right);
     nodes
@@ -153,17 +102,12 @@ fn build_into(
 ) {
     let (min, max) = bounds(prims);
     if prims.len() <= options.leaf_size as usize {
-        nodes.push(GpuNode {
-            min: min.into(),
-            parent_kind: prims.len() as u32,
-            max: max.into(),
-            first,
-        });
+        nodes.push(leaf_node(min, max, prims.len() as u32, first));
         return;
     }
     let (axis, split) = split(prims, min, max, depth, options);
     let here = nodes.len();
-    nodes.push(inner(min, max, axis, 0));
+    nodes.push(inner_node(min, max, axis, 0));
     let (left, right) = prims.split_at_mut(split);
     build_into(nodes, left, first, depth + 1, options);
     nodes[here].first = nodes.len() as u32;
@@ -219,15 +163,6 @@ fn bounds(prims: &[PrimRef]) -> (Vec3, Vec3) {
         })
 }
 
-fn inner(min: Vec3, max: Vec3, axis: usize, right: u32) -> GpuNode {
-    GpuNode {
-        min: min.into(),
-        parent_kind: KIND_INNER + axis as u32,
-        max: max.into(),
-        first: right,
-    }
-}
-
 /// Appends a subtree built with root-relative links, shifting its inner links by its new position.
 fn append_shifted(nodes: &mut Vec<GpuNode>, subtree: &[GpuNode]) {
     let shift = nodes.len() as u32;
@@ -238,17 +173,4 @@ fn append_shifted(nodes: &mut Vec<GpuNode>, subtree: &[GpuNode]) {
         }
         n
     }));
-}
-
-/// Fills in each node's parent index (the root is its own parent).
-fn link_parents(nodes: &mut [GpuNode]) {
-    for i in 0..nodes.len() {
-        let n = nodes[i];
-        if !n.is_leaf() {
-            for child in [i + 1, n.first as usize] {
-                let kind = nodes[child].kind();
-                nodes[child].parent_kind = (i as u32) << KIND_BITS | kind;
-            }
-        }
-    }
 }

@@ -1,15 +1,22 @@
-//! The flattened tree: nodes, leaf-ordered triangles, and the map back to scene triangles.
+//! The flattened tree: nodes, leaf-ordered triangles, the map back to scene triangles, and the
+//! pieces every builder shares.
 //!
-//! Data flow: [`crate::Scene`] -> [`median_cut`] builds -> [`Bvh`] (these exact bytes go to the GPU
-//! and to the CPU traversal alike) -> [`validate`] checks the invariants.
+//! Data flow: [`crate::Scene`] -> a builder ([`median_cut`], or [`terrain_blocks`] for a height
+//! grid) -> [`Bvh`] (these exact bytes go to the GPU and to the CPU traversal alike) ->
+//! [`validate`] checks the invariants.
 
 pub mod median_cut;
+pub mod options;
+pub mod terrain_blocks;
 pub mod validate;
 
-pub use median_cut::{BuildOptions, SplitAxis};
+pub use options::{BuildOptions, Builder, SplitAxis};
+pub use terrain_blocks::Block;
 
-use crate::layout::{GpuNode, GpuTriangle, KIND_INNER};
-use glam::DVec3;
+use crate::error::{Error, Result};
+use crate::layout::{GpuNode, GpuTriangle, KIND_BITS, KIND_INNER, MAX_LEAF_SIZE, MAX_NODES};
+use crate::scene::Scene;
+use glam::{DVec3, Vec3};
 
 /// A built, flattened bounding-volume hierarchy over a scene's triangles.
 #[derive(Clone, Debug, Default)]
@@ -22,9 +29,29 @@ pub struct Bvh {
     pub triangles: Vec<GpuTriangle>,
     /// For each leaf-ordered triangle, its index in the scene's triangle list.
     pub triangle_ids: Vec<u32>,
+    /// The terrain blocks the top of the tree is built over (grid builder only; empty otherwise).
+    pub blocks: Vec<Block>,
 }
 
 impl Bvh {
+    /// Builds the tree over every traceable triangle of `scene` with the builder `options` name.
+    pub fn build(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
+        if !(1..=MAX_LEAF_SIZE).contains(&options.leaf_size) {
+            return Err(Error::Invalid(format!(
+                "leaf size {} is out of range; it must be 1 ..= {MAX_LEAF_SIZE}",
+                options.leaf_size
+            )));
+        }
+        match options.builder {
+            Builder::MedianCut => median_cut::build(scene, options),
+            Builder::Grid => terrain_blocks::build(scene, options),
+            Builder::Auto if terrain_blocks::single_grid(scene).is_some() => {
+                terrain_blocks::build(scene, options)
+            }
+            Builder::Auto => median_cut::build(scene, options),
+        }
+    }
+
     /// Loop iterations the stackless walk may take before it is declared stuck: each node is
     /// entered at most once going down and once coming back up.
     pub fn iteration_cap(&self) -> u32 {
@@ -59,5 +86,67 @@ impl Bvh {
     /// Number of leaves.
     pub fn leaf_count(&self) -> usize {
         self.nodes.iter().filter(|n| n.is_leaf()).count()
+    }
+}
+
+/// Scene triangle `index` as f32 offsets from `origin`, or `None` when it can never be hit: zero
+/// area in f64, or zero area once rounded to f32. Such triangles are left out of every tree and
+/// keep their ids.
+pub(crate) fn traceable_triangle(scene: &Scene, origin: DVec3, index: usize) -> Option<[Vec3; 3]> {
+    let [a, b, c] = scene.world_triangle(index).map(|p| (p - origin).as_vec3());
+    let f32_area_zero = (b - a).as_dvec3().cross((c - a).as_dvec3()) == DVec3::ZERO;
+    (!scene.is_degenerate(index) && !f32_area_zero).then_some([a, b, c])
+}
+
+/// Scene triangle `index` as the kernel stores it: f32 offsets from `origin`.
+pub(crate) fn local_triangle(scene: &Scene, origin: DVec3, index: usize) -> GpuTriangle {
+    let [v0, v1, v2] = scene.world_triangle(index).map(|p| (p - origin).as_vec3());
+    GpuTriangle {
+        v0: v0.into(),
+        v1: v1.into(),
+        v2: v2.into(),
+    }
+}
+
+/// A leaf holding `count` triangles from leaf-order index `first`.
+pub(crate) fn leaf_node(min: Vec3, max: Vec3, count: u32, first: u32) -> GpuNode {
+    GpuNode {
+        min: min.into(),
+        parent_kind: count,
+        max: max.into(),
+        first,
+    }
+}
+
+/// An inner node split along `axis` whose right child is node `right` (the left one is next).
+pub(crate) fn inner_node(min: Vec3, max: Vec3, axis: usize, right: u32) -> GpuNode {
+    GpuNode {
+        min: min.into(),
+        parent_kind: KIND_INNER + axis as u32,
+        max: max.into(),
+        first: right,
+    }
+}
+
+/// Refuses a tree with more nodes than the 27-bit parent links can address.
+pub(crate) fn check_node_count(nodes: usize) -> Result<()> {
+    if nodes > MAX_NODES as usize {
+        return Err(Error::Invalid(format!(
+            "the tree needs {nodes} nodes, more than the {MAX_NODES} the node format can address; raise the leaf size"
+        )));
+    }
+    Ok(())
+}
+
+/// Fills in each node's parent index (the root is its own parent).
+pub(crate) fn link_parents(nodes: &mut [GpuNode]) {
+    for i in 0..nodes.len() {
+        let n = nodes[i];
+        if !n.is_leaf() {
+            for child in [i + 1, n.first as usize] {
+                let kind = nodes[child].kind();
+                nodes[child].parent_kind = (i as u32) << KIND_BITS | kind;
+            }
+        }
     }
 }

@@ -5,7 +5,7 @@ use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
 use raypick::auto::AutoPicker;
 use raypick::synthetic::{RayKind, rays};
-use raypick::{BuildOptions, BuiltScene, CpuPicker, Error, GpuContext, GpuPicker, Picker, Ray};
+use raypick::{BuiltScene, CpuPicker, Error, GpuContext, GpuPicker, Picker, Ray};
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::time::Instant;
@@ -49,10 +49,7 @@ struct Row {
 pub fn run(args: BenchArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let repeat = args.repeat as usize;
     let (built, load_s, _) = args.scene.build_timed(matches)?;
-    let options = BuildOptions {
-        split_axis: args.scene.split,
-        leaf_size: args.scene.leaf_size,
-    };
+    let options = args.scene.build_options();
     let build_ms = super::progress::phase("timing builds", || {
         median_ms(repeat, || {
             let scene = built.scene.clone();

@@ -4,7 +4,7 @@
 use clap::{ArgMatches, Args};
 use raypick::io::scene_files::{SceneFile, load_description, load_scene};
 use raypick::synthetic::example_scene;
-use raypick::{BuildOptions, BuiltScene, Error, SplitAxis};
+use raypick::{BuildOptions, Builder, BuiltScene, Error, SplitAxis};
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -21,6 +21,10 @@ pub struct SceneArgs {
     /// A scene description file (JSON): `{"objects": [{"file": "dem.asc", "mask": 1}, ...]}`.
     #[arg(long, conflicts_with = "scene")]
     pub scenes: Option<PathBuf>,
+    /// Tree builder: `grid` cuts a height grid into blocks and builds over them (the default for
+    /// a scene that is one grid); `median-cut` splits triangles (the default otherwise).
+    #[arg(long, value_enum, default_value_t = BuildOptions::default().builder)]
+    pub builder: Builder,
     /// Split-axis policy of the median-cut builder.
     #[arg(long, value_enum, default_value_t = BuildOptions::default().split_axis)]
     pub split: SplitAxis,
@@ -81,6 +85,15 @@ impl SceneArgs {
         Ok(files)
     }
 
+    /// The builder settings these arguments name.
+    pub fn build_options(&self) -> BuildOptions {
+        BuildOptions {
+            builder: self.builder,
+            split_axis: self.split,
+            leaf_size: self.leaf_size,
+        }
+    }
+
     /// Loads the scene (or the example) and builds the tree.
     pub fn build(&self, matches: &ArgMatches) -> Result<BuiltScene, Error> {
         self.build_timed(matches).map(|(built, _, _)| built)
@@ -96,10 +109,7 @@ impl SceneArgs {
             super::progress::phase("loading the scene", || load_scene(&files))?
         };
         let loaded = start.elapsed().as_secs_f64();
-        let options = BuildOptions {
-            split_axis: self.split,
-            leaf_size: self.leaf_size,
-        };
+        let options = self.build_options();
         let built =
             super::progress::phase("building the tree", || BuiltScene::new(scene, &options))?;
         Ok((built, loaded, start.elapsed().as_secs_f64() - loaded))
