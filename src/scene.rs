@@ -200,6 +200,11 @@ impl Scene {
             .map_or(DVec3::ZERO, |(lo, hi)| lo + (hi - lo) * 0.5)
     }
 
+    /// Number of vertices over all objects.
+    pub fn vertex_count(&self) -> usize {
+        self.positions.len()
+    }
+
     /// The world position of scene vertex `index`.
     pub fn position(&self, index: usize) -> DVec3 {
         self.positions[index]

@@ -14,10 +14,7 @@
 //! subtree (so parallel tasks can write straight into their own part of the node array), then
 //! the write. Neither depends on the thread count, so the output is identical on any.
 
-use super::{
-    BuildOptions, Bvh, check_node_count, inner_node, leaf_node, link_parents, local_triangle,
-    traceable_triangle,
-};
+use super::{BuildOptions, Bvh, check_node_count, inner_node, leaf_node, link_parents};
 use crate::error::{Error, Result};
 use crate::layout::{GpuNode, GpuTriangle};
 use crate::scene::{Object, Scene};
@@ -177,6 +174,9 @@ struct Cursor<'a> {
 struct Grid<'a> {
     scene: &'a Scene,
     origin: DVec3,
+    /// Every scene vertex as an f32 offset from `origin`, converted once (each grid vertex is
+    /// shared by up to six triangles).
+    local_positions: Vec<Vec3>,
     first_triangle: u32,
     cell_rows: u32,
     cell_cols: u32,
@@ -199,13 +199,24 @@ impl<'a> Grid<'a> {
             shape.columns.saturating_sub(1),
         );
         let origin = scene.origin();
+        let local_positions: Vec<Vec3> = (0..scene.vertex_count())
+            .into_par_iter()
+            .map(|i| (scene.position(i) - origin).as_vec3())
+            .collect();
         let first_triangle = object.first_triangle;
+        // The same test as `super::traceable_triangle`, on the shared converted vertices.
         let traceable: Vec<u8> = (0..cell_rows as usize * cell_cols as usize)
             .into_par_iter()
             .map(|k| {
                 let first = first_triangle as usize + 2 * k;
                 (0..2).fold(0u8, |bits, h| {
-                    let can_hit = traceable_triangle(scene, origin, first + h).is_some();
+                    let index = first + h;
+                    let [a, b, c] = scene
+                        .triangle_vertices(index)
+                        .map(|v| local_positions[v as usize]);
+                    let f32_area_zero =
+                        (b - a).as_dvec3().cross((c - a).as_dvec3()) == DVec3::ZERO;
+                    let can_hit = !f32_area_zero && !scene.is_degenerate(index);
                     bits | (u8::from(can_hit) << h)
                 })
             })
@@ -225,6 +236,7 @@ impl<'a> Grid<'a> {
         Self {
             scene,
             origin,
+            local_positions,
             first_triangle,
             cell_rows,
             cell_cols,
@@ -434,7 +446,7 @@ impl<'a> Grid<'a> {
             let mut count = 0;
             let (mut min, mut max) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
             for scene_index in self.traceable_in(cells) {
-                let (lo, hi) = cursor.push_triangle(self.scene, self.origin, scene_index);
+                let (lo, hi) = cursor.push_triangle(self.local_triangle(scene_index), scene_index);
                 (min, max) = (min.min(lo), max.max(hi));
                 count += 1;
             }
@@ -447,9 +459,9 @@ impl<'a> Grid<'a> {
                 let [a, b]: [usize; 2] = self.traceable_in(cells).collect::<Vec<_>>()[..]
                     .try_into()
                     .expect("a cell with more triangles than a leaf holds two");
-                let left = cursor.push_single_leaf(self.scene, self.origin, a);
+                let left = cursor.push_single_leaf(self.local_triangle(a), a);
                 let right_index = cursor.node_index();
-                let right = cursor.push_single_leaf(self.scene, self.origin, b);
+                let right = cursor.push_single_leaf(self.local_triangle(b), b);
                 cursor.out.nodes[here].first = right_index;
                 (self.column_axis.0, left, right)
             }
@@ -478,6 +490,15 @@ impl<'a> Grid<'a> {
             node,
             triangles: first..first + self.count(cells),
         }
+    }
+
+    /// Scene triangle `index` as the kernel stores it (as [`super::local_triangle`] makes it).
+    fn local_triangle(&self, index: usize) -> GpuTriangle {
+        let [v0, v1, v2] = self
+            .scene
+            .triangle_vertices(index)
+            .map(|v| self.local_positions[v as usize].into());
+        GpuTriangle { v0, v1, v2 }
     }
 
     /// Scene indices of the traceable triangles in `cells`, row by row.
@@ -509,9 +530,8 @@ impl Cursor<'_> {
         self.next_node += 1;
     }
 
-    /// Writes scene triangle `index` at the cursor; returns its f32 box.
-    fn push_triangle(&mut self, scene: &Scene, origin: DVec3, index: usize) -> (Vec3, Vec3) {
-        let triangle = local_triangle(scene, origin, index);
+    /// Writes `triangle` (scene triangle `index`) at the cursor; returns its f32 box.
+    fn push_triangle(&mut self, triangle: GpuTriangle, index: usize) -> (Vec3, Vec3) {
         self.out.triangles[self.next_triangle] = triangle;
         self.out.ids[self.next_triangle] = index as u32;
         self.next_triangle += 1;
@@ -519,10 +539,10 @@ impl Cursor<'_> {
         (a.min(b).min(c), a.max(b).max(c))
     }
 
-    /// Writes a leaf holding only scene triangle `index`; returns its box.
-    fn push_single_leaf(&mut self, scene: &Scene, origin: DVec3, index: usize) -> (Vec3, Vec3) {
+    /// Writes a leaf holding only `triangle` (scene triangle `index`); returns its box.
+    fn push_single_leaf(&mut self, triangle: GpuTriangle, index: usize) -> (Vec3, Vec3) {
         let first = self.triangle_index();
-        let (min, max) = self.push_triangle(scene, origin, index);
+        let (min, max) = self.push_triangle(triangle, index);
         self.push_node(leaf_node(min, max, 1, first));
         (min, max)
     }
