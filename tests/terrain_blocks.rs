@@ -189,12 +189,12 @@ fn gpu_cpu_and_oracle_agree_on_grid_trees() {
     }
     let dem = Arc::new(BuiltScene::new(jacksboro(), &BuildOptions::default()).unwrap());
     assert!(!dem.bvh.blocks.is_empty(), "the DEM is built over blocks");
-    let rays = mixed_rays(&dem.scene, 3000, 9);
+    let rays = mixed_rays(&dem.scene, 1000, 9);
     let hits = assert_equivalent("Jacksboro DEM, blocks", dem, &rays);
     let camera_hits = rays
         .iter()
         .zip(&hits)
         .filter(|((kind, _), h)| *kind == RayKind::Camera && h.hit)
         .count();
-    assert!(camera_hits > 100, "{camera_hits} camera rays hit the DEM");
+    assert!(camera_hits > 30, "{camera_hits} camera rays hit the DEM");
 }
