@@ -33,8 +33,8 @@ pub fn trace_batch(
     settings: &TraceSettings<'_>,
 ) -> (Vec<GpuHit>, Vec<GpuHitEntry>) {
     let buffers = traverse::Buffers {
-        nodes: &bvh.nodes,
-        triangles: &bvh.triangles,
+        nodes: bvh.nodes.as_slice(),
+        triangles: bvh.triangles.as_slice(),
         triangle_masks: settings.triangle_masks,
         iteration_cap: bvh.iteration_cap(),
         max_hits: settings.max_hits,

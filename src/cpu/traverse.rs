@@ -53,13 +53,46 @@ fn facing_allowed(det: f32, cull: u32) -> bool {
     true
 }
 
+/// Where the walk reads nodes: the flat array the kernel binds, or another encoding of the same
+/// tree (the layout experiments in `benches/layouts.rs` decode quantised boxes here).
+pub trait NodeSource: Sync {
+    /// Number of nodes.
+    fn node_count(&self) -> usize;
+    /// Node `index`, decoded to the kernel's layout.
+    fn node(&self, index: u32) -> GpuNode;
+}
+
+/// Where the walk reads triangles: the leaf-order array the kernel binds, or another encoding.
+pub trait TriangleSource: Sync {
+    /// Leaf-order triangle `index`.
+    fn triangle(&self, index: u32) -> GpuTriangle;
+}
+
+impl NodeSource for [GpuNode] {
+    fn node_count(&self) -> usize {
+        self.len()
+    }
+
+    #[inline(always)]
+    fn node(&self, index: u32) -> GpuNode {
+        self[index as usize]
+    }
+}
+
+impl TriangleSource for [GpuTriangle] {
+    #[inline(always)]
+    fn triangle(&self, index: u32) -> GpuTriangle {
+        self[index as usize]
+    }
+}
+
 /// The tree and per-dispatch settings, as the kernel's bindings hold them.
-#[derive(Clone, Copy, Debug)]
-pub struct Buffers<'a> {
+#[derive(Debug)]
+pub struct Buffers<'a, N: ?Sized = [GpuNode], T: ?Sized = [GpuTriangle]> {
     /// Nodes, depth-first, root at 0.
-    pub nodes: &'a [GpuNode],
+    pub nodes: &'a N,
     /// Triangles in leaf order.
-    pub triangles: &'a [GpuTriangle],
+    pub triangles: &'a T,
     /// Layer mask of each leaf-order triangle (ignored when empty).
     pub triangle_masks: &'a [u32],
     /// Iterations after which the walk gives up with `CAP_REACHED`.
@@ -70,13 +103,25 @@ pub struct Buffers<'a> {
     pub watertight: bool,
 }
 
+impl<N: ?Sized, T: ?Sized> Clone for Buffers<'_, N, T> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+
+impl<N: ?Sized, T: ?Sized> Copy for Buffers<'_, N, T> {}
+
 /// Traces `ray`: the same answer the GPU kernel computes. `hit_list` (length `max_hits`) receives
 /// the all-hits list in `MODE_ALL`.
 #[allow(
     clippy::neg_cmp_op_on_partial_ord,
     reason = "as in the WGSL: `!(tmin <= tmax)` also rejects NaN"
 )]
-pub fn trace(buffers: Buffers<'_>, ray: &GpuRay, hit_list: &mut [GpuHitEntry]) -> GpuHit {
+pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
+    buffers: Buffers<'_, N, T>,
+    ray: &GpuRay,
+    hit_list: &mut [GpuHitEntry],
+) -> GpuHit {
     let nodes = buffers.nodes;
     let triangles = buffers.triangles;
     let origin = Vec3::from(ray.origin);
@@ -86,7 +131,7 @@ pub fn trace(buffers: Buffers<'_>, ray: &GpuRay, hit_list: &mut [GpuHitEntry]) -
         prim: NO_HIT,
         ..GpuHit::default()
     };
-    if nodes.is_empty() || !(ray.tmin <= ray.tmax) {
+    if nodes.node_count() == 0 || !(ray.tmin <= ray.tmax) {
         return best;
     }
     let mode = ray.flags & 3;
@@ -106,13 +151,13 @@ pub fn trace(buffers: Buffers<'_>, ray: &GpuRay, hit_list: &mut [GpuHitEntry]) -
             break;
         }
         iterations += 1;
-        let node = &nodes[current as usize];
+        let node = &nodes.node(current);
         if state == FROM_CHILD {
             if current == 0 {
                 break;
             }
             let parent = parent_of(node);
-            let parent_node = &nodes[parent as usize];
+            let parent_node = &nodes.node(parent);
             if current == near_child(parent, parent_node, dir) {
                 current = sibling(current, parent, parent_node);
                 state = FROM_SIBLING;
@@ -139,9 +184,9 @@ pub fn trace(buffers: Buffers<'_>, ray: &GpuRay, hit_list: &mut [GpuHitEntry]) -
                     }
                     best.triangle_tests += 1;
                     let h: TriangleHit<f32> = if buffers.watertight {
-                        ray_triangle_watertight(&triangles[prim as usize], origin, &shear)
+                        ray_triangle_watertight(&triangles.triangle(prim), origin, &shear)
                     } else {
-                        ray_triangle(&triangles[prim as usize], origin, dir)
+                        ray_triangle(&triangles.triangle(prim), origin, dir)
                     };
                     if !h.hit
                         || !facing_allowed(h.det, cull)
@@ -186,7 +231,7 @@ pub fn trace(buffers: Buffers<'_>, ray: &GpuRay, hit_list: &mut [GpuHitEntry]) -
             break;
         } else if state == FROM_PARENT {
             let parent = parent_of(node);
-            current = sibling(current, parent, &nodes[parent as usize]);
+            current = sibling(current, parent, &nodes.node(parent));
             state = FROM_SIBLING;
         } else {
             current = parent_of(node);
