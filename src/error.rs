@@ -46,6 +46,19 @@ pub enum Error {
         /// The adapter's limit.
         limit: u64,
     },
+    /// The requested kernel workgroup size is zero or beyond what the adapter allows.
+    #[error(
+        "a workgroup of {requested} invocations is not possible on this adapter: {limit_name} is {limit}"
+    )]
+    WorkgroupSize {
+        /// The size asked for.
+        requested: u32,
+        /// The adapter limit it breaks (`max_compute_invocations_per_workgroup` or
+        /// `max_compute_workgroup_size_x`), or "the smallest workgroup" for zero.
+        limit_name: &'static str,
+        /// That limit's value.
+        limit: u32,
+    },
     /// wgpu reported a validation, out-of-memory or internal error.
     #[error("GPU error: {0}")]
     Gpu(String),

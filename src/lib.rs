@@ -39,6 +39,7 @@ pub mod picker;
 pub mod probe;
 pub mod query;
 pub mod ray;
+pub mod ray_order;
 pub mod render;
 pub mod scene;
 pub mod select;

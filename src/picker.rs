@@ -8,6 +8,7 @@ use crate::frame::{local_rays_for, resolve};
 use crate::layout::{GpuHit, GpuHitEntry};
 use crate::query::{Answers, Intersector, Mode, Query};
 use crate::ray::{Hit, Ray};
+use crate::ray_order::{DEFAULT_REORDER_FROM, trace_in_order};
 use crate::scene::Scene;
 use rayon::prelude::*;
 
@@ -145,12 +146,22 @@ pub trait Picker {
 #[derive(Clone, Debug)]
 pub struct CpuPicker {
     built: std::sync::Arc<BuiltScene>,
+    reorder_from: usize,
 }
 
 impl CpuPicker {
     /// A CPU picker over `built`.
     pub fn new(built: std::sync::Arc<BuiltScene>) -> Self {
-        Self { built }
+        Self {
+            built,
+            reorder_from: DEFAULT_REORDER_FROM,
+        }
+    }
+
+    /// Sets the batch size from which rays are traced in [`crate::ray_order::RayOrder`]
+    /// (`usize::MAX`: never). Answers are the same either way.
+    pub fn set_reorder_from(&mut self, rays: usize) {
+        self.reorder_from = rays;
     }
 }
 
@@ -158,7 +169,11 @@ impl Picker for CpuPicker {
     fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers> {
         query.validate()?;
         let local = local_rays_for(self.built.bvh.origin, rays, query);
-        let (found, lists) = trace_batch(&self.built.bvh, &local, &self.built.settings(query));
+        let settings = self.built.settings(query);
+        let reorder = local.len() >= self.reorder_from;
+        let (found, lists) = trace_in_order(&local, settings.max_hits, reorder, |rays| {
+            Ok::<_, crate::error::Error>(trace_batch(&self.built.bvh, rays, &settings))
+        })?;
         self.built.answers(rays, query, &found, &lists)
     }
 

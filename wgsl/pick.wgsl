@@ -370,7 +370,11 @@ fn insert_hit(best: ptr<function, GpuHit>, base: u32, entry: GpuHitEntry, tmax: 
     return tmax;
 }
 
-@compute @workgroup_size(64)
+// Invocations per workgroup, set by the host through the pipeline's override constants
+// (src/gpu/picker.rs, `GpuPicker::with_workgroup_size`); the dispatch's row pitch follows it.
+override WORKGROUP_SIZE: u32 = 64u;
+
+@compute @workgroup_size(WORKGROUP_SIZE)
 fn pick(@builtin(global_invocation_id) gid: vec3<u32>) {
     let index = gid.y * params.row_pitch + gid.x;
     if index >= params.ray_count {

@@ -214,8 +214,7 @@ impl<'a> Grid<'a> {
                     let [a, b, c] = scene
                         .triangle_vertices(index)
                         .map(|v| local_positions[v as usize]);
-                    let f32_area_zero =
-                        (b - a).as_dvec3().cross((c - a).as_dvec3()) == DVec3::ZERO;
+                    let f32_area_zero = (b - a).as_dvec3().cross((c - a).as_dvec3()) == DVec3::ZERO;
                     let can_hit = !f32_area_zero && !scene.is_degenerate(index);
                     bits | (u8::from(can_hit) << h)
                 })

@@ -1,5 +1,6 @@
 //! The GPU picker: owns the compute pipeline and the resident scene buffers, and runs batches of
-//! any size in chunks that respect the adapter's limits.
+//! any size in chunks that respect the adapter's limits, with the kernel's workgroup size set
+//! through a pipeline-overridable constant.
 
 use super::context::GpuContext;
 use crate::error::{Error, Result};
@@ -8,14 +9,21 @@ use crate::layout::{GpuHit, GpuHitEntry, GpuNode, GpuParams, GpuRay, GpuTriangle
 use crate::picker::{BuiltScene, Picker};
 use crate::query::{Answers, Intersector, Query};
 use crate::ray::Ray;
+use crate::ray_order::{DEFAULT_REORDER_FROM, trace_in_order};
 use std::mem::size_of;
 use std::sync::Arc;
 use wgpu::util::DeviceExt;
 
 /// The kernel source, compiled into the binary.
 pub const PICK_WGSL: &str = include_str!("../../wgsl/pick.wgsl");
-/// Invocations per workgroup; must match `@workgroup_size` in `wgsl/pick.wgsl`.
+/// Default invocations per workgroup (the default of `override WORKGROUP_SIZE` in
+/// `wgsl/pick.wgsl`). Chosen by the sweep in BENCHMARKS.md ("Kernel workgroup size").
 pub const WORKGROUP_SIZE: u32 = 64;
+/// The workgroup sizes measured in BENCHMARKS.md and checked against the CPU path by the tests.
+/// Any other size within the adapter's limits works too.
+pub const SWEPT_WORKGROUP_SIZES: [u32; 4] = [32, 64, 128, 256];
+/// Name of the kernel's pipeline-overridable workgroup size constant.
+const WORKGROUP_SIZE_CONSTANT: &str = "WORKGROUP_SIZE";
 /// Default most rays per dispatch, so that no single dispatch runs long.
 pub const DEFAULT_CHUNK_RAYS: u32 = 1 << 18;
 
@@ -32,6 +40,8 @@ pub struct GpuPicker {
     triangle_masks: wgpu::Buffer,
     batch: Option<BatchBuffers>,
     chunk_rays: u32,
+    workgroup_size: u32,
+    reorder_from: usize,
 }
 
 /// Per-chunk buffers, sized for `capacity` rays with `list_length` all-hits entries each.
@@ -46,11 +56,23 @@ struct BatchBuffers {
 }
 
 impl GpuPicker {
-    /// Uploads the scene and compiles the kernel. Fails with [`Error::TooLargeForGpu`] when the
-    /// tree does not fit one storage binding, and with [`Error::Gpu`] if wgpu rejects anything.
+    /// Uploads the scene and compiles the kernel with the default [`WORKGROUP_SIZE`]. Fails with
+    /// [`Error::TooLargeForGpu`] when the tree does not fit one storage binding, and with
+    /// [`Error::Gpu`] if wgpu rejects anything.
     pub fn new(context: &GpuContext, built: Arc<BuiltScene>) -> Result<Self> {
+        Self::with_workgroup_size(context, built, WORKGROUP_SIZE)
+    }
+
+    /// [`GpuPicker::new`] with `workgroup_size` invocations per workgroup; fails with
+    /// [`Error::WorkgroupSize`] when the adapter cannot run workgroups that large.
+    pub fn with_workgroup_size(
+        context: &GpuContext,
+        built: Arc<BuiltScene>,
+        workgroup_size: u32,
+    ) -> Result<Self> {
         let device = &context.device;
         let limits = device.limits();
+        check_workgroup_size(&limits, workgroup_size)?;
         let max_binding = limits.max_storage_buffer_binding_size;
         for (what, bytes) in [
             (
@@ -117,7 +139,10 @@ impl GpuPicker {
             layout: Some(&pipeline_layout),
             module: &module,
             entry_point: Some("pick"),
-            compilation_options: Default::default(),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: &[(WORKGROUP_SIZE_CONSTANT, f64::from(workgroup_size))],
+                ..Default::default()
+            },
             cache: None,
         });
         // Empty scenes still bind one (unused) element: bindings may not be empty.
@@ -153,7 +178,20 @@ impl GpuPicker {
             triangle_masks,
             batch: None,
             chunk_rays: DEFAULT_CHUNK_RAYS.min(by_binding),
+            workgroup_size,
+            reorder_from: DEFAULT_REORDER_FROM,
         })
+    }
+
+    /// Invocations per workgroup of this picker's kernel.
+    pub fn workgroup_size(&self) -> u32 {
+        self.workgroup_size
+    }
+
+    /// Sets the batch size from which [`Picker::query`] traces rays in
+    /// [`crate::ray_order::RayOrder`] (`usize::MAX`: never). Answers are the same either way.
+    pub fn set_reorder_from(&mut self, rays: usize) {
+        self.reorder_from = rays;
     }
 
     /// Sets the most rays per dispatch (at least 1; capped by the storage binding limit).
@@ -218,7 +256,7 @@ impl GpuPicker {
             .batch
             .as_ref()
             .expect("ensure_capacity allocates the batch buffers");
-        let groups = count.div_ceil(WORKGROUP_SIZE);
+        let groups = count.div_ceil(self.workgroup_size);
         let max_groups = device.limits().max_compute_workgroups_per_dimension.max(1);
         let groups_x = groups.min(max_groups);
         let groups_y = groups.div_ceil(groups_x);
@@ -226,7 +264,7 @@ impl GpuPicker {
             ray_count: count,
             node_count: self.built.bvh.nodes.len() as u32,
             iteration_cap: self.built.bvh.iteration_cap(),
-            row_pitch: groups_x * WORKGROUP_SIZE,
+            row_pitch: groups_x * self.workgroup_size,
             max_hits,
             use_masks: u32::from(!self.built.triangle_masks.is_empty()),
             watertight: u32::from(watertight),
@@ -389,13 +427,46 @@ impl Picker for GpuPicker {
         query.validate()?;
         let local = local_rays_for(self.built.bvh.origin, rays, query);
         let watertight = query.intersector == Intersector::Watertight;
-        let (found, lists) = self.trace_batch(&local, query.list_length(), watertight)?;
+        let max_hits = query.list_length();
+        let reorder = local.len() >= self.reorder_from;
+        let (found, lists) = trace_in_order(&local, max_hits, reorder, |rays| {
+            self.trace_batch(rays, max_hits, watertight)
+        })?;
         let built = self.built.clone();
         built.answers(rays, query, &found, &lists)
     }
 
     fn describe(&self) -> String {
         format!("gpu {}", self.context.describe())
+    }
+}
+
+/// Checks that the adapter can run workgroups of `size` invocations (the kernel's workgroups are
+/// `size` × 1 × 1). wgpu checks the shader's declared size, not the value an override gives it,
+/// so this is the only check the chosen size gets before the driver sees it.
+pub fn check_workgroup_size(limits: &wgpu::Limits, size: u32) -> Result<()> {
+    let broken = [
+        ("the smallest workgroup", 1, size >= 1),
+        (
+            "max_compute_invocations_per_workgroup",
+            limits.max_compute_invocations_per_workgroup,
+            size <= limits.max_compute_invocations_per_workgroup,
+        ),
+        (
+            "max_compute_workgroup_size_x",
+            limits.max_compute_workgroup_size_x,
+            size <= limits.max_compute_workgroup_size_x,
+        ),
+    ]
+    .into_iter()
+    .find(|&(_, _, ok)| !ok);
+    match broken {
+        Some((limit_name, limit, _)) => Err(Error::WorkgroupSize {
+            requested: size,
+            limit_name,
+            limit,
+        }),
+        None => Ok(()),
     }
 }
 
