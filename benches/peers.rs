@@ -1,93 +1,221 @@
-//! raypick's CPU traversal against other Rust BVH crates, on the same triangles and rays:
+//! raypick against its peers, in one command, on the same scenes and rays in the same run:
 //!
-//! - `raypick`: `cpu::trace_all` (median-cut binary BVH, ordered stackless walk, Möller–Trumbore);
-//! - `obvhs` 0.4: CWBVH from `fast_build`, `ray_traverse` per ray, as `benches/pick.rs` sets it up;
-//! - `bvh` 0.13 (svenstaro): `Bvh::build_par` over one shape per triangle, closest hit by walking
-//!   `nearest_traverse_iterator` (leaves in order of their box's entry distance) and testing each
-//!   candidate with a two-sided Möller–Trumbore, stopping once a box starts beyond the best hit;
-//! - `parry3d` 0.31: `TriMesh::new` and `RayCast::cast_local_ray` with `solid = false`.
+//! - `raypick-cpu`: `cpu::trace_all` at 1 and 2 threads (dedicated rayon pools);
+//! - `raypick-gpu`: the WGSL kernel through `GpuPicker::trace` (lavapipe on a machine without a
+//!   GPU; skipped, saying why, without an adapter);
+//! - `obvhs` 0.4 (CWBVH, `fast_build`), `bvh` 0.13 (svenstaro, `build_par`) and `parry3d` 0.31
+//!   (`TriMesh`), at 2 threads;
+//! - `embree`: Embree 3's `rtcIntersect1` through our own FFI (`benches/common/embree_peer.rs`)
+//!   against the system's `libembree3`, at 1 and 2 threads, with the off-by-default `embree`
+//!   feature (`apt-get install libembree-dev`); without it the bench says Embree was skipped.
 //!
-//! Every peer runs in parallel over rays with rayon (`with_min_len(256)`), in the same
-//! scene-local f32 frame as raypick's tree. Scenes: the Stanford bunny, the Jacksboro fault DEM,
-//! a 1001 × 1001-sample terrain (2,000,000 triangles) and a soup of 200,000 random triangles.
-//! Rays: 65,536 camera rays and 65,536 random rays per scene (`synthetic::rays`).
+//! Scenes (`peers/scenes.rs`): bunny, 20k terrain, dragon, Jacksboro DEM, 200k terrain, 200k
+//! soup, 2M terrain. Ray sets from `synthetic::rays`: 4,096 camera rays, 1M camera rays and 1M
+//! random (incoherent) rays. Every peer works in raypick's scene-local f32 frame.
 //!
-//! Before timing, each scene prints every peer's build time and how often each peer agrees with
-//! raypick on hit/miss and on t, so a mis-set-up peer cannot pass unnoticed.
+//! Per scene and engine, in this order: the build and the end-to-end pick (build + the 4,096
+//! camera rays), medians of 3 runs (5 below 100k triangles); the agreement of its answers with
+//! raypick's CPU traversal on each ray set (hit/miss and t within 1e-4), printed before that set
+//! counts; throughput on the 4,096 camera rays with criterion (group `peers-<scene>`, bench
+//! `camera-4096-<engine>-<threads>t`) and on the 1M sets as medians of 3 runs of our own
+//! (criterion's 10 samples would take too long there); single-ray latency (p50/p99 of 1,000
+//! `intersect` calls, scene resident). Then the scene's table, and at the end every table again
+//! and `peers-summary.csv` in the target directory (`peers/report.rs`).
 //!
-//! Run with `cargo bench --bench peers` (one scene: `cargo bench --bench peers -- bunny`).
+//! Run everything with `cargo bench --bench peers --features embree` (about 30 minutes on 2
+//! cores), or the scenes whose names contain a word with e.g. `cargo bench --bench peers -- bunny`.
+//! Without `--bench` (as under `cargo test --benches`) it runs only the bunny, with 16,384 rays
+//! in the "1M" sets and one run each, and writes no summary.
 
-use bvh::aabb::{Aabb, Bounded};
-use bvh::bounding_hierarchy::{BHShape, BoundingHierarchy};
+#[path = "common/bvh_peer.rs"]
+mod bvh_peer;
+#[cfg(feature = "embree")]
+#[path = "common/embree_peer.rs"]
+mod embree_peer;
+#[allow(
+    dead_code,
+    reason = "obvhs_trace is for benches/pick.rs; the engines here go ray by ray through obvhs_intersect"
+)]
 #[path = "common/obvhs_peer.rs"]
 mod obvhs_peer;
+#[path = "common/parry_peer.rs"]
+mod parry_peer;
 
-use criterion::{
-    BenchmarkGroup, Criterion, SamplingMode, Throughput, criterion_group, criterion_main,
-    measurement::WallTime,
-};
+#[path = "peers/engines.rs"]
+mod engines;
+#[path = "peers/measure.rs"]
+mod measure;
+#[path = "peers/report.rs"]
+mod report;
+#[path = "peers/scenes.rs"]
+mod scenes;
+
+use criterion::{Criterion, SamplingMode, Throughput};
+use engines::{Engine, Inputs, Kind};
 use glam::Vec3A;
-use nalgebra::{Point3, Vector3};
+use measure::{latency_us, median, median_of_runs_ms, report_agreement};
 use obvhs::triangle::Triangle;
-use obvhs_peer::{obvhs_build, obvhs_trace};
-use parry3d::query::RayCast;
-use rayon::prelude::*;
 use raypick::frame::local_rays;
-use raypick::io::obj::load_obj;
-use raypick::io::scene_files::{SceneFile, load_scene};
-use raypick::layout::{GpuHit, GpuRay, NO_HIT};
-use raypick::synthetic::{RayKind, hills, rays, terrain, triangle_soup};
-use raypick::{BuildOptions, BuiltScene, Scene, cpu};
+use raypick::layout::GpuRay;
+use raypick::synthetic::{RayKind, rays};
+use raypick::{BuildOptions, BuiltScene, GpuContext, Ray, Scene};
+use report::{Cost, RAY_SETS, Rate, SceneReport};
+use scenes::SCENES;
+use std::collections::HashMap;
 use std::hint::black_box;
-use std::path::Path;
-use std::time::{Duration, Instant};
+use std::path::PathBuf;
+use std::time::{Duration, Instant, SystemTime};
 
-/// Rays per batch.
-const RAY_COUNT: usize = 65_536;
-/// Seed for the ray sets and the soup.
+/// Seed of the ray sets.
 const SEED: u64 = 1;
-/// Rays per rayon task, for every peer.
-const MIN_LEN: usize = 256;
+/// Rays in the small camera batch (the end-to-end figure's batch).
+const CAMERA_BATCH: usize = 4096;
+/// Rays in the large sets, and what they shrink to without `--bench`.
+const LARGE_SET: usize = 1_000_000;
+const LARGE_SET_TEST: usize = 16_384;
+/// The CPU thread counts; the first is the one every ratio and the agreement reference use.
+const THREADS: [usize; 2] = [2, 1];
+/// Single-ray calls timed per engine for the latency percentiles.
+const LATENCY_PICKS: usize = 1000;
+/// Below this many triangles, builds are repeated 5 times instead of 3.
+const SMALL_SCENE: usize = 100_000;
 
-/// Every group takes 10 flat samples over a short window: the routines run for milliseconds to
-/// a few hundred milliseconds, and the whole bench must stay well under 10 minutes on 2 cores.
-fn configure(group: &mut BenchmarkGroup<'_, WallTime>) {
-    group
-        .sample_size(10)
-        .sampling_mode(SamplingMode::Flat)
-        .warm_up_time(Duration::from_millis(500))
-        .measurement_time(Duration::from_secs(2));
+/// How much this run measures.
+struct Plan {
+    /// `--bench` was given: full sizes, several runs, a summary.
+    benchmark: bool,
+    /// Only scenes whose name contains this.
+    filter: Option<String>,
+    large_set: usize,
+    runs: usize,
+    started: SystemTime,
 }
 
-fn data(name: &str) -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data")
-        .join(name)
+/// One ray set: world rays (for raypick's end-to-end pick) and the same rays scene-local.
+struct RaySet {
+    name: &'static str,
+    world: Vec<Ray>,
+    local: Vec<GpuRay>,
 }
 
-fn bunny() -> Scene {
-    let mesh = load_obj(&data("bunny.obj")).expect("tests/data/bunny.obj loads");
-    Scene::from_meshes([("bunny".to_string(), mesh)]).expect("the bunny is well formed")
+/// What every scene shares: the thread pools, the GPU and the Embree device.
+struct Shared {
+    pools: Vec<(usize, rayon::ThreadPool)>,
+    gpu: Option<GpuContext>,
+    /// `threads` of the GPU rows (see `report.rs`).
+    gpu_threads: usize,
+    #[cfg(feature = "embree")]
+    embree: embree_peer::EmbreeDevice,
 }
 
-fn dem() -> Scene {
-    load_scene(&[SceneFile {
-        file: data("jacksboro_fault_dem_utm.asc"),
-        mask: None,
-    }])
-    .expect("the Jacksboro DEM loads")
+impl Shared {
+    /// The thread counts `kind` is timed at.
+    fn threads(&self, kind: Kind) -> Vec<usize> {
+        match kind {
+            Kind::RaypickCpu => THREADS.to_vec(),
+            #[cfg(feature = "embree")]
+            Kind::Embree => THREADS.to_vec(),
+            Kind::RaypickGpu => vec![self.gpu_threads],
+            _ => vec![THREADS[0]],
+        }
+    }
+
+    /// The pool a row with `threads` runs in (the GPU's rows run in the first pool).
+    fn pool(&self, threads: usize) -> &rayon::ThreadPool {
+        self.pools
+            .iter()
+            .find(|(t, _)| *t == threads)
+            .map_or(&self.pools[0].1, |(_, pool)| pool)
+    }
 }
 
-/// 1001 × 1001 samples, 1 m apart: 2,000,000 triangles.
-fn terrain_2m() -> Scene {
-    let mesh = terrain(1001, 1001, 0.0, 1000.0, 1.0, hills);
-    Scene::from_meshes([("terrain".to_string(), mesh)]).expect("the terrain is well formed")
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let benchmark = args.iter().any(|a| a == "--bench");
+    let plan = Plan {
+        benchmark,
+        filter: args.iter().find(|a| !a.starts_with('-')).cloned(),
+        large_set: if benchmark { LARGE_SET } else { LARGE_SET_TEST },
+        runs: if benchmark { 3 } else { 1 },
+        started: SystemTime::now(),
+    };
+    let mut criterion = Criterion::default().configure_from_args();
+    let shared = open_shared();
+    let start = Instant::now();
+
+    let mut reports = Vec::new();
+    for spec in &SCENES {
+        let selected = match &plan.filter {
+            Some(word) => spec.name.contains(word.as_str()),
+            None => plan.benchmark || spec.name == "bunny",
+        };
+        if !selected {
+            continue;
+        }
+        let Some(scene) = (spec.make)() else { continue };
+        let report = bench_scene(&mut criterion, &plan, &shared, spec.name, scene);
+        report::print_scene(&report);
+        reports.push(report);
+    }
+    criterion.final_summary();
+
+    println!();
+    println!(
+        "== all scenes ({:.1} min in all)",
+        start.elapsed().as_secs_f64() / 60.0
+    );
+    for report in &reports {
+        report::print_scene(report);
+    }
+    if plan.benchmark {
+        let path = report::summary_path();
+        match report::write_summary(&path, &reports) {
+            Ok(()) => println!("summary: {}", path.display()),
+            Err(e) => eprintln!("summary: cannot write {}: {e}", path.display()),
+        }
+    }
 }
 
-/// 200,000 random triangles in a 100-unit cube, edges up to 10 units.
-fn soup() -> Scene {
-    let mesh = triangle_soup(200_000, 100.0, SEED);
-    Scene::from_meshes([("soup".to_string(), mesh)]).expect("the soup is well formed")
+fn open_shared() -> Shared {
+    let pools = THREADS
+        .iter()
+        .map(|&threads| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("rayon starts its threads");
+            (threads, pool)
+        })
+        .collect();
+    let gpu = match GpuContext::new() {
+        Ok(context) => {
+            eprintln!("raypick-gpu: adapter {}", context.describe());
+            Some(context)
+        }
+        Err(e) => {
+            eprintln!("raypick-gpu: skipped, no GPU adapter: {e}");
+            None
+        }
+    };
+    let gpu_threads = match &gpu {
+        Some(context) if context.is_software() => std::env::var("LP_NUM_THREADS")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
+        _ => 0,
+    };
+    #[cfg(not(feature = "embree"))]
+    eprintln!(
+        "embree: skipped, the `embree` cargo feature is off \
+         (cargo bench --bench peers --features embree, with libembree-dev installed)"
+    );
+    Shared {
+        pools,
+        gpu,
+        gpu_threads,
+        #[cfg(feature = "embree")]
+        embree: embree_peer::EmbreeDevice::open(),
+    }
 }
 
 /// The scene's triangles in the scene-local f32 frame of raypick's tree.
@@ -103,286 +231,230 @@ fn local_triangles(built: &BuiltScene) -> Vec<[Vec3A; 3]> {
         .collect()
 }
 
-// ---------------------------------------------------------------------------------------------
-// bvh (svenstaro)
-
-/// One triangle as a `bvh` shape, with its box precomputed.
-struct BvhTriangle {
-    corners: [Vec3A; 3],
-    aabb: Aabb<f32, 3>,
-    node_index: usize,
-}
-
-impl Bounded<f32, 3> for BvhTriangle {
-    fn aabb(&self) -> Aabb<f32, 3> {
-        self.aabb
-    }
-}
-
-impl BHShape<f32, 3> for BvhTriangle {
-    fn set_bh_node_index(&mut self, index: usize) {
-        self.node_index = index;
-    }
-    fn bh_node_index(&self) -> usize {
-        self.node_index
-    }
-}
-
-fn point(p: Vec3A) -> Point3<f32> {
-    Point3::new(p.x, p.y, p.z)
-}
-
-fn bvh_shapes(triangles: &[[Vec3A; 3]]) -> Vec<BvhTriangle> {
-    triangles
-        .iter()
-        .map(|&corners| {
-            let lo = corners[0].min(corners[1]).min(corners[2]);
-            let hi = corners[0].max(corners[1]).max(corners[2]);
-            BvhTriangle {
-                corners,
-                aabb: Aabb::with_bounds(point(lo), point(hi)),
-                node_index: 0,
+fn ray_sets(built: &BuiltScene, large: usize) -> Vec<RaySet> {
+    let specs = [
+        (RAY_SETS[0], RayKind::Camera, CAMERA_BATCH),
+        (RAY_SETS[1], RayKind::Camera, large),
+        (RAY_SETS[2], RayKind::Random, large),
+    ];
+    specs
+        .into_iter()
+        .map(|(name, kind, count)| {
+            let world = rays(&built.scene, kind, count, SEED);
+            let local = local_rays(built.bvh.origin, &world);
+            let tmin_max = local.iter().map(|r| r.tmin).fold(0.0f32, f32::max);
+            if tmin_max > 0.0 {
+                eprintln!("{name} rays have tmin up to {tmin_max} (parry3d ignores tmin)");
             }
+            // Only the camera batch's world rays are used (raypick's end-to-end pick).
+            let world = if name == RAY_SETS[0] {
+                world
+            } else {
+                Vec::new()
+            };
+            RaySet { name, world, local }
         })
         .collect()
 }
 
-/// `bvh`'s builder with rayon (its `build_par`, the default features' parallel build).
-fn bvh_build(shapes: &mut [BvhTriangle]) -> bvh::bvh::Bvh<f32, 3> {
-    bvh::bvh::Bvh::build_par(shapes)
-}
-
-/// Two-sided Möller–Trumbore in the ray's own units: t in (tmin, tmax), like raypick's and
-/// obvhs's tests. (`bvh::ray::Ray::intersects_triangle` culls back faces, so it cannot answer
-/// closest-hit picks over both faces.)
-fn moller_trumbore(
-    origin: Vec3A,
-    dir: Vec3A,
-    [v0, v1, v2]: [Vec3A; 3],
-    tmin: f32,
-    tmax: f32,
-) -> Option<f32> {
-    let (e1, e2) = (v1 - v0, v2 - v0);
-    let p = dir.cross(e2);
-    let det = e1.dot(p);
-    if det == 0.0 {
-        return None;
-    }
-    let inv = 1.0 / det;
-    let s = origin - v0;
-    let u = s.dot(p) * inv;
-    if !(0.0..=1.0).contains(&u) {
-        return None;
-    }
-    let q = s.cross(e1);
-    let v = dir.dot(q) * inv;
-    if v < 0.0 || u + v > 1.0 {
-        return None;
-    }
-    let t = e2.dot(q) * inv;
-    (t > tmin && t < tmax).then_some(t)
-}
-
-/// Closest hit per ray: the leaves come nearest box first; each candidate triangle is tested,
-/// and the walk stops at the first leaf whose box starts beyond the best hit so far.
-fn bvh_trace(
-    bvh: &bvh::bvh::Bvh<f32, 3>,
-    shapes: &[BvhTriangle],
-    rays: &[GpuRay],
-) -> Vec<Option<f32>> {
-    rays.par_iter()
-        .with_min_len(MIN_LEN)
-        .map(|r| {
-            let (origin, dir) = (Vec3A::from(r.origin), Vec3A::from(r.dir));
-            // `bvh::ray::Ray` normalises its direction: its distances are t × |dir|.
-            let length = dir.length();
-            let ray = bvh::ray::Ray::new(point(origin), Vector3::new(dir.x, dir.y, dir.z));
-            let mut best = r.tmax;
-            let mut found = None;
-            for shape in bvh.nearest_traverse_iterator(&ray, shapes) {
-                match ray.intersection_slice_for_aabb(&shape.aabb) {
-                    Some((entry, _)) if entry / length > best => break,
-                    Some(_) => {}
-                    None => continue,
-                }
-                if let Some(t) = moller_trumbore(origin, dir, shape.corners, r.tmin, best) {
-                    best = t;
-                    found = Some(t);
-                }
-            }
-            found
-        })
-        .collect()
-}
-
-// ---------------------------------------------------------------------------------------------
-// parry3d
-
-fn parry_vector(p: Vec3A) -> parry3d::math::Vector {
-    parry3d::math::Vector::new(p.x, p.y, p.z)
-}
-
-/// parry3d's triangle mesh (it builds its own BVH), three vertices per triangle as given.
-fn parry_build(triangles: &[[Vec3A; 3]]) -> parry3d::shape::TriMesh {
-    let vertices = triangles.iter().flat_map(|t| t.map(parry_vector)).collect();
-    let indices = (0..triangles.len() as u32)
-        .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
-        .collect();
-    parry3d::shape::TriMesh::new(vertices, indices).expect("parry3d accepts the mesh")
-}
-
-/// Closest hit per ray over both faces (`solid = false`). parry3d's rays have no tmin; every
-/// benchmark ray starts at tmin = 0.
-fn parry_trace(mesh: &parry3d::shape::TriMesh, rays: &[GpuRay]) -> Vec<Option<f32>> {
-    rays.par_iter()
-        .with_min_len(MIN_LEN)
-        .map(|r| {
-            let ray = parry3d::query::Ray::new(
-                parry_vector(Vec3A::from(r.origin)),
-                parry_vector(Vec3A::from(r.dir)),
-            );
-            mesh.cast_local_ray(&ray, r.tmax.min(f32::MAX), false)
-        })
-        .collect()
-}
-
-// ---------------------------------------------------------------------------------------------
-
-fn ours(hits: &[GpuHit]) -> Vec<Option<f32>> {
-    hits.iter()
-        .map(|h| (h.prim != NO_HIT).then_some(h.t))
-        .collect()
-}
-
-/// Prints how often `theirs` agrees with raypick on hit/miss and on t (relative 1e-4).
-fn report_agreement(
-    scene: &str,
-    peer: &str,
-    kind: &str,
-    ours: &[Option<f32>],
-    theirs: &[Option<f32>],
-) {
-    let (mut hits, mut same_outcome, mut same_t) = (0, 0, 0);
-    for (a, b) in ours.iter().zip(theirs) {
-        hits += usize::from(a.is_some());
-        match (a, b) {
-            (None, None) => {
-                same_outcome += 1;
-                same_t += 1;
-            }
-            (Some(a), Some(b)) => {
-                same_outcome += 1;
-                if (a - b).abs() <= 1e-4 * a.abs().max(1.0) {
-                    same_t += 1;
-                }
-            }
-            _ => {}
-        }
-    }
-    eprintln!(
-        "{scene}: {peer} vs raypick, {kind} rays: raypick hits {hits}/{}; same hit/miss {same_outcome}, same t {same_t}",
-        ours.len()
-    );
-}
-
-fn timed<T>(f: impl FnOnce() -> T) -> (T, f64) {
-    let start = Instant::now();
-    let value = f();
-    (value, start.elapsed().as_secs_f64() * 1e3)
-}
-
-/// Builds every peer over `scene`, checks agreement, and times closest-hit traversal of the
-/// camera and random rays. The scene and the trees are dropped before the next scene.
-fn bench_scene(c: &mut Criterion, name: &str, scene: Scene) {
-    let (built, ours_ms) =
-        timed(|| BuiltScene::new(scene, &BuildOptions::default()).expect("the scene builds"));
-    let triangles = local_triangles(&built);
-    let obvhs_input: Vec<Triangle> = triangles
+/// Measures every engine on one scene; each engine's structures are dropped before the next.
+fn bench_scene(
+    criterion: &mut Criterion,
+    plan: &Plan,
+    shared: &Shared,
+    name: &'static str,
+    scene: Scene,
+) -> SceneReport {
+    let setup = BuiltScene::new(scene.clone(), &BuildOptions::default()).expect("the scene builds");
+    let triangles = local_triangles(&setup);
+    let obvhs_triangles: Vec<Triangle> = triangles
         .iter()
         .map(|&[v0, v1, v2]| Triangle { v0, v1, v2 })
         .collect();
-    let ((obvhs_bvh, obvhs_ordered), obvhs_ms) = timed(|| obvhs_build(&obvhs_input));
-    let mut shapes = bvh_shapes(&triangles);
-    let (bvh_tree, bvh_ms) = timed(|| bvh_build(&mut shapes));
-    let (parry_mesh, parry_ms) = timed(|| parry_build(&triangles));
-    eprintln!(
-        "{name}: {} triangles; build ms (one run): raypick {ours_ms:.1}, obvhs fast_build {obvhs_ms:.1}, \
-         bvh build_par {bvh_ms:.1}, parry3d TriMesh::new {parry_ms:.1}",
-        triangles.len()
-    );
-
-    let mut group = c.benchmark_group(format!("peers/{name}"));
-    configure(&mut group);
-    for (kind_name, kind) in [("camera", RayKind::Camera), ("random", RayKind::Random)] {
-        let world = rays(&built.scene, kind, RAY_COUNT, SEED);
-        let local = local_rays(built.bvh.origin, &world);
-        let obvhs_rays: Vec<obvhs::ray::Ray> = local
-            .iter()
-            .map(|r| {
-                obvhs::ray::Ray::new(r.origin.into(), r.dir.into(), r.tmin, r.tmax.min(f32::MAX))
-            })
-            .collect();
-        let reference = ours(&cpu::trace_all(&built.bvh, &local));
-        let tmin_max = local.iter().map(|r| r.tmin).fold(0.0f32, f32::max);
-        if tmin_max > 0.0 {
-            eprintln!("{name}: {kind_name} rays have tmin up to {tmin_max} (parry3d ignores tmin)");
+    let sets = ray_sets(&setup, plan.large_set);
+    let mut report = SceneReport {
+        name,
+        triangles: triangles.len(),
+        gpu_bytes_per_triangle: setup.bvh.gpu_bytes() as f64 / triangles.len().max(1) as f64,
+        builds: if !plan.benchmark {
+            1
+        } else if triangles.len() < SMALL_SCENE {
+            5
+        } else {
+            3
+        },
+        costs: Vec::new(),
+        rates: Vec::new(),
+    };
+    drop(setup);
+    eprintln!("{name}: {} triangles", report.triangles);
+    let inputs = Inputs {
+        triangles: &triangles,
+        obvhs_triangles: &obvhs_triangles,
+        gpu: shared.gpu.as_ref(),
+        #[cfg(feature = "embree")]
+        embree: &shared.embree,
+    };
+    let mut reference: HashMap<&str, Vec<Option<f32>>> = HashMap::new();
+    for &kind in Kind::ALL {
+        let Some((engine, cost)) =
+            build_and_pick(&scene, &inputs, &sets[0], kind, report.builds, shared)
+        else {
+            continue;
+        };
+        eprintln!(
+            "{name}: {} build {:.1} ms, build + {CAMERA_BATCH} camera rays {:.1} ms{} (medians of {})",
+            kind.name(),
+            cost.build_ms,
+            cost.end_to_end_ms,
+            cost.end_to_end_api_ms.map_or(String::new(), |ms| format!(
+                ", build + Picker::pick {ms:.1} ms"
+            )),
+            report.builds
+        );
+        for set in &sets {
+            for threads in shared.threads(kind) {
+                let pool = shared.pool(threads);
+                let mut check = |answers: Vec<Option<f32>>| match reference.get(set.name) {
+                    Some(expected) => {
+                        report_agreement(name, kind.name(), set.name, expected, &answers)
+                    }
+                    None => {
+                        reference.insert(set.name, answers);
+                    }
+                };
+                let median_ms = if set.name == RAY_SETS[0] {
+                    check(pool.install(|| engine.trace(&set.local)));
+                    criterion_median_ms(criterion, plan, name, set, kind, threads, &*engine, pool)
+                } else {
+                    Some(median_of_runs_ms(
+                        plan.runs,
+                        || pool.install(|| engine.trace(black_box(&set.local))),
+                        check,
+                    ))
+                };
+                if let Some(median_ms) = median_ms {
+                    report.rates.push(Rate {
+                        rays: set.name,
+                        ray_count: set.local.len(),
+                        engine: kind.name(),
+                        threads,
+                        median_ms,
+                    });
+                }
+            }
         }
-        report_agreement(
-            name,
-            "obvhs",
-            kind_name,
-            &reference,
-            &obvhs_trace(&obvhs_bvh, &obvhs_ordered, &obvhs_rays)
-                .iter()
-                .map(|h| h.t.is_finite().then_some(h.t))
-                .collect::<Vec<_>>(),
-        );
-        report_agreement(
-            name,
-            "bvh",
-            kind_name,
-            &reference,
-            &bvh_trace(&bvh_tree, &shapes, &local),
-        );
-        report_agreement(
-            name,
-            "parry3d",
-            kind_name,
-            &reference,
-            &parry_trace(&parry_mesh, &local),
-        );
-
-        group.throughput(Throughput::Elements(local.len() as u64));
-        group.bench_function(format!("raypick/{kind_name}"), |b| {
-            b.iter(|| cpu::trace_all(&built.bvh, black_box(&local)))
-        });
-        group.bench_function(format!("obvhs/{kind_name}"), |b| {
-            b.iter(|| obvhs_trace(&obvhs_bvh, &obvhs_ordered, black_box(&obvhs_rays)))
-        });
-        group.bench_function(format!("bvh/{kind_name}"), |b| {
-            b.iter(|| bvh_trace(&bvh_tree, &shapes, black_box(&local)))
-        });
-        group.bench_function(format!("parry3d/{kind_name}"), |b| {
-            b.iter(|| parry_trace(&parry_mesh, black_box(&local)))
+        let (p50_us, p99_us) = latency_us(&*engine, &sets[0].local, LATENCY_PICKS);
+        report.costs.push(Cost {
+            p50_us,
+            p99_us,
+            ..cost
         });
     }
+    report
+}
+
+/// Builds `kind` `builds` times, each followed at once by its trace of the camera batch at the
+/// first thread count (and, for raypick, by `Picker::pick` of the same rays); returns the last
+/// engine built and the medians. `None` (saying why) when the engine cannot take the scene.
+fn build_and_pick(
+    scene: &Scene,
+    inputs: &Inputs<'_>,
+    camera: &RaySet,
+    kind: Kind,
+    builds: usize,
+    shared: &Shared,
+) -> Option<(Box<dyn Engine>, Cost)> {
+    let pool = shared.pool(THREADS[0]);
+    let (mut build_ms, mut end_to_end_ms, mut api_ms, mut last) =
+        (Vec::new(), Vec::new(), Vec::new(), None);
+    for _ in 0..builds {
+        drop(last.take());
+        let copy = kind.needs_scene().then(|| scene.clone());
+        let start = Instant::now();
+        let engine = match kind.build(inputs, copy) {
+            Ok(engine) => engine,
+            Err(why) => {
+                eprintln!("{}: skipped on this scene: {why}", kind.name());
+                return None;
+            }
+        };
+        let built = start.elapsed().as_secs_f64() * 1e3;
+        pool.install(|| engine.trace(&camera.local));
+        let traced = start.elapsed().as_secs_f64() * 1e3;
+        let before_pick = Instant::now();
+        if pool.install(|| engine.api_pick(&camera.world)) {
+            api_ms.push(built + before_pick.elapsed().as_secs_f64() * 1e3);
+        }
+        build_ms.push(built);
+        end_to_end_ms.push(traced);
+        last = Some(engine);
+    }
+    let cost = Cost {
+        engine: kind.name(),
+        build_ms: median(build_ms),
+        end_to_end_ms: median(end_to_end_ms),
+        end_to_end_api_ms: (!api_ms.is_empty()).then(|| median(api_ms)),
+        p50_us: f64::NAN,
+        p99_us: f64::NAN,
+    };
+    Some((last.expect("at least one build"), cost))
+}
+
+/// Times the camera batch with criterion (10 flat samples over a short window) and reads the
+/// median back from criterion's `estimates.json`; `None` when criterion did not measure it
+/// (filtered out, or not in `--bench` mode).
+#[allow(
+    clippy::too_many_arguments,
+    reason = "one call site; the pieces are unrelated"
+)]
+fn criterion_median_ms(
+    criterion: &mut Criterion,
+    plan: &Plan,
+    scene: &str,
+    set: &RaySet,
+    kind: Kind,
+    threads: usize,
+    engine: &dyn Engine,
+    pool: &rayon::ThreadPool,
+) -> Option<f64> {
+    let group_name = format!("peers-{scene}");
+    let bench_name = format!("{}-{}-{threads}t", set.name, kind.name());
+    let mut group = criterion.benchmark_group(&group_name);
+    group
+        .sample_size(10)
+        .sampling_mode(SamplingMode::Flat)
+        .warm_up_time(Duration::from_millis(300))
+        .measurement_time(Duration::from_millis(1500))
+        .throughput(Throughput::Elements(set.local.len() as u64));
+    group.bench_function(&bench_name, |b| {
+        b.iter(|| pool.install(|| engine.trace(black_box(&set.local))))
+    });
     group.finish();
-}
-
-/// Makes one benchmark scene.
-type SceneMaker = fn() -> Scene;
-
-fn peers(c: &mut Criterion) {
-    let scenes: [(&str, SceneMaker); 4] = [
-        ("bunny", bunny),
-        ("dem", dem),
-        ("terrain_2m", terrain_2m),
-        ("soup_200k", soup),
-    ];
-    for (name, make) in scenes {
-        bench_scene(c, name, make());
+    let path = criterion_dir()
+        .join(&group_name)
+        .join(&bench_name)
+        .join("new/estimates.json");
+    let fresh = std::fs::metadata(&path)
+        .and_then(|m| m.modified())
+        .is_ok_and(|modified| modified >= plan.started);
+    if !fresh {
+        return None;
     }
+    let text = std::fs::read_to_string(&path).ok()?;
+    let estimates: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let median_ns = estimates["median"]["point_estimate"].as_f64()?;
+    Some(median_ns / 1e6)
 }
 
-criterion_group!(benches, peers);
-criterion_main!(benches);
+/// Where criterion writes: `$CRITERION_HOME`, else `$CARGO_TARGET_DIR/criterion`, else
+/// `target/criterion` in the package.
+fn criterion_dir() -> PathBuf {
+    if let Some(home) = std::env::var_os("CRITERION_HOME") {
+        return PathBuf::from(home);
+    }
+    std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target"))
+        .join("criterion")
+}

@@ -25,14 +25,17 @@ pub fn obvhs_build(triangles: &[Triangle]) -> (CwBvh, Vec<Triangle>) {
     (bvh, ordered)
 }
 
-/// Closest hit per ray: one `ray_traverse` call per ray, parallel over rays like ours.
+/// Closest hit of one ray: one `ray_traverse` call over the leaf-ordered triangles.
+pub fn obvhs_intersect(bvh: &CwBvh, triangles: &[Triangle], ray: obvhs::ray::Ray) -> RayHit {
+    let mut hit = RayHit::none();
+    bvh.ray_traverse(ray, &mut hit, |ray, id| triangles[id].intersect(ray));
+    hit
+}
+
+/// Closest hit per ray, parallel over rays like ours.
 pub fn obvhs_trace(bvh: &CwBvh, triangles: &[Triangle], rays: &[obvhs::ray::Ray]) -> Vec<RayHit> {
     rays.par_iter()
         .with_min_len(256)
-        .map(|ray| {
-            let mut hit = RayHit::none();
-            bvh.ray_traverse(*ray, &mut hit, |ray, id| triangles[id].intersect(ray));
-            hit
-        })
+        .map(|ray| obvhs_intersect(bvh, triangles, *ray))
         .collect()
 }
