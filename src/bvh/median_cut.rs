@@ -4,10 +4,13 @@
 //!
 //! The result is deterministic: the partition depends only on the input order, and parallel
 //! subtrees are stitched together in a fixed order.
+//!
+//! This file also owns what the triangle builders share (`build_with`, `PrimRef`, partitioning
+//! and stitching, `pub(super)` for `binned_sah`).
 
 use super::{
-    BuildOptions, Bvh, SplitAxis, check_node_count, inner_node, leaf_node, link_parents,
-    local_triangle, traceable_triangle,
+    BuildOptions, Bvh, SplitAxis, check_leaf_size, check_node_count, inner_node, leaf_node,
+    link_parents, local_triangle, traceable_triangle,
 };
 use crate::error::Result;
 use crate::layout::GpuNode;
@@ -16,19 +19,32 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 /// Ranges at least this long are split into two parallel tasks.
-const PARALLEL_MIN: usize = 8 * 1024;
+pub(super) const PARALLEL_MIN: usize = 8 * 1024;
 
 /// One triangle as the builder sorts it.
 #[derive(Clone, Copy, Debug)]
-struct PrimRef {
-    min: Vec3,
-    max: Vec3,
-    centroid: Vec3,
-    scene_index: u32,
+pub(super) struct PrimRef {
+    pub(super) min: Vec3,
+    pub(super) max: Vec3,
+    pub(super) centroid: Vec3,
+    pub(super) scene_index: u32,
 }
 
 /// Builds the tree over every traceable triangle of `scene` (see [`super::traceable_triangle`]).
 pub fn build(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
+    build_with(scene, options, |prims| build_subtree(prims, 0, 0, options))
+}
+
+/// What the triangle builders (median cut, binned SAH) share: checks the leaf size, gathers the
+/// traceable triangles,
+/// lets `build_nodes` order them and return the depth-first nodes (root-relative links), then
+/// checks the node limit, links parents and lays out the leaf-ordered triangles.
+pub(super) fn build_with(
+    scene: &Scene,
+    options: &BuildOptions,
+    build_nodes: impl FnOnce(&mut [PrimRef]) -> Vec<GpuNode>,
+) -> Result<Bvh> {
+    check_leaf_size(options)?;
     let origin = scene.origin();
     let mut prims: Vec<PrimRef> = (0..scene.triangle_count())
         .into_par_iter()
@@ -48,7 +64,7 @@ pub fn build(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
             ..Bvh::default()
         });
     }
-    let mut nodes = build_subtree(&mut prims, 0, 0, options);
+    let mut nodes = build_nodes(&mut prims);
     check_node_count(nodes.len())?;
     link_parents(&mut nodes);
     let triangles = prims
@@ -132,19 +148,24 @@ fn split(
     if left != 0 && left != prims.len() {
         return (axis, left);
     }
-    // One side is empty: split at the centroid median, ties broken by scene index so the
-    // result does not depend on the selection algorithm.
+    // One side is empty: split at the centroid median.
+    (axis, median_split(prims, axis))
+}
+
+/// Partitions `prims` at the centroid median along `axis`, ties broken by scene index so the
+/// result does not depend on the selection algorithm; returns the left part's size (half).
+pub(super) fn median_split(prims: &mut [PrimRef], axis: usize) -> usize {
     let half = prims.len() / 2;
     prims.select_nth_unstable_by(half, |a, b| {
         a.centroid[axis]
             .total_cmp(&b.centroid[axis])
             .then(a.scene_index.cmp(&b.scene_index))
     });
-    (axis, half)
+    half
 }
 
 /// In-place partition: moves the elements satisfying `goes_left` to the front, returns their count.
-fn partition(prims: &mut [PrimRef], goes_left: impl Fn(&PrimRef) -> bool) -> usize {
+pub(super) fn partition(prims: &mut [PrimRef], goes_left: impl Fn(&PrimRef) -> bool) -> usize {
     let mut left = 0;
     for i in 0..prims.len() {
         if goes_left(&prims[i]) {
@@ -155,7 +176,8 @@ fn partition(prims: &mut [PrimRef], goes_left: impl Fn(&PrimRef) -> bool) -> usi
     left
 }
 
-fn bounds(prims: &[PrimRef]) -> (Vec3, Vec3) {
+/// The box around `prims`.
+pub(super) fn bounds(prims: &[PrimRef]) -> (Vec3, Vec3) {
     prims
         .iter()
         .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| {
@@ -164,7 +186,7 @@ fn bounds(prims: &[PrimRef]) -> (Vec3, Vec3) {
 }
 
 /// Appends a subtree built with root-relative links, shifting its inner links by its new position.
-fn append_shifted(nodes: &mut Vec<GpuNode>, subtree: &[GpuNode]) {
+pub(super) fn append_shifted(nodes: &mut Vec<GpuNode>, subtree: &[GpuNode]) {
     let shift = nodes.len() as u32;
     nodes.extend(subtree.iter().map(|n| {
         let mut n = *n;

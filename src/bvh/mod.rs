@@ -1,12 +1,14 @@
 //! The flattened tree: nodes, leaf-ordered triangles, the map back to scene triangles, and the
 //! pieces every builder shares.
 //!
-//! Data flow: [`crate::Scene`] -> a builder ([`median_cut`], or [`terrain_blocks`] for a height
-//! grid) -> [`Bvh`] (these exact bytes go to the GPU and to the CPU traversal alike) ->
+//! Data flow: [`crate::Scene`] -> a builder ([`median_cut`], [`binned_sah`], or
+//! [`terrain_blocks`] for a height grid; [`sah_cost`] rates any tree) -> [`Bvh`] (these exact bytes go to the GPU and to the CPU traversal alike) ->
 //! [`validate`] checks the invariants.
 
+pub mod binned_sah;
 pub mod median_cut;
 pub mod options;
+pub mod sah_cost;
 pub mod terrain_blocks;
 pub mod validate;
 
@@ -36,14 +38,9 @@ pub struct Bvh {
 impl Bvh {
     /// Builds the tree over every traceable triangle of `scene` with the builder `options` name.
     pub fn build(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
-        if !(1..=MAX_LEAF_SIZE).contains(&options.leaf_size) {
-            return Err(Error::Invalid(format!(
-                "leaf size {} is out of range; it must be 1 ..= {MAX_LEAF_SIZE}",
-                options.leaf_size
-            )));
-        }
         match options.builder {
             Builder::MedianCut => median_cut::build(scene, options),
+            Builder::BinnedSah => binned_sah::build_binned_sah(scene, options),
             Builder::Grid => terrain_blocks::build(scene, options),
             Builder::Auto if terrain_blocks::single_grid(scene).is_some() => {
                 terrain_blocks::build(scene, options)
@@ -126,6 +123,17 @@ pub(crate) fn inner_node(min: Vec3, max: Vec3, axis: usize, right: u32) -> GpuNo
         max: max.into(),
         first: right,
     }
+}
+
+/// Refuses a leaf size the node format cannot hold (every builder checks it first).
+pub(crate) fn check_leaf_size(options: &BuildOptions) -> Result<()> {
+    if !(1..=MAX_LEAF_SIZE).contains(&options.leaf_size) {
+        return Err(Error::Invalid(format!(
+            "leaf size {} is out of range; it must be 1 ..= {MAX_LEAF_SIZE}",
+            options.leaf_size
+        )));
+    }
+    Ok(())
 }
 
 /// Refuses a tree with more nodes than the 27-bit parent links can address.

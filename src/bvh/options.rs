@@ -9,6 +9,10 @@ pub enum Builder {
     Auto,
     /// The paper's median cut over individual triangles ([`super::median_cut`]).
     MedianCut,
+    /// Binned surface-area heuristic over triangles ([`super::binned_sah`]): slower builds,
+    /// fewer box and triangle tests per ray.
+    #[value(name = "sah")]
+    BinnedSah,
     /// Median cut over the cells of a height grid, cut first into rectangular blocks with their
     /// own box and f64 origin ([`super::terrain_blocks`]); for scenes that are one height grid.
     Grid,

@@ -14,7 +14,9 @@
 //! subtree (so parallel tasks can write straight into their own part of the node array), then
 //! the write. Neither depends on the thread count, so the output is identical on any.
 
-use super::{BuildOptions, Bvh, check_node_count, inner_node, leaf_node, link_parents};
+use super::{
+    BuildOptions, Bvh, check_leaf_size, check_node_count, inner_node, leaf_node, link_parents,
+};
 use crate::error::{Error, Result};
 use crate::layout::{GpuNode, GpuTriangle};
 use crate::scene::{Object, Scene};
@@ -57,6 +59,7 @@ pub fn single_grid(scene: &Scene) -> Option<&Object> {
 
 /// Builds the tree of a scene that is one height grid (see the module docs).
 pub fn build(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
+    check_leaf_size(options)?;
     let object = single_grid(scene).ok_or_else(|| {
         Error::Invalid(format!(
             "the grid builder needs a scene that is one height grid, but this scene has {} object(s){}; use --builder median-cut",

@@ -1,0 +1,204 @@
+//! Median cut against binned SAH (`bvh::binned_sah`), on the same scenes and rays:
+//!
+//! - `build/<scene>`: `Bvh::build` (median cut, default options) and `build_binned_sah` (the
+//!   same leaf size), the tree alone;
+//! - `trace/<scene>`: `cpu::trace_all` of 65,536 camera and 65,536 random rays
+//!   (`synthetic::rays`) over each tree;
+//! - `gpu/<scene>`: `GpuPicker::trace` of the same rays over each tree, on the bunny and the
+//!   terrain only (skipped, saying why, without a GPU adapter).
+//!
+//! Scenes: the Stanford bunny, the Stanford dragon (`/work/shared/data/dragon_res2.obj`, skipped
+//! with a note when absent), the Jacksboro fault DEM, a 708 × 708-sample terrain (999,698
+//! triangles) and a soup of 200,000 random triangles.
+//!
+//! Before timing, each scene prints per builder: nodes, depth, SAH cost (`bvh::sah_cost`) and the
+//! mean box tests b and triangle tests i per ray of each ray kind.
+//!
+//! Run with `cargo bench --bench builders` (one scene: `cargo bench --bench builders -- bunny`).
+
+use criterion::{
+    BenchmarkGroup, Criterion, SamplingMode, Throughput, criterion_group, criterion_main,
+    measurement::WallTime,
+};
+use raypick::bvh::binned_sah::build_binned_sah;
+use raypick::bvh::sah_cost::sah_cost;
+use raypick::frame::local_rays;
+use raypick::io::obj::load_obj;
+use raypick::io::scene_files::{SceneFile, load_scene};
+use raypick::layout::{GpuHit, GpuRay};
+use raypick::synthetic::{RayKind, hills, rays, terrain, triangle_soup};
+use raypick::{BuildOptions, BuiltScene, Bvh, GpuContext, GpuPicker, Scene, cpu};
+use std::hint::black_box;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// Rays per batch.
+const RAY_COUNT: usize = 65_536;
+/// Seed for the ray sets and the soup.
+const SEED: u64 = 1;
+/// Where the shared data sets live (the dragon is not in the repository).
+const DRAGON: &str = "/work/shared/data/dragon_res2.obj";
+
+/// Every group takes 10 flat samples over a short window: builds run for up to a second, and
+/// the whole bench must stay around 5 minutes on 2 cores.
+fn configure(group: &mut BenchmarkGroup<'_, WallTime>) {
+    group
+        .sample_size(10)
+        .sampling_mode(SamplingMode::Flat)
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(2));
+}
+
+/// A tree builder, as `Bvh::build` and `build_binned_sah` both are.
+type Builder = fn(&Scene, &BuildOptions) -> raypick::Result<Bvh>;
+
+/// The two builders, by the name the bench ids use.
+const BUILDERS: [(&str, Builder); 2] =
+    [("median_cut", Bvh::build), ("binned_sah", build_binned_sah)];
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+fn obj(name: &str, path: &Path) -> Scene {
+    let mesh = load_obj(path).unwrap_or_else(|e| panic!("{} loads: {e}", path.display()));
+    Scene::from_meshes([(name.to_string(), mesh)]).expect("the mesh is well formed")
+}
+
+fn dem() -> Scene {
+    load_scene(&[SceneFile {
+        file: data("jacksboro_fault_dem_utm.asc"),
+        mask: None,
+    }])
+    .expect("the Jacksboro DEM loads")
+}
+
+/// 708 × 708 samples, 1 m apart: 999,698 triangles (as `benches/pick.rs`).
+fn terrain_1m() -> Scene {
+    let mesh = terrain(708, 708, 0.0, 707.0, 1.0, hills);
+    Scene::from_meshes([("terrain".to_string(), mesh)]).expect("the terrain is well formed")
+}
+
+/// 200,000 random triangles in a 100-unit cube, edges up to 10 units.
+fn soup() -> Scene {
+    let mesh = triangle_soup(200_000, 100.0, SEED);
+    Scene::from_meshes([("soup".to_string(), mesh)]).expect("the soup is well formed")
+}
+
+/// Mean box tests b and triangle tests i per ray.
+fn mean_tests(hits: &[GpuHit]) -> (f64, f64) {
+    let n = hits.len().max(1) as f64;
+    let b: u64 = hits.iter().map(|h| u64::from(h.box_tests)).sum();
+    let i: u64 = hits.iter().map(|h| u64::from(h.triangle_tests)).sum();
+    (b as f64 / n, i as f64 / n)
+}
+
+/// Builds both trees over `scene`, prints their statistics, and times the builds and the CPU
+/// (and, with `gpu`, GPU) traversal of camera and random rays over each.
+fn bench_scene(c: &mut Criterion, name: &str, scene: Scene, gpu: Option<&GpuContext>) {
+    let options = BuildOptions::default();
+    let ray_sets: Vec<(&str, Vec<GpuRay>)> =
+        [("camera", RayKind::Camera), ("random", RayKind::Random)]
+            .into_iter()
+            .map(|(kind_name, kind)| {
+                let world = rays(&scene, kind, RAY_COUNT, SEED);
+                (kind_name, local_rays(scene.origin(), &world))
+            })
+            .collect();
+    let trees: Vec<(&str, Bvh)> = BUILDERS
+        .iter()
+        .map(|&(builder, build)| (builder, build(&scene, &options).expect("the scene builds")))
+        .collect();
+    eprintln!(
+        "{name}: {} triangles, {} in the trees",
+        scene.triangle_count(),
+        trees[0].1.triangles.len()
+    );
+    for (builder, bvh) in &trees {
+        let tests: Vec<String> = ray_sets
+            .iter()
+            .map(|(kind_name, local)| {
+                let (b, i) = mean_tests(&cpu::trace_all(bvh, local));
+                format!("{kind_name} b {b:.2} i {i:.2}")
+            })
+            .collect();
+        eprintln!(
+            "{name} {builder:>10}: {} nodes, depth {}, SAH cost {:.2}; {}",
+            bvh.nodes.len(),
+            bvh.depth(),
+            sah_cost(bvh),
+            tests.join(", ")
+        );
+    }
+
+    let mut group = c.benchmark_group(format!("build/{name}"));
+    configure(&mut group);
+    group.throughput(Throughput::Elements(scene.triangle_count() as u64));
+    for &(builder, build) in &BUILDERS {
+        group.bench_function(builder, |b| {
+            b.iter(|| build(black_box(&scene), &options).expect("the scene builds"))
+        });
+    }
+    group.finish();
+
+    let mut group = c.benchmark_group(format!("trace/{name}"));
+    configure(&mut group);
+    for (builder, bvh) in &trees {
+        for (kind_name, local) in &ray_sets {
+            group.throughput(Throughput::Elements(local.len() as u64));
+            group.bench_function(format!("{builder}/{kind_name}"), |b| {
+                b.iter(|| cpu::trace_all(bvh, black_box(local)))
+            });
+        }
+    }
+    group.finish();
+
+    let Some(context) = gpu else {
+        return;
+    };
+    let mut group = c.benchmark_group(format!("gpu/{name}"));
+    configure(&mut group);
+    for (builder, bvh) in trees {
+        let built = Arc::new(BuiltScene {
+            scene: scene.clone(),
+            bvh,
+            triangle_masks: Vec::new(),
+        });
+        let mut picker = GpuPicker::new(context, built).expect("the scene uploads");
+        for (kind_name, local) in &ray_sets {
+            group.throughput(Throughput::Elements(local.len() as u64));
+            group.bench_function(format!("{builder}/{kind_name}"), |b| {
+                b.iter(|| picker.trace(black_box(local)).expect("gpu trace"))
+            });
+        }
+    }
+    group.finish();
+}
+
+fn builders(c: &mut Criterion) {
+    let context = GpuContext::new()
+        .inspect(|context| eprintln!("gpu: adapter {}", context.describe()))
+        .inspect_err(|e| eprintln!("gpu: skipped, no GPU adapter: {e}"))
+        .ok();
+    bench_scene(
+        c,
+        "bunny",
+        obj("bunny", &data("bunny.obj")),
+        context.as_ref(),
+    );
+    let dragon = Path::new(DRAGON);
+    if dragon.exists() {
+        bench_scene(c, "dragon", obj("dragon", dragon), None);
+    } else {
+        eprintln!("dragon: skipped, {DRAGON} is absent");
+    }
+    bench_scene(c, "jacksboro", dem(), None);
+    bench_scene(c, "terrain_1m", terrain_1m(), context.as_ref());
+    bench_scene(c, "soup_200k", soup(), None);
+}
+
+criterion_group!(benches, builders);
+criterion_main!(benches);
