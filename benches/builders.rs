@@ -1,7 +1,8 @@
-//! Median cut against binned SAH (`bvh::binned_sah`), on the same scenes and rays:
+//! The builders side by side on the same scenes and rays: median cut, binned SAH
+//! (`bvh::binned_sah`) and, on height grids, the grid builder over terrain blocks
+//! (`bvh::terrain_blocks`), each at leaf size 4 (the default) and 8:
 //!
-//! - `build/<scene>`: `Bvh::build` (median cut, default options) and `build_binned_sah` (the
-//!   same leaf size), the tree alone;
+//! - `build/<scene>`: `Bvh::build` with each builder, the tree alone;
 //! - `trace/<scene>`: `cpu::trace_all` of 65,536 camera and 65,536 random rays
 //!   (`synthetic::rays`) over each tree;
 //! - `gpu/<scene>`: `GpuPicker::trace` of the same rays over each tree, on the bunny and the
@@ -20,14 +21,16 @@ use criterion::{
     BenchmarkGroup, Criterion, SamplingMode, Throughput, criterion_group, criterion_main,
     measurement::WallTime,
 };
-use raypick::bvh::binned_sah::build_binned_sah;
 use raypick::bvh::sah_cost::sah_cost;
+use raypick::bvh::terrain_blocks::single_grid;
 use raypick::frame::local_rays;
 use raypick::io::obj::load_obj;
 use raypick::io::scene_files::{SceneFile, load_scene};
 use raypick::layout::{GpuHit, GpuRay};
 use raypick::synthetic::{RayKind, hills, rays, terrain, triangle_soup};
-use raypick::{BuildOptions, BuiltScene, Bvh, GpuContext, GpuPicker, Scene, cpu};
+use raypick::{
+    BuildOptions, Builder, BuiltScene, Bvh, GpuContext, GpuPicker, GridShape, Scene, cpu,
+};
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -50,12 +53,31 @@ fn configure(group: &mut BenchmarkGroup<'_, WallTime>) {
         .measurement_time(Duration::from_secs(2));
 }
 
-/// A tree builder, as `Bvh::build` and `build_binned_sah` both are.
-type Builder = fn(&Scene, &BuildOptions) -> raypick::Result<Bvh>;
+/// The builder settings compared, by the name the bench ids use.
+const BUILDERS: [(&str, Builder, u32); 6] = [
+    ("median_cut", Builder::MedianCut, 4),
+    ("median_cut_leaf8", Builder::MedianCut, 8),
+    ("binned_sah", Builder::BinnedSah, 4),
+    ("binned_sah_leaf8", Builder::BinnedSah, 8),
+    ("grid", Builder::Grid, 4),
+    ("grid_leaf8", Builder::Grid, 8),
+];
 
-/// The two builders, by the name the bench ids use.
-const BUILDERS: [(&str, Builder); 2] =
-    [("median_cut", Bvh::build), ("binned_sah", build_binned_sah)];
+/// The settings of `BUILDERS` that apply to `scene` (the grid builder needs one height grid).
+fn builders_for(scene: &Scene) -> Vec<(&'static str, BuildOptions)> {
+    BUILDERS
+        .iter()
+        .filter(|(_, builder, _)| *builder != Builder::Grid || single_grid(scene).is_some())
+        .map(|&(name, builder, leaf_size)| {
+            let options = BuildOptions {
+                builder,
+                leaf_size,
+                ..BuildOptions::default()
+            };
+            (name, options)
+        })
+        .collect()
+}
 
 fn data(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -76,10 +98,18 @@ fn dem() -> Scene {
     .expect("the Jacksboro DEM loads")
 }
 
-/// 708 × 708 samples, 1 m apart: 999,698 triangles (as `benches/pick.rs`).
+/// 708 × 708 samples, 1 m apart: 999,698 triangles (as `benches/pick.rs`), as a height grid.
 fn terrain_1m() -> Scene {
     let mesh = terrain(708, 708, 0.0, 707.0, 1.0, hills);
-    Scene::from_meshes([("terrain".to_string(), mesh)]).expect("the terrain is well formed")
+    let shape = GridShape {
+        columns: 708,
+        rows: 708,
+    };
+    let mut scene = Scene::new();
+    scene
+        .add_grid_mesh("terrain", mesh, shape)
+        .expect("the terrain is well formed");
+    scene
 }
 
 /// 200,000 random triangles in a 100-unit cube, edges up to 10 units.
@@ -99,7 +129,7 @@ fn mean_tests(hits: &[GpuHit]) -> (f64, f64) {
 /// Builds both trees over `scene`, prints their statistics, and times the builds and the CPU
 /// (and, with `gpu`, GPU) traversal of camera and random rays over each.
 fn bench_scene(c: &mut Criterion, name: &str, scene: Scene, gpu: Option<&GpuContext>) {
-    let options = BuildOptions::default();
+    let builders = builders_for(&scene);
     let ray_sets: Vec<(&str, Vec<GpuRay>)> =
         [("camera", RayKind::Camera), ("random", RayKind::Random)]
             .into_iter()
@@ -108,9 +138,14 @@ fn bench_scene(c: &mut Criterion, name: &str, scene: Scene, gpu: Option<&GpuCont
                 (kind_name, local_rays(scene.origin(), &world))
             })
             .collect();
-    let trees: Vec<(&str, Bvh)> = BUILDERS
+    let trees: Vec<(&str, Bvh)> = builders
         .iter()
-        .map(|&(builder, build)| (builder, build(&scene, &options).expect("the scene builds")))
+        .map(|(name, options)| {
+            (
+                *name,
+                Bvh::build(&scene, options).expect("the scene builds"),
+            )
+        })
         .collect();
     eprintln!(
         "{name}: {} triangles, {} in the trees",
@@ -126,9 +161,10 @@ fn bench_scene(c: &mut Criterion, name: &str, scene: Scene, gpu: Option<&GpuCont
             })
             .collect();
         eprintln!(
-            "{name} {builder:>10}: {} nodes, depth {}, SAH cost {:.2}; {}",
+            "{name} {builder:>16}: {} nodes, depth {}, {:.1} GPU bytes/triangle, SAH cost {:.2}; {}",
             bvh.nodes.len(),
             bvh.depth(),
+            bvh.gpu_bytes() as f64 / bvh.triangles.len().max(1) as f64,
             sah_cost(bvh),
             tests.join(", ")
         );
@@ -137,9 +173,9 @@ fn bench_scene(c: &mut Criterion, name: &str, scene: Scene, gpu: Option<&GpuCont
     let mut group = c.benchmark_group(format!("build/{name}"));
     configure(&mut group);
     group.throughput(Throughput::Elements(scene.triangle_count() as u64));
-    for &(builder, build) in &BUILDERS {
-        group.bench_function(builder, |b| {
-            b.iter(|| build(black_box(&scene), &options).expect("the scene builds"))
+    for (builder, options) in &builders {
+        group.bench_function(*builder, |b| {
+            b.iter(|| Bvh::build(black_box(&scene), options).expect("the scene builds"))
         });
     }
     group.finish();
