@@ -4,7 +4,7 @@
 //! Reads the CSV that `cargo bench --bench peers` writes
 //! (`scene,triangles,rays,ray_count,engine,threads,median_ms,rays_per_s`):
 //!
-//! `cargo run --example plot_peers -- [CSV] [SVG] --note "machine, date"`
+//! `cargo run --example plot_peers -- [CSV] [SVG] --note "machine, date" [--scenes PREFIX]`
 //!
 //! CSV defaults to `$CARGO_TARGET_DIR/peers-summary.csv` (else `target/peers-summary.csv`),
 //! SVG to `docs/peers_throughput.svg`.
@@ -26,6 +26,10 @@ struct Args {
     /// Caption under the plot: the machine, the date, the commit.
     #[arg(long, default_value = "")]
     note: String,
+    /// Plot only scenes whose names start with this (e.g. `terrain`, a family that differs in
+    /// size alone); default: every scene.
+    #[arg(long, default_value = "")]
+    scenes: String,
 }
 
 /// One row of the summary: one engine timed on one ray set over one scene.
@@ -297,7 +301,17 @@ fn main() -> ExitCode {
     let outcome = std::fs::read_to_string(&csv)
         .map_err(|e| format!("{}: {e}", csv.display()))
         .and_then(|text| parse_rows(&text, &csv.display().to_string()))
+        .map(|rows| {
+            let kept: Vec<Row> = rows
+                .into_iter()
+                .filter(|row| row.scene.starts_with(&args.scenes))
+                .collect();
+            kept
+        })
         .and_then(|rows| {
+            if rows.is_empty() {
+                return Err(format!("no scene name starts with {:?}", args.scenes));
+            }
             plot(&rows, &svg, &args.note).map_err(|e| format!("{}: {e}", svg.display()))
         });
     match outcome {

@@ -46,7 +46,7 @@ impl Default for BuildOptions {
         Self {
             builder: Builder::Auto,
             split_axis: SplitAxis::Longest,
-            leaf_size: 4,
+            leaf_size: 8,
         }
     }
 }
