@@ -198,3 +198,51 @@ fn gpu_cpu_and_oracle_agree_on_grid_trees() {
         .count();
     assert!(camera_hits > 30, "{camera_hits} camera rays hit the DEM");
 }
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(48))]
+
+    /// Any grid shape, any pattern of dead (NODATA) cells, any leaf size: the grid builder's
+    /// tree is valid, its blocks cover every triangle once, and its answers match median cut's.
+    #[test]
+    fn any_grid_builds_a_valid_tree_with_median_cut_answers(
+        cols in 2u32..150,
+        rows in 2u32..150,
+        dead_one_in in 1u32..12,
+        seed in 0u32..1000,
+        leaf_size in 1u32..=15,
+    ) {
+        let mut mesh = terrain(cols as usize, rows as usize, 1000.0, 2000.0, 3.0, hills);
+        for (k, pair) in mesh.triangles.chunks_mut(2).enumerate() {
+            if (k as u32).wrapping_mul(2654435761).wrapping_add(seed) % dead_one_in == 0
+                && dead_one_in > 1
+            {
+                let nw = pair[0][0];
+                pair.copy_from_slice(&[[nw; 3], [nw; 3]]);
+            }
+        }
+        let mut scene = Scene::new();
+        scene.add_grid_mesh("g", mesh, GridShape { columns: cols, rows }).unwrap();
+        let grid = Bvh::build(&scene, &with(Builder::Grid, leaf_size)).unwrap();
+        grid.validate().map_err(proptest::test_runner::TestCaseError::fail)?;
+        let in_blocks: u32 = grid.blocks.iter().map(|b| b.triangles.len() as u32).sum();
+        proptest::prop_assert_eq!(in_blocks as usize, grid.triangles.len());
+        let rays: Vec<_> = mixed_rays(&scene, 200, u64::from(seed))
+            .into_iter()
+            .map(|(_, r)| r)
+            .collect();
+        let pick = |bvh: Bvh| {
+            let built = BuiltScene { scene: scene.clone(), bvh, triangle_masks: Vec::new() };
+            CpuPicker::new(Arc::new(built)).pick(&rays).unwrap()
+        };
+        let median = Bvh::build(&scene, &with(Builder::MedianCut, leaf_size)).unwrap();
+        let (g, m) = (pick(grid), pick(median));
+        for (i, (a, b)) in g.iter().zip(&m).enumerate() {
+            let verdict = classify(&scene, &rays[i], a, b);
+            proptest::prop_assert!(
+                matches!(verdict, Verdict::Same | Verdict::SharedEdge),
+                "ray {}: {:?}: {:?} vs {:?}", i, verdict, a, b
+            );
+        }
+    }
+}
