@@ -11,13 +11,10 @@
 //! bins merge per-chunk minima, maxima and counts, which are exact in any order, and parallel
 //! subtrees are stitched in a fixed order, so the tree is identical on any thread count.
 
-use super::median_cut::{
-    PARALLEL_MIN, PrimRef, append_shifted, bounds, build_with, median_split, partition,
-};
+use super::median_cut::{PARALLEL_MIN, PrimRef, build_with, median_split, partition};
 use super::sah_cost::{TRAVERSAL_COST, TRIANGLE_COST, half_area};
-use super::{BuildOptions, Bvh, inner_node, leaf_node};
+use super::{BuildOptions, Bvh};
 use crate::error::Result;
-use crate::layout::GpuNode;
 use crate::scene::Scene;
 use glam::{Vec3, Vec3A};
 use rayon::prelude::*;
@@ -33,57 +30,9 @@ const BIN_CHUNK: usize = 4096;
 /// Builds a binned-SAH tree over every non-degenerate triangle of `scene`, with the same layout
 /// and checks as [`Bvh::build`]; `options.split_axis` is ignored.
 pub fn build_binned_sah(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
-    build_with(scene, options, |prims| build_subtree(prims, 0, 0, options))
-}
-
-/// Builds the subtree over `prims` (which start at leaf-order index `first`) in depth-first order,
-/// with child links relative to the subtree's root. Large ranges split into parallel tasks.
-fn build_subtree(
-    prims: &mut [PrimRef],
-    first: u32,
-    depth: u32,
-    options: &BuildOptions,
-) -> Vec<GpuNode> {
-    if prims.len() < PARALLEL_MIN {
-        let mut nodes = Vec::with_capacity(2 * prims.len() / options.leaf_size as usize + 1);
-        build_into(&mut nodes, prims, first, depth, options);
-        return nodes;
-    }
-    let (min, max) = bounds(prims);
-    let Some((axis, split)) = split(prims, min, max, depth, options) else {
-        return vec![leaf_node(min, max, prims.len() as u32, first)];
-    };
-    let (left_prims, right_prims) = prims.split_at_mut(split);
-    let (left, right) = rayon::join(
-        || build_subtree(left_prims, first, depth + 1, options),
-        || build_subtree(right_prims, first + split as u32, depth + 1, options),
-    );
-    let mut nodes = Vec::with_capacity(1 + left.len() + right.len());
-    nodes.push(inner_node(min, max, axis, 1 + left.len() as u32));
-    append_shifted(&mut nodes, &left);
-    append_shifted(&mut nodes, &right);
-    nodes
-}
-
-/// Sequential build of one subtree, appended to `nodes` with links relative to `nodes[0]`.
-fn build_into(
-    nodes: &mut Vec<GpuNode>,
-    prims: &mut [PrimRef],
-    first: u32,
-    depth: u32,
-    options: &BuildOptions,
-) {
-    let (min, max) = bounds(prims);
-    let Some((axis, split)) = split(prims, min, max, depth, options) else {
-        nodes.push(leaf_node(min, max, prims.len() as u32, first));
-        return;
-    };
-    let here = nodes.len();
-    nodes.push(inner_node(min, max, axis, 0));
-    let (left, right) = prims.split_at_mut(split);
-    build_into(nodes, left, first, depth + 1, options);
-    nodes[here].first = nodes.len() as u32;
-    build_into(nodes, right, first + split as u32, depth + 1, options);
+    build_with(scene, options, |prims, min, max, depth| {
+        split(prims, min, max, depth, options)
+    })
 }
 
 /// Decides the node over `prims` (box `min ..= max`): `None` keeps it a leaf; otherwise

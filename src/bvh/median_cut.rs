@@ -5,8 +5,9 @@
 //! The result is deterministic: the partition depends only on the input order, and parallel
 //! subtrees are stitched together in a fixed order.
 //!
-//! This file also owns what the triangle builders share (`build_with`, `PrimRef`, partitioning
-//! and stitching, `pub(super)` for `binned_sah`).
+//! This file also owns what the triangle builders share (`build_with` with its top-down,
+//! parallel recursion and stitching, `PrimRef`, partitioning; `pub(super)` for `binned_sah`),
+//! so a builder is just its split rule.
 
 use super::{
     BuildOptions, Bvh, SplitAxis, check_leaf_size, check_node_count, inner_node, leaf_node,
@@ -32,17 +33,29 @@ pub(super) struct PrimRef {
 
 /// Builds the tree over every traceable triangle of `scene` (see [`super::traceable_triangle`]).
 pub fn build(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
-    build_with(scene, options, |prims| build_subtree(prims, 0, 0, options))
+    build_with(scene, options, |prims, min, max, depth| {
+        (prims.len() > options.leaf_size as usize).then(|| split(prims, min, max, depth, options))
+    })
 }
 
+/// How a triangle builder decides a node over `prims` (box `min ..= max`, at `depth`): `None`
+/// keeps it a leaf (it must then hold at most the leaf size); otherwise it partitions `prims` and
+/// returns the split axis and the size of the left part (never 0 or `prims.len()`).
+pub(super) trait SplitRule:
+    Fn(&mut [PrimRef], Vec3, Vec3, u32) -> Option<(usize, usize)> + Sync
+{
+}
+
+impl<F: Fn(&mut [PrimRef], Vec3, Vec3, u32) -> Option<(usize, usize)> + Sync> SplitRule for F {}
+
 /// What the triangle builders (median cut, binned SAH) share: checks the leaf size, gathers the
-/// traceable triangles,
-/// lets `build_nodes` order them and return the depth-first nodes (root-relative links), then
-/// checks the node limit, links parents and lays out the leaf-ordered triangles.
+/// traceable triangles, builds the depth-first nodes top down with `split` deciding each node
+/// (large ranges as parallel tasks), then checks the node limit, links parents and lays out the
+/// leaf-ordered triangles.
 pub(super) fn build_with(
     scene: &Scene,
     options: &BuildOptions,
-    build_nodes: impl FnOnce(&mut [PrimRef]) -> Vec<GpuNode>,
+    split: impl SplitRule,
 ) -> Result<Bvh> {
     check_leaf_size(options)?;
     let origin = scene.origin();
@@ -64,7 +77,7 @@ pub(super) fn build_with(
             ..Bvh::default()
         });
     }
-    let mut nodes = build_nodes(&mut prims);
+    let mut nodes = build_subtree(&mut prims, 0, 0, &split, options.leaf_size);
     check_node_count(nodes.len())?;
     link_parents(&mut nodes);
     let triangles = prims
@@ -87,19 +100,30 @@ fn build_subtree(
     prims: &mut [PrimRef],
     first: u32,
     depth: u32,
-    options: &BuildOptions,
+    split: &impl SplitRule,
+    leaf_size: u32,
 ) -> Vec<GpuNode> {
     if prims.len() < PARALLEL_MIN {
-        let mut nodes = Vec::with_capacity(2 * prims.len() / options.leaf_size as usize + 1);
-        build_into(&mut nodes, prims, first, depth, options);
+        let mut nodes = Vec::with_capacity(2 * prims.len() / leaf_size as usize + 1);
+        build_into(&mut nodes, prims, first, depth, split);
         return nodes;
     }
     let (min, max) = bounds(prims);
-    let (axis, split) = split(prims, min, max, depth, options);
-    let (left_prims, right_prims) = prims.split_at_mut(split);
+    let Some((axis, left_count)) = split(prims, min, max, depth) else {
+        return vec![leaf_node(min, max, prims.len() as u32, first)];
+    };
+    let (left_prims, right_prims) = prims.split_at_mut(left_count);
     let (left, right) = rayon::join(
-        || build_subtree(left_prims, first, depth + 1, options),
-        || build_subtree(right_prims, first + split as u32, depth + 1, options),
+        || build_subtree(left_prims, first, depth + 1, split, leaf_size),
+        || {
+            build_subtree(
+                right_prims,
+                first + left_count as u32,
+                depth + 1,
+                split,
+                leaf_size,
+            )
+        },
     );
     let mut nodes = Vec::with_capacity(1 + left.len() + right.len());
     nodes.push(inner_node(min, max, axis, 1 + left.len() as u32));
@@ -114,20 +138,19 @@ fn build_into(
     prims: &mut [PrimRef],
     first: u32,
     depth: u32,
-    options: &BuildOptions,
+    split: &impl SplitRule,
 ) {
     let (min, max) = bounds(prims);
-    if prims.len() <= options.leaf_size as usize {
+    let Some((axis, left_count)) = split(prims, min, max, depth) else {
         nodes.push(leaf_node(min, max, prims.len() as u32, first));
         return;
-    }
-    let (axis, split) = split(prims, min, max, depth, options);
+    };
     let here = nodes.len();
     nodes.push(inner_node(min, max, axis, 0));
-    let (left, right) = prims.split_at_mut(split);
-    build_into(nodes, left, first, depth + 1, options);
+    let (left, right) = prims.split_at_mut(left_count);
+    build_into(nodes, left, first, depth + 1, split);
     nodes[here].first = nodes.len() as u32;
-    build_into(nodes, right, first + split as u32, depth + 1, options);
+    build_into(nodes, right, first + left_count as u32, depth + 1, split);
 }
 
 /// Chooses the axis, partitions `prims` at the midplane of the box, and returns the axis and
@@ -177,7 +200,7 @@ pub(super) fn partition(prims: &mut [PrimRef], goes_left: impl Fn(&PrimRef) -> b
 }
 
 /// The box around `prims`.
-pub(super) fn bounds(prims: &[PrimRef]) -> (Vec3, Vec3) {
+fn bounds(prims: &[PrimRef]) -> (Vec3, Vec3) {
     prims
         .iter()
         .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| {
@@ -186,7 +209,7 @@ pub(super) fn bounds(prims: &[PrimRef]) -> (Vec3, Vec3) {
 }
 
 /// Appends a subtree built with root-relative links, shifting its inner links by its new position.
-pub(super) fn append_shifted(nodes: &mut Vec<GpuNode>, subtree: &[GpuNode]) {
+fn append_shifted(nodes: &mut Vec<GpuNode>, subtree: &[GpuNode]) {
     let shift = nodes.len() as u32;
     nodes.extend(subtree.iter().map(|n| {
         let mut n = *n;

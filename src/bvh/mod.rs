@@ -86,13 +86,19 @@ impl Bvh {
     }
 }
 
-/// Scene triangle `index` as f32 offsets from `origin`, or `None` when it can never be hit: zero
-/// area in f64, or zero area once rounded to f32. Such triangles are left out of every tree and
-/// keep their ids.
+/// Scene triangle `index` as f32 offsets from `origin`, or `None` when it can never be hit (see
+/// [`is_traceable`]).
 pub(crate) fn traceable_triangle(scene: &Scene, origin: DVec3, index: usize) -> Option<[Vec3; 3]> {
-    let [a, b, c] = scene.world_triangle(index).map(|p| (p - origin).as_vec3());
+    let local = scene.world_triangle(index).map(|p| (p - origin).as_vec3());
+    is_traceable(scene, index, local).then_some(local)
+}
+
+/// Whether scene triangle `index`, whose f32 offsets are `local`, can be hit: not zero area in
+/// f64 and not zero area once rounded to f32. Other triangles are left out of every tree and
+/// keep their ids.
+pub(crate) fn is_traceable(scene: &Scene, index: usize, [a, b, c]: [Vec3; 3]) -> bool {
     let f32_area_zero = (b - a).as_dvec3().cross((c - a).as_dvec3()) == DVec3::ZERO;
-    (!scene.is_degenerate(index) && !f32_area_zero).then_some([a, b, c])
+    !f32_area_zero && !scene.is_degenerate(index)
 }
 
 /// Scene triangle `index` as the kernel stores it: f32 offsets from `origin`.

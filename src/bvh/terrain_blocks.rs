@@ -15,7 +15,8 @@
 //! the write. Neither depends on the thread count, so the output is identical on any.
 
 use super::{
-    BuildOptions, Bvh, check_leaf_size, check_node_count, inner_node, leaf_node, link_parents,
+    BuildOptions, Bvh, check_leaf_size, check_node_count, inner_node, is_traceable, leaf_node,
+    link_parents,
 };
 use crate::error::{Error, Result};
 use crate::layout::{GpuNode, GpuTriangle};
@@ -207,19 +208,16 @@ impl<'a> Grid<'a> {
             .map(|i| (scene.position(i) - origin).as_vec3())
             .collect();
         let first_triangle = object.first_triangle;
-        // The same test as `super::traceable_triangle`, on the shared converted vertices.
         let traceable: Vec<u8> = (0..cell_rows as usize * cell_cols as usize)
             .into_par_iter()
             .map(|k| {
                 let first = first_triangle as usize + 2 * k;
                 (0..2).fold(0u8, |bits, h| {
                     let index = first + h;
-                    let [a, b, c] = scene
+                    let local = scene
                         .triangle_vertices(index)
                         .map(|v| local_positions[v as usize]);
-                    let f32_area_zero = (b - a).as_dvec3().cross((c - a).as_dvec3()) == DVec3::ZERO;
-                    let can_hit = !f32_area_zero && !scene.is_degenerate(index);
-                    bits | (u8::from(can_hit) << h)
+                    bits | (u8::from(is_traceable(scene, index, local)) << h)
                 })
             })
             .collect();
