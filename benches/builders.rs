@@ -8,7 +8,7 @@
 //! - `gpu/<scene>`: `GpuPicker::trace` of the same rays over each tree, on the bunny and the
 //!   terrain only (skipped, saying why, without a GPU adapter).
 //!
-//! Scenes: the Stanford bunny, the Stanford dragon (`/work/shared/data/dragon_res2.obj`, skipped
+//! Scenes: the Stanford bunny, the Stanford dragon (`../shared/data/dragon_res2.obj`, skipped
 //! with a note when absent), the Jacksboro fault DEM, a 708 × 708-sample terrain (999,698
 //! triangles) and a soup of 200,000 random triangles.
 //!
@@ -17,10 +17,10 @@
 //!
 //! Run with `cargo bench --bench builders` (one scene: `cargo bench --bench builders -- bunny`).
 
-use criterion::{
-    BenchmarkGroup, Criterion, SamplingMode, Throughput, criterion_group, criterion_main,
-    measurement::WallTime,
-};
+#[path = "common/short_groups.rs"]
+mod short_groups;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use raypick::bvh::sah_cost::sah_cost;
 use raypick::bvh::terrain_blocks::single_grid;
 use raypick::frame::local_rays;
@@ -31,27 +31,17 @@ use raypick::synthetic::{RayKind, hills, rays, terrain, triangle_soup};
 use raypick::{
     BuildOptions, Builder, BuiltScene, Bvh, GpuContext, GpuPicker, GridShape, Scene, cpu,
 };
+use short_groups::configure;
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::Duration;
 
 /// Rays per batch.
 const RAY_COUNT: usize = 65_536;
 /// Seed for the ray sets and the soup.
 const SEED: u64 = 1;
-/// Where the shared data sets live (the dragon is not in the repository).
-const DRAGON: &str = "/work/shared/data/dragon_res2.obj";
-
-/// Every group takes 10 flat samples over a short window: builds run for up to a second, and
-/// the whole bench must stay around 5 minutes on 2 cores.
-fn configure(group: &mut BenchmarkGroup<'_, WallTime>) {
-    group
-        .sample_size(10)
-        .sampling_mode(SamplingMode::Flat)
-        .warm_up_time(Duration::from_millis(500))
-        .measurement_time(Duration::from_secs(2));
-}
+/// The dragon, beside the repository in `../shared/data` (it is not in the repository).
+const DRAGON: &str = "../shared/data/dragon_res2.obj";
 
 /// The builder settings compared, by the name the bench ids use.
 const BUILDERS: [(&str, Builder, u32); 6] = [
@@ -225,9 +215,9 @@ fn builders(c: &mut Criterion) {
         obj("bunny", &data("bunny.obj")),
         context.as_ref(),
     );
-    let dragon = Path::new(DRAGON);
+    let dragon = Path::new(env!("CARGO_MANIFEST_DIR")).join(DRAGON);
     if dragon.exists() {
-        bench_scene(c, "dragon", obj("dragon", dragon), None);
+        bench_scene(c, "dragon", obj("dragon", &dragon), None);
     } else {
         eprintln!("dragon: skipped, {DRAGON} is absent");
     }

@@ -13,19 +13,22 @@
 //!
 //! Run with `cargo bench --bench layouts`.
 
-use criterion::{Criterion, SamplingMode, Throughput, criterion_group, criterion_main};
+#[path = "peers/scenes.rs"]
+mod scenes;
+#[path = "common/short_groups.rs"]
+mod short_groups;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use glam::Vec3;
 use rayon::prelude::*;
 use raypick::cpu::traverse::{Buffers, NodeSource, TriangleSource, trace};
 use raypick::frame::local_rays;
-use raypick::io::obj::load_obj;
-use raypick::io::scene_files::{SceneFile, load_scene};
 use raypick::layout::{GpuHit, GpuNode, GpuRay, GpuTriangle};
-use raypick::synthetic::{RayKind, hills, rays, terrain, triangle_soup};
-use raypick::{BuildOptions, Bvh, GridShape, Scene};
+use raypick::synthetic::{RayKind, rays};
+use raypick::{BuildOptions, Bvh, Scene};
+use scenes::SCENES;
+use short_groups::configure;
 use std::hint::black_box;
-use std::path::Path;
-use std::time::Duration;
 
 const RAY_COUNT: usize = 65_536;
 /// Fixed-point steps across the root box on each axis.
@@ -186,41 +189,15 @@ fn disagreements(reference: &[GpuHit], other: &[GpuHit]) -> usize {
         .count()
 }
 
-fn scenes() -> Vec<(&'static str, Scene)> {
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
-    let bunny = load_obj(&data.join("bunny.obj")).expect("bunny");
-    let dem = load_scene(&[SceneFile {
-        file: data.join("jacksboro_fault_dem_utm.asc"),
-        mask: None,
-    }])
-    .expect("DEM");
-    let mut terrain_2m = Scene::new();
-    terrain_2m
-        .add_grid_mesh(
-            "terrain",
-            terrain(1001, 1001, 0.0, 1000.0, 1.0, hills),
-            GridShape {
-                columns: 1001,
-                rows: 1001,
-            },
-        )
-        .expect("terrain");
-    vec![
-        (
-            "bunny",
-            Scene::from_meshes([("bunny".into(), bunny)]).unwrap(),
-        ),
-        ("jacksboro-dem", dem),
-        ("terrain-2m", terrain_2m),
-        (
-            "soup",
-            Scene::from_meshes([("soup".into(), triangle_soup(200_000, 100.0, 1))]).unwrap(),
-        ),
-    ]
-}
+/// The scenes of `benches/peers.rs` this bench uses.
+const SCENE_NAMES: [&str; 4] = ["bunny", "dem", "terrain_2m", "soup_200k"];
 
 fn layouts(c: &mut Criterion) {
-    for (name, scene) in scenes() {
+    for spec in SCENES.iter().filter(|s| SCENE_NAMES.contains(&s.name)) {
+        let (name, scene) = (
+            spec.name,
+            (spec.make)().expect("the scene's data is in the repository"),
+        );
         let bvh = Bvh::build(&scene, &BuildOptions::default()).expect("build");
         let quantised = QuantisedNodes::new(&bvh.nodes);
         let indexed = IndexedTriangles::new(&scene, &bvh);
@@ -242,12 +219,8 @@ fn layouts(c: &mut Criterion) {
         let flat_nodes: &[GpuNode] = &bvh.nodes;
         let flat_tris: &[GpuTriangle] = &bvh.triangles;
         let mut group = c.benchmark_group(format!("layouts/{name}"));
-        group
-            .sample_size(10)
-            .sampling_mode(SamplingMode::Flat)
-            .warm_up_time(Duration::from_millis(500))
-            .measurement_time(Duration::from_secs(2))
-            .throughput(Throughput::Elements(RAY_COUNT as u64));
+        configure(&mut group);
+        group.throughput(Throughput::Elements(RAY_COUNT as u64));
         for kind in [RayKind::Camera, RayKind::Random] {
             let rays = local_rays(bvh.origin, &rays(&scene, kind, RAY_COUNT, 1));
             let reference = trace_with(flat_nodes, flat_tris, cap, &rays);

@@ -17,10 +17,10 @@
 //! Run with `cargo bench --bench levers`, one lever with `cargo bench --bench levers --
 //! workgroup_size`.
 
-use criterion::{
-    BenchmarkGroup, Criterion, SamplingMode, Throughput, criterion_group, criterion_main,
-    measurement::WallTime,
-};
+#[path = "common/short_groups.rs"]
+mod short_groups;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use raypick::frame::local_rays;
 use raypick::gpu::picker::SWEPT_WORKGROUP_SIZES;
 use raypick::io::obj::load_obj;
@@ -28,10 +28,10 @@ use raypick::layout::GpuRay;
 use raypick::ray_order::{RayOrder, trace_in_order};
 use raypick::synthetic::{RayKind, hills, rays, terrain};
 use raypick::{BuildOptions, BuiltScene, GpuContext, GpuPicker, Scene, cpu};
+use short_groups::configure;
 use std::hint::black_box;
 use std::path::Path;
 use std::sync::{Arc, LazyLock};
-use std::time::Duration;
 
 /// Rays per batch in the workgroup-size sweep.
 const SWEEP_RAYS: usize = 65_536;
@@ -92,16 +92,6 @@ fn bunny_scene() -> Scene {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/bunny.obj");
     let mesh = load_obj(&path).expect("tests/data/bunny.obj loads");
     Scene::from_meshes([("bunny".to_string(), mesh)]).expect("the bunny is well formed")
-}
-
-/// Every group takes 10 flat samples over a short window: the routines run for tens of
-/// milliseconds to a few seconds, and the whole bench must stay under 5 minutes on 2 cores.
-fn configure(group: &mut BenchmarkGroup<'_, WallTime>) {
-    group
-        .sample_size(10)
-        .sampling_mode(SamplingMode::Flat)
-        .warm_up_time(Duration::from_millis(500))
-        .measurement_time(Duration::from_secs(2));
 }
 
 fn gpu_context(group: &str) -> Option<GpuContext> {
