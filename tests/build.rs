@@ -4,7 +4,7 @@
 use glam::DVec3;
 use proptest::prelude::*;
 use raypick::synthetic::{hills, terrain, triangle_soup};
-use raypick::{BuildOptions, Bvh, Mesh, Scene, SplitAxis};
+use raypick::{BuildOptions, Builder, Bvh, Mesh, Scene, SplitAxis};
 
 fn scene(mesh: Mesh) -> Scene {
     Scene::from_meshes([("m".to_string(), mesh)]).unwrap()
@@ -62,19 +62,27 @@ fn leaf_size_out_of_range_is_an_error() {
 
 #[test]
 fn identical_centroids_fall_back_to_the_median() {
-    // 100 copies of one triangle: the midplane puts all on one side every time.
+    // 100 copies of one triangle: the midplane puts all on one side every time, and no SAH
+    // plane separates them either.
     let mut mesh = Mesh::default();
     for i in 0..100u32 {
         mesh.positions.extend([DVec3::ZERO, DVec3::X, DVec3::Y]);
         mesh.triangles.push([3 * i, 3 * i + 1, 3 * i + 2]);
     }
-    let bvh = Bvh::build(&scene(mesh), &BuildOptions::default()).unwrap();
-    bvh.validate().unwrap();
-    assert!(
-        bvh.depth() <= 8,
-        "median fallback keeps the tree balanced: depth {}",
-        bvh.depth()
-    );
+    let scene = scene(mesh);
+    for builder in [Builder::MedianCut, Builder::BinnedSah] {
+        let options = BuildOptions {
+            builder,
+            ..BuildOptions::default()
+        };
+        let bvh = Bvh::build(&scene, &options).unwrap();
+        bvh.validate().unwrap();
+        assert!(
+            bvh.depth() <= 8,
+            "{builder:?}: median fallback keeps the tree balanced: depth {}",
+            bvh.depth()
+        );
+    }
 }
 
 proptest! {
