@@ -188,11 +188,7 @@ fn bench_scene(c: &mut Criterion, name: &str, scene: Scene, gpu: Option<&GpuCont
     let mut group = c.benchmark_group(format!("gpu/{name}"));
     configure(&mut group);
     for (builder, bvh) in trees {
-        let built = Arc::new(BuiltScene {
-            scene: scene.clone(),
-            bvh,
-            triangle_masks: Vec::new(),
-        });
+        let built = Arc::new(BuiltScene::from_parts(scene.clone(), bvh, Vec::new()));
         let mut picker = GpuPicker::new(context, built).expect("the scene uploads");
         for (kind_name, local) in &ray_sets {
             group.throughput(Throughput::Elements(local.len() as u64));

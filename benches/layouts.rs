@@ -164,11 +164,13 @@ fn trace_with<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
     nodes: &N,
     triangles: &T,
     iteration_cap: u32,
+    triangle_ids: &[u32],
     rays: &[GpuRay],
 ) -> Vec<GpuHit> {
     let buffers = Buffers {
         nodes,
         triangles,
+        triangle_ids,
         triangle_masks: &[],
         iteration_cap,
         max_hits: 0,
@@ -216,6 +218,7 @@ fn layouts(c: &mut Criterion) {
             (small_nodes + indexed_tris) / tris,
         );
         let cap = bvh.iteration_cap();
+        let ids: &[u32] = &bvh.triangle_ids;
         let flat_nodes: &[GpuNode] = &bvh.nodes;
         let flat_tris: &[GpuTriangle] = &bvh.triangles;
         let mut group = c.benchmark_group(format!("layouts/{name}"));
@@ -223,12 +226,12 @@ fn layouts(c: &mut Criterion) {
         group.throughput(Throughput::Elements(RAY_COUNT as u64));
         for kind in [RayKind::Camera, RayKind::Random] {
             let rays = local_rays(bvh.origin, &rays(&scene, kind, RAY_COUNT, 1));
-            let reference = trace_with(flat_nodes, flat_tris, cap, &rays);
+            let reference = trace_with(flat_nodes, flat_tris, cap, ids, &rays);
             let box_tests = |hits: &[GpuHit]| {
                 hits.iter().map(|h| h.box_tests as f64).sum::<f64>() / hits.len() as f64
             };
-            let quantised_hits = trace_with(&quantised, flat_tris, cap, &rays);
-            let indexed_hits = trace_with(flat_nodes, &indexed, cap, &rays);
+            let quantised_hits = trace_with(&quantised, flat_tris, cap, ids, &rays);
+            let indexed_hits = trace_with(flat_nodes, &indexed, cap, ids, &rays);
             println!(
                 "  {}: box tests/ray flat {:.1}, quantised {:.1}; disagreements: quantised {}, indexed {}",
                 kind.name(),
@@ -239,16 +242,16 @@ fn layouts(c: &mut Criterion) {
             );
             let kind = kind.name();
             group.bench_function(format!("flat/{kind}"), |b| {
-                b.iter(|| black_box(trace_with(flat_nodes, flat_tris, cap, &rays)))
+                b.iter(|| black_box(trace_with(flat_nodes, flat_tris, cap, ids, &rays)))
             });
             group.bench_function(format!("quantised-nodes/{kind}"), |b| {
-                b.iter(|| black_box(trace_with(&quantised, flat_tris, cap, &rays)))
+                b.iter(|| black_box(trace_with(&quantised, flat_tris, cap, ids, &rays)))
             });
             group.bench_function(format!("indexed-triangles/{kind}"), |b| {
-                b.iter(|| black_box(trace_with(flat_nodes, &indexed, cap, &rays)))
+                b.iter(|| black_box(trace_with(flat_nodes, &indexed, cap, ids, &rays)))
             });
             group.bench_function(format!("both/{kind}"), |b| {
-                b.iter(|| black_box(trace_with(&quantised, &indexed, cap, &rays)))
+                b.iter(|| black_box(trace_with(&quantised, &indexed, cap, ids, &rays)))
             });
         }
         group.finish();

@@ -231,3 +231,46 @@ impl Tally {
         compare_answers(scene, rays, Mode::Closest, &answers(a), &answers(b), None)
     }
 }
+
+/// Whether two hits are the same answer, bit for bit (every field but the b and i statistics).
+pub fn same_answer(a: &Hit, b: &Hit) -> bool {
+    let bits = |h: &Hit| {
+        (
+            h.hit,
+            h.invalid,
+            h.t.to_bits(),
+            h.object,
+            h.triangle,
+            h.u.to_bits(),
+            h.v.to_bits(),
+            h.position.to_array().map(f64::to_bits),
+            h.normal.to_array().map(f64::to_bits),
+            h.cell,
+        )
+    };
+    bits(a) == bits(b)
+}
+
+/// Rays whose answers differ in any bit between two backends: the nearest hit (hit or miss only
+/// in [`Mode::Any`], where any hit is an answer), and in [`Mode::All`] the whole list and the
+/// overflow flag. Returns the indices of the differing rays.
+pub fn differences(mode: Mode, a: &Answers, b: &Answers) -> Vec<usize> {
+    (0..a.nearest.len())
+        .filter(|&i| {
+            let (x, y) = (&a.nearest[i], &b.nearest[i]);
+            if mode == Mode::Any {
+                return x.hit != y.hit || x.invalid != y.invalid;
+            }
+            if !same_answer(x, y) {
+                return true;
+            }
+            mode == Mode::All
+                && (a.overflow[i] != b.overflow[i]
+                    || a.hits_of(i).len() != b.hits_of(i).len()
+                    || a.hits_of(i)
+                        .iter()
+                        .zip(b.hits_of(i))
+                        .any(|(p, q)| !same_answer(p, q)))
+        })
+        .collect()
+}

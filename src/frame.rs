@@ -10,6 +10,7 @@ use crate::query::Query;
 use crate::ray::{Hit, Ray};
 use crate::scene::Scene;
 use glam::DVec3;
+use rayon::prelude::*;
 
 /// The kernel input for an invalid ray: `tmax < tmin`, so traversal returns at once.
 pub const NEVER_TRACED: GpuRay = GpuRay {
@@ -61,9 +62,48 @@ pub fn local_rays(scene_origin: DVec3, rays: &[Ray]) -> Vec<GpuRay> {
 
 /// Converts a batch of world rays to kernel rays for `query`.
 pub fn local_rays_for(scene_origin: DVec3, rays: &[Ray], query: &Query) -> Vec<GpuRay> {
-    rays.iter()
+    let mut out = Vec::new();
+    rays.par_iter()
+        .with_min_len(4096)
         .map(|r| local_ray(scene_origin, r, query).map_or(NEVER_TRACED, |(g, _)| g))
-        .collect()
+        .collect_into_vec(&mut out);
+    out
+}
+
+/// Converts a batch of world rays to kernel rays for `query`, with each ray's world direction
+/// length (`t_world = t_local / length`; NaN for an invalid ray), computed once for
+/// [`resolve_with`].
+pub fn scene_rays(scene_origin: DVec3, rays: &[Ray], query: &Query) -> (Vec<GpuRay>, Vec<f64>) {
+    let (mut local, mut lengths) = (Vec::new(), Vec::new());
+    rays.par_iter()
+        .with_min_len(4096)
+        .map(|r| local_ray(scene_origin, r, query).unwrap_or((NEVER_TRACED, f64::NAN)))
+        .unzip_into_vecs(&mut local, &mut lengths);
+    (local, lengths)
+}
+
+/// Checks that every traversal result names a triangle of the tree (or none): a result past the
+/// end or at the iteration cap means the tree's links are corrupted.
+pub fn check_found<T: Sync>(
+    bvh: &Bvh,
+    found: &[T],
+    prim: impl Fn(&T) -> u32 + Sync + Send,
+) -> Result<()> {
+    let count = bvh.triangle_ids.len();
+    let bad = found
+        .par_iter()
+        .with_min_len(4096)
+        .map(prim)
+        .find_any(|&p| p != NO_HIT && (p == CAP_REACHED || p as usize >= count));
+    match bad {
+        None => Ok(()),
+        Some(CAP_REACHED) => Err(Error::Invalid(
+            "traversal reached its iteration cap: the tree's links are corrupted".into(),
+        )),
+        Some(p) => Err(Error::Invalid(format!(
+            "traversal returned triangle {p} past the end"
+        ))),
+    }
 }
 
 /// Turns a traversal result into the public hit: maps the leaf-order triangle back to its
@@ -72,26 +112,35 @@ pub fn resolve(scene: &Scene, bvh: &Bvh, ray: &Ray, found: &GpuHit) -> Result<Hi
     let Some((_, dir_length)) = local_ray(bvh.origin, ray, &Query::default()) else {
         return Ok(Hit::INVALID);
     };
+    if found.prim == CAP_REACHED {
+        return Err(Error::Invalid(
+            "traversal reached its iteration cap: the tree's links are corrupted".into(),
+        ));
+    }
+    if found.prim != NO_HIT && found.prim as usize >= bvh.triangle_ids.len() {
+        return Err(Error::Invalid(format!(
+            "traversal returned triangle {} past the end",
+            found.prim
+        )));
+    }
+    Ok(resolve_with(scene, bvh, ray, dir_length, found))
+}
+
+/// [`resolve`] for a result already checked by [`check_found`], with the ray's direction length
+/// from [`scene_rays`] (NaN: an invalid ray).
+pub fn resolve_with(scene: &Scene, bvh: &Bvh, ray: &Ray, dir_length: f64, found: &GpuHit) -> Hit {
+    if dir_length.is_nan() {
+        return Hit::INVALID;
+    }
     let stats = Hit {
         box_tests: found.box_tests,
         triangle_tests: found.triangle_tests,
         ..Hit::MISS
     };
-    match found.prim {
-        NO_HIT => return Ok(stats),
-        CAP_REACHED => {
-            return Err(Error::Invalid(
-                "traversal reached its iteration cap: the tree's links are corrupted".into(),
-            ));
-        }
-        _ => {}
+    if found.prim == NO_HIT {
+        return stats;
     }
-    let scene_index = *bvh.triangle_ids.get(found.prim as usize).ok_or_else(|| {
-        Error::Invalid(format!(
-            "traversal returned triangle {} past the end",
-            found.prim
-        ))
-    })?;
+    let scene_index = bvh.triangle_ids[found.prim as usize];
     let vertices = scene.world_triangle(scene_index as usize);
     let exact = ray_triangle_f64(vertices, ray.origin, ray.dir);
     let (t, u, v) =
@@ -106,7 +155,7 @@ pub fn resolve(scene: &Scene, bvh: &Bvh, ray: &Ray, found: &GpuHit) -> Result<Hi
         .grid
         .map(|g| g.cell_of(triangle))
         .map(|(r, c)| [r, c]);
-    Ok(Hit {
+    Hit {
         hit: true,
         t,
         object,
@@ -117,5 +166,5 @@ pub fn resolve(scene: &Scene, bvh: &Bvh, ray: &Ray, found: &GpuHit) -> Result<Hi
         normal: (b - a).cross(c - a).normalize_or_zero(),
         cell,
         ..stats
-    })
+    }
 }

@@ -18,8 +18,9 @@
 //! ```
 //!
 //! Data flow: [`Scene`] -> [`bvh::median_cut`] -> [`Bvh`] (flat buffers, [`layout`]) ->
-//! [`gpu::GpuPicker`] (`wgsl/pick.wgsl`) or [`CpuPicker`] ([`cpu::traverse`]) ->
-//! [`frame::resolve`] (f64 refinement) -> [`Hit`].
+//! [`gpu::GpuPicker`] (`wgsl/pick.wgsl`), [`CpuPicker`] (the wide SIMD [`engine`]) or
+//! [`picker::ReferencePicker`] (the kernel's twin, [`cpu::traverse`]) -> [`frame::resolve`]
+//! (f64 refinement) -> [`Hit`].
 
 #![warn(missing_docs)]
 
@@ -29,6 +30,7 @@ pub mod camera;
 pub mod compare;
 pub mod cpu;
 pub mod dem;
+pub mod engine;
 pub mod error;
 pub mod frame;
 pub mod gpu;
@@ -49,7 +51,7 @@ pub mod synthetic;
 pub use bvh::{BuildOptions, Builder, Bvh, SplitAxis};
 pub use error::{Error, Result};
 pub use gpu::{GpuContext, GpuPicker};
-pub use picker::{Backend, BuiltScene, CpuPicker, Picker};
+pub use picker::{Backend, BuiltScene, CpuPicker, Picker, ReferencePicker, make_picker};
 pub use query::{Answers, Cull, Intersector, Mode, Query};
 pub use ray::{Hit, Ray};
 pub use scene::{GridShape, Mesh, Scene};

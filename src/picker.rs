@@ -1,16 +1,20 @@
-//! The front door: a built scene, the [`Picker`] trait both backends implement, and the CPU
-//! picker. The GPU picker lives in [`crate::gpu::picker`].
+//! The front door: a built scene, the [`Picker`] trait every backend implements, the one pick
+//! pipeline they share ([`pick_through`]: validate, world → scene-frame rays, reorder, trace, put
+//! back, refine in f64, answers) over a [`Tracer`] of scene-frame ray batches, the CPU pickers,
+//! and the backend factory. The GPU tracer lives in [`crate::gpu::picker`].
 
 use crate::bvh::{BuildOptions, Bvh};
 use crate::cpu::{TraceSettings, trace_batch};
+use crate::engine::{Simd, WideBvh};
 use crate::error::Result;
-use crate::frame::{local_rays_for, resolve};
-use crate::layout::{GpuHit, GpuHitEntry};
+use crate::frame::{check_found, resolve_with, scene_rays};
+use crate::layout::{GpuHit, GpuHitEntry, GpuRay, NO_HIT};
 use crate::query::{Answers, Intersector, Mode, Query};
 use crate::ray::{Hit, Ray};
 use crate::ray_order::{DEFAULT_REORDER_FROM, trace_in_order};
 use crate::scene::Scene;
 use rayon::prelude::*;
+use std::sync::{Arc, OnceLock};
 
 /// A scene together with the tree built over it: what both backends pick against.
 #[derive(Clone, Debug)]
@@ -21,6 +25,8 @@ pub struct BuiltScene {
     pub bvh: Bvh,
     /// Layer mask per leaf-order triangle, from the objects' masks; empty when all are all-ones.
     pub triangle_masks: Vec<u32>,
+    /// The CPU engine's wide tree, collapsed from `bvh` the first time the engine runs.
+    wide: OnceLock<WideBvh>,
 }
 
 impl BuiltScene {
@@ -39,7 +45,23 @@ impl BuiltScene {
             scene,
             bvh,
             triangle_masks,
+            wide: OnceLock::new(),
         })
+    }
+
+    /// A built scene from a tree made elsewhere (`bvh` must be built over `scene`).
+    pub fn from_parts(scene: Scene, bvh: Bvh, triangle_masks: Vec<u32>) -> Self {
+        Self {
+            scene,
+            bvh,
+            triangle_masks,
+            wide: OnceLock::new(),
+        }
+    }
+
+    /// The CPU engine's wide tree (collapsed from `bvh` on first use, then kept).
+    pub fn wide(&self) -> &WideBvh {
+        self.wide.get_or_init(|| WideBvh::collapse(&self.bvh))
     }
 
     /// The CPU/GPU trace settings for `query`.
@@ -55,15 +77,32 @@ impl BuiltScene {
     pub fn answers(
         &self,
         rays: &[Ray],
+        dir_lengths: &[f64],
         query: &Query,
         found: &[GpuHit],
         lists: &[GpuHitEntry],
     ) -> Result<Answers> {
-        let nearest = rays
+        check_found(&self.bvh, found, |f| f.prim)?;
+        if query.mode == Mode::All {
+            let k = query.max_hits as usize;
+            let counted = |i: usize| (i % k) < found[i / k].count as usize;
+            let live: Vec<u32> = lists
+                .par_iter()
+                .enumerate()
+                .map(|(i, e)| if counted(i) { e.prim } else { NO_HIT })
+                .collect();
+            check_found(&self.bvh, &live, |&p| p)?;
+        }
+        let resolved = |i: usize, f: &GpuHit| {
+            resolve_with(&self.scene, &self.bvh, &rays[i], dir_lengths[i], f)
+        };
+        let mut nearest = Vec::new();
+        found
             .par_iter()
-            .zip(found)
-            .map(|(ray, f)| resolve(&self.scene, &self.bvh, ray, f))
-            .collect::<Result<Vec<Hit>>>()?;
+            .enumerate()
+            .with_min_len(1024)
+            .map(|(i, f)| resolved(i, f))
+            .collect_into_vec(&mut nearest);
         if query.mode != Mode::All {
             return Ok(Answers {
                 nearest,
@@ -71,11 +110,10 @@ impl BuiltScene {
             });
         }
         let k = query.max_hits as usize;
-        let per_ray = rays
+        let per_ray = found
             .par_iter()
-            .zip(found)
             .enumerate()
-            .map(|(i, (ray, f))| {
+            .map(|(i, f)| {
                 let mut hits = lists[i * k..i * k + f.count as usize]
                     .iter()
                     .map(|e| {
@@ -86,10 +124,15 @@ impl BuiltScene {
                             v: e.v,
                             ..GpuHit::default()
                         };
-                        resolve(&self.scene, &self.bvh, ray, &entry)
+                        resolved(i, &entry)
                     })
-                    .collect::<Result<Vec<Hit>>>()?;
-                hits.sort_by(|a, b| a.t.total_cmp(&b.t));
+                    .collect::<Vec<Hit>>();
+                // The tie rule: equal t, the lower scene triangle id (object, then triangle).
+                hits.sort_by(|a, b| {
+                    a.t.total_cmp(&b.t)
+                        .then(a.object.cmp(&b.object))
+                        .then(a.triangle.cmp(&b.triangle))
+                });
                 Ok((hits, f.overflow != 0))
             })
             .collect::<Result<Vec<_>>>()?;
@@ -142,16 +185,122 @@ pub trait Picker {
     }
 }
 
-/// The CPU reference path: the kernel's traversal, run on all cores.
+/// A backend's core: traces batches of scene-frame rays (each with its own mode and culling
+/// flags) and returns the raw per-ray records and all-hits lists. [`pick_through`] does
+/// everything else.
+pub trait Tracer {
+    /// The scene this tracer answers for.
+    fn built(&self) -> &Arc<BuiltScene>;
+    /// Traces `rays`; `out.0[i]` answers `rays[i]`, and `out.1` holds `settings.max_hits`
+    /// entries per ray.
+    fn trace(
+        &mut self,
+        rays: &[GpuRay],
+        settings: &TraceSettings<'_>,
+    ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)>;
+}
+
+/// The one pick pipeline: validates `query`, takes `rays` into the scene frame, traces them
+/// through `tracer` (in ray order from `reorder_from` rays), and refines every hit in f64.
+pub fn pick_through<T: Tracer + ?Sized>(
+    tracer: &mut T,
+    reorder_from: usize,
+    rays: &[Ray],
+    query: &Query,
+) -> Result<Answers> {
+    query.validate()?;
+    let built = tracer.built().clone();
+    let (local, dir_lengths) = scene_rays(built.bvh.origin, rays, query);
+    let settings = built.settings(query);
+    let reorder = local.len() >= reorder_from;
+    let (found, lists) = trace_in_order(&local, settings.max_hits, reorder, |rays| {
+        tracer.trace(rays, &settings)
+    })?;
+    built.answers(rays, &dir_lengths, query, &found, &lists)
+}
+
+/// The CPU engine (`--backend cpu`): the wide SIMD walk of [`crate::engine`], on all cores.
 #[derive(Clone, Debug)]
 pub struct CpuPicker {
-    built: std::sync::Arc<BuiltScene>,
+    built: Arc<BuiltScene>,
     reorder_from: usize,
+    simd: Simd,
 }
 
 impl CpuPicker {
-    /// A CPU picker over `built`.
-    pub fn new(built: std::sync::Arc<BuiltScene>) -> Self {
+    /// A CPU engine picker over `built`, on the best lanes this CPU has (see [`Simd::detect`]).
+    pub fn new(built: Arc<BuiltScene>) -> Self {
+        Self {
+            built,
+            reorder_from: DEFAULT_REORDER_FROM,
+            simd: Simd::detect(),
+        }
+    }
+
+    /// Sets the batch size from which rays are traced in [`crate::ray_order::RayOrder`]
+    /// (`usize::MAX`: never). Answers are the same either way.
+    pub fn set_reorder_from(&mut self, rays: usize) {
+        self.reorder_from = rays;
+    }
+
+    /// Runs on `simd` lanes (the portable lanes where this CPU lacks them). Answers are the
+    /// same on every choice.
+    pub fn set_simd(&mut self, simd: Simd) {
+        self.simd = simd;
+    }
+}
+
+impl Tracer for CpuPicker {
+    fn built(&self) -> &Arc<BuiltScene> {
+        &self.built
+    }
+
+    fn trace(
+        &mut self,
+        rays: &[GpuRay],
+        settings: &TraceSettings<'_>,
+    ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
+        let built = &self.built;
+        Ok(crate::engine::trace_batch(
+            built.wide(),
+            &built.bvh,
+            rays,
+            settings,
+            self.simd,
+        ))
+    }
+}
+
+impl Picker for CpuPicker {
+    fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers> {
+        pick_through(self, self.reorder_from, rays, query)
+    }
+
+    fn describe(&self) -> String {
+        let simd = if self.simd.is_available() {
+            self.simd
+        } else {
+            Simd::Portable
+        };
+        format!(
+            "cpu engine ({}, {} threads)",
+            simd.name(),
+            rayon::current_num_threads()
+        )
+    }
+}
+
+/// The reference path (`--backend reference`): the kernel's twin, its traversal line for line in
+/// Rust (`cpu::traverse`), on all cores.
+#[derive(Clone, Debug)]
+pub struct ReferencePicker {
+    built: Arc<BuiltScene>,
+    reorder_from: usize,
+}
+
+impl ReferencePicker {
+    /// A reference picker over `built`.
+    pub fn new(built: Arc<BuiltScene>) -> Self {
         Self {
             built,
             reorder_from: DEFAULT_REORDER_FROM,
@@ -165,32 +314,69 @@ impl CpuPicker {
     }
 }
 
-impl Picker for CpuPicker {
+impl Tracer for ReferencePicker {
+    fn built(&self) -> &Arc<BuiltScene> {
+        &self.built
+    }
+
+    fn trace(
+        &mut self,
+        rays: &[GpuRay],
+        settings: &TraceSettings<'_>,
+    ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
+        Ok(trace_batch(&self.built.bvh, rays, settings))
+    }
+}
+
+impl Picker for ReferencePicker {
     fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers> {
-        query.validate()?;
-        let local = local_rays_for(self.built.bvh.origin, rays, query);
-        let settings = self.built.settings(query);
-        let reorder = local.len() >= self.reorder_from;
-        let (found, lists) = trace_in_order(&local, settings.max_hits, reorder, |rays| {
-            Ok::<_, crate::error::Error>(trace_batch(&self.built.bvh, rays, &settings))
-        })?;
-        self.built.answers(rays, query, &found, &lists)
+        pick_through(self, self.reorder_from, rays, query)
     }
 
     fn describe(&self) -> String {
-        format!("cpu ({} threads)", rayon::current_num_threads())
+        format!(
+            "reference (the kernel's twin, {} threads)",
+            rayon::current_num_threads()
+        )
     }
 }
 
 /// Which path answers picks.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum Backend {
-    /// The WGSL kernel on a GPU (lavapipe on machines without one).
+    /// The CPU engine on a CPU-only or software-GPU machine and for small batches; the GPU for
+    /// large batches on a real GPU (see [`crate::auto::AutoPicker`]). Says so when it falls back.
     #[default]
-    Gpu,
-    /// The CPU reference path.
-    Cpu,
-    /// Small batches on the CPU, large ones on the GPU (see [`crate::auto::AutoPicker`]); the CPU
-    /// alone, saying so, when no GPU can be opened.
     Auto,
+    /// The WGSL kernel on a GPU (lavapipe on machines without one); fails when there is none.
+    Gpu,
+    /// The CPU engine: wide SIMD traversal on all cores.
+    Cpu,
+    /// The kernel's twin on the CPU: the reference the other paths are checked against.
+    Reference,
+}
+
+impl Backend {
+    /// The name the command line and the server use.
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Auto => "auto",
+            Backend::Gpu => "gpu",
+            Backend::Cpu => "cpu",
+            Backend::Reference => "reference",
+        }
+    }
+}
+
+/// The picker for `backend`: the one factory the command line and the server share.
+pub fn make_picker(backend: Backend, built: Arc<BuiltScene>) -> Result<Box<dyn Picker + Send>> {
+    Ok(match backend {
+        Backend::Cpu => Box::new(CpuPicker::new(built)),
+        Backend::Reference => Box::new(ReferencePicker::new(built)),
+        Backend::Gpu => Box::new(crate::gpu::GpuPicker::new(
+            &crate::gpu::GpuContext::new()?,
+            built,
+        )?),
+        Backend::Auto => Box::new(crate::auto::AutoPicker::new(built)),
+    })
 }

@@ -90,7 +90,10 @@ fn bad_input_names_the_file_and_line_and_exits_2() {
 fn verify_reports_zero_mismatches_on_the_example() {
     let (code, out, err) = raypick(&["verify", "--random", "4000"]);
     assert_eq!(code, 0, "{out}\n{err}");
-    assert!(out.contains("4000 rays, 0 mismatches"), "{out}");
+    assert!(
+        out.contains("4000 rays, 0 differences, 0 mismatches"),
+        "{out}"
+    );
     for kind in [
         "camera",
         "random",

@@ -66,3 +66,37 @@ fn ray_batches_are_chunked_to_the_binding_limit() {
     assert_eq!(tally.mismatches, 0, "{tally:?}");
     assert!(gpu.iter().filter(|h| h.hit).count() > 10_000);
 }
+
+/// Issue 11: one all-hits request with a long list used to leave the picker with buffers sized
+/// for that list, so every later larger batch built a bind group over the binding limit and
+/// failed ("BindGroup with 'pick' label is invalid") until restart.
+#[test]
+fn a_long_all_hits_list_never_breaks_later_requests() {
+    use raypick::{Mode, Query};
+    let context = small_device(1 << 20); // 1 MiB: 64 rays of 1,024 hits, 21,845 rays of 48 B
+    let scene = built(terrain(40, 40, 0.0, 39.0, 1.0, hills));
+    let batch = rays(&scene.scene, RayKind::Random, 30_000, 5);
+    let mut gpu = GpuPicker::new(&context, scene.clone()).unwrap();
+    // The twin: the same answers and the same b and i statistics as the kernel.
+    let mut cpu = raypick::ReferencePicker::new(scene.clone());
+    for max_hits in [64, 1024] {
+        let all = Query {
+            mode: Mode::All,
+            max_hits,
+            ..Query::default()
+        };
+        // One ray, then a batch that needs several chunks at this list length.
+        for part in [&batch[..1], &batch[..300]] {
+            let g = gpu.query(part, &all).expect("all-hits query");
+            let c = cpu.query(part, &all).unwrap();
+            assert_eq!(g.lists, c.lists, "max_hits {max_hits}");
+            assert_eq!(g.overflow, c.overflow);
+        }
+        // Then larger closest-hit batches than the long list allows in one chunk.
+        let g = gpu
+            .pick(&batch)
+            .expect("closest batch after an all-hits request");
+        let c = cpu.pick(&batch).unwrap();
+        assert_eq!(g, c, "closest after max_hits {max_hits}");
+    }
+}

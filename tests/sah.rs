@@ -44,11 +44,7 @@ fn sah_built(scene: Scene, options: &BuildOptions) -> BuiltScene {
         "test scenes carry no layer masks"
     );
     let bvh = build_binned_sah(&scene, options).expect("binned SAH builds");
-    BuiltScene {
-        scene,
-        bvh,
-        triangle_masks: Vec::new(),
-    }
+    BuiltScene::from_parts(scene, bvh, Vec::new())
 }
 
 /// The contract shared with median cut: a valid tree over the same triangles, no leaf above the

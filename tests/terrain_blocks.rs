@@ -232,7 +232,7 @@ proptest::proptest! {
             .map(|(_, r)| r)
             .collect();
         let pick = |bvh: Bvh| {
-            let built = BuiltScene { scene: scene.clone(), bvh, triangle_masks: Vec::new() };
+            let built = BuiltScene::from_parts(scene.clone(), bvh, Vec::new());
             CpuPicker::new(Arc::new(built)).pick(&rays).unwrap()
         };
         let median = Bvh::build(&scene, &with(Builder::MedianCut, leaf_size)).unwrap();

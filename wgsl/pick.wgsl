@@ -64,6 +64,7 @@ struct GpuParams {
 @group(0) @binding(4) var<storage, read_write> hits: array<GpuHit>;
 @group(0) @binding(5) var<storage, read_write> hit_lists: array<GpuHitEntry>;
 @group(0) @binding(6) var<storage, read> triangle_masks: array<u32>;
+@group(0) @binding(7) var<storage, read> triangle_ids: array<u32>;
 
 const KIND_INNER: u32 = 16u;
 const KIND_BITS: u32 = 5u;
@@ -305,6 +306,9 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
                     if mode == MODE_ALL {
                         limit = insert_hit(&best, list_base, GpuHitEntry(h.t, prim, h.u, h.v), ray.tmax);
                     } else {
+                        if !closest_accepts(best, h.t, prim) {
+                            continue;
+                        }
                         best.t = h.t;
                         best.prim = prim;
                         best.u = h.u;
@@ -345,21 +349,32 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
     return best;
 }
 
-// Inserts a hit into the ray's list, kept sorted by t; when the list is full the farthest entry
-// is dropped and the ray is flagged as overflowing. Returns the new limit for t.
+// The tie rule (src/cpu/traverse.rs, `comes_before`): a smaller t first; equal t, the lower scene
+// triangle id first, so that no answer depends on the walk or the tree.
+fn comes_before(a: GpuHitEntry, b: GpuHitEntry) -> bool {
+    return a.t < b.t || (a.t == b.t && triangle_ids[a.prim] < triangle_ids[b.prim]);
+}
+
+// Closest and any-hit modes: whether a hit at t <= limit replaces `best` under the tie rule.
+fn closest_accepts(best: GpuHit, t: f32, prim: u32) -> bool {
+    return best.prim == NO_HIT || t < best.t || triangle_ids[prim] < triangle_ids[best.prim];
+}
+
+// Inserts a hit into the ray's list, kept sorted under the tie rule; when the list is full the
+// last entry is dropped and the ray is flagged as overflowing. Returns the new limit for t.
 fn insert_hit(best: ptr<function, GpuHit>, base: u32, entry: GpuHitEntry, tmax: f32) -> f32 {
     let max_hits = params.max_hits;
     var slot = (*best).count;
     if slot == max_hits {
         (*best).overflow = 1u;
         slot = max_hits - 1u;
-        if entry.t >= hit_lists[base + slot].t {
+        if !comes_before(entry, hit_lists[base + slot]) {
             return hit_lists[base + slot].t;
         }
     } else {
         (*best).count += 1u;
     }
-    while slot > 0u && hit_lists[base + slot - 1u].t > entry.t {
+    while slot > 0u && comes_before(entry, hit_lists[base + slot - 1u]) {
         hit_lists[base + slot] = hit_lists[base + slot - 1u];
         slot -= 1u;
     }

@@ -150,6 +150,7 @@ impl Engine for RaypickCpu {
         let buffers = Buffers {
             nodes: bvh.nodes.as_slice(),
             triangles: bvh.triangles.as_slice(),
+            triangle_ids: bvh.triangle_ids.as_slice(),
             triangle_masks: &[],
             iteration_cap: bvh.iteration_cap(),
             max_hits: 0,

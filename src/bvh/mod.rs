@@ -57,10 +57,12 @@ impl Bvh {
             .saturating_add(2)
     }
 
-    /// Bytes this tree occupies on the GPU (nodes plus triangles).
+    /// Bytes this tree occupies on the GPU (nodes, triangles, and the scene triangle ids the
+    /// kernel's tie rule reads).
     pub fn gpu_bytes(&self) -> u64 {
         (std::mem::size_of_val(self.nodes.as_slice())
-            + std::mem::size_of_val(self.triangles.as_slice())) as u64
+            + std::mem::size_of_val(self.triangles.as_slice())
+            + std::mem::size_of_val(self.triangle_ids.as_slice())) as u64
     }
 
     /// Tree depth (a single leaf has depth 1); 0 for an empty tree.

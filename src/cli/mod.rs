@@ -13,9 +13,8 @@ pub mod serve;
 pub mod soak;
 pub mod verify;
 
-use raypick::auto::AutoPicker;
 use raypick::io::ray_file::load_rays;
-use raypick::{Backend, BuiltScene, CpuPicker, Error, GpuContext, GpuPicker, Picker, Ray};
+use raypick::{Backend, BuiltScene, Error, Picker, Ray};
 
 /// Rays answered per chunk by commands that stream their output.
 pub const STREAM_CHUNK_RAYS: usize = 1 << 20;
@@ -26,15 +25,9 @@ use std::sync::Arc;
 /// A picker for `backend`. The automatic backend prints on standard error when it falls back to
 /// the CPU path.
 pub fn make_picker(backend: Backend, built: Arc<BuiltScene>) -> Result<Box<dyn Picker>, Error> {
-    Ok(match backend {
-        Backend::Cpu => Box::new(CpuPicker::new(built)),
-        Backend::Gpu => Box::new(GpuPicker::new(&GpuContext::new()?, built)?),
-        Backend::Auto => {
-            let mut auto = AutoPicker::new(built);
-            show_notes(&mut auto);
-            Box::new(auto)
-        }
-    })
+    let mut picker = raypick::make_picker(backend, built)?;
+    show_notes(picker.as_mut());
+    Ok(picker)
 }
 
 /// Prints the picker's fallback notes on standard error.

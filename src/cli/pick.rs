@@ -30,7 +30,7 @@ pub struct PickArgs {
     #[command(flatten)]
     pub query: QueryArgs,
     /// Which path answers.
-    #[arg(long, value_enum, default_value_t = Backend::Gpu)]
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
     pub backend: Backend,
     /// Output format.
     #[arg(long, value_enum, default_value_t = Format::Csv)]

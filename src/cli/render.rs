@@ -33,7 +33,7 @@ pub struct RenderArgs {
     #[arg(long, conflicts_with = "camera")]
     pub height: Option<u32>,
     /// Which path answers.
-    #[arg(long, value_enum, default_value_t = Backend::Gpu)]
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
     pub backend: Backend,
 }
 

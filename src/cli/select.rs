@@ -45,7 +45,7 @@ pub struct ViewArgs {
     #[arg(long, value_parser = parse_mask, default_value = "0xffffffff")]
     pub ray_mask: u32,
     /// Which path answers.
-    #[arg(long, value_enum, default_value_t = Backend::Gpu)]
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
     pub backend: Backend,
     /// Output file (default: standard output). For idbuffer, a `.png` file gets a 16-bit
     /// grayscale image of object id + 1 (0 = nothing); anything else gets CSV rows of ids

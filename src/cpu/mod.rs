@@ -35,6 +35,7 @@ pub fn trace_batch(
     let buffers = traverse::Buffers {
         nodes: bvh.nodes.as_slice(),
         triangles: bvh.triangles.as_slice(),
+        triangle_ids: bvh.triangle_ids.as_slice(),
         triangle_masks: settings.triangle_masks,
         iteration_cap: bvh.iteration_cap(),
         max_hits: settings.max_hits,

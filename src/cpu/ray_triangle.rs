@@ -76,6 +76,13 @@ pub struct Shear {
     z: Vec3,
 }
 
+impl Shear {
+    /// The three rows (x, y, z), for the engine's lanes.
+    pub fn rows(&self) -> [Vec3; 3] {
+        [self.x, self.y, self.z]
+    }
+}
+
 fn unit_axis(k: usize) -> Vec3 {
     Vec3::new(
         if k == 0 { 1.0 } else { 0.0 },

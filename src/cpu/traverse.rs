@@ -43,7 +43,7 @@ fn sibling(index: u32, parent: u32, parent_node: &GpuNode) -> u32 {
     parent + 1
 }
 
-fn facing_allowed(det: f32, cull: u32) -> bool {
+pub(crate) fn facing_allowed(det: f32, cull: u32) -> bool {
     if cull == CULL_BACK {
         return det > 0.0;
     }
@@ -93,6 +93,8 @@ pub struct Buffers<'a, N: ?Sized = [GpuNode], T: ?Sized = [GpuTriangle]> {
     pub nodes: &'a N,
     /// Triangles in leaf order.
     pub triangles: &'a T,
+    /// Scene triangle id of each leaf-order triangle (`Bvh::triangle_ids`): the tie rule.
+    pub triangle_ids: &'a [u32],
     /// Layer mask of each leaf-order triangle (ignored when empty).
     pub triangle_masks: &'a [u32],
     /// Iterations after which the walk gives up with `CAP_REACHED`.
@@ -206,8 +208,12 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
                                 v: h.v,
                             },
                             ray.tmax,
+                            buffers.triangle_ids,
                         );
                     } else {
+                        if !closest_accepts(&best, h.t, prim, buffers.triangle_ids) {
+                            continue;
+                        }
                         best.t = h.t;
                         best.prim = prim;
                         best.u = h.u;
@@ -248,21 +254,45 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
     best
 }
 
-/// Inserts a hit into the ray's list, kept sorted by t; when the list is full the farthest entry
-/// is dropped and the ray is flagged as overflowing. Returns the new limit for t.
-fn insert_hit(best: &mut GpuHit, list: &mut [GpuHitEntry], entry: GpuHitEntry, tmax: f32) -> f32 {
+/// The tie rule, so that no answer depends on the walk or the tree: hit `a` comes before hit `b`
+/// when its t is smaller, or the t are equal and its scene triangle id (objects in order, then
+/// triangles in file order) is lower.
+#[inline(always)]
+pub(crate) fn comes_before(a: &GpuHitEntry, b: &GpuHitEntry, triangle_ids: &[u32]) -> bool {
+    a.t < b.t || (a.t == b.t && triangle_ids[a.prim as usize] < triangle_ids[b.prim as usize])
+}
+
+/// Closest and any-hit modes: whether a hit at `t <= limit` on leaf-order triangle `prim`
+/// replaces `best` under the tie rule.
+#[inline(always)]
+pub(crate) fn closest_accepts(best: &GpuHit, t: f32, prim: u32, triangle_ids: &[u32]) -> bool {
+    best.prim == NO_HIT
+        || t < best.t
+        || triangle_ids[prim as usize] < triangle_ids[best.prim as usize]
+}
+
+/// Inserts a hit into the ray's list, kept sorted under the tie rule; when the list is full the
+/// last entry is dropped and the ray is flagged as overflowing. Returns the new limit for t.
+#[inline(always)]
+pub(crate) fn insert_hit(
+    best: &mut GpuHit,
+    list: &mut [GpuHitEntry],
+    entry: GpuHitEntry,
+    tmax: f32,
+    triangle_ids: &[u32],
+) -> f32 {
     let max_hits = list.len();
     let mut slot = best.count as usize;
     if slot == max_hits {
         best.overflow = 1;
         slot = max_hits - 1;
-        if entry.t >= list[slot].t {
+        if !comes_before(&entry, &list[slot], triangle_ids) {
             return list[slot].t;
         }
     } else {
         best.count += 1;
     }
-    while slot > 0 && list[slot - 1].t > entry.t {
+    while slot > 0 && comes_before(&entry, &list[slot - 1], triangle_ids) {
         list[slot] = list[slot - 1];
         slot -= 1;
     }

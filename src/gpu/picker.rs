@@ -3,13 +3,13 @@
 //! through a pipeline-overridable constant.
 
 use super::context::GpuContext;
+use crate::cpu::TraceSettings;
 use crate::error::{Error, Result};
-use crate::frame::local_rays_for;
 use crate::layout::{GpuHit, GpuHitEntry, GpuNode, GpuParams, GpuRay, GpuTriangle};
-use crate::picker::{BuiltScene, Picker};
-use crate::query::{Answers, Intersector, Query};
+use crate::picker::{BuiltScene, Picker, Tracer, pick_through};
+use crate::query::{Answers, Query};
 use crate::ray::Ray;
-use crate::ray_order::{DEFAULT_REORDER_FROM, trace_in_order};
+use crate::ray_order::DEFAULT_REORDER_FROM;
 use std::mem::size_of;
 use std::sync::Arc;
 use wgpu::util::DeviceExt;
@@ -38,6 +38,7 @@ pub struct GpuPicker {
     nodes: wgpu::Buffer,
     triangles: wgpu::Buffer,
     triangle_masks: wgpu::Buffer,
+    triangle_ids: wgpu::Buffer,
     batch: Option<BatchBuffers>,
     chunk_rays: u32,
     workgroup_size: u32,
@@ -127,6 +128,7 @@ impl GpuPicker {
                 storage(4, false),
                 storage(5, false),
                 storage(6, true),
+                storage(7, true),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -154,6 +156,7 @@ impl GpuPicker {
             GpuTriangle::default(),
         );
         let triangle_masks = storage_init(device, "triangle masks", &built.triangle_masks, 0u32);
+        let triangle_ids = storage_init(device, "triangle ids", &built.bvh.triangle_ids, 0u32);
         let params = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("params"),
             size: size_of::<GpuParams>() as u64,
@@ -176,6 +179,7 @@ impl GpuPicker {
             nodes,
             triangles,
             triangle_masks,
+            triangle_ids,
             batch: None,
             chunk_rays: DEFAULT_CHUNK_RAYS.min(by_binding),
             workgroup_size,
@@ -226,18 +230,34 @@ impl GpuPicker {
     ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
         let mut hits = Vec::with_capacity(rays.len());
         let mut lists = Vec::with_capacity(rays.len() * max_hits as usize);
-        let max_binding = self.context.device.limits().max_storage_buffer_binding_size;
-        let by_lists = if max_hits == 0 {
-            u32::MAX
-        } else {
-            (max_binding / (size_of::<GpuHitEntry>() as u64 * max_hits as u64))
-                .clamp(1, u32::MAX as u64) as u32
-        };
-        let chunk = self.chunk_rays.min(by_lists) as usize;
+        let chunk = self.chunk_for(max_hits) as usize;
         for part in rays.chunks(chunk) {
-            self.trace_chunk(part, max_hits, watertight, &mut hits, &mut lists)?;
+            let traced = self.trace_chunk(part, max_hits, watertight, &mut hits, &mut lists);
+            if traced.is_err() {
+                // Never keep buffers or a bind group that took part in a failed dispatch: the
+                // next request starts from fresh ones.
+                self.batch = None;
+            }
+            traced?;
         }
         Ok((hits, lists))
+    }
+
+    /// The most rays one dispatch may carry with `max_hits` list entries per ray: every per-chunk
+    /// buffer (rays, hits, lists, and the readback holding hits and lists) must fit the adapter's
+    /// storage binding and buffer size limits.
+    pub fn chunk_for(&self, max_hits: u32) -> u32 {
+        let limits = self.context.device.limits();
+        let per_ray_readback =
+            size_of::<GpuHit>() as u64 + size_of::<GpuHitEntry>() as u64 * u64::from(max_hits);
+        let per_ray_list = size_of::<GpuHitEntry>() as u64 * u64::from(max_hits.max(1));
+        let per_ray_binding = per_ray_list
+            .max(size_of::<GpuRay>() as u64)
+            .max(size_of::<GpuHit>() as u64);
+        let by_binding = limits.max_storage_buffer_binding_size / per_ray_binding;
+        let by_buffer = limits.max_buffer_size / per_ray_readback.max(per_ray_binding);
+        let most = by_binding.min(by_buffer).clamp(1, u64::from(u32::MAX)) as u32;
+        self.chunk_rays.min(most)
     }
 
     fn trace_chunk(
@@ -249,7 +269,7 @@ impl GpuPicker {
         lists_out: &mut Vec<GpuHitEntry>,
     ) -> Result<()> {
         let count = rays.len() as u32;
-        self.ensure_capacity(count, max_hits);
+        self.ensure_capacity(count, max_hits)?;
         let device = &self.context.device;
         let queue = &self.context.queue;
         let batch = self
@@ -345,19 +365,27 @@ impl GpuPicker {
         Ok(())
     }
 
-    /// Grows the per-chunk buffers to hold `rays` rays with `list_length` list entries each
-    /// (never shrinks).
-    fn ensure_capacity(&mut self, rays: u32, list_length: u32) {
+    /// Makes sure the per-chunk buffers hold `rays` rays with `list_length` list entries each,
+    /// replacing them when they are too small. Buffers or a bind group that wgpu rejects are
+    /// dropped, never kept for the next request.
+    fn ensure_capacity(&mut self, rays: u32, list_length: u32) -> Result<()> {
         if self
             .batch
             .as_ref()
             .is_some_and(|b| b.capacity >= rays && b.list_length >= list_length)
         {
-            return;
+            return Ok(());
         }
-        let capacity = rays.next_power_of_two().min(self.chunk_rays).max(rays);
-        let list_length = list_length.max(self.batch.as_ref().map_or(0, |b| b.list_length));
+        self.batch = None;
+        // Sized for this request alone (a long list asked for once is not carried into later
+        // requests), and never past what one dispatch may carry (`chunk_for`).
+        let capacity = rays
+            .next_power_of_two()
+            .min(self.chunk_for(list_length))
+            .max(rays);
         let device = &self.context.device;
+        let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let buffer = |label, size: usize, usage| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -408,8 +436,19 @@ impl GpuPicker {
                     binding: 6,
                     resource: self.triangle_masks.as_entire_binding(),
                 },
+                wgpu::BindGroupEntry {
+                    binding: 7,
+                    resource: self.triangle_ids.as_entire_binding(),
+                },
             ],
         });
+        let oom_error = pollster::block_on(oom.pop());
+        let validation_error = pollster::block_on(validation.pop());
+        if let Some(e) = oom_error.or(validation_error) {
+            return Err(Error::Gpu(format!(
+                "could not allocate buffers for {capacity} rays with {list_length} hits each: {e}"
+            )));
+        }
         self.batch = Some(BatchBuffers {
             capacity,
             list_length,
@@ -419,21 +458,27 @@ impl GpuPicker {
             readback,
             bind_group,
         });
+        Ok(())
+    }
+}
+
+impl Tracer for GpuPicker {
+    fn built(&self) -> &Arc<BuiltScene> {
+        &self.built
+    }
+
+    fn trace(
+        &mut self,
+        rays: &[GpuRay],
+        settings: &TraceSettings<'_>,
+    ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
+        self.trace_batch(rays, settings.max_hits, settings.watertight)
     }
 }
 
 impl Picker for GpuPicker {
     fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers> {
-        query.validate()?;
-        let local = local_rays_for(self.built.bvh.origin, rays, query);
-        let watertight = query.intersector == Intersector::Watertight;
-        let max_hits = query.list_length();
-        let reorder = local.len() >= self.reorder_from;
-        let (found, lists) = trace_in_order(&local, max_hits, reorder, |rays| {
-            self.trace_batch(rays, max_hits, watertight)
-        })?;
-        let built = self.built.clone();
-        built.answers(rays, query, &found, &lists)
+        pick_through(self, self.reorder_from, rays, query)
     }
 
     fn describe(&self) -> String {

@@ -430,11 +430,7 @@ async fn scene(State(state): State<Arc<AppState>>) -> Response {
     json_response(
         StatusCode::OK,
         &json!({
-            "backend": match state.backend {
-                Backend::Gpu => "gpu",
-                Backend::Cpu => "cpu",
-                Backend::Auto => "auto",
-            },
+            "backend": state.backend.name(),
             "device": state.worker.description(),
             "bounds": bounds,
             "origin": bvh.origin.to_array(),

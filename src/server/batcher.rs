@@ -4,11 +4,9 @@
 //! query settings, and the answers are split back to each job. The worker also renders views,
 //! since only it may touch the picker, and keeps the [`Stats`] counters.
 
-use crate::auto::AutoPicker;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
-use crate::gpu::{GpuContext, GpuPicker};
-use crate::picker::{Backend, BuiltScene, CpuPicker, Picker};
+use crate::picker::{Backend, BuiltScene, Picker};
 use crate::query::{Answers, Mode, Query};
 use crate::ray::Ray;
 use crate::render::{Image, Shade, render};
@@ -154,11 +152,7 @@ impl Worker {
 
 /// The picker for `backend`, with its one-line description ([`Picker::describe`]).
 fn make_picker(backend: Backend, built: Arc<BuiltScene>) -> Result<(Box<dyn Picker>, String)> {
-    let picker: Box<dyn Picker> = match backend {
-        Backend::Cpu => Box::new(CpuPicker::new(built)),
-        Backend::Gpu => Box::new(GpuPicker::new(&GpuContext::new()?, built)?),
-        Backend::Auto => Box::new(AutoPicker::new(built)),
-    };
+    let picker = crate::picker::make_picker(backend, built)?;
     let description = picker.describe();
     Ok((picker, description))
 }
@@ -359,7 +353,7 @@ mod tests {
     fn slices_match_subsets() {
         let built = Arc::new(BuiltScene::new(example_scene(), &BuildOptions::default()).unwrap());
         let rays = rays(&built.scene, RayKind::Camera, 64, 3);
-        let mut picker = CpuPicker::new(built);
+        let mut picker = crate::picker::CpuPicker::new(built);
         for mode in [Mode::Closest, Mode::All] {
             let query = Query {
                 mode,

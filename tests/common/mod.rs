@@ -2,12 +2,13 @@
 //! every backend and the oracle.
 #![allow(dead_code)]
 
-use raypick::compare::compare_answers;
+use raypick::compare::{compare_answers, differences};
+use raypick::engine::Simd;
 use raypick::oracle::brute_force_query;
 use raypick::synthetic::{RayKind, mixed_rays};
 use raypick::{
     Answers, BuildOptions, BuiltScene, CpuPicker, GpuContext, GpuPicker, Hit, Intersector, Mode,
-    Picker, Query, Ray, Scene,
+    Picker, Query, Ray, ReferencePicker, Scene,
 };
 use std::sync::{Arc, OnceLock};
 
@@ -70,6 +71,39 @@ pub fn assert_query_equivalent(
         .expect("gpu picker")
         .query(&plain, query)
         .expect("gpu query");
+    // The engine (on every lane kind this CPU has, the portable ones included) and the GPU give
+    // the reference twin's answers bit for bit. (Möller–Trumbore on a GPU that fuses
+    // multiply-adds may differ at shared edges; those are checked against the oracle below.)
+    let reference = ReferencePicker::new(built.clone())
+        .query(&plain, query)
+        .expect("reference query");
+    for simd in [Simd::Avx2, Simd::Sse, Simd::Portable] {
+        if !simd.is_available() {
+            continue;
+        }
+        let mut engine = CpuPicker::new(built.clone());
+        engine.set_simd(simd);
+        let answers = engine.query(&plain, query).expect("engine query");
+        let differ = differences(query.mode, &answers, &reference);
+        assert!(
+            differ.is_empty(),
+            "{name} {query:?}: the engine on {} lanes differs from the reference on {} rays, first {:?}:\n  engine:    {:?}\n  reference: {:?}",
+            simd.name(),
+            differ.len(),
+            plain[differ[0]],
+            answers.hits_of(differ[0]),
+            reference.hits_of(differ[0])
+        );
+    }
+    if query.intersector == Intersector::Watertight {
+        let differ = differences(query.mode, &gpu_answers, &reference);
+        assert!(
+            differ.is_empty(),
+            "{name} {query:?}: the GPU differs from the reference on {} rays, first {:?}",
+            differ.len(),
+            plain[differ[0]]
+        );
+    }
     let oracle = brute_force_query(&built.scene, &plain, query);
     let every_hit = brute_force_query(
         &built.scene,

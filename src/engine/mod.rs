@@ -1,0 +1,162 @@
+//! The CPU engine behind `--backend cpu`: the binary tree collapsed 4-wide ([`wide`]), walked
+//! nearest child first with SIMD box and triangle tests ([`walk`]) in f32 lanes ([`lanes`]).
+//!
+//! It answers exactly what the kernel and its twin (`cpu::traverse`, `--backend reference`)
+//! answer, bit for bit, in every mode; `tests/engine.rs` holds it to that on every scene, ray
+//! kind and mode, with SIMD and with the portable lanes.
+
+pub mod lanes;
+pub mod walk;
+pub mod wide;
+
+use crate::bvh::Bvh;
+use crate::cpu::TraceSettings;
+use crate::layout::{GpuHit, GpuHitEntry, GpuRay};
+use lanes::{Lanes, Portable};
+use rayon::prelude::*;
+use std::sync::OnceLock;
+pub use wide::WideBvh;
+
+/// Which lanes the engine runs on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Simd {
+    /// x86-64 SSE lanes compiled with AVX2 enabled (VEX encoding; no FMA is ever emitted, so the
+    /// results are the SSE lanes' bits).
+    Avx2,
+    /// x86-64 SSE2 lanes.
+    Sse,
+    /// Plain arrays (any target).
+    Portable,
+}
+
+impl Simd {
+    /// The best this CPU runs, unless `RAYPICK_SIMD` (`avx2`, `sse` or `portable`) asks for
+    /// less; decided once per process.
+    pub fn detect() -> Simd {
+        static CHOICE: OnceLock<Simd> = OnceLock::new();
+        *CHOICE.get_or_init(|| {
+            let best = Simd::best_available();
+            match std::env::var("RAYPICK_SIMD").as_deref() {
+                Ok("portable") => Simd::Portable,
+                Ok("sse") if best != Simd::Portable => Simd::Sse,
+                _ => best,
+            }
+        })
+    }
+
+    /// The best lanes this CPU supports.
+    pub fn best_available() -> Simd {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                return Simd::Avx2;
+            }
+            Simd::Sse
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        Simd::Portable
+    }
+
+    /// Whether this CPU can run these lanes.
+    pub fn is_available(self) -> bool {
+        match self {
+            Simd::Portable => true,
+            Simd::Sse => cfg!(target_arch = "x86_64"),
+            Simd::Avx2 => Simd::best_available() == Simd::Avx2,
+        }
+    }
+
+    /// The name used in messages and `RAYPICK_SIMD`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Simd::Avx2 => "avx2",
+            Simd::Sse => "sse",
+            Simd::Portable => "portable",
+        }
+    }
+}
+
+/// Rays handed to one rayon task at a time.
+const RAYS_PER_TASK: usize = 512;
+
+/// Traces each ray as its flags say, in parallel, on `simd` lanes (falling back to the portable
+/// lanes where the CPU lacks them). Returns the per-ray records and the all-hits lists
+/// (`max_hits` entries per ray), as `cpu::trace_batch` does.
+pub fn trace_batch(
+    wide: &WideBvh,
+    bvh: &Bvh,
+    rays: &[GpuRay],
+    settings: &TraceSettings<'_>,
+    simd: Simd,
+) -> (Vec<GpuHit>, Vec<GpuHitEntry>) {
+    let scene = walk::Scene {
+        nodes: &wide.nodes,
+        triangles: &bvh.triangles,
+        triangle_ids: &bvh.triangle_ids,
+        triangle_masks: settings.triangle_masks,
+        watertight: settings.watertight,
+    };
+    let k = settings.max_hits as usize;
+    let mut hits = vec![GpuHit::default(); rays.len()];
+    let mut lists = vec![GpuHitEntry::default(); rays.len() * k];
+    let stack = walk::stack_size(wide.depth);
+    let simd = if simd.is_available() {
+        simd
+    } else {
+        Simd::Portable
+    };
+    let run = |(rays, hits, lists): (&[GpuRay], &mut [GpuHit], &mut [GpuHitEntry])| {
+        let mut entries = vec![walk::Entry::default(); stack];
+        match simd {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `is_available` checked that this CPU has AVX2.
+            Simd::Avx2 => unsafe { trace_chunk_avx2(&scene, rays, hits, lists, &mut entries) },
+            #[cfg(target_arch = "x86_64")]
+            Simd::Sse => trace_chunk::<lanes::Sse>(&scene, rays, hits, lists, &mut entries),
+            _ => trace_chunk::<Portable>(&scene, rays, hits, lists, &mut entries),
+        }
+    };
+    if k == 0 {
+        rays.par_chunks(RAYS_PER_TASK)
+            .zip(hits.par_chunks_mut(RAYS_PER_TASK))
+            .for_each(|(r, h)| run((r, h, &mut [])));
+    } else {
+        rays.par_chunks(RAYS_PER_TASK)
+            .zip(hits.par_chunks_mut(RAYS_PER_TASK))
+            .zip(lists.par_chunks_mut(RAYS_PER_TASK * k))
+            .for_each(|((r, h), l)| run((r, h, l)));
+    }
+    (hits, lists)
+}
+
+#[inline(always)]
+fn trace_chunk<L: Lanes>(
+    scene: &walk::Scene<'_>,
+    rays: &[GpuRay],
+    hits: &mut [GpuHit],
+    lists: &mut [GpuHitEntry],
+    stack: &mut [walk::Entry],
+) {
+    let k = if rays.is_empty() {
+        0
+    } else {
+        lists.len() / rays.len()
+    };
+    for (i, (ray, hit)) in rays.iter().zip(hits).enumerate() {
+        let list = &mut lists[i * k..(i + 1) * k];
+        *hit = walk::trace::<L>(scene, ray, list, stack);
+    }
+}
+
+/// [`trace_chunk`] on SSE lanes, compiled with AVX2 enabled.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn trace_chunk_avx2(
+    scene: &walk::Scene<'_>,
+    rays: &[GpuRay],
+    hits: &mut [GpuHit],
+    lists: &mut [GpuHitEntry],
+    stack: &mut [walk::Entry],
+) {
+    trace_chunk::<lanes::Sse>(scene, rays, hits, lists, stack);
+}

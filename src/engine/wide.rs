@@ -1,0 +1,144 @@
+//! The engine's tree: the binary tree any builder made, collapsed into 4-wide nodes whose child
+//! boxes are stored structure-of-arrays, so one SIMD box test covers all four children.
+//!
+//! Leaves stay what the binary tree made them: a range of the leaf-order triangle array the
+//! kernel and the twin read (`Bvh::triangles`), so the engine adds only its nodes to memory and
+//! reports the same leaf-order triangle indices as the other paths.
+
+use crate::bvh::Bvh;
+use crate::layout::{GpuNode, KIND_INNER};
+
+/// Children per node.
+pub const WIDTH: usize = 4;
+/// `WideNode::kind` of an empty child slot.
+pub const EMPTY: u8 = 0;
+/// `WideNode::kind` of an inner child (leaves hold their triangle count, 1–15).
+pub const INNER: u8 = KIND_INNER as u8;
+
+/// Four children: their boxes (structure of arrays), what each is, and where it points.
+#[repr(C, align(64))]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WideNode {
+    /// Box minimum x, y, z of each child.
+    pub min: [[f32; WIDTH]; 3],
+    /// Box maximum x, y, z of each child.
+    pub max: [[f32; WIDTH]; 3],
+    /// An inner child's node index, or a leaf child's first leaf-order triangle.
+    pub child: [u32; WIDTH],
+    /// [`EMPTY`], a leaf's triangle count, or [`INNER`].
+    pub kind: [u8; WIDTH],
+}
+
+const _: () = assert!(std::mem::size_of::<WideNode>() == 128);
+
+impl WideNode {
+    const EMPTY_NODE: WideNode = WideNode {
+        min: [[0.0; WIDTH]; 3],
+        max: [[0.0; WIDTH]; 3],
+        child: [0; WIDTH],
+        kind: [EMPTY; WIDTH],
+    };
+
+    /// Bit `i` set when child slot `i` holds a child.
+    pub fn occupied(&self) -> u32 {
+        (0..WIDTH)
+            .filter(|&i| self.kind[i] != EMPTY)
+            .fold(0, |bits, i| bits | 1 << i)
+    }
+}
+
+/// The collapsed tree; node 0 is the root. Empty for an empty scene.
+#[derive(Clone, Debug, Default)]
+pub struct WideBvh {
+    /// Nodes, depth-first.
+    pub nodes: Vec<WideNode>,
+    /// Levels of wide nodes on the longest root-to-leaf path.
+    pub depth: usize,
+}
+
+fn surface_area(n: &GpuNode) -> f32 {
+    let d = [0, 1, 2].map(|a| n.max[a] - n.min[a]);
+    d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+}
+
+/// The binary node's two children.
+fn children(index: u32, node: &GpuNode) -> [u32; 2] {
+    [index + 1, node.first]
+}
+
+impl WideBvh {
+    /// Collapses `bvh`'s binary tree: each wide node takes a binary inner node's children and
+    /// keeps opening the inner child with the largest surface area until it has four. O(nodes).
+    pub fn collapse(bvh: &Bvh) -> WideBvh {
+        let binary = &bvh.nodes;
+        if binary.is_empty() {
+            return WideBvh::default();
+        }
+        let mut out = WideBvh {
+            nodes: Vec::with_capacity(binary.len() / 2 + 1),
+            depth: 0,
+        };
+        // (binary node whose children fill the wide node, wide slot to fill, depth)
+        let mut pending: Vec<(u32, u32, usize)> = Vec::new();
+        out.nodes.push(WideNode::EMPTY_NODE);
+        if binary[0].is_leaf() {
+            // A one-leaf tree: the root holds that leaf alone.
+            let root = &mut out.nodes[0];
+            set_child(root, 0, &binary[0], binary[0].first, binary[0].kind() as u8);
+            out.depth = 1;
+            return out;
+        }
+        pending.push((0, 0, 1));
+        while let Some((source, slot, depth)) = pending.pop() {
+            out.depth = out.depth.max(depth);
+            let mut open: Vec<u32> = children(source, &binary[source as usize]).to_vec();
+            while open.len() < WIDTH {
+                let widest = open
+                    .iter()
+                    .enumerate()
+                    .filter(|&(_, &n)| !binary[n as usize].is_leaf())
+                    .max_by(|a, b| {
+                        surface_area(&binary[*a.1 as usize])
+                            .total_cmp(&surface_area(&binary[*b.1 as usize]))
+                    })
+                    .map(|(i, _)| i);
+                let Some(i) = widest else { break };
+                let n = open[i];
+                open.splice(i..=i, children(n, &binary[n as usize]));
+            }
+            for (lane, &n) in open.iter().enumerate() {
+                let node = &binary[n as usize];
+                if node.is_leaf() {
+                    let node_copy = *node;
+                    set_child(
+                        &mut out.nodes[slot as usize],
+                        lane,
+                        &node_copy,
+                        node.first,
+                        node.kind() as u8,
+                    );
+                } else {
+                    let child = out.nodes.len() as u32;
+                    out.nodes.push(WideNode::EMPTY_NODE);
+                    set_child(&mut out.nodes[slot as usize], lane, node, child, INNER);
+                    pending.push((n, child, depth + 1));
+                }
+            }
+        }
+        out
+    }
+
+    /// Bytes the engine adds to a built scene (its nodes; it reads the shared triangles).
+    pub fn bytes(&self) -> u64 {
+        std::mem::size_of_val(self.nodes.as_slice()) as u64
+    }
+}
+
+fn set_child(wide: &mut WideNode, lane: usize, node: &GpuNode, child: u32, kind: u8) {
+    for a in 0..3 {
+        wide.min[a][lane] = node.min[a];
+        wide.max[a][lane] = node.max[a];
+    }
+    wide.child[lane] = child;
+    wide.kind[lane] = kind;
+}

@@ -1,0 +1,220 @@
+//! The CPU engine (`--backend cpu`): its wide tree is the binary tree regrouped, and under the
+//! tie rule every builder and every backend gives the same answers, bit for bit. (The engine
+//! against the twin, the GPU and the oracle on every scene, ray kind and mode runs in
+//! `tests/common`'s equivalence check, used by `equivalence.rs` and `modes.rs`.)
+
+mod common;
+
+use raypick::compare::differences;
+use raypick::engine::wide::{EMPTY, INNER, WideNode};
+use raypick::engine::{Simd, WideBvh};
+use raypick::io::scene_files::{SceneFile, load_scene};
+use raypick::synthetic::{RayKind, hills, mixed_rays, rays, terrain, triangle_soup};
+use raypick::{
+    Answers, BuildOptions, Builder, BuiltScene, CpuPicker, GpuPicker, Mode, Picker, Query, Ray,
+    ReferencePicker, Scene,
+};
+use std::path::Path;
+use std::sync::Arc;
+
+fn dem() -> Scene {
+    load_scene(&[SceneFile {
+        file: Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/jacksboro_fault_dem_utm.asc"),
+        mask: None,
+    }])
+    .expect("the Jacksboro DEM loads")
+}
+
+fn bunny() -> Scene {
+    load_scene(&[SceneFile {
+        file: Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/bunny.obj"),
+        mask: None,
+    }])
+    .expect("the bunny loads")
+}
+
+fn with(builder: Builder, leaf_size: u32) -> BuildOptions {
+    BuildOptions {
+        builder,
+        leaf_size,
+        ..BuildOptions::default()
+    }
+}
+
+/// Every child of every wide node: its boxes and what it points to.
+fn walk(wide: &WideBvh, node: u32, leaves: &mut Vec<(u32, u32)>, depth: usize) -> usize {
+    let n: &WideNode = &wide.nodes[node as usize];
+    let mut deepest = depth;
+    for lane in 0..4 {
+        match n.kind[lane] {
+            EMPTY => {}
+            INNER => deepest = deepest.max(walk(wide, n.child[lane], leaves, depth + 1)),
+            count => leaves.push((n.child[lane], u32::from(count))),
+        }
+    }
+    deepest
+}
+
+#[test]
+fn the_wide_tree_holds_every_leaf_of_the_binary_tree_once() {
+    for (name, scene, options) in [
+        ("bunny median cut", bunny(), with(Builder::MedianCut, 8)),
+        ("bunny sah leaf 1", bunny(), with(Builder::BinnedSah, 1)),
+        ("dem grid", dem(), with(Builder::Grid, 8)),
+    ] {
+        let built = BuiltScene::new(scene, &options).unwrap();
+        let wide = WideBvh::collapse(&built.bvh);
+        let mut leaves = Vec::new();
+        let depth = walk(&wide, 0, &mut leaves, 1);
+        assert_eq!(depth, wide.depth, "{name}: recorded depth");
+        let mut binary: Vec<(u32, u32)> = built
+            .bvh
+            .nodes
+            .iter()
+            .filter(|n| n.is_leaf())
+            .map(|n| (n.first, n.kind()))
+            .collect();
+        leaves.sort_unstable();
+        binary.sort_unstable();
+        assert_eq!(leaves, binary, "{name}: the same leaves");
+        // Each wide node stands for a distinct binary inner node (and opens up to three).
+        let inner = built.bvh.nodes.len() - binary.len();
+        assert!(
+            wide.nodes.len() <= inner,
+            "{name}: {} nodes",
+            wide.nodes.len()
+        );
+        // The engine's own memory at the default leaf size (it reads the shared triangles).
+        let per_triangle = wide.bytes() as f64 / built.bvh.triangles.len() as f64;
+        if options.leaf_size >= 8 {
+            assert!(per_triangle <= 40.0, "{name}: {per_triangle} B/triangle");
+        }
+    }
+}
+
+fn answers(picker: &mut dyn Picker, rays: &[Ray], query: &Query) -> Answers {
+    picker.query(rays, query).expect("query")
+}
+
+fn assert_same(what: &str, mode: Mode, a: &Answers, b: &Answers, rays: &[Ray]) {
+    let differ = differences(mode, a, b);
+    assert!(
+        differ.is_empty(),
+        "{what}: {} rays differ, first {:?}:\n  {:?}\n  {:?}",
+        differ.len(),
+        rays[differ[0]],
+        a.hits_of(differ[0]),
+        b.hits_of(differ[0])
+    );
+}
+
+/// The tie rule makes the answer independent of the tree: median cut, binned SAH and the grid
+/// builder, at several leaf sizes, on the engine, the twin and the GPU, give the same bits in
+/// closest and all-hits modes, edge and vertex rays included.
+#[test]
+fn every_builder_and_backend_gives_the_same_bits() {
+    let queries = [
+        Query::default(),
+        Query {
+            mode: Mode::All,
+            max_hits: 5,
+            ..Query::default()
+        },
+    ];
+    let dem = dem();
+    let cases: Vec<(&str, Scene, Vec<BuildOptions>)> = vec![
+        (
+            "dem",
+            dem.clone(),
+            vec![
+                with(Builder::Grid, 8),
+                with(Builder::MedianCut, 8),
+                with(Builder::BinnedSah, 8),
+                with(Builder::MedianCut, 1),
+                with(Builder::Grid, 3),
+            ],
+        ),
+        (
+            "bunny",
+            bunny(),
+            vec![
+                with(Builder::MedianCut, 8),
+                with(Builder::BinnedSah, 4),
+                with(Builder::MedianCut, 15),
+            ],
+        ),
+        (
+            "terrain",
+            Scene::from_meshes([(
+                "terrain".to_string(),
+                terrain(24, 24, 0.0, 23.0, 1.0, hills),
+            )])
+            .unwrap(),
+            vec![
+                with(Builder::MedianCut, 2),
+                with(Builder::BinnedSah, 8),
+                with(Builder::MedianCut, 8),
+            ],
+        ),
+    ];
+    for (name, scene, builds) in cases {
+        let rays: Vec<Ray> = mixed_rays(&scene, 1600, 5)
+            .into_iter()
+            .map(|(_, r)| r)
+            .collect();
+        for query in &queries {
+            let mut first: Option<Answers> = None;
+            for options in &builds {
+                let built = Arc::new(BuiltScene::new(scene.clone(), options).unwrap());
+                let what = format!("{name} {:?} leaf {}", options.builder, options.leaf_size);
+                let engine = answers(&mut CpuPicker::new(built.clone()), &rays, query);
+                let twin = answers(&mut ReferencePicker::new(built.clone()), &rays, query);
+                let gpu = answers(
+                    &mut GpuPicker::new(common::gpu(), built.clone()).unwrap(),
+                    &rays,
+                    query,
+                );
+                assert_same(
+                    &format!("{what} engine/twin"),
+                    query.mode,
+                    &engine,
+                    &twin,
+                    &rays,
+                );
+                assert_same(&format!("{what} gpu/twin"), query.mode, &gpu, &twin, &rays);
+                match &first {
+                    None => first = Some(engine),
+                    Some(f) => assert_same(
+                        &format!("{what} against the first builder"),
+                        query.mode,
+                        &engine,
+                        f,
+                        &rays,
+                    ),
+                }
+            }
+        }
+    }
+}
+
+/// Larger batches than the equivalence suites use (the engine's per-task chunks, the ray
+/// reordering from 65,536 rays), on every lane kind.
+#[test]
+fn large_batches_on_every_lane_kind_match_the_twin() {
+    let scene = Scene::from_meshes([("soup".to_string(), triangle_soup(20_000, 50.0, 3))]).unwrap();
+    let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
+    let mut batch = rays(&built.scene, RayKind::Random, 50_000, 9);
+    batch.extend(rays(&built.scene, RayKind::Camera, 30_000, 9));
+    let query = Query::default();
+    let twin = answers(&mut ReferencePicker::new(built.clone()), &batch, &query);
+    assert!(twin.nearest.iter().filter(|h| h.hit).count() > 10_000);
+    for simd in [Simd::Avx2, Simd::Sse, Simd::Portable] {
+        if !simd.is_available() {
+            continue;
+        }
+        let mut engine = CpuPicker::new(built.clone());
+        engine.set_simd(simd);
+        let got = answers(&mut engine, &batch, &query);
+        assert_same(simd.name(), query.mode, &got, &twin, &batch);
+    }
+}
