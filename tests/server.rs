@@ -707,3 +707,34 @@ fn gpu_backend_answers_as_the_gpu_picker() {
     assert_eq!((status, kind.as_str()), (200, "image/png"));
     assert_eq!(png_size(&png), (64, 48));
 }
+
+/// Issue 11: one valid all-hits request with a long list broke a GPU-backed server for good
+/// (every later larger `/pick` and every `/render` answered 500 "BindGroup with 'pick' label is
+/// invalid"). Each request must stand alone.
+#[test]
+fn a_long_all_hits_request_never_breaks_a_gpu_server() {
+    let built = example();
+    let base = start(built.clone(), Backend::Gpu, ServerConfig::default());
+    for max_hits in [64, 1024] {
+        let body = format!(
+            r#"{{"rays":[{{"origin":[33.3,45.1,100],"dir":[0,0,-1]}}],"mode":"all","max_hits":{max_hits}}}"#
+        );
+        let (status, answer) = post(&format!("{base}/pick"), &body);
+        assert_eq!(status, 200, "max_hits {max_hits}: {answer}");
+        let rays = json_rays(&built, 3000, 29);
+        let (status, answer) = post(
+            &format!("{base}/pick"),
+            &pick_body(&rays, &Query::default()),
+        );
+        assert_eq!(
+            status, 200,
+            "a larger pick after max_hits {max_hits}: {answer}"
+        );
+        let (status, kind, _) = get(&format!("{base}/render?width=320&height=240"));
+        assert_eq!(
+            (status, kind.as_str()),
+            (200, "image/png"),
+            "a render after max_hits {max_hits}"
+        );
+    }
+}
