@@ -25,6 +25,7 @@
 #![warn(missing_docs)]
 
 pub mod auto;
+pub mod budget;
 pub mod bvh;
 pub mod camera;
 pub mod compare;
