@@ -11,7 +11,7 @@ use crate::frame::{check_found, resolve_with, scene_rays};
 use crate::layout::{GpuHit, GpuHitEntry, GpuRay, NO_HIT};
 use crate::query::{Answers, Intersector, Mode, Query};
 use crate::ray::{Hit, Ray};
-use crate::ray_order::{DEFAULT_REORDER_FROM, trace_in_order};
+use crate::ray_order::{DEFAULT_REORDER_FROM, RayOrder, trace_in_order};
 use crate::scene::Scene;
 use rayon::prelude::*;
 use std::sync::{Arc, OnceLock};
@@ -74,8 +74,25 @@ impl BuiltScene {
     }
 
     /// Turns raw traversal results into public answers, refining every hit in f64, in parallel.
+    /// `found[i]` answers `rays[i]`; `dir_lengths` come from [`crate::frame::scene_rays`].
     pub fn answers(
         &self,
+        rays: &[Ray],
+        dir_lengths: &[f64],
+        query: &Query,
+        found: &[GpuHit],
+        lists: &[GpuHitEntry],
+    ) -> Result<Answers> {
+        self.answers_in(None, rays, dir_lengths, query, found, lists)
+    }
+
+    /// [`BuiltScene::answers`] for results traced in `order` (`found[j]` answers
+    /// `rays[order.order()[j]]`; all-hits lists in input order): hits are refined in traced
+    /// order, so neighbouring refinements read neighbouring triangles, and written straight to
+    /// their input slots.
+    fn answers_in(
+        &self,
+        order: Option<&RayOrder>,
         rays: &[Ray],
         dir_lengths: &[f64],
         query: &Query,
@@ -97,12 +114,33 @@ impl BuiltScene {
             resolve_with(&self.scene, &self.bvh, &rays[i], dir_lengths[i], f)
         };
         let mut nearest = Vec::new();
-        found
-            .par_iter()
-            .enumerate()
-            .with_min_len(1024)
-            .map(|(i, f)| resolved(i, f))
-            .collect_into_vec(&mut nearest);
+        match order {
+            None => found
+                .par_iter()
+                .enumerate()
+                .with_min_len(1024)
+                .map(|(i, f)| resolved(i, f))
+                .collect_into_vec(&mut nearest),
+            Some(order) => {
+                let slots = order.order();
+                assert_eq!(slots.len(), found.len(), "one result per ray");
+                nearest.reserve_exact(found.len());
+                let out = SlotWriter(nearest.as_mut_ptr());
+                found
+                    .par_iter()
+                    .zip(slots)
+                    .with_min_len(1024)
+                    .for_each(|(f, &i)| {
+                        let hit = resolved(i as usize, f);
+                        // SAFETY: `slots` is a permutation of 0..len (`RayOrder`), so each
+                        // slot of the reserved capacity is written exactly once, by one task.
+                        unsafe { out.write(i as usize, hit) };
+                    });
+                // SAFETY: every slot below len was written above (Hit is Copy: a panic above
+                // leaves the vector empty, never half-initialised).
+                unsafe { nearest.set_len(found.len()) };
+            }
+        }
         if query.mode != Mode::All {
             return Ok(Answers {
                 nearest,
@@ -185,6 +223,21 @@ pub trait Picker {
     }
 }
 
+/// Writes hits into distinct slots of a vector's reserved capacity from parallel tasks.
+struct SlotWriter(*mut Hit);
+
+// SAFETY: tasks write disjoint slots (see the one use in `answers_in`).
+unsafe impl Send for SlotWriter {}
+unsafe impl Sync for SlotWriter {}
+
+impl SlotWriter {
+    /// # Safety
+    /// `slot` is within the reserved capacity and written by no one else.
+    unsafe fn write(&self, slot: usize, hit: Hit) {
+        unsafe { self.0.add(slot).write(hit) };
+    }
+}
+
 /// A backend's core: traces batches of scene-frame rays (each with its own mode and culling
 /// flags) and returns the raw per-ray records and all-hits lists. [`pick_through`] does
 /// everything else.
@@ -213,10 +266,22 @@ pub fn pick_through<T: Tracer + ?Sized>(
     let (local, dir_lengths) = scene_rays(built.bvh.origin, rays, query);
     let settings = built.settings(query);
     let reorder = local.len() >= reorder_from;
-    let (found, lists) = trace_in_order(&local, settings.max_hits, reorder, |rays| {
-        tracer.trace(rays, &settings)
-    })?;
-    built.answers(rays, &dir_lengths, query, &found, &lists)
+    if query.mode == Mode::All {
+        let (found, lists) = trace_in_order(&local, settings.max_hits, reorder, |rays| {
+            tracer.trace(rays, &settings)
+        })?;
+        return built.answers(rays, &dir_lengths, query, &found, &lists);
+    }
+    match reorder.then(|| RayOrder::new(&local)).flatten() {
+        None => {
+            let (found, lists) = tracer.trace(&local, &settings)?;
+            built.answers(rays, &dir_lengths, query, &found, &lists)
+        }
+        Some(order) => {
+            let (found, lists) = tracer.trace(&order.gather(&local), &settings)?;
+            built.answers_in(Some(&order), rays, &dir_lengths, query, &found, &lists)
+        }
+    }
 }
 
 /// The CPU engine (`--backend cpu`): the wide SIMD walk of [`crate::engine`], on all cores.
@@ -225,6 +290,7 @@ pub struct CpuPicker {
     built: Arc<BuiltScene>,
     reorder_from: usize,
     simd: Simd,
+    packets: bool,
 }
 
 impl CpuPicker {
@@ -234,6 +300,7 @@ impl CpuPicker {
             built,
             reorder_from: DEFAULT_REORDER_FROM,
             simd: Simd::detect(),
+            packets: true,
         }
     }
 
@@ -247,6 +314,12 @@ impl CpuPicker {
     /// same on every choice.
     pub fn set_simd(&mut self, simd: Simd) {
         self.simd = simd;
+    }
+
+    /// Traces coherent groups of four rays as packets (the default) or every ray alone. Answers
+    /// are the same either way.
+    pub fn set_packets(&mut self, on: bool) {
+        self.packets = on;
     }
 }
 
@@ -267,6 +340,7 @@ impl Tracer for CpuPicker {
             rays,
             settings,
             self.simd,
+            self.packets,
         ))
     }
 }

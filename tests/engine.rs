@@ -198,23 +198,46 @@ fn every_builder_and_backend_gives_the_same_bits() {
 }
 
 /// Larger batches than the equivalence suites use (the engine's per-task chunks, the ray
-/// reordering from 65,536 rays), on every lane kind.
+/// reordering from 65,536 rays, camera rays traced as packets of four), on every lane kind, with
+/// and without packets, in every mode.
 #[test]
-fn large_batches_on_every_lane_kind_match_the_twin() {
+fn large_batches_on_every_lane_kind_and_walk_match_the_twin() {
     let scene = Scene::from_meshes([("soup".to_string(), triangle_soup(20_000, 50.0, 3))]).unwrap();
     let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
-    let mut batch = rays(&built.scene, RayKind::Random, 50_000, 9);
-    batch.extend(rays(&built.scene, RayKind::Camera, 30_000, 9));
-    let query = Query::default();
-    let twin = answers(&mut ReferencePicker::new(built.clone()), &batch, &query);
-    assert!(twin.nearest.iter().filter(|h| h.hit).count() > 10_000);
-    for simd in [Simd::Avx2, Simd::Sse, Simd::Portable] {
-        if !simd.is_available() {
-            continue;
+    let mut batch = rays(&built.scene, RayKind::Camera, 30_000, 9);
+    batch.extend(rays(&built.scene, RayKind::Random, 40_000, 9));
+    let queries = [
+        Query::default(),
+        Query {
+            mode: Mode::Any,
+            ..Query::default()
+        },
+        Query {
+            mode: Mode::All,
+            max_hits: 3,
+            cull: raypick::Cull::Back,
+            ..Query::default()
+        },
+        Query {
+            intersector: raypick::Intersector::MollerTrumbore,
+            ..Query::default()
+        },
+    ];
+    for query in queries {
+        let twin = answers(&mut ReferencePicker::new(built.clone()), &batch, &query);
+        assert!(twin.nearest.iter().filter(|h| h.hit).count() > 10_000);
+        for simd in [Simd::Avx2, Simd::Sse, Simd::Portable] {
+            if !simd.is_available() {
+                continue;
+            }
+            for packets in [true, false] {
+                let mut engine = CpuPicker::new(built.clone());
+                engine.set_simd(simd);
+                engine.set_packets(packets);
+                let got = answers(&mut engine, &batch, &query);
+                let what = format!("{} packets {packets} {query:?}", simd.name());
+                assert_same(&what, query.mode, &got, &twin, &batch);
+            }
         }
-        let mut engine = CpuPicker::new(built.clone());
-        engine.set_simd(simd);
-        let got = answers(&mut engine, &batch, &query);
-        assert_same(simd.name(), query.mode, &got, &twin, &batch);
     }
 }

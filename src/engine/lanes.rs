@@ -52,7 +52,22 @@ pub trait Lanes: Copy {
     fn bits(m: Self::Mask) -> u32;
     /// The mask with lane `i` set when bit `i` of `bits` is.
     fn mask_from_bits(bits: u32) -> Self::Mask;
+
+    /// Four triangles' vertices as `[vertex][axis]` lanes, lane `i` from triangle
+    /// `first + min(i, count - 1)` (the last one repeated past `count`, `1 <= count <= 4`).
+    /// The values are copies, bit for bit.
+    #[inline(always)]
+    fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Self; 3]; 3] {
+        let t: [&GpuTriangle; 4] = std::array::from_fn(|i| &triangles[first + i.min(count - 1)]);
+        let lane = |v: fn(&GpuTriangle) -> [f32; 3], a: usize| {
+            Self::from_array([v(t[0])[a], v(t[1])[a], v(t[2])[a], v(t[3])[a]])
+        };
+        let vertex = |v: fn(&GpuTriangle) -> [f32; 3]| [lane(v, 0), lane(v, 1), lane(v, 2)];
+        [vertex(|t| t.v0), vertex(|t| t.v1), vertex(|t| t.v2)]
+    }
 }
+
+use crate::layout::GpuTriangle;
 
 /// Plain arrays: the fallback for targets without SSE, and the reference the SIMD lanes must
 /// match (the equivalence tests run both).
@@ -163,6 +178,7 @@ pub use sse::Sse;
 #[cfg(target_arch = "x86_64")]
 mod sse {
     use super::Lanes;
+    use crate::layout::GpuTriangle;
     use std::arch::x86_64::*;
 
     /// x86-64 SSE2 lanes (SSE2 is part of the x86-64 baseline, so no detection is needed).
@@ -259,6 +275,47 @@ mod sse {
         fn mask_from_bits(bits: u32) -> __m128 {
             let lane = |i: u32| if bits >> i & 1 != 0 { -1 } else { 0 };
             unsafe { _mm_castsi128_ps(_mm_setr_epi32(lane(0), lane(1), lane(2), lane(3))) }
+        }
+
+        /// Two unaligned 4-float loads and one scalar per triangle, then two 4 × 4 transposes:
+        /// the first eight floats of the four triangles become eight lanes, the ninth (v2.z) is
+        /// set directly.
+        #[inline(always)]
+        fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Sse; 3]; 3] {
+            let t: [&GpuTriangle; 4] =
+                std::array::from_fn(|i| &triangles[first + i.min(count - 1)]);
+            // SAFETY: each pointer is a whole `GpuTriangle` (nine f32, 36 bytes); the loads
+            // read floats 0..4 and 4..8 of it.
+            unsafe {
+                let p: [*const f32; 4] = t.map(|t| (t as *const GpuTriangle).cast::<f32>());
+                let a = p.map(|p| _mm_loadu_ps(p));
+                let b = p.map(|p| _mm_loadu_ps(p.add(4)));
+                let [a0, a1, a2, a3] = transpose(a);
+                let [b0, b1, b2, b3] = transpose(b);
+                let z2 = _mm_setr_ps(t[0].v2[2], t[1].v2[2], t[2].v2[2], t[3].v2[2]);
+                [
+                    [Sse(a0), Sse(a1), Sse(a2)],
+                    [Sse(a3), Sse(b0), Sse(b1)],
+                    [Sse(b2), Sse(b3), Sse(z2)],
+                ]
+            }
+        }
+    }
+
+    /// Rows to columns: lane `j` of column `i` is lane `i` of row `j`.
+    #[inline(always)]
+    unsafe fn transpose([r0, r1, r2, r3]: [__m128; 4]) -> [__m128; 4] {
+        unsafe {
+            let t0 = _mm_unpacklo_ps(r0, r1);
+            let t1 = _mm_unpacklo_ps(r2, r3);
+            let t2 = _mm_unpackhi_ps(r0, r1);
+            let t3 = _mm_unpackhi_ps(r2, r3);
+            [
+                _mm_movelh_ps(t0, t1),
+                _mm_movehl_ps(t1, t0),
+                _mm_movelh_ps(t2, t3),
+                _mm_movehl_ps(t3, t2),
+            ]
         }
     }
 }

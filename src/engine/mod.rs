@@ -80,7 +80,8 @@ impl Simd {
 const RAYS_PER_TASK: usize = 512;
 
 /// Traces each ray as its flags say, in parallel, on `simd` lanes (falling back to the portable
-/// lanes where the CPU lacks them). Returns the per-ray records and the all-hits lists
+/// lanes where the CPU lacks them), with coherent groups of four rays as packets when `packets`
+/// holds. Returns the per-ray records and the all-hits lists
 /// (`max_hits` entries per ray), as `cpu::trace_batch` does.
 pub fn trace_batch(
     wide: &WideBvh,
@@ -88,6 +89,7 @@ pub fn trace_batch(
     rays: &[GpuRay],
     settings: &TraceSettings<'_>,
     simd: Simd,
+    packets: bool,
 ) -> (Vec<GpuHit>, Vec<GpuHitEntry>) {
     let scene = walk::Scene {
         nodes: &wide.nodes,
@@ -95,6 +97,8 @@ pub fn trace_batch(
         triangle_ids: &bvh.triangle_ids,
         triangle_masks: settings.triangle_masks,
         watertight: settings.watertight,
+        packets,
+        size: wide.size(),
     };
     let k = settings.max_hits as usize;
     let mut hits = vec![GpuHit::default(); rays.len()];
@@ -106,7 +110,10 @@ pub fn trace_batch(
         Simd::Portable
     };
     let run = |(rays, hits, lists): (&[GpuRay], &mut [GpuHit], &mut [GpuHitEntry])| {
-        let mut entries = vec![walk::Entry::default(); stack];
+        let mut entries = Stacks {
+            single: vec![walk::Entry::default(); stack],
+            packet: vec![walk::PacketEntry::default(); stack],
+        };
         match simd {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `is_available` checked that this CPU has AVX2.
@@ -129,22 +136,46 @@ pub fn trace_batch(
     (hits, lists)
 }
 
+/// One task's stacks, for the single-ray and the packet walk.
+struct Stacks {
+    single: Vec<walk::Entry>,
+    packet: Vec<walk::PacketEntry>,
+}
+
+/// Traces a task's rays: each group of four coherent rays (camera rays, pixel picks) as one
+/// packet, any other ray alone. Either way each ray gets its single-ray answer.
 #[inline(always)]
 fn trace_chunk<L: Lanes>(
     scene: &walk::Scene<'_>,
     rays: &[GpuRay],
     hits: &mut [GpuHit],
     lists: &mut [GpuHitEntry],
-    stack: &mut [walk::Entry],
+    stacks: &mut Stacks,
 ) {
     let k = if rays.is_empty() {
         0
     } else {
         lists.len() / rays.len()
     };
-    for (i, (ray, hit)) in rays.iter().zip(hits).enumerate() {
-        let list = &mut lists[i * k..(i + 1) * k];
-        *hit = walk::trace::<L>(scene, ray, list, stack);
+    let p = walk::PACKET;
+    let mut i = 0;
+    while i < rays.len() {
+        let group = &rays[i..(i + p).min(rays.len())];
+        if scene.packets && walk::coherent(group, scene.size) {
+            walk::trace_packet::<L>(
+                scene,
+                group,
+                &mut lists[i * k..(i + p) * k],
+                &mut stacks.packet,
+                &mut hits[i..i + p],
+            );
+        } else {
+            for (j, ray) in group.iter().enumerate() {
+                let list = &mut lists[(i + j) * k..(i + j + 1) * k];
+                hits[i + j] = walk::trace::<L>(scene, ray, list, &mut stacks.single);
+            }
+        }
+        i += group.len();
     }
 }
 
@@ -156,7 +187,7 @@ unsafe fn trace_chunk_avx2(
     rays: &[GpuRay],
     hits: &mut [GpuHit],
     lists: &mut [GpuHitEntry],
-    stack: &mut [walk::Entry],
+    stacks: &mut Stacks,
 ) {
-    trace_chunk::<lanes::Sse>(scene, rays, hits, lists, stack);
+    trace_chunk::<lanes::Sse>(scene, rays, hits, lists, stacks);
 }

@@ -28,6 +28,10 @@ pub struct Scene<'a> {
     pub triangle_masks: &'a [u32],
     /// Watertight test instead of Möller–Trumbore.
     pub watertight: bool,
+    /// Whether coherent groups of rays are traced as packets.
+    pub packets: bool,
+    /// The largest side of the root's box, for the packet test [`coherent`].
+    pub size: f32,
 }
 
 /// A pushed child: what it is and the near end of its box interval (padded, at least tmin).
@@ -79,19 +83,6 @@ fn boxes4<L: Lanes>(node: &WideNode, r: &RayLanes<L>, limit: f32) -> (u32, L) {
     let lo = t_near.sub(t_near.abs().mul(pad)).max(r.tmin);
     let hi = t_far.add(t_far.abs().mul(pad)).min(L::splat(limit));
     (L::bits(lo.le(hi)), lo)
-}
-
-/// Four triangles' vertices, lane `i` from triangle `first + i` (the last one repeated past
-/// `count`).
-#[inline(always)]
-fn gather<L: Lanes>(triangles: &[GpuTriangle], first: usize, count: usize) -> [[L; 3]; 3] {
-    let tri = |i: usize| &triangles[first + i.min(count - 1)];
-    let (t0, t1, t2, t3) = (tri(0), tri(1), tri(2), tri(3));
-    let lane = |f: fn(&GpuTriangle) -> [f32; 3], a: usize| {
-        L::from_array([f(t0)[a], f(t1)[a], f(t2)[a], f(t3)[a]])
-    };
-    let vertex = |f: fn(&GpuTriangle) -> [f32; 3]| [lane(f, 0), lane(f, 1), lane(f, 2)];
-    [vertex(|t| t.v0), vertex(|t| t.v1), vertex(|t| t.v2)]
 }
 
 #[inline(always)]
@@ -178,48 +169,174 @@ fn moller_trumbore4<L: Lanes>(v: [[L; 3]; 3], origin: [L; 3], dir: [L; 3]) -> Hi
     }
 }
 
+/// One ray's walk state: the ray in lanes, its best hit so far and its current limit.
+pub struct RayState<'r, L: Lanes> {
+    ray: &'r GpuRay,
+    r: RayLanes<L>,
+    dir_lanes: [L; 3],
+    shear: [[L; 3]; 3],
+    mode: u32,
+    cull: u32,
+    /// The answer so far (and this walk's b and i).
+    pub best: GpuHit,
+    /// Hits need t in (tmin, limit]; the limit shrinks to the nearest hit (closest), or to the
+    /// farthest kept hit once the all-hits list is full and has overflowed.
+    pub limit: f32,
+    /// Any-hit mode found its hit: the walk is over for this ray.
+    pub done: bool,
+}
+
+impl<'r, L: Lanes> RayState<'r, L> {
+    /// Sets `ray` up; `None` when it is never traced (an empty scene, an empty range).
+    #[inline(always)]
+    #[allow(
+        clippy::neg_cmp_op_on_partial_ord,
+        reason = "as in the twin: `!(tmin <= tmax)` also rejects NaN"
+    )]
+    pub fn new(scene: &Scene<'_>, ray: &'r GpuRay) -> (GpuHit, Option<Self>) {
+        let best = GpuHit {
+            t: ray.tmax,
+            prim: NO_HIT,
+            ..GpuHit::default()
+        };
+        if scene.nodes.is_empty() || !(ray.tmin <= ray.tmax) {
+            return (best, None);
+        }
+        let origin = Vec3::from(ray.origin);
+        let dir = Vec3::from(ray.dir);
+        let inv = safe_inverse(dir);
+        let shear = if scene.watertight {
+            let s = shear_for(dir);
+            s.rows().map(|row| [0, 1, 2].map(|a| L::splat(row[a])))
+        } else {
+            [[L::splat(0.0); 3]; 3]
+        };
+        let state = Self {
+            ray,
+            r: RayLanes {
+                origin: [0, 1, 2].map(|a| L::splat(origin[a])),
+                inv: [0, 1, 2].map(|a| L::splat(inv[a])),
+                parallel: [0, 1, 2].map(|a| dir[a].abs() < MIN_DIR),
+                origin_scalar: origin,
+                tmin: L::splat(ray.tmin),
+            },
+            dir_lanes: [0, 1, 2].map(|a| L::splat(dir[a])),
+            shear,
+            mode: ray.flags & 3,
+            cull: (ray.flags >> crate::layout::CULL_SHIFT) & 3,
+            best,
+            limit: ray.tmax,
+            done: false,
+        };
+        (best, Some(state))
+    }
+
+    /// Tests the leaf's `count` triangles from leaf-order `first`, four at a time, accepting
+    /// hits by the twin's rules (ties included).
+    #[inline(always)]
+    pub fn leaf(
+        &mut self,
+        scene: &Scene<'_>,
+        first: usize,
+        count: usize,
+        hit_list: &mut [GpuHitEntry],
+    ) {
+        let masks = scene.triangle_masks;
+        let ray = self.ray;
+        let mut k = 0;
+        while k < count {
+            let group = (count - k).min(WIDTH);
+            let mut lanes = (1u32 << group) - 1;
+            if !masks.is_empty() {
+                for i in 0..group {
+                    if masks[first + k + i] & ray.mask == 0 {
+                        lanes &= !(1 << i);
+                    }
+                }
+                if lanes == 0 {
+                    k += group;
+                    continue;
+                }
+            }
+            self.best.triangle_tests += lanes.count_ones();
+            let v = L::gather(scene.triangles, first + k, group);
+            let h = if scene.watertight {
+                watertight4(v, self.r.origin, &self.shear)
+            } else {
+                moller_trumbore4(v, self.r.origin, self.dir_lanes)
+            };
+            let in_range = L::and(h.t.gt(self.r.tmin), h.t.le(L::splat(self.limit)));
+            let mut hits = L::bits(L::and(h.hit, in_range)) & lanes;
+            if hits != 0 {
+                let (t, u, v, det) = (
+                    h.t.to_array(),
+                    h.u.to_array(),
+                    h.v.to_array(),
+                    h.det.to_array(),
+                );
+                while hits != 0 {
+                    let lane = hits.trailing_zeros() as usize;
+                    hits &= hits - 1;
+                    let prim = (first + k + lane) as u32;
+                    if !facing_allowed(det[lane], self.cull) || !(t[lane] <= self.limit) {
+                        continue;
+                    }
+                    if self.mode == MODE_ALL {
+                        let e = GpuHitEntry {
+                            t: t[lane],
+                            prim,
+                            u: u[lane],
+                            v: v[lane],
+                        };
+                        self.limit =
+                            insert_hit(&mut self.best, hit_list, e, ray.tmax, scene.triangle_ids);
+                    } else {
+                        if !closest_accepts(&self.best, t[lane], prim, scene.triangle_ids) {
+                            continue;
+                        }
+                        self.best.t = t[lane];
+                        self.best.prim = prim;
+                        self.best.u = u[lane];
+                        self.best.v = v[lane];
+                        self.limit = t[lane];
+                        if self.mode == MODE_ANY {
+                            self.done = true;
+                            return;
+                        }
+                    }
+                }
+            }
+            k += group;
+        }
+    }
+
+    /// The answer: in all-hits mode the record carries the list's first entry.
+    #[inline(always)]
+    pub fn finish(mut self, hit_list: &[GpuHitEntry]) -> GpuHit {
+        if self.mode == MODE_ALL && self.best.count > 0 {
+            let nearest = hit_list[0];
+            self.best.t = nearest.t;
+            self.best.prim = nearest.prim;
+            self.best.u = nearest.u;
+            self.best.v = nearest.v;
+        }
+        self.best
+    }
+}
+
 /// Traces one kernel-frame ray: the twin's answer (and, in all-hits mode, its list), with this
 /// walk's own b and i. `stack` holds at least [`stack_size`] entries.
 #[inline(always)]
-#[allow(
-    clippy::neg_cmp_op_on_partial_ord,
-    reason = "as in the twin: `!(tmin <= tmax)` also rejects NaN"
-)]
 pub fn trace<L: Lanes>(
     scene: &Scene<'_>,
     ray: &GpuRay,
     hit_list: &mut [GpuHitEntry],
     stack: &mut [Entry],
 ) -> GpuHit {
-    let mut best = GpuHit {
-        t: ray.tmax,
-        prim: NO_HIT,
-        ..GpuHit::default()
+    let (miss, state) = RayState::<L>::new(scene, ray);
+    let Some(mut st) = state else {
+        return miss;
     };
-    if scene.nodes.is_empty() || !(ray.tmin <= ray.tmax) {
-        return best;
-    }
-    let mode = ray.flags & 3;
-    let cull = (ray.flags >> crate::layout::CULL_SHIFT) & 3;
-    let origin = Vec3::from(ray.origin);
-    let dir = Vec3::from(ray.dir);
-    let inv = safe_inverse(dir);
-    let r = RayLanes::<L> {
-        origin: [0, 1, 2].map(|a| L::splat(origin[a])),
-        inv: [0, 1, 2].map(|a| L::splat(inv[a])),
-        parallel: [0, 1, 2].map(|a| dir[a].abs() < MIN_DIR),
-        origin_scalar: origin,
-        tmin: L::splat(ray.tmin),
-    };
-    let dir_lanes = [0, 1, 2].map(|a| L::splat(dir[a]));
-    let shear = if scene.watertight {
-        let s = shear_for(dir);
-        s.rows().map(|row| [0, 1, 2].map(|a| L::splat(row[a])))
-    } else {
-        [[L::splat(0.0); 3]; 3]
-    };
-    let masks = scene.triangle_masks;
-    let mut limit = ray.tmax;
     let mut top = 0usize;
     stack[0] = Entry {
         child: 0,
@@ -227,17 +344,17 @@ pub fn trace<L: Lanes>(
         near: ray.tmin,
     };
     top += 1;
-    'walk: while top > 0 {
+    while top > 0 {
         top -= 1;
         let entry = stack[top];
-        if !(entry.near <= limit) {
+        if !(entry.near <= st.limit) {
             continue;
         }
         if entry.kind == INNER {
             let node = &scene.nodes[entry.child as usize];
-            let occupied = node.occupied();
-            best.box_tests += occupied.count_ones();
-            let (bits, near) = boxes4(node, &r, limit);
+            let occupied = u32::from(node.occupied);
+            st.best.box_tests += occupied.count_ones();
+            let (bits, near) = boxes4(node, &st.r, st.limit);
             let mut bits = bits & occupied;
             if bits == 0 {
                 continue;
@@ -268,79 +385,222 @@ pub fn trace<L: Lanes>(
             continue;
         }
         debug_assert!(entry.kind != EMPTY);
-        // A leaf: its triangles, four at a time.
-        let first = entry.child as usize;
-        let count = usize::from(entry.kind);
-        let mut k = 0;
-        while k < count {
-            let group = (count - k).min(WIDTH);
-            let mut lanes = (1u32 << group) - 1;
-            if !masks.is_empty() {
-                for i in 0..group {
-                    if masks[first + k + i] & ray.mask == 0 {
-                        lanes &= !(1 << i);
-                    }
-                }
-                if lanes == 0 {
-                    k += group;
-                    continue;
-                }
-            }
-            best.triangle_tests += lanes.count_ones();
-            let v = gather::<L>(scene.triangles, first + k, group);
-            let h = if scene.watertight {
-                watertight4(v, r.origin, &shear)
-            } else {
-                moller_trumbore4(v, r.origin, dir_lanes)
-            };
-            let in_range = L::and(h.t.gt(r.tmin), h.t.le(L::splat(limit)));
-            let mut hits = L::bits(L::and(h.hit, in_range)) & lanes;
-            if hits != 0 {
-                let (t, u, v, det) = (
-                    h.t.to_array(),
-                    h.u.to_array(),
-                    h.v.to_array(),
-                    h.det.to_array(),
-                );
-                while hits != 0 {
-                    let lane = hits.trailing_zeros() as usize;
-                    hits &= hits - 1;
-                    let prim = (first + k + lane) as u32;
-                    if !facing_allowed(det[lane], cull) || !(t[lane] <= limit) {
-                        continue;
-                    }
-                    if mode == MODE_ALL {
-                        let e = GpuHitEntry {
-                            t: t[lane],
-                            prim,
-                            u: u[lane],
-                            v: v[lane],
-                        };
-                        limit = insert_hit(&mut best, hit_list, e, ray.tmax, scene.triangle_ids);
-                    } else {
-                        if !closest_accepts(&best, t[lane], prim, scene.triangle_ids) {
-                            continue;
-                        }
-                        best.t = t[lane];
-                        best.prim = prim;
-                        best.u = u[lane];
-                        best.v = v[lane];
-                        limit = t[lane];
-                        if mode == MODE_ANY {
-                            break 'walk;
-                        }
-                    }
-                }
-            }
-            k += group;
+        st.leaf(
+            scene,
+            entry.child as usize,
+            usize::from(entry.kind),
+            hit_list,
+        );
+        if st.done {
+            break;
         }
     }
-    if mode == MODE_ALL && best.count > 0 {
-        let nearest = hit_list[0];
-        best.t = nearest.t;
-        best.prim = nearest.prim;
-        best.u = nearest.u;
-        best.v = nearest.v;
+    st.finish(hit_list)
+}
+
+/// Rays per packet: one per lane.
+pub const PACKET: usize = 4;
+
+/// A pushed child of the packet walk: which rays still need it and each one's near distance.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PacketEntry {
+    child: u32,
+    kind: u8,
+    rays: u8,
+    near: [f32; PACKET],
+}
+
+/// Four rays in lanes, for one box at a time.
+struct PacketLanes<L: Lanes> {
+    origin: [L; 3],
+    inv: [L; 3],
+    /// Per axis: the lanes whose direction component is below `MIN_DIR` (`any_parallel` says
+    /// whether any lane is).
+    parallel: [L::Mask; 3],
+    any_parallel: [bool; 3],
+    tmin: L,
+}
+
+/// The twin's `ray_box` for one child box and four rays: which rays meet it within their
+/// `[tmin, limit]`, and each one's padded near distance. Lane for lane the arithmetic of
+/// [`boxes4`].
+#[inline(always)]
+fn box_for_rays<L: Lanes>(node: &WideNode, c: usize, p: &PacketLanes<L>, limit: L) -> (u32, L) {
+    let mut near = [L::splat(0.0); 3];
+    let mut far = [L::splat(0.0); 3];
+    for a in 0..3 {
+        let min = L::splat(node.min[a][c]);
+        let max = L::splat(node.max[a][c]);
+        let t0 = min.sub(p.origin[a]).mul(p.inv[a]);
+        let t1 = max.sub(p.origin[a]).mul(p.inv[a]);
+        near[a] = t0.min(t1);
+        far[a] = t0.max(t1);
+        if p.any_parallel[a] {
+            let inside = L::and(p.origin[a].ge(min), p.origin[a].le(max));
+            let free = L::and(p.parallel[a], inside);
+            near[a] = L::select(free, L::splat(-HUGE), near[a]);
+            far[a] = L::select(free, L::splat(HUGE), far[a]);
+        }
     }
-    best
+    let t_near = near[0].max(near[1]).max(near[2]);
+    let t_far = far[0].min(far[1]).min(far[2]);
+    let pad = L::splat(BOX_PAD);
+    let lo = t_near.sub(t_near.abs().mul(pad)).max(p.tmin);
+    let hi = t_far.add(t_far.abs().mul(pad)).min(limit);
+    (L::bits(lo.le(hi)), lo)
+}
+
+/// Whether four rays are worth one packet walk: the same flags and mask, directions within
+/// about 6° of the first's, origins within 1% of the scene's size of the first's.
+#[inline(always)]
+pub fn coherent(rays: &[GpuRay], scene_size: f32) -> bool {
+    let first = &rays[0];
+    let d0 = Vec3::from(first.dir);
+    let o0 = Vec3::from(first.origin);
+    let reach = 0.01 * scene_size;
+    rays.len() == PACKET
+        && rays[1..].iter().all(|r| {
+            r.flags == first.flags
+                && r.mask == first.mask
+                && Vec3::from(r.dir).dot(d0) >= 0.995
+                && (Vec3::from(r.origin) - o0).abs().max_element() <= reach
+        })
+}
+
+/// Traces four coherent rays down the tree together: each child box is tested against the four
+/// rays at once, children are visited nearest first (by the nearest ray), and a leaf is tested
+/// for each ray that still needs it by that ray's own leaf test. Answers are each ray's
+/// single-ray answer, bit for bit. `lists` holds each ray's all-hits list in turn; `stack`
+/// holds at least [`stack_size`] entries.
+#[inline(always)]
+pub fn trace_packet<L: Lanes>(
+    scene: &Scene<'_>,
+    rays: &[GpuRay],
+    lists: &mut [GpuHitEntry],
+    stack: &mut [PacketEntry],
+    out: &mut [GpuHit],
+) {
+    let k = lists.len() / PACKET;
+    let mut list_parts = lists.chunks_mut(k.max(1));
+    let mut empty: [&mut [GpuHitEntry]; PACKET] = Default::default();
+    let mut states: [Option<RayState<'_, L>>; PACKET] = Default::default();
+    let mut alive = 0u32;
+    for i in 0..PACKET {
+        if k > 0 {
+            empty[i] = list_parts.next().expect("a list per ray");
+        }
+        let (miss, state) = RayState::<L>::new(scene, &rays[i]);
+        out[i] = miss;
+        if state.is_some() {
+            alive |= 1 << i;
+        }
+        states[i] = state;
+    }
+    if alive == 0 {
+        return;
+    }
+    let lane = |f: &dyn Fn(&GpuRay) -> f32| {
+        L::from_array([f(&rays[0]), f(&rays[1]), f(&rays[2]), f(&rays[3])])
+    };
+    let inv: [Vec3; PACKET] = std::array::from_fn(|i| safe_inverse(Vec3::from(rays[i].dir)));
+    let p = PacketLanes::<L> {
+        origin: [0, 1, 2].map(|a| lane(&|r| r.origin[a])),
+        inv: [0, 1, 2].map(|a| L::from_array([inv[0][a], inv[1][a], inv[2][a], inv[3][a]])),
+        parallel: [0, 1, 2].map(|a| lane(&|r| r.dir[a]).abs().lt(L::splat(MIN_DIR))),
+        any_parallel: [0, 1, 2].map(|a| rays.iter().any(|r| r.dir[a].abs() < MIN_DIR)),
+        tmin: lane(&|r| r.tmin),
+    };
+    let limits = |states: &[Option<RayState<'_, L>>; PACKET]| {
+        L::from_array(std::array::from_fn(|i| {
+            states[i].as_ref().map_or(f32::NEG_INFINITY, |s| s.limit)
+        }))
+    };
+    let mut top = 1usize;
+    stack[0] = PacketEntry {
+        child: 0,
+        kind: INNER,
+        rays: alive as u8,
+        near: std::array::from_fn(|i| rays[i].tmin),
+    };
+    while top > 0 {
+        top -= 1;
+        let entry = stack[top];
+        let limit = limits(&states);
+        let still = L::bits(L::from_array(entry.near).le(limit));
+        let active = u32::from(entry.rays) & alive & still;
+        if active == 0 {
+            continue;
+        }
+        if entry.kind == INNER {
+            let node = &scene.nodes[entry.child as usize];
+            let mut occupied = u32::from(node.occupied);
+            let tested = occupied.count_ones();
+            let mut children: [(u32, f32, L); WIDTH] = [(0, 0.0, L::splat(0.0)); WIDTH];
+            let mut n = 0;
+            while occupied != 0 {
+                let c = occupied.trailing_zeros() as usize;
+                occupied &= occupied - 1;
+                let (bits, lo) = box_for_rays(node, c, &p, limit);
+                let bits = bits & active;
+                if bits == 0 {
+                    continue;
+                }
+                let lo_a = lo.to_array();
+                let key = (0..PACKET)
+                    .filter(|&i| bits >> i & 1 != 0)
+                    .map(|i| lo_a[i])
+                    .fold(f32::INFINITY, f32::min);
+                // Insert by key, farthest first.
+                let mut j = n;
+                while j > 0 && children[j - 1].1 < key {
+                    children[j] = children[j - 1];
+                    j -= 1;
+                }
+                children[j] = (c as u32 | bits << 8, key, lo);
+                n += 1;
+            }
+            for i in 0..PACKET {
+                if active >> i & 1 != 0 {
+                    if let Some(s) = states[i].as_mut() {
+                        s.best.box_tests += tested;
+                    }
+                }
+            }
+            for &(packed, _, lo) in &children[..n] {
+                let c = (packed & 0xff) as usize;
+                stack[top] = PacketEntry {
+                    child: node.child[c],
+                    kind: node.kind[c],
+                    rays: (packed >> 8) as u8,
+                    near: lo.to_array(),
+                };
+                top += 1;
+            }
+            continue;
+        }
+        let mut rays_left = active;
+        while rays_left != 0 {
+            let i = rays_left.trailing_zeros() as usize;
+            rays_left &= rays_left - 1;
+            if let Some(s) = states[i].as_mut() {
+                s.leaf(
+                    scene,
+                    entry.child as usize,
+                    usize::from(entry.kind),
+                    empty[i],
+                );
+                if s.done {
+                    alive &= !(1 << i);
+                }
+            }
+        }
+        if alive == 0 {
+            break;
+        }
+    }
+    for i in 0..PACKET {
+        if let Some(s) = states[i].take() {
+            out[i] = s.finish(empty[i]);
+        }
+    }
 }

@@ -27,6 +27,8 @@ pub struct WideNode {
     pub child: [u32; WIDTH],
     /// [`EMPTY`], a leaf's triangle count, or [`INNER`].
     pub kind: [u8; WIDTH],
+    /// Bit `i` set when child slot `i` holds a child.
+    pub occupied: u8,
 }
 
 const _: () = assert!(std::mem::size_of::<WideNode>() == 128);
@@ -37,14 +39,8 @@ impl WideNode {
         max: [[0.0; WIDTH]; 3],
         child: [0; WIDTH],
         kind: [EMPTY; WIDTH],
+        occupied: 0,
     };
-
-    /// Bit `i` set when child slot `i` holds a child.
-    pub fn occupied(&self) -> u32 {
-        (0..WIDTH)
-            .filter(|&i| self.kind[i] != EMPTY)
-            .fold(0, |bits, i| bits | 1 << i)
-    }
 }
 
 /// The collapsed tree; node 0 is the root. Empty for an empty scene.
@@ -128,6 +124,26 @@ impl WideBvh {
         out
     }
 
+    /// The largest side of the root's box (0 for an empty tree).
+    pub fn size(&self) -> f32 {
+        let Some(root) = self.nodes.first() else {
+            return 0.0;
+        };
+        let mut side = 0.0f32;
+        for a in 0..3 {
+            let lanes = (0..WIDTH).filter(|&l| root.kind[l] != EMPTY);
+            let lo = lanes
+                .clone()
+                .map(|l| root.min[a][l])
+                .fold(f32::INFINITY, f32::min);
+            let hi = lanes
+                .map(|l| root.max[a][l])
+                .fold(f32::NEG_INFINITY, f32::max);
+            side = side.max(hi - lo);
+        }
+        side
+    }
+
     /// Bytes the engine adds to a built scene (its nodes; it reads the shared triangles).
     pub fn bytes(&self) -> u64 {
         std::mem::size_of_val(self.nodes.as_slice()) as u64
@@ -141,4 +157,9 @@ fn set_child(wide: &mut WideNode, lane: usize, node: &GpuNode, child: u32, kind:
     }
     wide.child[lane] = child;
     wide.kind[lane] = kind;
+    if kind != EMPTY {
+        wide.occupied |= 1 << lane;
+    } else {
+        wide.occupied &= !(1 << lane);
+    }
 }
