@@ -152,3 +152,78 @@ fn workgroup_sizes_are_checked_against_adapter_limits() {
         "{message}"
     );
 }
+
+/// The value of the WGSL module-scope constant `name`, as f64.
+fn wgsl_constant(module: &naga::Module, name: &str) -> f64 {
+    let (_, constant) = module
+        .constants
+        .iter()
+        .find(|(_, c)| c.name.as_deref() == Some(name))
+        .unwrap_or_else(|| panic!("constant {name} is missing from pick.wgsl"));
+    match module.global_expressions[constant.init] {
+        naga::Expression::Literal(literal) => match literal {
+            naga::Literal::U32(v) => f64::from(v),
+            naga::Literal::I32(v) => f64::from(v),
+            naga::Literal::F32(v) => f64::from(v),
+            naga::Literal::AbstractInt(v) => v as f64,
+            naga::Literal::AbstractFloat(v) => v,
+            other => panic!("{name}: unexpected literal {other:?}"),
+        },
+        ref other => panic!("{name}: not a literal: {other:?}"),
+    }
+}
+
+/// Constants the host and the kernel both use are typed twice; they must agree.
+#[test]
+fn wgsl_constants_match_rust() {
+    use raypick::cpu::ray_box::{BOX_PAD, HUGE, MIN_DIR};
+    use raypick::layout::*;
+    let module =
+        naga::front::wgsl::parse_str(raypick::gpu::picker::PICK_WGSL).expect("pick.wgsl parses");
+    let unsigned = [
+        ("KIND_INNER", KIND_INNER),
+        ("KIND_BITS", KIND_BITS),
+        ("KIND_MASK", (1 << KIND_BITS) - 1),
+        ("NO_HIT", NO_HIT),
+        ("CAP_REACHED", CAP_REACHED),
+        ("MODE_CLOSEST", MODE_CLOSEST),
+        ("MODE_ANY", MODE_ANY),
+        ("MODE_ALL", MODE_ALL),
+        ("CULL_SHIFT", CULL_SHIFT),
+        ("CULL_BACK", CULL_BACK),
+        ("CULL_FRONT", CULL_FRONT),
+    ];
+    for (name, value) in unsigned {
+        assert_eq!(wgsl_constant(&module, name), f64::from(value), "{name}");
+    }
+    for (name, value) in [("BOX_PAD", BOX_PAD), ("MIN_DIR", MIN_DIR), ("HUGE", HUGE)] {
+        assert_eq!(wgsl_constant(&module, name) as f32, value, "{name}");
+    }
+}
+
+/// The host's binding table is the shader's: every binding, in order, with its kind.
+#[test]
+fn the_binding_table_is_read_from_the_wgsl() {
+    use raypick::gpu::bindings::bindings;
+    use wgpu::BufferBindingType::{Storage, Uniform};
+    let table = bindings(raypick::gpu::picker::PICK_WGSL).expect("bindings");
+    let got: Vec<(&str, u32, wgpu::BufferBindingType)> = table
+        .iter()
+        .map(|b| (b.name.as_str(), b.binding, b.kind))
+        .collect();
+    let read = Storage { read_only: true };
+    let write = Storage { read_only: false };
+    assert_eq!(
+        got,
+        [
+            ("params", 0, Uniform),
+            ("nodes", 1, read),
+            ("triangles", 2, read),
+            ("rays", 3, read),
+            ("hits", 4, write),
+            ("hit_lists", 5, write),
+            ("triangle_masks", 6, read),
+            ("triangle_ids", 7, read),
+        ]
+    );
+}

@@ -2,6 +2,7 @@
 //! any size in chunks that respect the adapter's limits, with the kernel's workgroup size set
 //! through a pipeline-overridable constant.
 
+use super::bindings::{Binding, bindings, group_entries, layout_entries};
 use super::context::GpuContext;
 use crate::cpu::TraceSettings;
 use crate::error::{Error, Result};
@@ -34,6 +35,8 @@ pub struct GpuPicker {
     built: Arc<BuiltScene>,
     pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
+    /// The kernel's bindings, read from the WGSL.
+    table: Vec<Binding>,
     params: wgpu::Buffer,
     nodes: wgpu::Buffer,
     triangles: wgpu::Buffer,
@@ -99,37 +102,10 @@ impl GpuPicker {
             label: Some("pick.wgsl"),
             source: wgpu::ShaderSource::Wgsl(PICK_WGSL.into()),
         });
-        let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
+        let table = bindings(PICK_WGSL)?;
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("pick bindings"),
-            entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
-                storage(1, true),
-                storage(2, true),
-                storage(3, true),
-                storage(4, false),
-                storage(5, false),
-                storage(6, true),
-                storage(7, true),
-            ],
+            entries: &layout_entries(&table),
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("pick"),
@@ -175,6 +151,7 @@ impl GpuPicker {
             built,
             pipeline,
             layout,
+            table,
             params,
             nodes,
             triangles,
@@ -404,43 +381,31 @@ impl GpuPicker {
             size_of::<GpuHit>() + size_of::<GpuHitEntry>() * list_length as usize,
             U::MAP_READ | U::COPY_DST,
         );
+        let entries = group_entries(
+            &self.table,
+            &[
+                ("params", &self.params),
+                ("nodes", &self.nodes),
+                ("triangles", &self.triangles),
+                ("rays", &rays_buffer),
+                ("hits", &hits),
+                ("hit_lists", &lists),
+                ("triangle_masks", &self.triangle_masks),
+                ("triangle_ids", &self.triangle_ids),
+            ],
+        );
+        let entries = match entries {
+            Ok(entries) => entries,
+            Err(e) => {
+                let _ = pollster::block_on(oom.pop());
+                let _ = pollster::block_on(validation.pop());
+                return Err(e);
+            }
+        };
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("pick"),
             layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: self.params.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: self.nodes.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: self.triangles.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: rays_buffer.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 4,
-                    resource: hits.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 5,
-                    resource: lists.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 6,
-                    resource: self.triangle_masks.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 7,
-                    resource: self.triangle_ids.as_entire_binding(),
-                },
-            ],
+            entries: &entries,
         });
         let oom_error = pollster::block_on(oom.pop());
         let validation_error = pollster::block_on(validation.pop());
