@@ -25,8 +25,9 @@ pub struct BuiltScene {
     pub bvh: Bvh,
     /// Layer mask per leaf-order triangle, from the objects' masks; empty when all are all-ones.
     pub triangle_masks: Vec<u32>,
-    /// The CPU engine's wide tree, collapsed from `bvh` the first time the engine runs.
-    wide: OnceLock<WideBvh>,
+    /// The CPU engine's wide tree, collapsed from `bvh` the first time the engine runs (or why
+    /// it could not be: a corrupted tree).
+    wide: OnceLock<std::result::Result<WideBvh, String>>,
 }
 
 impl BuiltScene {
@@ -59,9 +60,13 @@ impl BuiltScene {
         }
     }
 
-    /// The CPU engine's wide tree (collapsed from `bvh` on first use, then kept).
-    pub fn wide(&self) -> &WideBvh {
-        self.wide.get_or_init(|| WideBvh::collapse(&self.bvh))
+    /// The CPU engine's wide tree (collapsed from `bvh` on first use, then kept); an error for a
+    /// corrupted tree.
+    pub fn wide(&self) -> Result<&WideBvh> {
+        self.wide
+            .get_or_init(|| WideBvh::collapse(&self.bvh).map_err(|e| e.to_string()))
+            .as_ref()
+            .map_err(|e| crate::error::Error::Invalid(e.clone()))
     }
 
     /// The CPU/GPU trace settings for `query`.
@@ -335,7 +340,7 @@ impl Tracer for CpuPicker {
     ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
         let built = &self.built;
         Ok(crate::engine::trace_batch(
-            built.wide(),
+            built.wide()?,
             &built.bvh,
             rays,
             settings,

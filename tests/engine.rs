@@ -63,7 +63,7 @@ fn the_wide_tree_holds_every_leaf_of_the_binary_tree_once() {
         ("dem grid", dem(), with(Builder::Grid, 8)),
     ] {
         let built = BuiltScene::new(scene, &options).unwrap();
-        let wide = WideBvh::collapse(&built.bvh);
+        let wide = WideBvh::collapse(&built.bvh).unwrap();
         let mut leaves = Vec::new();
         let depth = walk(&wide, 0, &mut leaves, 1);
         assert_eq!(depth, wide.depth, "{name}: recorded depth");

@@ -6,6 +6,7 @@
 //! reports the same leaf-order triangle indices as the other paths.
 
 use crate::bvh::Bvh;
+use crate::error::{Error, Result};
 use crate::layout::{GpuNode, KIND_INNER};
 
 /// Children per node.
@@ -65,11 +66,21 @@ fn children(index: u32, node: &GpuNode) -> [u32; 2] {
 impl WideBvh {
     /// Collapses `bvh`'s binary tree: each wide node takes a binary inner node's children and
     /// keeps opening the inner child with the largest surface area until it has four. O(nodes).
-    pub fn collapse(bvh: &Bvh) -> WideBvh {
+    /// A corrupted tree (a link out of range, or a cycle: more nodes opened than exist) is an
+    /// error, never a hang.
+    pub fn collapse(bvh: &Bvh) -> Result<WideBvh> {
         let binary = &bvh.nodes;
         if binary.is_empty() {
-            return WideBvh::default();
+            return Ok(WideBvh::default());
         }
+        let cap = binary.len();
+        let mut opened = 0usize;
+        let corrupted = |why: String| {
+            Error::Invalid(format!(
+                "the tree's links are corrupted ({why}): collapsing it for the CPU engine \
+                 passed its iteration cap of {cap} nodes"
+            ))
+        };
         let mut out = WideBvh {
             nodes: Vec::with_capacity(binary.len() / 2 + 1),
             depth: 0,
@@ -82,12 +93,19 @@ impl WideBvh {
             let root = &mut out.nodes[0];
             set_child(root, 0, &binary[0], binary[0].first, binary[0].kind() as u8);
             out.depth = 1;
-            return out;
+            return Ok(out);
         }
         pending.push((0, 0, 1));
         while let Some((source, slot, depth)) = pending.pop() {
             out.depth = out.depth.max(depth);
+            opened += 1;
+            if opened > cap {
+                return Err(corrupted("a cycle".into()));
+            }
             let mut open: Vec<u32> = children(source, &binary[source as usize]).to_vec();
+            if let Some(&bad) = open.iter().find(|&&n| n as usize >= cap) {
+                return Err(corrupted(format!("a child {bad} past the end")));
+            }
             while open.len() < WIDTH {
                 let widest = open
                     .iter()
@@ -100,7 +118,15 @@ impl WideBvh {
                     .map(|(i, _)| i);
                 let Some(i) = widest else { break };
                 let n = open[i];
-                open.splice(i..=i, children(n, &binary[n as usize]));
+                opened += 1;
+                let pair = children(n, &binary[n as usize]);
+                if let Some(&bad) = pair.iter().find(|&&c| c as usize >= cap) {
+                    return Err(corrupted(format!("a child {bad} past the end")));
+                }
+                if opened > cap {
+                    return Err(corrupted("a cycle".into()));
+                }
+                open.splice(i..=i, pair);
             }
             for (lane, &n) in open.iter().enumerate() {
                 let node = &binary[n as usize];
@@ -121,7 +147,7 @@ impl WideBvh {
                 }
             }
         }
-        out
+        Ok(out)
     }
 
     /// The largest side of the root's box (0 for an empty tree).
