@@ -7,7 +7,7 @@ mod common;
 
 use glam::DVec3;
 use proptest::prelude::*;
-use raypick::bvh::binned_sah::build_binned_sah;
+use raypick::bvh::binned_sah;
 use raypick::bvh::sah_cost::{TRAVERSAL_COST, TRIANGLE_COST, sah_cost};
 use raypick::compare::compare_answers;
 use raypick::io::obj::load_obj;
@@ -43,7 +43,7 @@ fn sah_built(scene: Scene, options: &BuildOptions) -> BuiltScene {
         scene.objects().iter().all(|o| o.mask == u32::MAX),
         "test scenes carry no layer masks"
     );
-    let bvh = build_binned_sah(&scene, options).expect("binned SAH builds");
+    let bvh = binned_sah::build(&scene, options).expect("binned SAH builds");
     BuiltScene::from_parts(scene, bvh, Vec::new())
 }
 
@@ -215,7 +215,7 @@ fn output_is_identical_on_one_and_four_threads() {
             .num_threads(threads)
             .build()
             .unwrap()
-            .install(|| build_binned_sah(&s, &BuildOptions::default()).unwrap())
+            .install(|| binned_sah::build(&s, &BuildOptions::default()).unwrap())
     };
     let (one_thread, four) = (build_on(1), build_on(4));
     let bits = |nodes: &[GpuNode]| bytemuck::cast_slice::<GpuNode, u32>(nodes).to_vec();
@@ -229,7 +229,7 @@ fn output_is_identical_on_one_and_four_threads() {
 fn leaf_size_out_of_range_is_the_median_cut_error() {
     let s = one("soup", triangle_soup(10, 1.0, 1));
     for size in [0, 16] {
-        let sah = build_binned_sah(&s, &leaf_size(size)).unwrap_err();
+        let sah = binned_sah::build(&s, &leaf_size(size)).unwrap_err();
         let median = Bvh::build(&s, &leaf_size(size)).unwrap_err();
         assert_eq!(sah.to_string(), median.to_string());
     }
@@ -242,7 +242,7 @@ fn empty_and_all_degenerate_scenes_give_empty_trees() {
         .extend([DVec3::ZERO, DVec3::X, DVec3::X * 2.0]);
     flat.triangles.push([0, 1, 2]);
     for scene in [Scene::new(), one("flat", flat)] {
-        let bvh = build_binned_sah(&scene, &BuildOptions::default()).unwrap();
+        let bvh = binned_sah::build(&scene, &BuildOptions::default()).unwrap();
         assert!(bvh.nodes.is_empty() && bvh.triangles.is_empty());
         assert_eq!(bvh.origin, scene.origin());
         assert_eq!(sah_cost(&bvh), 0.0);
@@ -257,7 +257,7 @@ fn sah_trees_cost_less_than_median_cut_trees() {
     ] {
         let options = BuildOptions::default();
         let median = sah_cost(&Bvh::build(&scene, &options).unwrap());
-        let sah = sah_cost(&build_binned_sah(&scene, &options).unwrap());
+        let sah = sah_cost(&binned_sah::build(&scene, &options).unwrap());
         eprintln!("{name}: SAH cost median cut {median:.2}, binned SAH {sah:.2}");
         assert!(
             sah < median,
@@ -307,7 +307,7 @@ proptest! {
             .collect();
         let s = one("points", Mesh { positions, triangles });
         let options = leaf_size(size);
-        let sah = build_binned_sah(&s, &options).unwrap();
+        let sah = binned_sah::build(&s, &options).unwrap();
         let median = Bvh::build(&s, &options).unwrap();
         if median.nodes.is_empty() {
             prop_assert!(sah.nodes.is_empty());

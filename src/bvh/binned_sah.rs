@@ -11,8 +11,8 @@
 //! bins merge per-chunk minima, maxima and counts, which are exact in any order, and parallel
 //! subtrees are stitched in a fixed order, so the tree is identical on any thread count.
 
-use super::median_cut::{PARALLEL_MIN, PrimRef, build_with, median_split, partition};
 use super::sah_cost::{TRAVERSAL_COST, TRIANGLE_COST, half_area};
+use super::top_down::{PARALLEL_MIN, PrimRef, build_with, median_split, partition};
 use super::{BuildOptions, Bvh};
 use crate::error::Result;
 use crate::scene::Scene;
@@ -29,7 +29,7 @@ const BIN_CHUNK: usize = 4096;
 
 /// Builds a binned-SAH tree over every non-degenerate triangle of `scene`, with the same layout
 /// and checks as [`Bvh::build`]; `options.split_axis` is ignored.
-pub fn build_binned_sah(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
+pub fn build(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
     build_with(scene, options, |prims, min, max, depth| {
         split(prims, min, max, depth, options)
     })

@@ -10,6 +10,7 @@ pub mod median_cut;
 pub mod options;
 pub mod sah_cost;
 pub mod terrain_blocks;
+mod top_down;
 pub mod validate;
 
 pub use options::{BuildOptions, Builder, SplitAxis};
@@ -40,7 +41,7 @@ impl Bvh {
     pub fn build(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
         match options.builder {
             Builder::MedianCut => median_cut::build(scene, options),
-            Builder::BinnedSah => binned_sah::build_binned_sah(scene, options),
+            Builder::BinnedSah => binned_sah::build(scene, options),
             Builder::Grid => terrain_blocks::build(scene, options),
             Builder::Auto if terrain_blocks::single_grid(scene).is_some() => {
                 terrain_blocks::build(scene, options)
