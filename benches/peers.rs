@@ -1,6 +1,9 @@
 //! raypick against its peers, in one command, on the same scenes and rays in the same run:
 //!
-//! - `raypick-cpu`: `cpu::trace_all` at 1 and 2 threads (dedicated rayon pools);
+//! - `raypick-reference`: `cpu::trace_all`, the kernel's twin (`--backend reference`), at 2
+//!   threads; its answers are the reference the others are checked against;
+//! - `raypick-cpu`: the CPU engine (`--backend cpu`: the tree collapsed 4-wide, SIMD walk,
+//!   packets for coherent groups) at 1 and 2 threads (dedicated rayon pools);
 //! - `raypick-gpu`: the WGSL kernel through `GpuPicker::trace` (lavapipe on a machine without a
 //!   GPU; skipped, saying why, without an adapter);
 //! - `obvhs` 0.4 (CWBVH, `fast_build`), `bvh` 0.13 (svenstaro, `build_par`) and `parry3d` 0.31
@@ -15,7 +18,7 @@
 //!
 //! Per scene and engine, in this order: the build and the end-to-end pick (build + the 4,096
 //! camera rays), medians of 3 runs (5 below 100k triangles); the agreement of its answers with
-//! raypick's CPU traversal on each ray set (hit/miss and t within 1e-4), printed before that set
+//! raypick's reference traversal on each ray set (hit/miss and t within 1e-4), printed before that set
 //! counts; throughput on the 4,096 camera rays with criterion (group `peers-<scene>`, bench
 //! `camera-4096-<engine>-<threads>t`) and on the 1M sets as medians of 3 runs of our own
 //! (criterion's 10 samples would take too long there); single-ray latency (p50/p99 of 1,000

@@ -34,6 +34,8 @@ const RTC_FORMAT_UINT3: u32 = 0x5003;
 const RTC_FORMAT_FLOAT3: u32 = 0x9003;
 /// `RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT`.
 const RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT: u32 = 0;
+/// `RTC_INTERSECT_CONTEXT_FLAG_COHERENT`: what a packet of camera rays is.
+const RTC_INTERSECT_CONTEXT_FLAG_COHERENT: u32 = 1;
 
 /// `struct RTCRay` (`RTC_ALIGN(16)`).
 #[repr(C, align(16))]
@@ -66,6 +68,43 @@ struct RTCRayHit {
     hit: RTCHit,
 }
 
+/// `struct RTCRay8` / `RTCRay16`: a packet of N rays, structure of arrays.
+#[repr(C, align(64))]
+struct RTCRayN<const N: usize> {
+    org_x: [f32; N],
+    org_y: [f32; N],
+    org_z: [f32; N],
+    tnear: [f32; N],
+    dir_x: [f32; N],
+    dir_y: [f32; N],
+    dir_z: [f32; N],
+    time: [f32; N],
+    tfar: [f32; N],
+    mask: [c_uint; N],
+    id: [c_uint; N],
+    flags: [c_uint; N],
+}
+
+/// `struct RTCHit8` / `RTCHit16`, with one instance level.
+#[repr(C, align(64))]
+struct RTCHitN<const N: usize> {
+    ng_x: [f32; N],
+    ng_y: [f32; N],
+    ng_z: [f32; N],
+    u: [f32; N],
+    v: [f32; N],
+    prim_id: [c_uint; N],
+    geom_id: [c_uint; N],
+    inst_id: [[c_uint; N]; 1],
+}
+
+/// `struct RTCRayHit8` / `RTCRayHit16`.
+#[repr(C)]
+struct RTCRayHitN<const N: usize> {
+    ray: RTCRayN<N>,
+    hit: RTCHitN<N>,
+}
+
 /// `struct RTCIntersectContext` with one instance level and no `minWidthDistanceFactor`.
 #[repr(C)]
 struct RTCIntersectContext {
@@ -75,6 +114,8 @@ struct RTCIntersectContext {
 }
 
 const _: () = {
+    assert!(size_of::<RTCRayHitN<8>>() == 640 && offset_of!(RTCRayHitN<8>, hit) == 384);
+    assert!(size_of::<RTCRayHitN<16>>() == 1280 && offset_of!(RTCRayHitN<16>, hit) == 768);
     assert!(size_of::<RTCRay>() == 48 && align_of::<RTCRay>() == 16);
     assert!(size_of::<RTCHit>() == 32 && align_of::<RTCHit>() == 16);
     assert!(offset_of!(RTCHit, prim_id) == 20);
@@ -121,6 +162,18 @@ unsafe extern "C" {
     fn rtcReleaseGeometry(geometry: RTCGeometry);
     fn rtcCommitScene(scene: RTCScene);
     fn rtcIntersect1(scene: RTCScene, context: *mut RTCIntersectContext, rayhit: *mut RTCRayHit);
+    fn rtcIntersect8(
+        valid: *const i32,
+        scene: RTCScene,
+        context: *mut RTCIntersectContext,
+        rayhit: *mut RTCRayHitN<8>,
+    );
+    fn rtcIntersect16(
+        valid: *const i32,
+        scene: RTCScene,
+        context: *mut RTCIntersectContext,
+        rayhit: *mut RTCRayHitN<16>,
+    );
 }
 
 /// Panics with Embree's error name if `device` (or, for a null device, the calling thread)
@@ -251,6 +304,78 @@ impl EmbreeScene {
         // SAFETY: the scene is committed; context and rayhit are valid, aligned and initialised.
         unsafe { rtcIntersect1(self.scene, &mut context, &mut rayhit) };
         (rayhit.hit.geom_id != RTC_INVALID_GEOMETRY_ID).then_some(rayhit.ray.tfar)
+    }
+}
+
+impl EmbreeScene {
+    /// Closest hits of up to `N` rays (N = 8 or 16) with one `rtcIntersect8` / `rtcIntersect16`
+    /// packet call, as a coherent packet.
+    pub fn intersect_packet<const N: usize>(&self, rays: &[GpuRay]) -> Vec<Option<f32>> {
+        assert!(rays.len() <= N && (N == 8 || N == 16));
+        let mut valid = [0i32; N];
+        let mut packet = RTCRayHitN::<N> {
+            ray: RTCRayN {
+                org_x: [0.0; N],
+                org_y: [0.0; N],
+                org_z: [0.0; N],
+                tnear: [0.0; N],
+                dir_x: [0.0; N],
+                dir_y: [0.0; N],
+                dir_z: [1.0; N],
+                time: [0.0; N],
+                tfar: [0.0; N],
+                mask: [c_uint::MAX; N],
+                id: [0; N],
+                flags: [0; N],
+            },
+            hit: RTCHitN {
+                ng_x: [0.0; N],
+                ng_y: [0.0; N],
+                ng_z: [0.0; N],
+                u: [0.0; N],
+                v: [0.0; N],
+                prim_id: [RTC_INVALID_GEOMETRY_ID; N],
+                geom_id: [RTC_INVALID_GEOMETRY_ID; N],
+                inst_id: [[RTC_INVALID_GEOMETRY_ID; N]],
+            },
+        };
+        for (i, r) in rays.iter().enumerate() {
+            valid[i] = -1;
+            let p = &mut packet.ray;
+            [p.org_x[i], p.org_y[i], p.org_z[i]] = r.origin;
+            [p.dir_x[i], p.dir_y[i], p.dir_z[i]] = r.dir;
+            p.tnear[i] = r.tmin;
+            p.tfar[i] = r.tmax;
+            p.id[i] = i as c_uint;
+        }
+        let mut context = RTCIntersectContext {
+            flags: RTC_INTERSECT_CONTEXT_FLAG_COHERENT,
+            ..RTCIntersectContext::new()
+        };
+        // SAFETY: the scene is committed; valid, context and the packet are valid, initialised
+        // and aligned (64 bytes, at least the header's 32 or 64).
+        unsafe {
+            if N == 16 {
+                rtcIntersect16(
+                    valid.as_ptr(),
+                    self.scene,
+                    &mut context,
+                    (&mut packet as *mut RTCRayHitN<N>).cast(),
+                );
+            } else {
+                rtcIntersect8(
+                    valid.as_ptr(),
+                    self.scene,
+                    &mut context,
+                    (&mut packet as *mut RTCRayHitN<N>).cast(),
+                );
+            }
+        }
+        (0..rays.len())
+            .map(|i| {
+                (packet.hit.geom_id[i] != RTC_INVALID_GEOMETRY_ID).then_some(packet.ray.tfar[i])
+            })
+            .collect()
     }
 }
 

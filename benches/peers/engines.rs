@@ -15,7 +15,8 @@ use rayon::prelude::*;
 use raypick::cpu::traverse::{self, Buffers};
 use raypick::layout::{GpuRay, NO_HIT};
 use raypick::{
-    BuildOptions, BuiltScene, CpuPicker, GpuContext, GpuPicker, Picker, Ray, Scene, cpu,
+    BuildOptions, BuiltScene, CpuPicker, GpuContext, GpuPicker, Picker, Ray, ReferencePicker,
+    Scene, cpu,
 };
 use std::sync::{Arc, Mutex};
 
@@ -46,6 +47,7 @@ pub trait Engine: Sync {
 /// Which engine: the name is the summary's `engine` column.
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
 pub enum Kind {
+    RaypickReference,
     RaypickCpu,
     RaypickGpu,
     Obvhs,
@@ -53,12 +55,16 @@ pub enum Kind {
     Parry3d,
     #[cfg(feature = "embree")]
     Embree,
+    /// Embree's `rtcIntersect16` packets over consecutive rays.
+    #[cfg(feature = "embree")]
+    Embree16,
 }
 
 impl Kind {
     /// Every engine this build of the bench has, in the order they run; raypick's CPU path
     /// first, since its answers are the reference the others are checked against.
     pub const ALL: &[Kind] = &[
+        Kind::RaypickReference,
         Kind::RaypickCpu,
         Kind::RaypickGpu,
         Kind::Obvhs,
@@ -66,10 +72,13 @@ impl Kind {
         Kind::Parry3d,
         #[cfg(feature = "embree")]
         Kind::Embree,
+        #[cfg(feature = "embree")]
+        Kind::Embree16,
     ];
 
     pub fn name(self) -> &'static str {
         match self {
+            Kind::RaypickReference => "raypick-reference",
             Kind::RaypickCpu => "raypick-cpu",
             Kind::RaypickGpu => "raypick-gpu",
             Kind::Obvhs => "obvhs",
@@ -77,12 +86,17 @@ impl Kind {
             Kind::Parry3d => "parry3d",
             #[cfg(feature = "embree")]
             Kind::Embree => "embree",
+            #[cfg(feature = "embree")]
+            Kind::Embree16 => "embree-packet16",
         }
     }
 
     /// Whether `build` needs its own copy of the f64 scene.
     pub fn needs_scene(self) -> bool {
-        matches!(self, Kind::RaypickCpu | Kind::RaypickGpu)
+        matches!(
+            self,
+            Kind::RaypickReference | Kind::RaypickCpu | Kind::RaypickGpu
+        )
     }
 
     /// Builds the engine over `inputs` (`scene` is a copy of the scene for raypick, made before
@@ -97,9 +111,14 @@ impl Kind {
             BuiltScene::new(scene, &BuildOptions::default()).map_err(|e| e.to_string())
         };
         Ok(match self {
-            Kind::RaypickCpu => Box::new(RaypickCpu {
+            Kind::RaypickReference => Box::new(RaypickReference {
                 built: Arc::new(built()?),
             }),
+            Kind::RaypickCpu => {
+                let built = Arc::new(built()?);
+                built.wide().map_err(|e| e.to_string())?;
+                Box::new(RaypickCpu { built })
+            }
             Kind::RaypickGpu => {
                 let context = inputs.gpu.ok_or("no GPU adapter")?;
                 let picker =
@@ -118,6 +137,11 @@ impl Kind {
             }),
             #[cfg(feature = "embree")]
             Kind::Embree => Box::new(EmbreeScene::new(inputs.embree, inputs.triangles)),
+            #[cfg(feature = "embree")]
+            Kind::Embree16 => Box::new(EmbreePackets(EmbreeScene::new(
+                inputs.embree,
+                inputs.triangles,
+            ))),
         })
     }
 }
@@ -134,17 +158,59 @@ pub struct Inputs<'a> {
     pub embree: &'a EmbreeDevice,
 }
 
-/// raypick's CPU path: `cpu::trace_all` (median-cut binary BVH, ordered stackless walk,
-/// Möller–Trumbore) over the flattened buffers the GPU kernel reads.
+/// raypick's reference path (`--backend reference`): `cpu::trace_all`, the kernel's twin
+/// (median-cut binary BVH, ordered stackless walk, Möller–Trumbore) over the flattened buffers
+/// the GPU kernel reads.
+struct RaypickReference {
+    built: Arc<BuiltScene>,
+}
+
+/// raypick's CPU engine (`--backend cpu`): the 4-wide SIMD walk of `raypick::engine` over the
+/// same tree collapsed (built with the tree, so its collapse is in the build figure),
+/// Möller–Trumbore, packets for coherent groups.
 struct RaypickCpu {
     built: Arc<BuiltScene>,
+}
+
+impl RaypickCpu {
+    fn trace_hits(&self, rays: &[GpuRay]) -> Vec<raypick::layout::GpuHit> {
+        let built = &self.built;
+        let settings = raypick::cpu::TraceSettings::default();
+        let wide = built.wide().expect("collapsed at build");
+        raypick::engine::trace_batch(
+            wide,
+            &built.bvh,
+            rays,
+            &settings,
+            raypick::engine::Simd::detect(),
+            true,
+        )
+        .0
+    }
+}
+
+impl Engine for RaypickCpu {
+    fn intersect(&self, ray: &GpuRay) -> Option<f32> {
+        closest(self.trace_hits(std::slice::from_ref(ray))[0])
+    }
+
+    fn trace(&self, rays: &[GpuRay]) -> Vec<Option<f32>> {
+        self.trace_hits(rays).into_iter().map(closest).collect()
+    }
+
+    fn api_pick(&self, world: &[Ray]) -> bool {
+        CpuPicker::new(self.built.clone())
+            .pick(world)
+            .expect("raypick's CPU pick");
+        true
+    }
 }
 
 fn closest(hit: raypick::layout::GpuHit) -> Option<f32> {
     (hit.prim != NO_HIT).then_some(hit.t)
 }
 
-impl Engine for RaypickCpu {
+impl Engine for RaypickReference {
     fn intersect(&self, ray: &GpuRay) -> Option<f32> {
         let bvh = &self.built.bvh;
         let buffers = Buffers {
@@ -167,9 +233,9 @@ impl Engine for RaypickCpu {
     }
 
     fn api_pick(&self, world: &[Ray]) -> bool {
-        CpuPicker::new(self.built.clone())
+        ReferencePicker::new(self.built.clone())
             .pick(world)
-            .expect("raypick's CPU pick");
+            .expect("raypick's reference pick");
         true
     }
 }
@@ -242,5 +308,24 @@ impl Engine for Parry3d {
 impl Engine for EmbreeScene {
     fn intersect(&self, ray: &GpuRay) -> Option<f32> {
         EmbreeScene::intersect(self, ray)
+    }
+}
+
+/// Embree 3's `rtcIntersect16`: consecutive rays (pixel order for camera rays) in packets of 16,
+/// the packets in parallel.
+#[cfg(feature = "embree")]
+struct EmbreePackets(EmbreeScene);
+
+#[cfg(feature = "embree")]
+impl Engine for EmbreePackets {
+    fn intersect(&self, ray: &GpuRay) -> Option<f32> {
+        self.0.intersect_packet::<16>(std::slice::from_ref(ray))[0]
+    }
+
+    fn trace(&self, rays: &[GpuRay]) -> Vec<Option<f32>> {
+        rays.par_chunks(16)
+            .with_min_len(MIN_LEN / 16)
+            .flat_map_iter(|packet| self.0.intersect_packet::<16>(packet))
+            .collect()
     }
 }

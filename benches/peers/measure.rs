@@ -92,7 +92,7 @@ pub fn report_agreement(
     }
     let n = reference.len();
     eprintln!(
-        "{scene}: {engine} vs raypick-cpu, {set}: raypick hits {hits}/{n}; same hit/miss {same_outcome}, \
+        "{scene}: {engine} vs raypick-reference, {set}: raypick hits {hits}/{n}; same hit/miss {same_outcome}, \
          same t {same_t}{}",
         if same_t == n { "" } else { " (differs)" }
     );
