@@ -34,6 +34,7 @@ use glam::{DMat3, DMat4, DVec3, DVec4};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::io::output::csv_number;
 use crate::ray::Ray;
 
 /// A camera as written in a camera file or given to [`Camera::from_spec`]: the user's numbers,
@@ -237,8 +238,9 @@ impl Camera {
             } => {
                 if !(fov_y_deg.is_finite() && fov_y_deg > 0.0 && fov_y_deg < 180.0) {
                     return invalid(format!(
-                        "fov_y_deg is {fov_y_deg}; the vertical field of view must be strictly \
-                         between 0 and 180 degrees"
+                        "fov_y_deg is {}; the vertical field of view must be strictly \
+                         between 0 and 180 degrees",
+                        csv_number(fov_y_deg)
                     ));
                 }
                 let half_h = (fov_y_deg.to_radians() * 0.5).tan();
@@ -257,8 +259,9 @@ impl Camera {
             } => {
                 if !(view_height.is_finite() && view_height > 0.0) {
                     return invalid(format!(
-                        "view_height is {view_height}; the height of the orthographic view \
-                         volume must be a positive, finite number of world units"
+                        "view_height is {}; the height of the orthographic view \
+                         volume must be a positive, finite number of world units",
+                        csv_number(view_height)
                     ));
                 }
                 let basis = match Basis::new(eye, target, up, view_height * 0.5, aspect) {
@@ -428,7 +431,9 @@ impl Camera {
         let mut spec: CameraSpec = serde_json::from_str(text).map_err(|e| {
             let full = e.to_string();
             let suffix = format!(" at line {} column {}", e.line(), e.column());
-            let mut message = full.strip_suffix(&suffix).unwrap_or(&full).to_owned();
+            // serde_json repeats bad keys and strings whole: cut them short.
+            let mut message =
+                crate::error::shorten_tokens(full.strip_suffix(&suffix).unwrap_or(&full), 300);
             // serde_json says only "expected value" when well-formed JSON has the wrong keys at
             // the top (none, or more than one).
             if message == "expected value"

@@ -69,3 +69,69 @@ pub enum Error {
 
 /// Shorthand for results in this crate.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// `text` with every long token cut short by [`crate::budget::quote`] (at most 60 characters
+/// and "…"): each run of non-blank characters longer than that, keeping a quote mark ('', "" or
+/// ``) around it; then the whole cut at `most` characters. For messages that repeat user input
+/// (a JSON reader's, the argument parser's), so a 10 MB token never reaches standard error.
+pub fn shorten_tokens(text: &str, most: usize) -> String {
+    const QUOTES: [char; 3] = ['\'', '"', '`'];
+    let mut out = String::with_capacity(text.len().min(most + 8));
+    let mut rest = text;
+    while !rest.is_empty() {
+        let blank_end = rest
+            .find(|c: char| !c.is_whitespace())
+            .unwrap_or(rest.len());
+        out.push_str(&rest[..blank_end]);
+        rest = &rest[blank_end..];
+        let token_end = rest.find(char::is_whitespace).unwrap_or(rest.len());
+        let token = &rest[..token_end];
+        rest = &rest[token_end..];
+        if token.chars().nth(60).is_none() {
+            out.push_str(token);
+            continue;
+        }
+        let first = token.chars().next().unwrap_or_default();
+        if QUOTES.contains(&first) {
+            // `"body"tail`, e.g. `"zzz…",`: the body cut short, the closing mark and what
+            // follows it kept.
+            let inner = &token[first.len_utf8()..];
+            out.push(first);
+            match inner.rfind(first) {
+                Some(close) => {
+                    out.push_str(&crate::budget::quote(&inner[..close]));
+                    out.push(first);
+                    out.push_str(&crate::budget::quote(&inner[close + first.len_utf8()..]));
+                }
+                None => out.push_str(&crate::budget::quote(inner)),
+            }
+        } else {
+            out.push_str(&crate::budget::quote(token));
+        }
+        if out.len() > most.saturating_mul(4) {
+            break;
+        }
+    }
+    match out.char_indices().nth(most) {
+        None => out,
+        Some((cut, _)) => format!("{}…", &out[..cut]),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::shorten_tokens;
+
+    #[test]
+    fn long_tokens_are_cut_and_short_ones_kept() {
+        assert_eq!(shorten_tokens("a 'b' `c`", 100), "a 'b' `c`");
+        let long = "x".repeat(10_000);
+        let cut = shorten_tokens(&format!("field `{long}`, expected one of `a`"), 1000);
+        assert!(cut.starts_with("field `xxx") && cut.ends_with("…`, expected one of `a`"));
+        let cut = shorten_tokens(&format!("string \"{long}\", expected"), 1000);
+        assert!(cut.ends_with("…\", expected"), "{cut}");
+        assert!(cut.chars().count() < 120, "{cut}");
+        let many = "ab ".repeat(10_000);
+        assert!(shorten_tokens(&many, 300).chars().count() <= 301);
+    }
+}

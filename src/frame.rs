@@ -7,7 +7,7 @@ use crate::cpu::ray_triangle::ray_triangle_f64;
 use crate::error::{Error, Result};
 use crate::layout::{CAP_REACHED, GpuHit, GpuRay, NO_HIT};
 use crate::query::Query;
-use crate::ray::{Hit, Ray};
+use crate::ray::{Hit, Ray, direction_length};
 use crate::scene::Scene;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -24,22 +24,40 @@ pub const NEVER_TRACED: GpuRay = GpuRay {
 };
 
 /// A world ray in the scene frame: the kernel input plus the length of the world direction
-/// (`t_world = t_local / dir_length`). `None` for an invalid ray.
+/// (`t_world = t_local / dir_length`). `None` for an invalid ray ([`Ray::is_valid`]: among
+/// others, a direction that cannot be normalized to finite values).
+///
+/// A ray with layer mask 0 shares no bit with any object, so it is never traced: it comes back
+/// as [`NEVER_TRACED`] with its direction length, a plain miss on every backend whatever the
+/// objects' masks (the kernels skip the mask test when every object has all bits).
+///
+/// The local range is capped so that every hit's world `t` stays finite: a hit farther than
+/// `f64::MAX` in the ray's own units is no hit.
 pub fn local_ray(scene_origin: DVec3, ray: &Ray, query: &Query) -> Option<(GpuRay, f64)> {
     if !ray.is_valid() {
         return None;
     }
-    // Scale first so that huge or tiny directions neither overflow nor underflow.
+    // Scaled first (in `direction_length`) so that huge or tiny directions neither overflow nor
+    // underflow.
+    let dir_length = direction_length(ray.dir)?;
     let scale = ray.dir.abs().max_element();
     let scaled = ray.dir / scale;
-    let scaled_length = scaled.length();
-    let dir_length = scaled_length * scale;
-    let unit = (scaled / scaled_length).as_vec3();
+    let unit = (scaled / scaled.length()).as_vec3();
     let origin = (ray.origin - scene_origin).as_vec3();
     let to_f32 = |t: f64| (t * dir_length).clamp(f32::MIN as f64, f32::MAX as f64) as f32;
-    let (tmin, tmax) = (to_f32(ray.tmin), to_f32(ray.tmax));
-    if !origin.is_finite() || !dir_length.is_finite() || unit == glam::Vec3::ZERO || tmin > tmax {
+    let finite = |t: f64| t.clamp(-f64::MAX, f64::MAX);
+    let mut tmax = to_f32(finite(ray.tmax));
+    // Rounding to f32 may carry the cap just past the largest finite world t.
+    while tmax > 0.0 && !(f64::from(tmax) / dir_length).is_finite() {
+        tmax = tmax.next_down();
+    }
+    // `tmin <= tmax` in the world (checked above); the caps keep it so.
+    let tmin = to_f32(finite(ray.tmin)).min(tmax);
+    if !origin.is_finite() || unit == glam::Vec3::ZERO {
         return None;
+    }
+    if ray.mask == 0 {
+        return Some((NEVER_TRACED, dir_length));
     }
     Some((
         GpuRay {

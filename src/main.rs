@@ -19,6 +19,12 @@ struct Cli {
     /// Show no progress on standard error.
     #[arg(long, short, global = true)]
     quiet: bool,
+    /// Memory budget for everything sized by arguments or file contents (image sizes, ray and
+    /// probe counts, all-hits lists, sizes in file headers): bytes, or a number with K, M, G or
+    /// T (powers of 1024), e.g. 8G or 512M. A size over it is an error naming the value and
+    /// the limit [default: half the machine's memory].
+    #[arg(long, global = true, value_name = "SIZE", value_parser = raypick::budget::parse_size)]
+    max_memory: Option<u64>,
     #[command(subcommand)]
     command: Command,
 }
@@ -54,12 +60,18 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    let matches = Cli::command().get_matches();
+    let matches = match Cli::command().try_get_matches() {
+        Ok(matches) => matches,
+        Err(e) => cli::exit_with_clap_error(e),
+    };
     let cli = match Cli::from_arg_matches(&matches) {
         Ok(cli) => cli,
-        Err(e) => e.exit(),
+        Err(e) => cli::exit_with_clap_error(e),
     };
     cli::progress::set_quiet(cli.quiet);
+    if let Some(bytes) = cli.max_memory {
+        raypick::budget::set_limit(bytes);
+    }
     let (_, sub) = matches.subcommand().expect("a subcommand is required");
     let result = match cli.command {
         Command::Pick(args) => cli::pick::run(args, sub),

@@ -34,7 +34,8 @@ impl OracleTriangles {
     }
 }
 
-/// Every hit of `ray` with t in (tmin, tmax], sharing a mask bit and not culled, sorted by t.
+/// Every hit of `ray` with a finite t in (tmin, tmax], sharing a mask bit and not culled,
+/// sorted by t. A ray with mask 0 shares no bit with anything: no hits.
 pub fn all_hits(scene: &Scene, all: &OracleTriangles, ray: &Ray, cull: Cull) -> Vec<Hit> {
     let mut hits: Vec<Hit> = all
         .triangles
@@ -47,7 +48,7 @@ pub fn all_hits(scene: &Scene, all: &OracleTriangles, ray: &Ray, cull: Cull) -> 
                 Cull::Back => h.det > 0.0,
                 Cull::Front => h.det < 0.0,
             };
-            (h.hit && facing && h.t > ray.tmin && h.t <= ray.tmax).then(|| {
+            (h.hit && facing && h.t.is_finite() && h.t > ray.tmin && h.t <= ray.tmax).then(|| {
                 let [a, b, c] = vertices;
                 let (object, triangle) = scene.locate(i);
                 let cell = scene.objects()[object as usize].grid.map(|g| {

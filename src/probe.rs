@@ -67,9 +67,10 @@ pub fn edge_probes(scene: &Scene, count: usize, seed: u64) -> Vec<Ray> {
     let (lo, hi) = scene.bounds().unwrap_or((DVec3::ZERO, DVec3::ONE));
     let distance = (hi - lo).length().max(1e-3);
     let mut rng = rng(seed);
-    let mut probes = Vec::with_capacity(count);
+    // The vector grows as probes are found (no up-front allocation sized by `count`).
+    let mut probes = Vec::with_capacity(count.min(1 << 16));
     let mut attempts = 0usize;
-    while probes.len() < count && attempts < 100 * count {
+    while probes.len() < count && attempts < count.saturating_mul(100) {
         attempts += 1;
         let (i, k) = shared[rng.random_range(0..shared.len())];
         let t = triangles[i];

@@ -2,9 +2,10 @@
 //! all-hits limit and the ray/triangle test; and the answers that come back.
 
 use crate::layout::{
-    CULL_BACK, CULL_FRONT, CULL_NONE, CULL_SHIFT, MODE_ALL, MODE_ANY, MODE_CLOSEST,
+    CULL_BACK, CULL_FRONT, CULL_NONE, CULL_SHIFT, GpuHit, GpuHitEntry, GpuRay, MODE_ALL, MODE_ANY,
+    MODE_CLOSEST,
 };
-use crate::ray::Hit;
+use crate::ray::{Hit, Ray};
 
 /// Which hits a ray asks for.
 #[derive(
@@ -117,6 +118,23 @@ impl Query {
         } else {
             0
         }
+    }
+
+    /// An estimate of the bytes a picker holds per ray of a batch for this query: the world
+    /// ray, the kernel ray (twice where the batch is reordered), the raw result and the answer,
+    /// and in [`Mode::All`] `max_hits` list slots (raw and resolved). Callers size their
+    /// batches by it against the memory budget ([`crate::budget`]).
+    pub fn bytes_per_ray(&self) -> u64 {
+        use std::mem::size_of;
+        let base = size_of::<Ray>()
+            + 2 * size_of::<GpuRay>()
+            + 2 * size_of::<f64>()
+            + 2 * size_of::<GpuHit>()
+            + size_of::<Hit>()
+            + size_of::<usize>()
+            + 1;
+        let slot = 2 * size_of::<GpuHitEntry>() + size_of::<Hit>();
+        base as u64 + u64::from(self.list_length()) * slot as u64
     }
 
     /// Checks the settings.

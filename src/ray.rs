@@ -9,7 +9,8 @@ use serde::Serialize;
 pub struct Ray {
     /// Start point.
     pub origin: DVec3,
-    /// Direction; a zero or non-finite direction makes the ray invalid.
+    /// Direction; a zero or non-finite direction, or one too short or too long to normalize
+    /// ([`direction_length`]), makes the ray invalid.
     pub dir: DVec3,
     /// Hits need `t > tmin`.
     pub tmin: f64,
@@ -46,16 +47,32 @@ impl Ray {
         self.origin + self.dir * t
     }
 
-    /// Whether the ray can be traced: finite origin and direction, a non-zero direction, a
-    /// non-NaN range with `tmin <= tmax`. Invalid rays come back as misses flagged `invalid`.
+    /// Whether the ray can be traced: finite origin, a direction that can be normalized to
+    /// finite values (see [`direction_length`]), a non-NaN range with `tmin <= tmax`. Invalid
+    /// rays come back as misses flagged `invalid`.
     pub fn is_valid(&self) -> bool {
         self.origin.is_finite()
-            && self.dir.is_finite()
-            && self.dir != DVec3::ZERO
+            && direction_length(self.dir).is_some()
             && !self.tmin.is_nan()
             && !self.tmax.is_nan()
             && self.tmin <= self.tmax
     }
+}
+
+/// The length of `dir`, computed without overflow or underflow, when `dir` can be normalized to
+/// finite values: finite, non-zero, with a finite length whose reciprocal is finite too (a
+/// length below `1 / f64::MAX`, about 5.6e-309, has none: `t` would come back infinite).
+/// `None` otherwise.
+pub fn direction_length(dir: DVec3) -> Option<f64> {
+    if !dir.is_finite() {
+        return None;
+    }
+    let scale = dir.abs().max_element();
+    if scale == 0.0 {
+        return None;
+    }
+    let length = (dir / scale).length() * scale;
+    (length.is_finite() && (1.0 / length).is_finite()).then_some(length)
 }
 
 /// The answer for one ray.
@@ -64,8 +81,11 @@ impl Ray {
 /// - the nearest intersection with `t` in `(tmin, tmax]` wins; triangle edges and vertices are
 ///   inclusive, so a ray through an edge hits one of the triangles sharing it;
 /// - zero-area triangles are never hit; both faces of a triangle are hit;
-/// - a ray with NaN or infinite values, a zero direction or `tmin > tmax` is a miss with
-///   `invalid` set, and never hangs;
+/// - a ray with NaN or infinite values, a zero direction (or one too short or too long to
+///   normalize, [`direction_length`]) or `tmin > tmax` is a miss with `invalid` set, and never
+///   hangs;
+/// - a ray with layer mask 0 shares no bit with any object: it is a plain miss (not invalid);
+/// - `t` is always finite: a hit whose `t` would overflow f64 is not a hit;
 /// - `t`, `u`, `v`, `position` and `normal` are recomputed in f64 against the chosen triangle's
 ///   exact world vertices, so the position is the exact f64 intersection with that triangle.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]

@@ -30,6 +30,7 @@ use glam::DVec3;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::picker::Picker;
+use crate::query::Query;
 use crate::ray::{Hit, Ray};
 
 /// How pixels are coloured.
@@ -153,6 +154,7 @@ impl Image {
 /// hit, no culling, all layers) in one batch; pixel `(i, j)` of the image shows ray
 /// `j * width + i`. Misses (and invalid rays) are [`SKY`]. Errors are the picker's.
 pub fn render(picker: &mut dyn Picker, camera: &Camera, shade: Shade) -> Result<Image> {
+    check_size(camera.width(), camera.height())?;
     let rays: Vec<Ray> = camera.pixel_center_rays().collect();
     let hits = picker.pick(&rays)?;
     if hits.len() != rays.len() {
@@ -175,6 +177,16 @@ pub fn render(picker: &mut dyn Picker, camera: &Camera, shade: Shade) -> Result<
         height: camera.height(),
         rgba,
     })
+}
+
+/// Checks that a render of `width × height` pixels (one ray, one hit and 4 bytes each, in one
+/// batch) fits the memory budget ([`crate::budget`]); the error names the size and the limit.
+pub fn check_size(width: u32, height: u32) -> Result<()> {
+    crate::budget::check(
+        &format!("a render of {width} x {height} pixels"),
+        u64::from(width) * u64::from(height),
+        Query::default().bytes_per_ray() + 4,
+    )
 }
 
 /// The [`Shade::Object`] colour of object `id`: a strong hue picked by the golden ratio sequence

@@ -4,6 +4,7 @@
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::picker::Picker;
+use crate::query::Query;
 use crate::ray::Ray;
 use std::collections::BTreeMap;
 
@@ -49,6 +50,18 @@ pub fn marquee(
             rect.x0, rect.x1, rect.y0, rect.y1
         )));
     }
+    let (columns, rows) = (
+        u64::from(rect.x1 - rect.x0).div_ceil(u64::from(step)),
+        u64::from(rect.y1 - rect.y0).div_ceil(u64::from(step)),
+    );
+    crate::budget::check(
+        &format!(
+            "a marquee of {columns} x {rows} rays ({}..{} × {}..{}, step {step})",
+            rect.x0, rect.x1, rect.y0, rect.y1
+        ),
+        columns * rows,
+        Query::default().bytes_per_ray(),
+    )?;
     let rays: Vec<Ray> = (rect.y0..rect.y1)
         .step_by(step as usize)
         .flat_map(|j| {
@@ -70,9 +83,21 @@ pub fn marquee(
         .collect())
 }
 
+/// Checks that an id buffer of `width × height` pixels (one ray, one hit and one id each, in
+/// one batch) fits the memory budget ([`crate::budget`]); the error names the size and the
+/// limit.
+pub fn check_id_buffer_size(width: u32, height: u32) -> Result<()> {
+    crate::budget::check(
+        &format!("an id buffer of {width} x {height} pixels"),
+        u64::from(width) * u64::from(height),
+        Query::default().bytes_per_ray() + 4,
+    )
+}
+
 /// The object under every pixel of the view, row-major from the top-left; [`NO_OBJECT`] where
 /// nothing is hit.
 pub fn object_id_buffer(picker: &mut dyn Picker, camera: &Camera, mask: u32) -> Result<Vec<u32>> {
+    check_id_buffer_size(camera.width(), camera.height())?;
     let rays: Vec<Ray> = camera
         .pixel_center_rays()
         .map(|r| r.with_mask(mask))

@@ -115,6 +115,17 @@ pub fn run(args: BenchArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     if let Some(path) = &args.ray_file {
         return run_ray_file(&args, path, matches);
     }
+    // The random set is answered whole by every path; the single picks are held as rays.
+    super::check_rays(
+        &format!("--rays {}", args.rays),
+        args.rays,
+        &raypick::Query::default(),
+    )?;
+    raypick::budget::check(
+        &format!("--picks {}", args.picks),
+        args.picks.saturating_add(WARM_UP_PICKS as u64),
+        std::mem::size_of::<Ray>() as u64,
+    )?;
     let repeat = args.repeat as usize;
     let (built, load_s, _) = args.scene.build_timed(matches)?;
     let options = args.scene.build_options();

@@ -10,6 +10,7 @@ use super::{make_picker, write_output};
 use clap::{ArgMatches, Args};
 use glam::DVec3;
 use raypick::dem::cell_of_triangle;
+use raypick::io::output::{CsvNumber, csv_number};
 use raypick::io::ray_file::{load_pairs, load_points};
 use raypick::{Backend, BuiltScene, Error, Mode, Query, Ray};
 use std::path::PathBuf;
@@ -61,15 +62,19 @@ pub struct SightArgs {
 }
 
 /// Any-hit visibility of each segment `(from, to)`.
+/// Invalid segments (NaN or infinite ends, or both ends equal) are not visible, with a warning
+/// that counts them as `what`s.
 fn visible(
     built: Arc<BuiltScene>,
     segments: &[(DVec3, DVec3)],
     sight: &SightArgs,
+    what: &str,
 ) -> Result<Vec<bool>, Error> {
     let eps = sight.epsilon;
     if !(0.0..0.5).contains(&eps) {
         return Err(Error::Invalid(format!(
-            "--epsilon {eps} must be in [0, 0.5)"
+            "--epsilon {} must be in [0, 0.5)",
+            csv_number(eps)
         )));
     }
     let rays: Vec<Ray> = segments
@@ -85,6 +90,13 @@ fn visible(
         ..Query::default()
     };
     let answers = make_picker(sight.backend, built)?.query(&rays, &query)?;
+    let invalid = answers.nearest.iter().filter(|h| h.invalid).count();
+    if invalid > 0 {
+        eprintln!(
+            "warning: {invalid} {what}(s) were invalid (a NaN or infinite coordinate, or both \
+             ends at the same point) and are reported as not visible"
+        );
+    }
     Ok(answers
         .nearest
         .iter()
@@ -92,10 +104,22 @@ fn visible(
         .collect())
 }
 
+/// A finite number of an argument, or an error naming it.
+fn finite_argument(name: &str, values: &[f64]) -> Result<(), Error> {
+    if values.iter().all(|v| v.is_finite()) {
+        return Ok(());
+    }
+    let shown: Vec<String> = values.iter().map(|&v| csv_number(v)).collect();
+    Err(Error::Invalid(format!(
+        "{name} {} is not finite; give finite numbers",
+        shown.join(" ")
+    )))
+}
+
 pub fn run_los(args: LosArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let built = Arc::new(args.scene.build(matches)?);
     let segments = load_pairs(&args.pairs)?;
-    let seen = visible(built, &segments, &args.sight)?;
+    let seen = visible(built, &segments, &args.sight, "pair")?;
     write_output(args.sight.out.as_deref(), |out| {
         writeln!(out, "pair,visible")?;
         for (i, v) in seen.iter().enumerate() {
@@ -107,6 +131,8 @@ pub fn run_los(args: LosArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
 }
 
 pub fn run_viewshed(args: ViewshedArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    finite_argument("--observer", &args.observer)?;
+    finite_argument("--target-height", &[args.target_height])?;
     let built = Arc::new(args.scene.build(matches)?);
     let observer = DVec3::new(args.observer[0], args.observer[1], args.observer[2]);
     let lift = DVec3::Z * args.target_height;
@@ -119,7 +145,7 @@ pub fn run_viewshed(args: ViewshedArgs, matches: &ArgMatches) -> Result<ExitCode
         None => grid_targets(&built, lift)?,
     };
     let segments: Vec<(DVec3, DVec3)> = targets.iter().map(|(t, _)| (observer, *t)).collect();
-    let seen = visible(built, &segments, &args.sight)?;
+    let seen = visible(built, &segments, &args.sight, "target")?;
     write_output(args.sight.out.as_deref(), |out| {
         writeln!(out, "target,x,y,z,object,row,col,visible")?;
         for (i, ((p, label), v)) in targets.iter().zip(&seen).enumerate() {
@@ -128,7 +154,15 @@ pub fn run_viewshed(args: ViewshedArgs, matches: &ArgMatches) -> Result<ExitCode
             } else {
                 label.as_str()
             };
-            writeln!(out, "{i},{},{},{},{label},{}", p.x, p.y, p.z, u8::from(*v))?;
+            let f = CsvNumber;
+            writeln!(
+                out,
+                "{i},{},{},{},{label},{}",
+                f(p.x),
+                f(p.y),
+                f(p.z),
+                u8::from(*v)
+            )?;
         }
         Ok(())
     })?;

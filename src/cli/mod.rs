@@ -14,13 +14,53 @@ pub mod soak;
 pub mod verify;
 
 use raypick::io::ray_file::load_rays;
-use raypick::{Backend, BuiltScene, Error, Picker, Ray};
-
-/// Rays answered per chunk by commands that stream their output.
-pub const STREAM_CHUNK_RAYS: usize = 1 << 20;
+use raypick::{Backend, BuiltScene, Error, Picker, Query, Ray};
 use std::io::Write;
 use std::path::Path;
 use std::sync::Arc;
+
+/// The most rays answered per chunk by commands that stream their output.
+pub const STREAM_CHUNK_RAYS: usize = 1 << 20;
+
+/// Rays per chunk for `query` in commands that stream: at most [`STREAM_CHUNK_RAYS`], and few
+/// enough that one chunk's answers (in all-hits mode, `max_hits` list slots per ray) take at
+/// most half the memory budget (the rest is for the scene and the rays).
+pub fn stream_chunk_rays(query: &Query) -> usize {
+    let fit = raypick::budget::limit() / 2 / query.bytes_per_ray().max(1);
+    usize::try_from(fit)
+        .unwrap_or(usize::MAX)
+        .clamp(1, STREAM_CHUNK_RAYS)
+}
+
+/// Checks that `count` rays of `query` (answered in one batch) fit the memory budget; `what`
+/// names them, e.g. "the render's 10000000000 pixels".
+pub fn check_rays(what: &str, count: u64, query: &Query) -> Result<(), Error> {
+    raypick::budget::check(what, count, query.bytes_per_ray())
+}
+
+/// Prints a command-line parsing error (or help) and exits, with every long value in it cut
+/// short: a bad argument is quoted with at most 60 characters.
+pub fn exit_with_clap_error(error: clap::Error) -> ! {
+    use clap::error::ContextValue;
+    if !error.use_stderr() {
+        error.exit();
+    }
+    let mut text = error.render().to_string();
+    for (_, value) in error.context() {
+        let values = match value {
+            ContextValue::String(v) => vec![v.clone()],
+            ContextValue::Strings(v) => v.clone(),
+            _ => Vec::new(),
+        };
+        for v in values {
+            if v.chars().nth(60).is_some() {
+                text = text.replace(&v, &raypick::budget::quote(&v));
+            }
+        }
+    }
+    eprint!("{}", raypick::error::shorten_tokens(&text, 4000));
+    std::process::exit(error.exit_code());
+}
 
 /// A picker for `backend`. The automatic backend prints on standard error when it falls back to
 /// the CPU path.

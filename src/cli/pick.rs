@@ -2,7 +2,7 @@
 
 use super::query_args::QueryArgs;
 use super::scene_args::SceneArgs;
-use super::{STREAM_CHUNK_RAYS, make_picker, progress, read_rays, show_notes, write_output};
+use super::{make_picker, progress, read_rays, show_notes, stream_chunk_rays, write_output};
 use clap::{ArgMatches, Args};
 use raypick::camera::{Camera, load_pixel_indices_as_centers};
 use raypick::io::output::{AnswerWriter, Format, OutputOptions};
@@ -41,8 +41,11 @@ pub struct PickArgs {
 }
 
 pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
-    let built = Arc::new(args.scene.build(matches)?);
     let q = &args.query;
+    // Arguments are checked before anything is read or written.
+    let query = q.query();
+    query.validate()?;
+    let built = Arc::new(args.scene.build(matches)?);
     let rays: Vec<Ray> = match (&args.rays, &args.camera, &args.pixels) {
         (Some(path), _, _) => read_rays(path, q.tmin, q.tmax, q.ray_mask)?,
         (None, Some(camera), Some(pixels)) => {
@@ -68,14 +71,15 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         cells: built.scene.objects().iter().any(|o| o.grid.is_some()),
     };
     let mut picker = make_picker(args.backend, built)?;
-    let query = q.query();
     let mut invalid = 0;
     let mut failure = None;
-    // Large batches stream: answers are written chunk by chunk, so memory stays bounded.
+    // Large batches stream: answers are written chunk by chunk, so memory stays bounded. In
+    // all-hits mode the chunk shrinks so that its lists fit the memory budget.
+    let chunk = stream_chunk_rays(&query);
     let bar = progress::rays_bar(rays.len() as u64, "picking");
     write_output(args.out.as_deref(), |out| {
         let mut writer = AnswerWriter::begin(out, options)?;
-        let result = picker.query_chunked(&rays, &query, STREAM_CHUNK_RAYS, &mut |_, answers| {
+        let result = picker.query_chunked(&rays, &query, chunk, &mut |_, answers| {
             bar.inc(answers.nearest.len() as u64);
             invalid += answers.nearest.iter().filter(|h| h.invalid).count();
             writer.write(out, &answers).map_err(|source| Error::Io {
@@ -96,7 +100,8 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     }
     if invalid > 0 {
         eprintln!(
-            "warning: {invalid} ray(s) were invalid (NaN or infinite values, zero direction, or tmin > tmax) and are reported as misses"
+            "warning: {invalid} ray(s) were invalid (NaN or infinite values, a zero direction or one \
+             too short or too long to normalize, or tmin > tmax) and are reported as misses"
         );
     }
     Ok(ExitCode::SUCCESS)

@@ -22,6 +22,17 @@ pub struct ProbeArgs {
 }
 
 pub fn run(args: ProbeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    if args.probes == 0 {
+        return Err(Error::Invalid(
+            "--probes 0 asks for no probes; give at least 1".into(),
+        ));
+    }
+    // Each probe is a ray answered in one batch (per path and intersector).
+    super::check_rays(
+        &format!("--probes {}", args.probes),
+        args.probes as u64,
+        &Query::default(),
+    )?;
     let built = Arc::new(args.scene.build(matches)?);
     let probes = edge_probes(&built.scene, args.probes, args.seed);
     if probes.is_empty() {

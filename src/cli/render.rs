@@ -6,7 +6,7 @@ use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
 use glam::DVec3;
 use raypick::camera::Camera;
-use raypick::render::{Shade, render};
+use raypick::render::{Shade, check_size, render};
 use raypick::{Backend, Error};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -38,21 +38,26 @@ pub struct RenderArgs {
 }
 
 pub fn run(args: RenderArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
-    let built = Arc::new(args.scene.build(matches)?);
+    // The size is checked (against the memory budget too) before the scene is loaded.
     let camera = match &args.camera {
-        Some(path) => Camera::from_json_file(path)?,
-        None => {
-            let (width, height) = (args.width.unwrap_or(800), args.height.unwrap_or(600));
-            if width == 0 || height == 0 {
-                return Err(Error::Invalid(format!(
-                    "the image is {width} x {height} pixels; --width and --height must be at \
-                     least 1"
-                )));
-            }
-            let (min, max) = built.scene.bounds().unwrap_or((DVec3::ZERO, DVec3::ZERO));
-            Camera::frame_bounds(min, max, width, height)
-        }
+        Some(path) => Some(Camera::from_json_file(path)?),
+        None => None,
     };
+    let (width, height) = match &camera {
+        Some(camera) => (camera.width(), camera.height()),
+        None => (args.width.unwrap_or(800), args.height.unwrap_or(600)),
+    };
+    if width == 0 || height == 0 {
+        return Err(Error::Invalid(format!(
+            "the image is {width} x {height} pixels; --width and --height must be at least 1"
+        )));
+    }
+    check_size(width, height)?;
+    let built = Arc::new(args.scene.build(matches)?);
+    let camera = camera.unwrap_or_else(|| {
+        let (min, max) = built.scene.bounds().unwrap_or((DVec3::ZERO, DVec3::ZERO));
+        Camera::frame_bounds(min, max, width, height)
+    });
     let mut picker = make_picker(args.backend, built)?;
     let image = render(picker.as_mut(), &camera, args.shade)?;
     image.save_png(&args.out)?;

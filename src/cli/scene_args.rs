@@ -43,7 +43,12 @@ pub fn parse_mask(text: &str) -> Result<u32, String> {
     } else {
         t.parse::<u32>()
     };
-    parsed.map_err(|_| format!("'{text}' is not a 32-bit mask (decimal, 0x.. or 0b..)"))
+    parsed.map_err(|_| {
+        format!(
+            "'{}' is not a 32-bit mask (decimal, 0x.. or 0b..)",
+            raypick::budget::quote(text)
+        )
+    })
 }
 
 impl SceneArgs {

@@ -5,7 +5,7 @@ use super::scene_args::{SceneArgs, parse_mask};
 use super::{make_picker, write_output};
 use clap::{ArgMatches, Args};
 use raypick::camera::Camera;
-use raypick::select::{NO_OBJECT, Rect, marquee, object_id_buffer};
+use raypick::select::{NO_OBJECT, Rect, check_id_buffer_size, marquee, object_id_buffer};
 use raypick::{Backend, Error};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -55,8 +55,8 @@ pub struct ViewArgs {
 }
 
 pub fn run_select(args: SelectArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
-    let built = Arc::new(args.scene.build(matches)?);
     let camera = Camera::from_json_file(&args.camera)?;
+    let built = Arc::new(args.scene.build(matches)?);
     let rect = Rect {
         x0: args.rect[0],
         y0: args.rect[1],
@@ -83,8 +83,9 @@ pub fn run_select(args: SelectArgs, matches: &ArgMatches) -> Result<ExitCode, Er
 }
 
 pub fn run_idbuffer(args: IdBufferArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
-    let built = Arc::new(args.scene.build(matches)?);
     let camera = Camera::from_json_file(&args.camera)?;
+    check_id_buffer_size(camera.width(), camera.height())?;
+    let built = Arc::new(args.scene.build(matches)?);
     let mut picker = make_picker(args.view.backend, built.clone())?;
     let ids = object_id_buffer(picker.as_mut(), &camera, args.view.ray_mask)?;
     let (w, h) = (camera.width() as usize, camera.height() as usize);

@@ -6,7 +6,7 @@ use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
 use raypick::compare::Tally;
 use raypick::synthetic::mixed_rays;
-use raypick::{CpuPicker, Error, GpuContext, GpuPicker, Picker, Ray};
+use raypick::{CpuPicker, Error, GpuContext, GpuPicker, Picker, Query, Ray};
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::time::Instant;
@@ -44,11 +44,23 @@ fn resident_mib() -> f64 {
 }
 
 pub fn run(args: SoakArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    if args.rays == 0 || args.batch == 0 {
+        return Err(Error::Invalid(format!(
+            "--rays {} --batch {}: both must be at least 1",
+            args.rays, args.batch
+        )));
+    }
+    // One batch of rays is generated, traced and compared at a time.
+    super::check_rays(
+        &format!("--batch {}", args.batch),
+        args.batch as u64,
+        &Query::default(),
+    )?;
     let built = Arc::new(args.scene.build(matches)?);
     let context = GpuContext::new()?;
     let mut gpu = GpuPicker::new(&context, built.clone())?;
     let mut cpu = CpuPicker::new(built.clone());
-    let batches = args.rays.div_ceil(args.batch.max(1) as u64);
+    let batches = args.rays.div_ceil(args.batch as u64);
     println!(
         "soak: {} rays in {batches} batches of {} on {}; {} rays of each batch checked against the CPU path",
         args.rays,

@@ -39,7 +39,23 @@ pub struct VerifyArgs {
     pub query: QueryArgs,
 }
 
+/// The answers verify holds per ray: three paths and two oracle runs.
+const ANSWER_SETS: u64 = 5;
+
+/// Checks that verify's `count` rays fit the memory budget.
+fn check_count(count: u64, query: &Query) -> Result<(), Error> {
+    raypick::budget::check(
+        &format!("verifying {count} rays"),
+        count,
+        query.bytes_per_ray().saturating_mul(ANSWER_SETS),
+    )
+}
+
 pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    args.query.query().validate()?;
+    if args.rays.is_none() {
+        check_count(args.random as u64, &args.query.query())?;
+    }
     let (built, load_s, build_s) = args.scene.build_timed(matches)?;
     let built = Arc::new(built);
     let bvh = &built.bvh;
@@ -66,6 +82,7 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             .map(|(k, r)| (k.name(), r.with_mask(q.ray_mask)))
             .collect(),
     };
+    check_count(labelled.len() as u64, &query)?;
     let rays: Vec<Ray> = labelled.iter().map(|(_, r)| *r).collect();
 
     let mut gpu = match GpuContext::new().and_then(|c| GpuPicker::new(&c, built.clone())) {

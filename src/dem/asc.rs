@@ -22,6 +22,7 @@ use std::path::Path;
 
 use super::grid::{ElevationGrid, alloc_heights, checked_sample_count};
 use super::{io_error, parse_error};
+use crate::budget::quote;
 use crate::error::Error;
 
 /// Header keys this loader understands (lower case).
@@ -99,7 +100,7 @@ impl Header {
     fn insert(&mut self, key: &str, text: &str, line: usize) -> Result<(), Error> {
         let lower = key.to_ascii_lowercase();
         let Some(i) = KEYS.iter().position(|k| *k == lower) else {
-            return Err(self.err(Some(line), format!("unknown header key '{key}'")));
+            return Err(self.err(Some(line), format!("unknown header key '{}'", quote(key))));
         };
         if let Some(previous) = &self.entries[i] {
             return Err(self.err(
@@ -125,7 +126,7 @@ impl Header {
         let bad = || {
             self.err(
                 Some(e.line),
-                format!("{key} must be a positive integer, got '{}'", e.text),
+                format!("{key} must be a positive integer, got '{}'", quote(&e.text)),
             )
         };
         let n = match e.text.parse::<u64>() {
@@ -151,7 +152,7 @@ impl Header {
             Ok(v) if v.is_finite() => Ok(Some((v, e.line))),
             _ => Err(self.err(
                 Some(e.line),
-                format!("{key} must be a finite number, got '{}'", e.text),
+                format!("{key} must be a finite number, got '{}'", quote(&e.text)),
             )),
         }
     }
@@ -164,7 +165,7 @@ impl Header {
                 Some(line),
                 format!(
                     "{key} must be positive, got '{}'",
-                    self.get(key).map_or("", |e| e.text.as_str())
+                    quote(self.get(key).map_or("", |e| e.text.as_str()))
                 ),
             )),
             None => Ok(None),
@@ -229,7 +230,7 @@ impl Header {
             Some(e) => Some(e.text.parse::<f64>().map_err(|_| {
                 self.err(
                     Some(e.line),
-                    format!("nodata_value must be a number, got '{}'", e.text),
+                    format!("nodata_value must be a number, got '{}'", quote(&e.text)),
                 )
             })?),
         };
@@ -287,14 +288,19 @@ fn parse(
                     parse_error(
                         path,
                         Some(line_no),
-                        format!("header key '{first}' has no value"),
+                        format!("header key '{}' has no value", quote(first)),
                     )
                 })?;
                 if let Some(extra) = tokens.next() {
                     return Err(parse_error(
                         path,
                         Some(line_no),
-                        format!("unexpected '{extra}' after header value '{first} {value}'"),
+                        format!(
+                            "unexpected '{}' after header value '{} {}'",
+                            quote(extra),
+                            quote(first),
+                            quote(value)
+                        ),
                     ));
                 }
                 header.insert(first, value, line_no)?;
@@ -315,9 +321,13 @@ fn parse(
         };
 
         for token in tokens {
-            let value = token
-                .parse::<f64>()
-                .map_err(|_| parse_error(path, Some(line_no), format!("bad number '{token}'")))?;
+            let value = token.parse::<f64>().map_err(|_| {
+                parse_error(
+                    path,
+                    Some(line_no),
+                    format!("bad number '{}'", quote(token)),
+                )
+            })?;
             if heights.len() == g.count {
                 return Err(parse_error(
                     path,
@@ -339,7 +349,7 @@ fn parse(
                 return Err(parse_error(
                     path,
                     Some(line_no),
-                    format!("non-finite value '{token}' (not the nodata_value)"),
+                    format!("non-finite value '{}' (not the nodata_value)", quote(token)),
                 ));
             }
         }

@@ -6,6 +6,10 @@
 //! hits are accepted by the same rules, ties included (`cpu::traverse::accepts`), so the order in
 //! which the tree is walked never shows in an answer. Only the b and i statistics differ: they
 //! count this walk's box and triangle tests.
+#![allow(
+    clippy::neg_cmp_op_on_partial_ord,
+    reason = "as in the twin: `!(a <= b)` also rejects NaN"
+)]
 
 use super::lanes::Lanes;
 use super::wide::{EMPTY, INNER, WIDTH, WideNode};
@@ -559,9 +563,9 @@ pub fn trace_packet<L: Lanes>(
                 children[j] = (c as u32 | bits << 8, key, lo);
                 n += 1;
             }
-            for i in 0..PACKET {
+            for (i, state) in states.iter_mut().enumerate() {
                 if active >> i & 1 != 0 {
-                    if let Some(s) = states[i].as_mut() {
+                    if let Some(s) = state.as_mut() {
                         s.best.box_tests += tested;
                     }
                 }

@@ -7,12 +7,15 @@
 //!
 //! Only positions and faces are read. Texture coordinates, normals,
 //! materials, vertex colours, `l` (polyline) and `p` (point) elements are
-//! ignored.
+//! ignored. Faces with fewer than 3 vertices give no triangle: they are
+//! skipped with one warning on standard error (their count and the first
+//! one's line).
 
 use std::path::Path;
 
 use glam::DVec3;
 
+use crate::budget::quote;
 use crate::error::Error;
 use crate::scene::Mesh;
 
@@ -28,11 +31,14 @@ pub fn load_obj(path: &Path) -> Result<Mesh, Error> {
         source,
     })?;
     let text = decode_utf8(&name, &bytes)?;
-    let geometry = sanitize(text).map_err(|(line, message)| Error::Parse {
+    let (geometry, short) = sanitize(text).map_err(|(line, message)| Error::Parse {
         path: name.clone(),
         line: Some(line),
         message,
     })?;
+    if let Some(short) = short {
+        eprintln!("warning: {name}: {}", short.describe());
+    }
 
     #[allow(
         clippy::needless_update,
@@ -74,18 +80,40 @@ fn decode_utf8<'a>(path: &str, bytes: &'a [u8]) -> Result<&'a str, Error> {
     })
 }
 
+/// Faces with fewer than 3 vertices (`f 1 2`): they give no triangle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ShortFaces {
+    /// How many.
+    pub count: usize,
+    /// The 1-based line of the first.
+    pub first_line: usize,
+}
+
+impl ShortFaces {
+    /// The warning, as a sentence.
+    pub fn describe(&self) -> String {
+        format!(
+            "{} face(s) with fewer than 3 vertices give no triangle and were skipped (the first \
+             on line {})",
+            self.count, self.first_line
+        )
+    }
+}
+
 /// Validates `text` line by line and returns the geometry-only OBJ text that
-/// is handed to `tobj`, with the same line count.
+/// is handed to `tobj`, with the same line count, and the faces with fewer
+/// than 3 vertices, if any.
 ///
 /// Comments (from `#` to the end of the line), a byte-order mark, group
 /// names, vertex colours and every element other than `v` and `f` are
 /// removed; in particular `l` lines, which `tobj` would turn into triangles.
 /// Keeping a single group makes `tobj` return one model whose vertices are
 /// shared by all faces. On error, returns the 1-based line and a message.
-fn sanitize(text: &str) -> Result<String, (usize, String)> {
+fn sanitize(text: &str) -> Result<(String, Option<ShortFaces>), (usize, String)> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut out = String::with_capacity(text.len());
     let mut vertices = 0usize;
+    let mut short: Option<ShortFaces> = None;
     for (i, raw) in text.lines().enumerate() {
         let content = raw.split('#').next().unwrap_or_default();
         let mut words = content.split_whitespace();
@@ -100,7 +128,14 @@ fn sanitize(text: &str) -> Result<String, (usize, String)> {
                 vertices += 1;
             }
             Some("f") => {
-                check_face(words.clone(), vertices).map_err(|m| (i + 1, m))?;
+                let corners = check_face(words.clone(), vertices).map_err(|m| (i + 1, m))?;
+                if corners < 3 {
+                    let s = short.get_or_insert(ShortFaces {
+                        count: 0,
+                        first_line: i + 1,
+                    });
+                    s.count += 1;
+                }
                 out.push('f');
                 for token in words {
                     out.push(' ');
@@ -111,7 +146,7 @@ fn sanitize(text: &str) -> Result<String, (usize, String)> {
         }
         out.push('\n');
     }
-    Ok(out)
+    Ok((out, short))
 }
 
 /// Checks the numbers of a `v` line and returns the tokens to keep: `x y z`,
@@ -128,9 +163,9 @@ fn check_vertex<'a>(words: impl Iterator<Item = &'a str>) -> Result<Vec<&'a str>
     for (value, token) in values.iter_mut().zip(&tokens) {
         *value = token
             .parse::<f64>()
-            .map_err(|_| format!("vertex value '{token}' is not a number"))?;
+            .map_err(|_| format!("vertex value '{}' is not a number", quote(token)))?;
         if !value.is_finite() {
-            return Err(format!("vertex value '{token}' is not finite"));
+            return Err(format!("vertex value '{}' is not finite", quote(token)));
         }
     }
     if n == 4 {
@@ -149,8 +184,8 @@ fn check_vertex<'a>(words: impl Iterator<Item = &'a str>) -> Result<Vec<&'a str>
 }
 
 /// Checks the vertex references of an `f` line, given the number of
-/// vertices defined before it.
-fn check_face<'a>(words: impl Iterator<Item = &'a str>, vertices: usize) -> Result<(), String> {
+/// vertices defined before it; returns how many it has.
+fn check_face<'a>(words: impl Iterator<Item = &'a str>, vertices: usize) -> Result<usize, String> {
     let mut count = 0usize;
     for token in words {
         count += 1;
@@ -163,15 +198,19 @@ fn check_face<'a>(words: impl Iterator<Item = &'a str>, vertices: usize) -> Resu
                 .any(|p| !p.is_empty() && p.parse::<isize>().is_err())
         {
             return Err(format!(
-                "face vertex '{token}' is malformed (expected v, v/vt, v//vn or v/vt/vn)"
+                "face vertex '{}' is malformed (expected v, v/vt, v//vn or v/vt/vn)",
+                quote(token)
             ));
         }
         if position.is_empty() {
-            return Err(format!("face vertex '{token}' has no position index"));
+            return Err(format!(
+                "face vertex '{}' has no position index",
+                quote(token)
+            ));
         }
         let index: isize = position
             .parse()
-            .map_err(|_| format!("face index '{position}' is not an integer"))?;
+            .map_err(|_| format!("face index '{}' is not an integer", quote(position)))?;
         if index == 0 {
             return Err("face index 0 is invalid (OBJ indices start at 1)".to_owned());
         }
@@ -184,7 +223,7 @@ fn check_face<'a>(words: impl Iterator<Item = &'a str>, vertices: usize) -> Resu
     if count == 0 {
         return Err("face has no vertex indices".to_owned());
     }
-    Ok(())
+    Ok(count)
 }
 
 /// Concatenates `tobj`'s models (in file order) into one mesh.

@@ -5,7 +5,8 @@
 //! row with `hit` 0. Scenes with a terrain grid add `row,col` at the end (empty off the grid).
 //! A miss keeps its row with the other fields empty. Numbers are printed in Rust's shortest
 //! round-trip form, so an f64 world coordinate keeps every digit (well below a millimetre at map
-//! coordinates).
+//! coordinates); beyond 1e-7 ..= 1e21 in magnitude, with an exponent ([`csv_number`]). JSON
+//! numbers take the exponent form below 1e-5 and from 1e16 (Rust's `{:?}`).
 
 use crate::query::{Answers, Mode};
 use crate::ray::Hit;
@@ -116,10 +117,21 @@ impl AnswerWriter {
                     for (r, h) in hits.iter().enumerate() {
                         let rank = if all { format!("{r},") } else { String::new() };
                         let (p, n) = (h.position, h.normal);
+                        let f = CsvNumber;
                         write!(
                             out,
                             "{i},{rank}1,{},{},{},{},{},{},{},{},{},{},{}",
-                            h.t, h.object, h.triangle, h.u, h.v, p.x, p.y, p.z, n.x, n.y, n.z
+                            f(h.t),
+                            h.object,
+                            h.triangle,
+                            f(h.u),
+                            f(h.v),
+                            f(p.x),
+                            f(p.y),
+                            f(p.z),
+                            f(n.x),
+                            f(n.y),
+                            f(n.z)
                         )?;
                         if options.cells {
                             match h.cell {
@@ -192,5 +204,28 @@ fn json_number(x: f64) -> String {
         format!("{x:?}")
     } else {
         "null".into()
+    }
+}
+
+/// A CSV number: shortest round-trip digits, written out in full for 1e-7 <= |x| < 1e21 (as
+/// Rust's `{}` and JavaScript write them, so ordinary numbers print as they always have), and
+/// with an exponent outside that range, where it is shorter (`1e300`, not 301 digits).
+pub fn csv_number(x: f64) -> String {
+    CsvNumber(x).to_string()
+}
+
+/// [`csv_number`] without allocating, for `write!`.
+#[derive(Clone, Copy, Debug)]
+pub struct CsvNumber(pub f64);
+
+impl std::fmt::Display for CsvNumber {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let x = self.0;
+        let magnitude = x.abs();
+        if x == 0.0 || !x.is_finite() || (1e-7..1e21).contains(&magnitude) {
+            write!(f, "{x}")
+        } else {
+            write!(f, "{x:e}")
+        }
     }
 }

@@ -308,7 +308,7 @@ async fn pick(
         .scene
         .objects()
         .iter()
-        .map(|o| o.name.as_str())
+        .map(|o| public_name(&o.name))
         .collect();
     Ok(if query.mode == Mode::All {
         let results: Vec<ListOut> = (0..answers.nearest.len())
@@ -331,6 +331,23 @@ async fn pick(
             .collect();
         json_response(StatusCode::OK, &PickResponse { results })
     })
+}
+
+/// An object's name as answers show it: the file name without its folders, so answers never
+/// reveal the server's paths. Objects are named by their file's path (`dir/dem.asc`), or for
+/// glTF `<path>#<mesh>/<primitive>` (`dir/city.glb#roof/0` shows as `city.glb#roof/0`); names
+/// without a folder (the example scene's `tower`) are kept.
+fn public_name(name: &str) -> &str {
+    let lower = name.to_ascii_lowercase();
+    // A glTF object: the path ends where `.gltf#` or `.glb#` does (the first such place).
+    let path_end = [".gltf#", ".glb#"]
+        .iter()
+        .filter_map(|ext| lower.find(ext).map(|at| at + ext.len() - 1))
+        .min()
+        .unwrap_or(name.len());
+    let path = &name[..path_end];
+    let file_start = path.rfind(['/', '\\']).map_or(0, |at| at + 1);
+    &name[file_start..]
 }
 
 /// Answers for zero rays.
@@ -416,7 +433,7 @@ async fn scene(State(state): State<Arc<AppState>>) -> Response {
         .map(|o| {
             json!({
                 "id": o.id,
-                "name": o.name,
+                "name": public_name(&o.name),
                 "triangles": o.triangle_count,
                 "mask": o.mask,
                 "grid": o.grid.map(|g| json!({"columns": g.columns, "rows": g.rows})),

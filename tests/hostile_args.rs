@@ -1,0 +1,586 @@
+//! Hostile arguments and inputs to the `raypick` binary (issue 11, items 2, 5, 6, 9–13): sizes
+//! over the memory budget (`--max-memory`), zero and huge counts, directions too short to
+//! normalize, ray mask 0, NaN arguments, huge tokens in error messages, extreme numbers in CSV,
+//! arguments checked before any output, short OBJ faces, and server answers that must not show
+//! the server's paths.
+//!
+//! Every refusal is exit code 2 with one sentence on standard error that names the value, never
+//! a panic or an abort. This file owns those checks; `tests/cli.rs` owns ordinary CLI behaviour.
+
+use glam::DVec3;
+use raypick::oracle::brute_force_query;
+use raypick::synthetic::example_scene;
+use raypick::{
+    Backend, BuildOptions, BuiltScene, CpuPicker, Mode, Picker, Query, Ray, ReferencePicker,
+};
+use std::process::Command;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Runs the binary; returns the exit code, standard output and standard error.
+fn raypick(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
+        .args(args)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .expect("run raypick");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A file in the temporary folder, unique to this test process.
+fn temp_file(name: &str, text: &str) -> String {
+    let path = std::env::temp_dir().join(format!("raypick-hostile-{}-{name}", std::process::id()));
+    std::fs::write(&path, text).unwrap();
+    path.display().to_string()
+}
+
+/// Asserts a refusal: exit 2, nothing on standard output, one line on standard error that starts
+/// with `error:`, contains every one of `named`, and is no panic.
+fn assert_refused(args: &[&str], named: &[&str]) -> String {
+    let start = Instant::now();
+    let (code, out, err) = raypick(args);
+    assert_eq!(code, 2, "{args:?}: {err}");
+    assert!(
+        out.is_empty(),
+        "{args:?} wrote output before failing: {out}"
+    );
+    assert!(!err.contains("panicked"), "{args:?}: {err}");
+    assert!(
+        err.starts_with("error:") && err.trim_end().lines().count() == 1,
+        "{args:?}: one sentence expected, got {err:?}"
+    );
+    for n in named {
+        assert!(err.contains(n), "{args:?}: {n:?} not named in {err:?}");
+    }
+    assert!(
+        start.elapsed() < Duration::from_secs(20),
+        "{args:?} took {:?} to refuse",
+        start.elapsed()
+    );
+    err
+}
+
+/// A perspective camera file of `width × height` pixels over the example scene.
+fn camera_file(name: &str, width: u64, height: u64) -> String {
+    temp_file(
+        name,
+        &format!(
+            r#"{{"perspective": {{"eye": [50, -60, 120], "target": [50, 50, 0], "up": [0, 0, 1],
+                "fov_y_deg": 45, "width": {width}, "height": {height}}}}}"#
+        ),
+    )
+}
+
+#[test]
+fn sizes_over_the_memory_budget_are_refused_by_name() {
+    assert_refused(
+        &[
+            "render",
+            "--width",
+            "100000",
+            "--height",
+            "100000",
+            "--out",
+            "/dev/null",
+        ],
+        &["100000 x 100000", "memory budget", "--max-memory"],
+    );
+    let huge = camera_file("huge-camera.json", 1_000_000_000, 1_000_000_000);
+    assert_refused(
+        &["render", "--camera", &huge, "--out", "/dev/null"],
+        &["1000000000 x 1000000000", "memory budget"],
+    );
+    assert_refused(
+        &["idbuffer", "--camera", &huge, "--backend", "cpu"],
+        &["1000000000 x 1000000000", "memory budget"],
+    );
+    let wide = camera_file("wide-camera.json", 100_000, 100_000);
+    assert_refused(
+        &[
+            "select",
+            "--camera",
+            &wide,
+            "--rect",
+            "0",
+            "0",
+            "100000",
+            "100000",
+            "--backend",
+            "cpu",
+        ],
+        &["100000 x 100000", "memory budget"],
+    );
+    assert_refused(
+        &["probe", "--probes", "4294967295"],
+        &["4294967295", "memory budget"],
+    );
+    assert_refused(
+        &["verify", "--random", "18446744073709551615"],
+        &["18446744073709551615", "memory budget"],
+    );
+    assert_refused(
+        &["bench", "--rays", "18446744073709551615"],
+        &["--rays 18446744073709551615", "memory budget"],
+    );
+    assert_refused(
+        &["bench", "--picks", "18446744073709551615"],
+        &["--picks 18446744073709551615", "memory budget"],
+    );
+}
+
+#[test]
+fn max_memory_sets_the_budget_and_is_documented() {
+    let err = assert_refused(
+        &[
+            "render",
+            "--max-memory",
+            "4M",
+            "--width",
+            "1000",
+            "--height",
+            "1000",
+            "--out",
+            "/dev/null",
+        ],
+        &["1000 x 1000", "4.0 MiB"],
+    );
+    assert!(err.contains("memory budget"), "{err}");
+    // The option is global: before the command too.
+    assert_refused(
+        &["--max-memory", "4M", "probe", "--probes", "100000"],
+        &["100000", "4.0 MiB"],
+    );
+    let (code, _, err) = raypick(&["pick", "--max-memory", "lots"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("lots") && !err.contains("panicked"), "{err}");
+    let (code, help, _) = raypick(&["pick", "--help"]);
+    assert_eq!(code, 0);
+    assert!(help.contains("--max-memory <SIZE>"), "{help}");
+}
+
+#[test]
+fn all_hits_mode_shrinks_its_chunks_to_the_budget_instead_of_refusing() {
+    // 3000 rays through the tower: 1024 list slots each would need about 450 MB in one chunk;
+    // under a 16 MiB budget they are answered a few dozen rays at a time, with the same output.
+    let rays: String = (0..3000)
+        .map(|i| format!("{} 45.1 100 0 0 -1\n", 30.0 + (i % 100) as f64 * 0.07))
+        .collect();
+    let rays = temp_file("all-hits-rays.txt", &rays);
+    let args = [
+        "pick",
+        "--rays",
+        &rays,
+        "--mode",
+        "all",
+        "--max-hits",
+        "1024",
+        "--backend",
+        "cpu",
+    ];
+    let (code, small, err) = raypick(&[&args[..], &["--max-memory", "16M"]].concat());
+    assert_eq!(code, 0, "{err}");
+    let (code, whole, err) = raypick(&args);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(small, whole, "chunking changes nothing in the answers");
+    assert!(small.lines().count() > 3000, "every hit has its row");
+}
+
+/// Under a 400 MB address-space limit, 20000 all-hits rays with 1024 list slots each (over
+/// 600 MB of lists in one chunk) are answered within a 64 MiB budget instead of aborting.
+#[cfg(target_os = "linux")]
+#[test]
+fn all_hits_mode_stays_within_the_budget_under_an_address_space_limit() {
+    let rays: String = (0..20_000)
+        .map(|i| format!("{} 45.1 100 0 0 -1\n", 30.0 + (i % 100) as f64 * 0.07))
+        .collect();
+    let rays = temp_file("all-hits-20k.txt", &rays);
+    let script = format!(
+        "ulimit -v 400000 && exec '{}' pick --rays '{rays}' --mode all --max-hits 1024 \
+         --backend cpu --max-memory 64M",
+        env!("CARGO_BIN_EXE_raypick")
+    );
+    let out = Command::new("sh")
+        .args(["-c", &script])
+        .env("MALLOC_ARENA_MAX", "2")
+        .env("RAYON_NUM_THREADS", "2")
+        .output()
+        .expect("run sh");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{}", &err[..err.len().min(300)]);
+    let rows = out.stdout.iter().filter(|&&b| b == b'\n').count();
+    assert!(rows > 20_000, "{rows} rows");
+}
+
+#[test]
+fn zero_counts_and_counts_that_overflow_are_refused() {
+    assert_refused(&["soak", "--rays", "0"], &["--rays 0"]);
+    assert_refused(&["soak", "--batch", "0"], &["--batch 0"]);
+    assert_refused(&["probe", "--probes", "0"], &["--probes 0"]);
+    // Argument errors come before any output.
+    assert_refused(
+        &["pick", "--mode", "all", "--max-hits", "0"],
+        &["max hits 0"],
+    );
+}
+
+/// The backends to try on the command line: the GPU only where one opens.
+fn backends() -> Vec<&'static str> {
+    let (code, _, err) = raypick(&["pick", "--backend", "gpu"]);
+    if code == 0 {
+        vec!["cpu", "reference", "gpu"]
+    } else {
+        eprintln!("no GPU here ({err}); checking the CPU backends only");
+        vec!["cpu", "reference"]
+    }
+}
+
+#[test]
+fn a_direction_too_short_to_normalize_is_invalid_and_warned() {
+    let rays = temp_file(
+        "tiny-dirs.txt",
+        "33.3 45.1 100 0 0 -1e-320\n33.3 45.1 100 0 0 -1e-300\n",
+    );
+    for backend in backends() {
+        let (code, out, err) = raypick(&["pick", "--rays", &rays, "--backend", backend]);
+        assert_eq!(code, 0, "{err}");
+        let rows: Vec<Vec<&str>> = out
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').collect())
+            .collect();
+        assert_eq!(
+            rows[0][1], "0",
+            "{backend}: 1e-320 cannot be normalized: {out}"
+        );
+        assert!(!out.contains("inf") && !out.contains("NaN"), "{out}");
+        assert!(
+            err.contains("1 ray(s) were invalid") && err.contains("too short"),
+            "{err}"
+        );
+        // 1e-300 can: a hit, t about 1e301, finite.
+        assert_eq!(rows[1][1], "1", "{backend}: {out}");
+        let t: f64 = rows[1][2].parse().unwrap();
+        assert!(t.is_finite() && t > 1e300, "{t}");
+        let (_, json, _) = raypick(&[
+            "pick",
+            "--rays",
+            &rays,
+            "--backend",
+            backend,
+            "--format",
+            "json",
+        ]);
+        let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(v[0]["invalid"], true, "{json}");
+    }
+    // The library agrees: the ray is invalid, and the oracle says so too.
+    let ray = Ray::new(DVec3::new(33.3, 45.1, 100.0), DVec3::new(0.0, 0.0, -1e-320));
+    assert!(!ray.is_valid());
+    let oracle = brute_force_query(&example_scene(), &[ray], &Query::default());
+    assert!(oracle.nearest[0].invalid);
+}
+
+#[test]
+fn a_hit_too_far_for_f64_is_no_hit_on_every_path() {
+    // t of the tower's roof is about 1e308 / 6e-309: beyond f64. The ray is valid, but misses.
+    let ray = Ray::new(DVec3::new(33.3, 45.1, 100.0), DVec3::new(0.0, 0.0, -6e-309));
+    assert!(ray.is_valid());
+    let built = Arc::new(BuiltScene::new(example_scene(), &BuildOptions::default()).unwrap());
+    let query = Query::default();
+    let oracle = brute_force_query(&built.scene, &[ray], &query);
+    let mut pickers: Vec<Box<dyn Picker>> = vec![
+        Box::new(CpuPicker::new(built.clone())),
+        Box::new(ReferencePicker::new(built.clone())),
+    ];
+    assert!(!oracle.nearest[0].hit && !oracle.nearest[0].invalid);
+    for picker in &mut pickers {
+        let h = picker.query(&[ray], &query).unwrap().nearest[0];
+        assert!(!h.hit && !h.invalid, "{h:?}");
+    }
+}
+
+#[test]
+fn ray_mask_zero_hits_nothing_on_every_backend() {
+    let rays = temp_file("mask-rays.txt", "33.3 45.1 100 0 0 -1\n10 10 50 0 0 -1\n");
+    for backend in backends() {
+        for mode in ["closest", "any", "all"] {
+            let (code, out, err) = raypick(&[
+                "pick",
+                "--rays",
+                &rays,
+                "--backend",
+                backend,
+                "--mode",
+                mode,
+                "--ray-mask",
+                "0",
+                "--format",
+                "json",
+            ]);
+            assert_eq!(code, 0, "{err}");
+            let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+            for r in v.as_array().unwrap() {
+                let hit = r["hit"].as_bool().unwrap_or(false)
+                    || r["hits"].as_array().is_some_and(|h| !h.is_empty());
+                assert!(!hit, "{backend} {mode}: mask 0 hit something: {out}");
+                assert_eq!(r["invalid"], false, "a plain miss, not invalid: {out}");
+            }
+            assert!(!err.contains("invalid"), "{err}");
+        }
+    }
+    // With object masks set or not, the library and the oracle agree: nothing.
+    let mut masked = example_scene();
+    masked.set_object_mask(0, 1).unwrap();
+    for scene in [example_scene(), masked] {
+        let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
+        let ray = Ray::new(DVec3::new(33.3, 45.1, 100.0), DVec3::NEG_Z).with_mask(0);
+        let query = Query {
+            mode: Mode::All,
+            ..Query::default()
+        };
+        let oracle = brute_force_query(&built.scene, &[ray], &query);
+        assert!(oracle.hits_of(0).is_empty());
+        let answers = CpuPicker::new(built.clone()).query(&[ray], &query).unwrap();
+        assert!(answers.hits_of(0).is_empty() && !answers.nearest[0].invalid);
+    }
+}
+
+#[test]
+fn nan_arguments_and_points_are_refused_or_flagged() {
+    assert_refused(
+        &[
+            "viewshed",
+            "--observer",
+            "nan",
+            "0",
+            "0",
+            "--backend",
+            "cpu",
+        ],
+        &["--observer NaN 0 0"],
+    );
+    assert_refused(
+        &[
+            "viewshed",
+            "--observer",
+            "50",
+            "50",
+            "200",
+            "--target-height",
+            "nan",
+            "--backend",
+            "cpu",
+        ],
+        &["--target-height NaN"],
+    );
+    let pairs = temp_file("nan-pairs.txt", "nan 0 0 1 1 1\n10 10 200 90 90 200\n");
+    let (code, out, err) = raypick(&["los", "--pairs", &pairs, "--backend", "cpu"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("0,0") && out.contains("1,1"), "{out}");
+    assert!(
+        err.contains("warning: 1 pair(s) were invalid"),
+        "the NaN pair is flagged: {err}"
+    );
+}
+
+#[test]
+fn error_messages_quote_at_most_a_few_dozen_characters_of_a_bad_token() {
+    let long = "9".repeat(2_000_000);
+    let junk = "z".repeat(2_000_000);
+    let check = |args: &[&str], named: &str| {
+        let err = assert_refused(args, &[named, "…"]);
+        assert!(err.len() < 400, "{} bytes: {}", err.len(), &err[..400]);
+    };
+    let obj = temp_file("long.obj", &format!("v 0 0 {junk}\n"));
+    check(
+        &["pick", "--backend", "cpu", "--scene", &obj],
+        "is not a number",
+    );
+    let obj = temp_file("long-face.obj", &format!("v 0 0 0\nf 1 1 {junk}\n"));
+    check(
+        &["pick", "--backend", "cpu", "--scene", &obj],
+        "not an integer",
+    );
+    let asc = temp_file(
+        "long.asc",
+        &format!("ncols 2\nnrows 1\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 {long}\n"),
+    );
+    check(
+        &["pick", "--backend", "cpu", "--scene", &asc],
+        "non-finite value",
+    );
+    let asc = temp_file("long-key.asc", &format!("{junk} 2\n"));
+    check(
+        &["pick", "--backend", "cpu", "--scene", &asc],
+        "unknown header key",
+    );
+    let rays = temp_file("long-rays.txt", &format!("0 0 0 0 0 {junk}\n"));
+    check(
+        &["pick", "--backend", "cpu", "--rays", &rays],
+        "is not a number",
+    );
+    let pixels = temp_file("long-pixels.txt", &format!("1 {junk}\n"));
+    let camera = camera_file("small-camera.json", 8, 6);
+    check(
+        &[
+            "pick",
+            "--backend",
+            "cpu",
+            "--camera",
+            &camera,
+            "--pixels",
+            &pixels,
+        ],
+        "is not a number",
+    );
+    let bad_camera = temp_file(
+        "long-camera.json",
+        &format!(r#"{{"perspective": {{"{junk}": 1}}}}"#),
+    );
+    check(
+        &["render", "--camera", &bad_camera, "--out", "/dev/null"],
+        "unknown field",
+    );
+    let string_camera = temp_file(
+        "string-camera.json",
+        &format!(r#"{{"perspective": {{"eye": "{junk}"}}}}"#),
+    );
+    check(
+        &["render", "--camera", &string_camera, "--out", "/dev/null"],
+        "invalid type",
+    );
+    // Arguments (the OS allows about 128 KB per argument): the parser's errors have a usage
+    // line after the sentence, and quote the bad value short.
+    let arg = "7".repeat(100_000);
+    let unknown = format!("--{}", &junk[..100_000]);
+    for (args, named) in [
+        (
+            vec!["render", "--width", &arg, "--out", "/dev/null"],
+            "--width",
+        ),
+        (vec!["pick", "--ray-mask", &arg], "32-bit mask"),
+        (vec!["pick", &unknown], "unexpected argument"),
+    ] {
+        let (code, out, err) = raypick(&args);
+        assert_eq!(code, 2, "{err}");
+        assert!(out.is_empty() && !err.contains("panicked"));
+        assert!(
+            err.starts_with("error:") && err.contains(named) && err.contains('…'),
+            "{}",
+            &err[..err.len().min(400)]
+        );
+        assert!(err.len() < 1000, "{} bytes", err.len());
+    }
+}
+
+#[test]
+fn csv_writes_extreme_numbers_with_an_exponent_and_ordinary_ones_as_before() {
+    let rays = temp_file(
+        "far-rays.txt",
+        "33.3 45.1 100 0 0 -1e-300\n33.3 45.1 100 0 0 -1\n",
+    );
+    let (code, csv, err) = raypick(&["pick", "--backend", "cpu", "--rays", &rays]);
+    assert_eq!(code, 0, "{err}");
+    let (_, json, _) = raypick(&[
+        "pick",
+        "--backend",
+        "cpu",
+        "--rays",
+        &rays,
+        "--format",
+        "json",
+    ]);
+    let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let rows: Vec<Vec<&str>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    let far = rows[0][2];
+    assert!(far.len() <= 24 && far.contains('e'), "t = {far}");
+    assert_eq!(far.parse::<f64>().unwrap(), v[0]["t"].as_f64().unwrap());
+    assert!(json.len() < 1000, "JSON stays short too: {json}");
+    // The roof of the tower: printed as ever (Rust's `{}`).
+    let roof = v[1]["t"].as_f64().unwrap();
+    assert_eq!(rows[1][2], roof.to_string());
+    assert_eq!(rows[1][7], "33.3");
+}
+
+#[test]
+fn obj_faces_with_fewer_than_three_vertices_are_warned_about_once() {
+    let obj = temp_file(
+        "short-faces.obj",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\nf 1 2 3\nf 3\nf 2 3\n",
+    );
+    let (code, _, err) = raypick(&["pick", "--backend", "cpu", "--scene", &obj]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(err.matches("fewer than 3 vertices").count(), 1, "{err}");
+    assert!(
+        err.contains("3 face(s)") && err.contains("line 4") && err.contains(&obj),
+        "{err}"
+    );
+}
+
+#[test]
+fn server_answers_name_objects_by_file_name_only() {
+    use raypick::io::scene_files::{SceneFile, load_scene};
+    use raypick::server::{Server, ServerConfig};
+    use std::io::{Read, Write};
+
+    let dir = std::env::temp_dir().join(format!("raypick-hostile-secret-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let obj = dir.join("ground.obj");
+    std::fs::write(&obj, "v 0 0 0\nv 10 0 0\nv 0 10 0\nf 1 2 3\n").unwrap();
+    let scene = load_scene(&[SceneFile {
+        file: obj.clone(),
+        mask: None,
+    }])
+    .unwrap();
+    let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
+    let server = Server::new(built, Backend::Cpu, ServerConfig::default()).unwrap();
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    listener.set_nonblocking(true).unwrap();
+    let addr = listener.local_addr().unwrap();
+    std::thread::spawn(move || {
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .enable_all()
+            .build()
+            .unwrap();
+        runtime.block_on(async move {
+            let listener = tokio::net::TcpListener::from_std(listener).unwrap();
+            server.serve(listener).await.unwrap();
+        });
+    });
+    let request = |head: &str, body: &str| {
+        let mut stream = std::net::TcpStream::connect(addr).unwrap();
+        write!(
+            stream,
+            "{head} HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+            body.len()
+        )
+        .unwrap();
+        let mut answer = String::new();
+        stream.read_to_string(&mut answer).unwrap();
+        answer
+    };
+    let scene = request("GET /scene", "");
+    let pick = request(
+        "POST /pick",
+        r#"{"rays":[{"origin":[1,1,5],"dir":[0,0,-1]}]}"#,
+    );
+    let folder = dir.display().to_string();
+    for answer in [&scene, &pick] {
+        assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+        assert!(answer.contains("\"ground.obj\""), "{answer}");
+        assert!(
+            !answer.contains(&folder),
+            "the server's path shows: {answer}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
