@@ -3,8 +3,8 @@
 //! chosen triangle's exact world vertices.
 
 use crate::bvh::Bvh;
-use crate::cpu::ray_triangle::ray_triangle_f64;
 use crate::error::{Error, Result};
+use crate::exact::ray_triangle_f64;
 use crate::layout::{CAP_REACHED, GpuHit, GpuRay, NO_HIT};
 use crate::query::Query;
 use crate::ray::{Hit, Ray, direction_length};

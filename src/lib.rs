@@ -33,6 +33,7 @@ pub mod cpu;
 pub mod dem;
 pub mod engine;
 pub mod error;
+pub mod exact;
 pub mod frame;
 pub mod gpu;
 pub mod io;

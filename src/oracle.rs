@@ -1,7 +1,7 @@
 //! The brute-force oracle: every triangle, in f64, on the exact world vertices. Slow on purpose;
 //! it shares nothing with the tree, so tests can check both traversal paths against it.
 
-use crate::cpu::ray_triangle::ray_triangle_f64;
+use crate::exact::ray_triangle_f64;
 use crate::query::{Answers, Cull, Mode, Query};
 use crate::ray::{Hit, Ray};
 use crate::scene::Scene;

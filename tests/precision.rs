@@ -6,7 +6,7 @@ mod common;
 
 use glam::{DMat3, DVec3};
 use raypick::camera::Camera;
-use raypick::cpu::ray_triangle::ray_triangle_f64;
+use raypick::exact::ray_triangle_f64;
 use raypick::io::scene_files::{SceneFile, load_scene};
 use raypick::synthetic::{hills, terrain};
 use raypick::{

@@ -3,12 +3,13 @@
 //! t = Q·E2 / P·E1, u = P·T / P·E1, v = Q·D / P·E1; hit when u ≥ 0, v ≥ 0, u+v ≤ 1.
 //!
 //! [`ray_triangle`] is the f32 twin of `ray_triangle` in `wgsl/pick.wgsl`, and
-//! [`ray_triangle_watertight`] the twin of the watertight test (Woop, Benthin, Wald 2013);
-//! [`ray_triangle_f64`] is the exact version used to refine hits and by the brute-force oracle.
+//! [`ray_triangle_watertight`] the twin of the watertight test (Woop, Benthin, Wald 2013). The
+//! exact f64 test used to refine hits and by the brute-force oracle is `crate::exact`'s: it is
+//! not part of the kernel's twin.
 //! In all of them `det > 0` means the triangle is counter-clockwise as seen from the ray.
 
 use crate::layout::GpuTriangle;
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 
 /// What one ray/triangle test found: `hit` says whether the ray's line crosses the triangle
 /// (edges inclusive); `t`, `u`, `v` are only meaningful when it does.
@@ -27,7 +28,8 @@ pub struct TriangleHit<F> {
 }
 
 impl<F: Default> TriangleHit<F> {
-    fn miss() -> Self {
+    /// No hit.
+    pub fn miss() -> Self {
         Self {
             hit: false,
             t: F::default(),
@@ -142,30 +144,6 @@ pub fn ray_triangle_watertight(tri: &GpuTriangle, origin: Vec3, sh: &Shear) -> T
         t: t_scaled * inv_det,
         u: v_edge * inv_det,
         v: w_edge * inv_det,
-        det,
-    }
-}
-
-/// f64 Möller–Trumbore on world-space vertices. `hit` is false when the ray is parallel to the
-/// triangle's plane (or the triangle has zero area).
-pub fn ray_triangle_f64([v0, v1, v2]: [DVec3; 3], origin: DVec3, dir: DVec3) -> TriangleHit<f64> {
-    let e1 = v1 - v0;
-    let e2 = v2 - v0;
-    let p = dir.cross(e2);
-    let det = p.dot(e1);
-    if det == 0.0 {
-        return TriangleHit::miss();
-    }
-    let to_origin = origin - v0;
-    let u = p.dot(to_origin) / det;
-    let q = to_origin.cross(e1);
-    let v = q.dot(dir) / det;
-    let t = q.dot(e2) / det;
-    TriangleHit {
-        hit: u >= 0.0 && v >= 0.0 && u + v <= 1.0,
-        t,
-        u,
-        v,
         det,
     }
 }
