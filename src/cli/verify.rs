@@ -95,6 +95,17 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             None
         }
     };
+    let collapse_start = Instant::now();
+    let wide = built.wide()?;
+    let collapse_s = collapse_start.elapsed().as_secs_f64();
+    println!(
+        "engine: {} wide nodes, depth {}, {:.1} bytes/triangle of its own, collapsed in {:.1} ms ({:.0}% of the build)",
+        wide.nodes.len(),
+        wide.depth,
+        wide.bytes() as f64 / triangles.max(1) as f64,
+        collapse_s * 1e3,
+        100.0 * collapse_s / build_s.max(1e-9)
+    );
     let mut engine = CpuPicker::new(built.clone());
     let engine_name = engine.describe();
     let mut reference = ReferencePicker::new(built.clone());

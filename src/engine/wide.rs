@@ -102,12 +102,15 @@ impl WideBvh {
             if opened > cap {
                 return Err(corrupted("a cycle".into()));
             }
-            let mut open: Vec<u32> = children(source, &binary[source as usize]).to_vec();
-            if let Some(&bad) = open.iter().find(|&&n| n as usize >= cap) {
+            // The children so far, in a fixed array (no allocation per node).
+            let [left, right] = children(source, &binary[source as usize]);
+            let mut slots = [left, right, 0, 0];
+            let mut len = 2;
+            if let Some(&bad) = slots[..2].iter().find(|&&n| n as usize >= cap) {
                 return Err(corrupted(format!("a child {bad} past the end")));
             }
-            while open.len() < WIDTH {
-                let widest = open
+            while len < WIDTH {
+                let widest = slots[..len]
                     .iter()
                     .enumerate()
                     .filter(|&(_, &n)| !binary[n as usize].is_leaf())
@@ -117,7 +120,7 @@ impl WideBvh {
                     })
                     .map(|(i, _)| i);
                 let Some(i) = widest else { break };
-                let n = open[i];
+                let n = slots[i];
                 opened += 1;
                 let pair = children(n, &binary[n as usize]);
                 if let Some(&bad) = pair.iter().find(|&&c| c as usize >= cap) {
@@ -126,9 +129,13 @@ impl WideBvh {
                 if opened > cap {
                     return Err(corrupted("a cycle".into()));
                 }
-                open.splice(i..=i, pair);
+                // Replace child i by its pair, keeping the order.
+                slots.copy_within(i + 1..len, i + 2);
+                slots[i] = pair[0];
+                slots[i + 1] = pair[1];
+                len += 1;
             }
-            for (lane, &n) in open.iter().enumerate() {
+            for (lane, &n) in slots[..len].iter().enumerate() {
                 let node = &binary[n as usize];
                 if node.is_leaf() {
                     let node_copy = *node;
