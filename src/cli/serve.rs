@@ -9,6 +9,7 @@ use std::io::Write;
 use std::net::SocketAddr;
 use std::process::ExitCode;
 use std::sync::Arc;
+use std::time::Duration;
 
 #[derive(Args, Debug)]
 pub struct ServeArgs {
@@ -27,15 +28,46 @@ pub struct ServeArgs {
     /// Largest request body, in bytes.
     #[arg(long, default_value_t = ServerConfig::default().max_body_bytes)]
     pub max_body_bytes: usize,
+    /// Most connections served at once; further ones wait until one closes.
+    #[arg(long, default_value_t = ServerConfig::default().max_connections)]
+    pub max_connections: usize,
+    /// Seconds a connection with no request in progress (idle, sending its headers, or not
+    /// reading its answer) stays open.
+    #[arg(long, default_value_t = ServerConfig::default().idle_timeout.as_secs_f64())]
+    pub idle_timeout: f64,
+    /// Seconds a request body has to arrive whole (408 after).
+    #[arg(long, default_value_t = ServerConfig::default().body_timeout.as_secs_f64())]
+    pub body_timeout: f64,
+    /// Memory budget of all requests in progress together (e.g. 2G, 512M); requests beyond it
+    /// wait briefly, then get 503. Default: a quarter of --max-memory.
+    #[arg(long, value_parser = raypick::budget::parse_size)]
+    pub memory_budget: Option<u64>,
+}
+
+/// `seconds` as a timeout: a positive, finite number of seconds.
+fn timeout(flag: &str, seconds: f64) -> Result<Duration, Error> {
+    if seconds.is_finite() && seconds > 0.0 && seconds <= 1e9 {
+        Ok(Duration::from_secs_f64(seconds))
+    } else {
+        Err(Error::Invalid(format!(
+            "{flag} {seconds} is not a timeout; give a positive number of seconds"
+        )))
+    }
 }
 
 pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
-    let built = Arc::new(args.scene.build(matches)?);
     let config = ServerConfig {
         max_rays: args.max_rays.max(1),
         max_body_bytes: args.max_body_bytes,
+        max_connections: args.max_connections.max(1),
+        idle_timeout: timeout("--idle-timeout", args.idle_timeout)?,
+        body_timeout: timeout("--body-timeout", args.body_timeout)?,
+        memory_budget: args
+            .memory_budget
+            .unwrap_or_else(ServerConfig::default_memory_budget),
         ..ServerConfig::default()
     };
+    let built = Arc::new(args.scene.build(matches)?);
     let triangles = built.scene.triangle_count();
     let server = Server::new(built, args.backend, config)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()

@@ -22,7 +22,9 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::sync::Arc;
-use tokio::sync::oneshot;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+use tokio::sync::{OwnedSemaphorePermit, Semaphore, oneshot};
 
 /// What every handler shares: the picking worker, the scene and the limits.
 pub(crate) struct AppState {
@@ -34,6 +36,152 @@ pub(crate) struct AppState {
     pub(crate) backend: Backend,
     /// Limits and defaults.
     pub(crate) config: ServerConfig,
+    /// The memory budget of the requests in progress.
+    pub(crate) memory: MemoryBudget,
+}
+
+/// Parsed request records per byte of request body, at most (ray records are about 2.7 times
+/// their shortest JSON, and their vector may double while growing).
+const PARSED_BYTES_PER_BODY_BYTE: u64 = 8;
+
+/// Bytes of answer per result and per all-hits entry, at most: the answer record and its JSON.
+const ANSWER_BYTES_PER_HIT: u64 = 512;
+
+/// Reservations at least this large ask the allocator to return freed memory when they end.
+const TRIM_AFTER_BYTES: u64 = 32 << 20;
+
+/// The memory budget of the requests in progress ([`ServerConfig::memory_budget`]), kept as
+/// KiB permits of a semaphore; requests wait for their memory in arrival order.
+pub(crate) struct MemoryBudget {
+    permits: Arc<Semaphore>,
+    total_kib: u64,
+    wait: Duration,
+}
+
+/// Memory reserved for one request; given back when dropped.
+pub(crate) struct Reservation {
+    _permit: OwnedSemaphorePermit,
+    bytes: u64,
+}
+
+impl MemoryBudget {
+    /// A budget of `bytes` (at least 1 KiB); requests wait up to `wait` for their share.
+    pub(crate) fn new(bytes: u64, wait: Duration) -> Self {
+        let most = (u32::MAX as u64).min(Semaphore::MAX_PERMITS as u64);
+        let total_kib = (bytes / 1024).clamp(1, most);
+        Self {
+            permits: Arc::new(Semaphore::new(total_kib as usize)),
+            total_kib,
+            wait,
+        }
+    }
+
+    /// Reserves `bytes` for `what` (e.g. "this pick"): waits for them up to the budget's wait
+    /// time; 503 if they can never fit or did not become free in time.
+    pub(crate) async fn reserve(&self, what: &str, bytes: u64) -> Result<Reservation, ApiError> {
+        let kib = bytes.div_ceil(1024).max(1);
+        if kib > self.total_kib {
+            return Err(ApiError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                format!(
+                    "{what} would need about {} of memory, more than this server's budget of {} \
+                     for all requests at once; send fewer rays, a smaller max_hits or a smaller \
+                     image",
+                    human(bytes),
+                    human(self.total_kib * 1024)
+                ),
+            ));
+        }
+        let acquire = self.permits.clone().acquire_many_owned(kib as u32);
+        match tokio::time::timeout(self.wait, acquire).await {
+            Ok(Ok(permit)) => Ok(Reservation {
+                _permit: permit,
+                bytes,
+            }),
+            _ => Err(ApiError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                format!(
+                    "the server is busy: {what} needs about {} of memory, and its budget of {} \
+                     stayed in use by other requests for {} s; retry later",
+                    human(bytes),
+                    human(self.total_kib * 1024),
+                    self.wait.as_secs_f64()
+                ),
+            )),
+        }
+    }
+}
+
+impl Drop for Reservation {
+    fn drop(&mut self) {
+        if self.bytes >= TRIM_AFTER_BYTES {
+            schedule_trim();
+        }
+    }
+}
+
+/// Soon asks the allocator to give freed memory back to the system (once for several large
+/// requests ending together), so that the server's memory returns near idle after them.
+fn schedule_trim() {
+    static SCHEDULED: AtomicBool = AtomicBool::new(false);
+    if SCHEDULED.swap(true, Ordering::SeqCst) {
+        return;
+    }
+    match tokio::runtime::Handle::try_current() {
+        Ok(runtime) => {
+            runtime.spawn(async {
+                // Let the answer be sent and freed first.
+                tokio::time::sleep(Duration::from_millis(200)).await;
+                SCHEDULED.store(false, Ordering::SeqCst);
+                let _ = tokio::task::spawn_blocking(release_free_memory).await;
+            });
+        }
+        Err(_) => {
+            SCHEDULED.store(false, Ordering::SeqCst);
+            release_free_memory();
+        }
+    }
+}
+
+/// Returns the allocator's free memory to the system (glibc's `malloc_trim`, every arena).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn release_free_memory() {
+    unsafe extern "C" {
+        fn malloc_trim(pad: usize) -> std::ffi::c_int;
+    }
+    // SAFETY: `malloc_trim` takes no pointers and is thread-safe; it only returns free pages.
+    unsafe {
+        malloc_trim(0);
+    }
+}
+
+/// Elsewhere the allocator keeps its own policy.
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn release_free_memory() {}
+
+/// `bytes` for a message, in MiB or GiB.
+fn human(bytes: u64) -> String {
+    const MIB: f64 = (1u64 << 20) as f64;
+    if bytes >= 1 << 30 {
+        format!("{:.1} GiB", bytes as f64 / (MIB * 1024.0))
+    } else {
+        format!("{:.1} MiB", bytes as f64 / MIB)
+    }
+}
+
+/// The memory a pick of `rays` rays holds at most: the picker's per-ray memory
+/// ([`Query::bytes_per_ray`], all-hits lists included) and the answer's records and JSON.
+fn pick_bytes(rays: usize, query: &Query) -> u64 {
+    let rays = rays as u64;
+    let results = rays.saturating_mul(1 + u64::from(query.list_length()));
+    rays.saturating_mul(query.bytes_per_ray())
+        .saturating_add(results.saturating_mul(ANSWER_BYTES_PER_HIT))
+}
+
+/// The memory a render of `pixels` pixels holds at most: its rays and hits, its RGBA image and
+/// its PNG.
+fn render_bytes(pixels: u64) -> u64 {
+    pixels.saturating_mul(Query::default().bytes_per_ray() + 8)
 }
 
 /// The routes over `state`.
@@ -252,8 +400,14 @@ impl PickRequest {
     }
 }
 
-/// Reads a request body of at most `limit` bytes.
-async fn read_body(headers: &HeaderMap, body: Body, limit: usize) -> Result<Bytes, ApiError> {
+/// Reads a request body of at most `limit` bytes, which must arrive whole within `timeout`
+/// (408 otherwise).
+async fn read_body(
+    headers: &HeaderMap,
+    body: Body,
+    limit: usize,
+    timeout: Duration,
+) -> Result<Bytes, ApiError> {
     let too_large = || {
         ApiError::too_large(format!(
             "the request body is larger than this server's limit of {limit} bytes; send fewer \
@@ -267,7 +421,18 @@ async fn read_body(headers: &HeaderMap, body: Body, limit: usize) -> Result<Byte
     if declared.is_some_and(|n| n > limit as u64) {
         return Err(too_large());
     }
-    axum::body::to_bytes(body, limit).await.map_err(|e| {
+    let read = tokio::time::timeout(timeout, axum::body::to_bytes(body, limit))
+        .await
+        .map_err(|_| {
+            ApiError::new(
+                StatusCode::REQUEST_TIMEOUT,
+                format!(
+                    "the request body did not arrive whole within {} s; send it at once",
+                    timeout.as_secs_f64()
+                ),
+            )
+        })?;
+    read.map_err(|e| {
         let mut source: Option<&dyn std::error::Error> = Some(&e);
         while let Some(err) = source {
             if err.to_string().contains("length limit exceeded") {
@@ -285,11 +450,33 @@ async fn pick(
     headers: HeaderMap,
     body: Body,
 ) -> Result<Response, ApiError> {
-    let bytes = read_body(&headers, body, state.config.max_body_bytes).await?;
+    let limit = state.config.max_body_bytes;
+    // The body and the records parsed from it, reserved before reading it.
+    let body_bytes = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|s| s.trim().parse::<u64>().ok())
+        .map_or(limit as u64, |n| n.min(limit as u64));
+    let _body_memory = state
+        .memory
+        .reserve(
+            "this pick's body",
+            body_bytes.saturating_mul(1 + PARSED_BYTES_PER_BODY_BYTE),
+        )
+        .await?;
+    let bytes = read_body(&headers, body, limit, state.config.body_timeout).await?;
     let request: PickRequest = serde_json::from_slice(&bytes).map_err(|e| {
         ApiError::bad_request(format!("the request body is not a valid pick request: {e}"))
     })?;
+    drop(bytes);
     let (rays, query) = request.into_rays(&state.config)?;
+    let _pick_memory = state
+        .memory
+        .reserve(
+            &format!("this pick of {} rays", rays.len()),
+            pick_bytes(rays.len(), &query),
+        )
+        .await?;
     let answers = if rays.is_empty() {
         empty_answers(query.mode)
     } else {
@@ -465,6 +652,10 @@ async fn scene(State(state): State<Arc<AppState>>) -> Response {
             "limits": {
                 "max_body_bytes": state.config.max_body_bytes,
                 "max_rays": state.config.max_rays,
+                "max_connections": state.config.max_connections,
+                "memory_budget": state.config.memory_budget,
+                "idle_timeout_s": state.config.idle_timeout.as_secs_f64(),
+                "body_timeout_s": state.config.body_timeout.as_secs_f64(),
             },
             "stats": state.worker.stats(),
         }),
@@ -551,6 +742,13 @@ async fn render_view(
             state.config.max_rays
         )));
     }
+    let _memory = state
+        .memory
+        .reserve(
+            &format!("this render of {pixels} pixels"),
+            render_bytes(pixels),
+        )
+        .await?;
     let (reply, answer) = oneshot::channel();
     state
         .worker

@@ -19,8 +19,25 @@
 //! Errors are JSON `{"error": "sentence"}` with a 4xx status for the client's mistakes (400 for
 //! malformed JSON, unknown fields, a bad camera or option; 413 for a body over
 //! [`ServerConfig::max_body_bytes`], more than [`ServerConfig::max_rays`] rays, or in mode `all`
-//! more than [`ServerConfig::max_hit_entries`] rays x `max_hits`; 404; 405) and 500 when
-//! picking itself fails.
+//! more than [`ServerConfig::max_hit_entries`] rays x `max_hits`; 404; 405; 408 for a body not
+//! sent whole within [`ServerConfig::body_timeout`]), 503 when the request's memory does not
+//! fit the server's memory budget (see below), and 500 when picking itself fails.
+//!
+//! # Limits on slow clients and memory
+//!
+//! - At most [`ServerConfig::max_connections`] connections (default 1024) are served at once;
+//!   further ones wait in the listener's backlog until one closes.
+//! - A connection with no request being handled — idle between requests, sending its headers,
+//!   or not reading its answer — is closed [`ServerConfig::idle_timeout`] (default 20 s) after
+//!   it last became idle or took answer bytes, however slowly it trickles bytes in.
+//! - A request body must arrive whole within [`ServerConfig::body_timeout`] (default 30 s).
+//! - Each request's memory — its body, its rays (`Query::bytes_per_ray`), its all-hits lists
+//!   and its JSON answer, or a render's pixels — is reserved from
+//!   [`ServerConfig::memory_budget`] (default a quarter of [`crate::budget::limit`]) before the
+//!   work starts and given back when the handler ends. A request that cannot fit at all is
+//!   answered 503 at once; one that must wait for others to finish waits up to
+//!   [`ServerConfig::memory_wait`] (default 5 s), then gets 503. After large requests the
+//!   allocator is asked to give freed memory back to the system.
 //!
 //! ## `POST /pick`
 //!
@@ -92,8 +109,14 @@ pub use batcher::Stats;
 
 use crate::error::{Error, Result};
 use crate::picker::{Backend, BuiltScene};
-use std::sync::Arc;
-use std::time::Duration;
+use std::future::Future;
+use std::pin::Pin;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll};
+use std::time::{Duration, Instant};
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 
 /// The server's limits and defaults.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -108,6 +131,24 @@ pub struct ServerConfig {
     pub view_width: u32,
     /// Height of the framing view.
     pub view_height: u32,
+    /// The idle and header timeout: a connection with no request being handled — idle between
+    /// requests, still sending a request's headers (however slowly), or not reading its answer
+    /// — is closed once this long has passed since it last became idle or last took answer
+    /// bytes.
+    pub idle_timeout: Duration,
+    /// The body timeout: a request body must arrive whole within this long after its headers,
+    /// or the request is answered 408 and the connection closed.
+    pub body_timeout: Duration,
+    /// The most connections served at once; further connections wait in the listener's
+    /// backlog until one closes.
+    pub max_connections: usize,
+    /// The memory budget of all requests in progress together, in bytes: each request's
+    /// estimated memory (its body, rays, hit lists and answer, or its image) is reserved from
+    /// it before the work starts.
+    pub memory_budget: u64,
+    /// How long a request waits for its memory to become free in the budget before it is
+    /// answered 503.
+    pub memory_wait: Duration,
 }
 
 impl ServerConfig {
@@ -116,6 +157,12 @@ impl ServerConfig {
     /// within a bounded amount of memory.
     pub fn max_hit_entries(&self) -> usize {
         self.max_rays.saturating_mul(16)
+    }
+
+    /// The default [`ServerConfig::memory_budget`]: a quarter of the process's memory budget
+    /// ([`crate::budget::limit`]), at least 64 MiB.
+    pub fn default_memory_budget() -> u64 {
+        (crate::budget::limit() / 4).max(64 << 20)
     }
 }
 
@@ -127,6 +174,11 @@ impl Default for ServerConfig {
             batch_window: Duration::from_millis(1),
             view_width: 640,
             view_height: 480,
+            idle_timeout: Duration::from_secs(20),
+            body_timeout: Duration::from_secs(30),
+            max_connections: 1024,
+            memory_budget: Self::default_memory_budget(),
+            memory_wait: Duration::from_secs(5),
         }
     }
 }
@@ -156,6 +208,7 @@ impl Server {
                 worker,
                 built,
                 backend,
+                memory: api::MemoryBudget::new(config.memory_budget, config.memory_wait),
                 config,
             }),
         })
@@ -178,17 +231,254 @@ impl Server {
     }
 
     /// Serves on `listener` until the listener fails; the worker stops when the server is
-    /// dropped.
+    /// dropped. At most [`ServerConfig::max_connections`] connections are served at once;
+    /// connections without a request in progress are closed after
+    /// [`ServerConfig::idle_timeout`].
     pub async fn serve(self, listener: tokio::net::TcpListener) -> Result<()> {
         let address = listener
             .local_addr()
             .map_or_else(|_| "the listener".to_owned(), |a| a.to_string());
-        axum::serve(listener, self.router())
-            .await
-            .map_err(|source| Error::Io {
-                path: address,
-                source,
-            })
+        let config = &self.state.config;
+        let limited = LimitedListener {
+            inner: listener,
+            slots: Arc::new(Semaphore::new(
+                config.max_connections.clamp(1, Semaphore::MAX_PERMITS),
+            )),
+            idle_timeout: config.idle_timeout,
+        };
+        let app = self
+            .router()
+            .layer(axum::middleware::from_fn(track_in_flight));
+        axum::serve(
+            limited,
+            app.into_make_service_with_connect_info::<Connection>(),
+        )
+        .await
+        .map_err(|source| Error::Io {
+            path: address,
+            source,
+        })
+    }
+}
+
+/// What one connection's IO and its requests share: how many requests are being handled, and
+/// when the connection last made progress (became idle, or took answer bytes).
+#[derive(Debug)]
+struct ConnectionState {
+    in_flight: AtomicUsize,
+    last_progress: Mutex<Instant>,
+}
+
+impl ConnectionState {
+    fn touch(&self) {
+        if let Ok(mut last) = self.last_progress.lock() {
+            *last = Instant::now();
+        }
+    }
+}
+
+/// A connection's shared state, as the connect info of its requests.
+#[derive(Clone, Debug)]
+struct Connection(Arc<ConnectionState>);
+
+impl axum::extract::connect_info::Connected<axum::serve::IncomingStream<'_, LimitedListener>>
+    for Connection
+{
+    fn connect_info(stream: axum::serve::IncomingStream<'_, LimitedListener>) -> Self {
+        Connection(stream.io().state.clone())
+    }
+}
+
+/// Counts the request as in progress on its connection while its handler runs.
+async fn track_in_flight(
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    let connection = request
+        .extensions()
+        .get::<axum::extract::ConnectInfo<Connection>>()
+        .map(|info| info.0.0.clone());
+    let _guard = connection.map(|state| {
+        state.in_flight.fetch_add(1, Ordering::SeqCst);
+        InFlight(state)
+    });
+    next.run(request).await
+}
+
+/// A request in progress; when it ends, the connection's idle time starts.
+struct InFlight(Arc<ConnectionState>);
+
+impl Drop for InFlight {
+    fn drop(&mut self) {
+        self.0.touch();
+        self.0.in_flight.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// A TCP listener that serves at most so many connections at once and wraps each in
+/// [`LimitedIo`].
+struct LimitedListener {
+    inner: tokio::net::TcpListener,
+    slots: Arc<Semaphore>,
+    idle_timeout: Duration,
+}
+
+impl axum::serve::Listener for LimitedListener {
+    type Io = LimitedIo;
+    type Addr = std::net::SocketAddr;
+
+    async fn accept(&mut self) -> (Self::Io, Self::Addr) {
+        // Wait for a free slot before accepting: further connections wait in the backlog.
+        let slot = loop {
+            if let Ok(slot) = self.slots.clone().acquire_owned().await {
+                break slot;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        };
+        let (stream, addr) = axum::serve::Listener::accept(&mut self.inner).await;
+        let _ = stream.set_nodelay(true);
+        let io = LimitedIo {
+            inner: stream,
+            state: Arc::new(ConnectionState {
+                in_flight: AtomicUsize::new(0),
+                last_progress: Mutex::new(Instant::now()),
+            }),
+            idle_timeout: self.idle_timeout,
+            sleep: Box::pin(tokio::time::sleep(self.idle_timeout)),
+            _slot: slot,
+        };
+        (io, addr)
+    }
+
+    fn local_addr(&self) -> std::io::Result<Self::Addr> {
+        self.inner.local_addr()
+    }
+}
+
+/// A connection that fails its reads and writes (so the server closes it) once it has had no
+/// request in progress for [`ServerConfig::idle_timeout`] since it last made progress, and
+/// frees its connection slot when dropped.
+struct LimitedIo {
+    inner: tokio::net::TcpStream,
+    state: Arc<ConnectionState>,
+    idle_timeout: Duration,
+    sleep: Pin<Box<tokio::time::Sleep>>,
+    _slot: OwnedSemaphorePermit,
+}
+
+impl LimitedIo {
+    /// When the connection times out, if no request is in progress.
+    fn deadline(&self) -> Option<Instant> {
+        if self.state.in_flight.load(Ordering::SeqCst) > 0 {
+            return None;
+        }
+        let last = self
+            .state
+            .last_progress
+            .lock()
+            .map_or_else(|_| Instant::now(), |l| *l);
+        Some(last + self.idle_timeout)
+    }
+
+    fn timed_out(&self) -> std::io::Error {
+        std::io::Error::new(
+            std::io::ErrorKind::TimedOut,
+            format!(
+                "the connection had no request in progress for {:?}",
+                self.idle_timeout
+            ),
+        )
+    }
+
+    /// Whether the deadline has passed.
+    fn expired(&self) -> bool {
+        self.deadline().is_some_and(|d| Instant::now() >= d)
+    }
+
+    /// After a pending read or write: wakes the task at the deadline, and fails once it passed.
+    fn poll_deadline<T>(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<T>> {
+        let Some(deadline) = self.deadline() else {
+            return Poll::Pending;
+        };
+        self.sleep
+            .as_mut()
+            .reset(tokio::time::Instant::from_std(deadline));
+        match self.sleep.as_mut().poll(cx) {
+            Poll::Ready(()) => Poll::Ready(Err(self.timed_out())),
+            Poll::Pending => Poll::Pending,
+        }
+    }
+}
+
+impl AsyncRead for LimitedIo {
+    fn poll_read(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<std::io::Result<()>> {
+        let this = self.get_mut();
+        // Headers sent byte by byte still end at the deadline.
+        if this.expired() {
+            return Poll::Ready(Err(this.timed_out()));
+        }
+        match Pin::new(&mut this.inner).poll_read(cx, buf) {
+            Poll::Pending => this.poll_deadline(cx),
+            ready => ready,
+        }
+    }
+}
+
+impl AsyncWrite for LimitedIo {
+    fn poll_write(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<std::io::Result<usize>> {
+        let this = self.get_mut();
+        match Pin::new(&mut this.inner).poll_write(cx, buf) {
+            Poll::Pending => this.poll_deadline(cx),
+            Poll::Ready(Ok(n)) => {
+                if n > 0 {
+                    this.state.touch();
+                }
+                Poll::Ready(Ok(n))
+            }
+            ready => ready,
+        }
+    }
+
+    fn poll_write_vectored(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[std::io::IoSlice<'_>],
+    ) -> Poll<std::io::Result<usize>> {
+        let this = self.get_mut();
+        match Pin::new(&mut this.inner).poll_write_vectored(cx, bufs) {
+            Poll::Pending => this.poll_deadline(cx),
+            Poll::Ready(Ok(n)) => {
+                if n > 0 {
+                    this.state.touch();
+                }
+                Poll::Ready(Ok(n))
+            }
+            ready => ready,
+        }
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.inner.is_write_vectored()
+    }
+
+    fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        let this = self.get_mut();
+        match Pin::new(&mut this.inner).poll_flush(cx) {
+            Poll::Pending => this.poll_deadline(cx),
+            ready => ready,
+        }
+    }
+
+    fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.get_mut().inner).poll_shutdown(cx)
     }
 }
 

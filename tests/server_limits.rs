@@ -1,0 +1,256 @@
+//! `raypick serve` against slow clients and large requests (issue 11 item 8): servers started
+//! in-process on ephemeral loopback ports (127.0.0.1 only), spoken to with raw TCP so that the
+//! tests can hold connections idle, stop half-way through headers or bodies, and see when the
+//! server closes them. Checks that idle, half-header (even trickled) and half-body connections
+//! are closed after the configured (shortened) timeouts, that normal picks still answer while
+//! 200 idle connections are held, that connections beyond the cap wait for a free slot, and that
+//! a request over the memory budget gets 503 while the next normal request answers 200. Every
+//! loop is bounded; the whole file runs in a few seconds.
+
+use raypick::server::{Server, ServerConfig};
+use raypick::synthetic::example_scene;
+use raypick::{Backend, BuildOptions, BuiltScene};
+use std::io::{ErrorKind, Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Starts a server over the built-in example scene on an ephemeral loopback port; returns its
+/// address. The server runs on its own runtime thread until the test binary exits.
+fn start(config: ServerConfig) -> SocketAddr {
+    let built = Arc::new(
+        BuiltScene::new(example_scene(), &BuildOptions::default()).expect("example builds"),
+    );
+    let server = Server::new(built, Backend::Cpu, config).expect("the server starts");
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    listener.set_nonblocking(true).expect("nonblocking");
+    let addr = listener.local_addr().expect("address");
+    std::thread::spawn(move || {
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .expect("runtime");
+        runtime.block_on(async move {
+            let listener = tokio::net::TcpListener::from_std(listener).expect("listener");
+            server.serve(listener).await.expect("serve");
+        });
+    });
+    addr
+}
+
+/// A connection with a read timeout of `wait`.
+fn connect(addr: SocketAddr, wait: Duration) -> TcpStream {
+    let stream = TcpStream::connect(addr).expect("connect");
+    stream.set_read_timeout(Some(wait)).expect("read timeout");
+    stream
+}
+
+/// One request on a fresh connection (`Connection: close`): the status and the body.
+fn request(addr: SocketAddr, method: &str, path: &str, body: &str) -> (u16, String) {
+    let mut stream = connect(addr, Duration::from_secs(20));
+    let head = format!(
+        "{method} {path} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\
+         Content-Type: application/json\r\nContent-Length: {}\r\n\r\n",
+        body.len()
+    );
+    stream.write_all(head.as_bytes()).expect("send head");
+    stream.write_all(body.as_bytes()).expect("send body");
+    let mut answer = Vec::new();
+    stream.read_to_end(&mut answer).expect("read the answer");
+    parse(&answer)
+}
+
+/// The status and body of a raw HTTP/1.1 answer.
+fn parse(answer: &[u8]) -> (u16, String) {
+    let text = String::from_utf8_lossy(answer).into_owned();
+    let status = text
+        .split_whitespace()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("not an HTTP answer: {text:?}"));
+    let body = text
+        .split_once("\r\n\r\n")
+        .map_or(String::new(), |(_, b)| b.to_owned());
+    (status, body)
+}
+
+/// Reads until the server closes `stream` (EOF or reset); returns how long that took, or
+/// `None` if it was still open after the stream's read timeout. Any answer bytes are kept in
+/// `answer`.
+fn wait_for_close(stream: &mut TcpStream, answer: &mut Vec<u8>) -> Option<Duration> {
+    let started = Instant::now();
+    let mut buf = [0u8; 4096];
+    loop {
+        match stream.read(&mut buf) {
+            Ok(0) => return Some(started.elapsed()),
+            Ok(n) => answer.extend_from_slice(&buf[..n]),
+            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
+                return None;
+            }
+            Err(_) => return Some(started.elapsed()),
+        }
+    }
+}
+
+const ONE_PICK: &str = r#"{"rays":[{"origin":[33.3,45.1,100],"dir":[0,0,-1]}]}"#;
+
+/// Short timeouts for the tests.
+fn short_timeouts() -> ServerConfig {
+    ServerConfig {
+        idle_timeout: Duration::from_millis(800),
+        body_timeout: Duration::from_millis(800),
+        ..ServerConfig::default()
+    }
+}
+
+#[test]
+fn idle_half_header_and_half_body_connections_are_closed_after_the_timeouts() {
+    let addr = start(short_timeouts());
+    let limit = Duration::from_secs(5);
+
+    // Idle from the start: never sends a byte.
+    let mut idle = connect(addr, limit);
+    // Half a header, then more header lines trickled in, never the blank line.
+    let mut trickle = connect(addr, limit);
+    trickle
+        .write_all(b"POST /pick HTTP/1.1\r\nHost: localhost\r\n")
+        .unwrap();
+    // Keep-alive after one answered request.
+    let mut kept = connect(addr, limit);
+    let head = format!(
+        "POST /pick HTTP/1.1\r\nHost: localhost\r\nContent-Length: {}\r\n\r\n{ONE_PICK}",
+        ONE_PICK.len()
+    );
+    kept.write_all(head.as_bytes()).unwrap();
+    // Half a body: 100 bytes announced, 10 sent.
+    let mut half_body = connect(addr, limit);
+    half_body
+        .write_all(
+            b"POST /pick HTTP/1.1\r\nHost: localhost\r\nContent-Length: 100\r\n\r\n{\"rays\":[",
+        )
+        .unwrap();
+
+    let started = Instant::now();
+    // Trickle a header line every 200 ms for 2 s (past the timeout); writes may fail once the
+    // server has closed the connection.
+    for i in 0..10 {
+        std::thread::sleep(Duration::from_millis(200));
+        if trickle
+            .write_all(format!("X-Slow-{i}: 1\r\n").as_bytes())
+            .is_err()
+        {
+            break;
+        }
+    }
+    let trickled = wait_for_close(&mut trickle, &mut Vec::new());
+    assert!(
+        trickled.is_some(),
+        "a connection trickling its headers stayed open {:?} after it started",
+        started.elapsed()
+    );
+    assert!(
+        started.elapsed() < Duration::from_millis(2000) + limit,
+        "the trickling connection was closed late"
+    );
+
+    let closed = wait_for_close(&mut idle, &mut Vec::new());
+    assert!(closed.is_some(), "an idle connection was never closed");
+    assert!(
+        started.elapsed() >= Duration::from_millis(600),
+        "the idle connection was closed before its timeout"
+    );
+
+    let mut answer = Vec::new();
+    assert!(
+        wait_for_close(&mut kept, &mut answer).is_some(),
+        "a keep-alive connection was never closed after its answer"
+    );
+    assert_eq!(parse(&answer).0, 200, "the kept connection's request");
+
+    let mut answer = Vec::new();
+    assert!(
+        wait_for_close(&mut half_body, &mut answer).is_some(),
+        "a connection with half a body was never closed"
+    );
+    let (status, body) = parse(&answer);
+    assert_eq!(status, 408, "{body}");
+    assert!(body.contains("\"error\""), "{body}");
+
+    // The server still answers.
+    assert_eq!(request(addr, "POST", "/pick", ONE_PICK).0, 200);
+}
+
+#[test]
+fn normal_picks_answer_while_200_idle_connections_are_held() {
+    let addr = start(ServerConfig::default());
+    let held: Vec<TcpStream> = (0..200)
+        .map(|_| connect(addr, Duration::from_secs(5)))
+        .collect();
+    for _ in 0..20 {
+        let (status, body) = request(addr, "POST", "/pick", ONE_PICK);
+        assert_eq!(status, 200, "{body}");
+        assert!(body.contains("\"results\""), "{body}");
+    }
+    drop(held);
+}
+
+#[test]
+fn connections_beyond_the_cap_wait_for_a_free_slot() {
+    let addr = start(ServerConfig {
+        max_connections: 4,
+        ..short_timeouts()
+    });
+    let held: Vec<TcpStream> = (0..4)
+        .map(|_| connect(addr, Duration::from_secs(5)))
+        .collect();
+    // Give the server time to accept the held ones, so that the next one is over the cap.
+    std::thread::sleep(Duration::from_millis(100));
+    let started = Instant::now();
+    let (status, body) = request(addr, "POST", "/pick", ONE_PICK);
+    assert_eq!(status, 200, "{body}");
+    assert!(
+        started.elapsed() >= Duration::from_millis(400),
+        "a connection over the cap was served before the held ones timed out ({:?})",
+        started.elapsed()
+    );
+    drop(held);
+}
+
+#[test]
+fn requests_over_the_memory_budget_get_503_and_the_next_answers() {
+    let addr = start(ServerConfig {
+        memory_budget: 64 << 20,
+        ..ServerConfig::default()
+    });
+    // All hits with max_hits 1024 over 200 rays: well over 64 MiB reserved.
+    let rays = vec![r#"{"origin":[33.3,45.1,100],"dir":[0,0,-1]}"#; 200].join(",");
+    let big = format!(r#"{{"rays":[{rays}],"mode":"all","max_hits":1024}}"#);
+    let (status, body) = request(addr, "POST", "/pick", &big);
+    assert_eq!(status, 503, "{body}");
+    let error: serde_json::Value = serde_json::from_str(&body).expect("a JSON error");
+    let sentence = error["error"].as_str().expect("an error sentence");
+    assert!(sentence.contains("memory"), "{sentence}");
+    assert_eq!(
+        sentence.matches(". ").count(),
+        0,
+        "one sentence: {sentence}"
+    );
+
+    // A 1M-pixel render is over the budget too.
+    let (status, body) = request(addr, "GET", "/render?width=1024&height=1024", "");
+    assert_eq!(status, 503, "{body}");
+
+    // Normal requests still answer, the budget given back.
+    for _ in 0..3 {
+        let (status, body) = request(addr, "POST", "/pick", ONE_PICK);
+        assert_eq!(status, 200, "{body}");
+    }
+    let small = format!(
+        r#"{{"rays":[{}],"mode":"all","max_hits":16}}"#,
+        vec![r#"{"origin":[33.3,45.1,100],"dir":[0,0,-1]}"#; 20].join(",")
+    );
+    assert_eq!(request(addr, "POST", "/pick", &small).0, 200);
+    let (status, _) = request(addr, "GET", "/render?width=64&height=48", "");
+    assert_eq!(status, 200);
+}
