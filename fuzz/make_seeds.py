@@ -9,9 +9,13 @@ Seeds: the real test files (tests/data; the bunny cut to its first 200 lines,
 plus a variant with the faces that only use those vertices), small
 hand-written text inputs, tiny GeoTIFFs covering the sample types,
 byte orders, BigTIFF, strips/tiles, deflate and the three georeferencing tags,
-and tiny 16-bit / 8-bit grayscale PNGs.
+tiny 16-bit / 8-bit grayscale PNGs, small glTF / GLB files (external, subfolder
+and data-URI buffers, sparse accessors, instancing, strips) and scene
+descriptions naming the files of the fuzz targets' scratch folder.
 """
 
+import base64
+import json
 import shutil
 import struct
 import zlib
@@ -249,13 +253,77 @@ def png_seeds() -> None:
     put("png16", "rgb8_2x2.png", png(2, 2, 8, [b"\x10\x20\x30" * 2] * 2, color_type=2))
 
 
+# --- gltf --------------------------------------------------------------------
+
+TRI = struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, 0) + struct.pack("<4H", 0, 1, 2, 0)
+
+
+def gltf_doc(uri, extra=None):
+    doc = {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "children": [1]}, {"mesh": 0, "scale": [2, 2, 2]}],
+        "meshes": [{"name": "tri", "primitives": [
+            {"attributes": {"POSITION": 0}, "indices": 1},
+            {"attributes": {"POSITION": 0}, "mode": 5},
+        ]}],
+        "buffers": [{"byteLength": 44, "uri": uri} if uri else {"byteLength": 44}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36},
+                        {"buffer": 0, "byteOffset": 36, "byteLength": 6}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3"},
+            {"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"},
+        ],
+    }
+    doc.update(extra or {})
+    return json.dumps(doc)
+
+
+def gltf_seeds() -> None:
+    # The fuzz target's scratch folder holds tri.bin and sub/tri.bin (fuzz/src/lib.rs).
+    put("gltf", "external.gltf", gltf_doc("tri.bin"))
+    put("gltf", "subfolder.gltf", gltf_doc("sub/tri.bin"))
+    put("gltf", "data_uri.gltf", gltf_doc(
+        "data:application/octet-stream;base64," + base64.b64encode(TRI).decode()))
+    put("gltf", "sparse.gltf", json.dumps({
+        "asset": {"version": "2.0"},
+        "buffers": [{"byteLength": 16, "uri": "data:,%00%00%00%00%00%00%80%3F%00%00%00%40%00%00%40%40"}],
+        "bufferViews": [{"buffer": 0, "byteLength": 4}, {"buffer": 0, "byteOffset": 4, "byteLength": 12}],
+        "accessors": [{"componentType": 5126, "count": 3, "type": "VEC3", "sparse": {
+            "count": 1, "indices": {"bufferView": 0, "componentType": 5125},
+            "values": {"bufferView": 1}}}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "nodes": [{"mesh": 0, "matrix": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 5, 6, 7, 1]}],
+    }))
+    body = gltf_doc(None).encode()
+    body += b" " * (-len(body) % 4)
+    chunks = struct.pack("<I", len(body)) + b"JSON" + body
+    chunks += struct.pack("<I", len(TRI)) + b"BIN\0" + TRI
+    put("gltf", "binary.glb", b"glTF" + struct.pack("<II", 2, 12 + len(chunks)) + chunks)
+
+
+# --- scene_description -------------------------------------------------------
+
+def scene_description_seeds() -> None:
+    # The fuzz target's scratch folder holds tri.obj, grid.asc, tri.gltf (fuzz/src/lib.rs).
+    put("scene_description", "all.json", json.dumps({"objects": [
+        {"file": "tri.obj", "mask": 1}, {"file": "grid.asc", "mask": 2},
+        {"file": "./tri.gltf"}]}))
+    put("scene_description", "one.json", '{"objects": [{"file": "grid.asc"}]}')
+    put("scene_description", "empty.json", '{"objects": []}')
+    put("scene_description", "dotdot.json", '{"objects": [{"file": "../tri.obj"}]}')
+
+
 if __name__ == "__main__":
-    for t in ("obj", "ray_file", "asc", "geotiff", "png16"):
+    for t in ("obj", "ray_file", "asc", "geotiff", "png16", "gltf", "scene_description"):
         (CORPUS / t).mkdir(parents=True, exist_ok=True)
     obj_seeds()
     ray_seeds()
     asc_seeds()
     geotiff_seeds()
     png_seeds()
+    gltf_seeds()
+    scene_description_seeds()
     for t in sorted(CORPUS.iterdir()):
         print(t.name, len(list(t.iterdir())), "files")

@@ -214,10 +214,20 @@ fn scene_masks_pair_with_the_scene_before_them() {
         "mask 1 sees only the low quad"
     );
     assert_eq!(pick(&["--ray-mask", "0b10"]), "1");
+    // Paths in a description are relative to its folder (absolute ones are refused).
+    let name = |p: &str| {
+        std::path::Path::new(p)
+            .file_name()
+            .unwrap()
+            .to_str()
+            .unwrap()
+            .to_string()
+    };
+    let (low_name, high_name) = (name(&low), name(&high));
     let description = temp_file(
         "scene.json",
         &format!(
-            "{{\"objects\": [{{\"file\": \"{low}\", \"mask\": 1}}, {{\"file\": \"{high}\", \"mask\": 2}}]}}"
+            "{{\"objects\": [{{\"file\": \"{low_name}\", \"mask\": 1}}, {{\"file\": \"{high_name}\", \"mask\": 2}}]}}"
         ),
     );
     let (code, out, err) = raypick(&[

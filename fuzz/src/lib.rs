@@ -84,6 +84,59 @@ pub fn scratch_path(extension: &str) -> PathBuf {
     dir.join(format!("raypick-fuzz-{}.{extension}", std::process::id()))
 }
 
+/// A per-process scratch folder for targets that load a file together with
+/// the files it names (`load_gltf`'s buffers, a scene description's files):
+/// `<tmp>/raypick-fuzz-<tag>-<pid>/`, created once with small valid files the
+/// fuzzed input can refer to by relative path:
+///
+/// - `tri.bin`: three FLOAT VEC3 positions (36 bytes) then the UNSIGNED_SHORT
+///   indices 0, 1, 2 (6 bytes, padded to 8), 44 bytes in all;
+/// - `tri.obj`: one triangle; `grid.asc`: a 3 × 3 ESRI ASCII grid with a
+///   NODATA cell; `tri.gltf`: a triangle whose buffer is `tri.bin`;
+/// - `sub/tri.bin`: a copy of `tri.bin` one folder down.
+///
+/// Nothing outside the folder is created or named. The folder stays behind
+/// when the process exits.
+pub fn scratch_dir(tag: &str) -> PathBuf {
+    let base = std::env::var_os("RAYPICK_FUZZ_TMPDIR")
+        .map(PathBuf::from)
+        .or_else(|| {
+            let shm = PathBuf::from("/dev/shm");
+            shm.is_dir().then_some(shm)
+        })
+        .unwrap_or_else(std::env::temp_dir);
+    let dir = base.join(format!("raypick-fuzz-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(dir.join("sub")).expect("create the scratch folder");
+    let mut bin: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    bin.extend([0u16, 1, 2, 0].iter().flat_map(|v| v.to_le_bytes()));
+    let files: [(&str, &[u8]); 5] = [
+        ("tri.bin", &bin),
+        ("sub/tri.bin", &bin),
+        ("tri.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"),
+        (
+            "grid.asc",
+            b"ncols 3\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 1\nNODATA_value -9999\n1 2 3\n4 -9999 6\n7 8 9\n",
+        ),
+        ("tri.gltf", TRI_GLTF.as_bytes()),
+    ];
+    for (name, bytes) in files {
+        std::fs::write(dir.join(name), bytes).expect("write a scratch fixture");
+    }
+    dir
+}
+
+/// A triangle (indexed) whose buffer is `tri.bin` (see [`scratch_dir`]).
+pub const TRI_GLTF: &str = r#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"nodes":[0]}],
+"nodes":[{"mesh":0,"translation":[1,2,3]}],
+"meshes":[{"name":"tri","primitives":[{"attributes":{"POSITION":0},"indices":1}]}],
+"buffers":[{"byteLength":44,"uri":"tri.bin"}],
+"bufferViews":[{"buffer":0,"byteLength":36},{"buffer":0,"byteOffset":36,"byteLength":6}],
+"accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3"},
+{"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"}]}"#;
+
 /// CRC-32 (ISO-HDLC, as used by PNG chunks).
 fn crc32(bytes: &[u8]) -> u32 {
     static TABLE: std::sync::OnceLock<[u32; 256]> = std::sync::OnceLock::new();

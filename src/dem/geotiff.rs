@@ -16,17 +16,24 @@
 //! type, as GDAL does) become `None`; NaN samples in float rasters are always
 //! `None`; infinite samples are an error. Only the first image (IFD) is read,
 //! so internal overviews are ignored.
+//!
+//! Sizes: before anything is allocated for the raster, the header is checked against the file
+//! (see the [`dem`](super) module docs): every strip or tile must lie inside the file, the raster
+//! must not be larger than the file's bytes can decompress to (×1 uncompressed, ×64 PackBits,
+//! ×1032 DEFLATE, ×4096 LZW; strips that share their bytes do not pass), the grid must be
+//! plausible for the file's size ([`check_plausible`](super::grid::check_plausible)) and its
+//! heights must fit the memory budget. The raster is then decoded one strip or tile at a time,
+//! straight into the heights.
 
-use std::fs::File;
-use std::io::{BufReader, Read, Seek};
+use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
 use tiff::TiffError;
 use tiff::decoder::ifd::Value;
-use tiff::decoder::{Decoder, DecodingResult, Limits};
+use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
 use tiff::tags::Tag;
 
-use super::grid::{ElevationGrid, MAX_SAMPLES, alloc_heights, checked_sample_count};
+use super::grid::{ElevationGrid, alloc_heights, check_plausible, checked_sample_count};
 use super::{io_error, parse_error};
 use crate::error::Error;
 
@@ -44,11 +51,12 @@ const RASTER_PIXEL_IS_POINT: u16 = 2;
 /// truncated or malformed TIFF, more than one band, an unsupported sample
 /// type or photometric interpretation, missing or rotated georeferencing
 /// (naming the tag), a non-numeric GDAL_NODATA, infinite samples, or a
-/// raster larger than [`MAX_SAMPLES`].
+/// raster larger than [`MAX_SAMPLES`](super::MAX_SAMPLES) or implausible for the file's size
+/// (see the module docs); [`Error::Invalid`] when its heights would not fit the memory budget.
 pub fn load_geotiff(path: impl AsRef<Path>) -> Result<ElevationGrid, Error> {
     let path = path.as_ref();
     let name = path.display().to_string();
-    let file = File::open(path).map_err(|e| io_error(&name, e))?;
+    let (file, _) = crate::io::open_regular(path)?;
     read_geotiff(BufReader::new(file), &name)
 }
 
@@ -56,9 +64,15 @@ pub fn load_geotiff(path: impl AsRef<Path>) -> Result<ElevationGrid, Error> {
 ///
 /// # Errors
 /// As [`load_geotiff`].
-pub fn read_geotiff(reader: impl Read + Seek, name: &str) -> Result<ElevationGrid, Error> {
+pub fn read_geotiff(mut reader: impl Read + Seek, name: &str) -> Result<ElevationGrid, Error> {
     let fail = |message: String| parse_error(name, None, message);
     let tiff_fail = |what: &str, e: TiffError| tiff_error(name, what, e);
+
+    // The file's real size bounds what its header may claim.
+    let file_bytes = reader
+        .seek(SeekFrom::End(0))
+        .and_then(|end| reader.seek(SeekFrom::Start(0)).map(|_| end))
+        .map_err(|e| io_error(name, e))?;
 
     // Tags are read under the decoder's default limits, so a tag claiming a huge value count
     // cannot make it reserve gigabytes before reading anything (found by fuzzing: a 98-byte
@@ -68,7 +82,7 @@ pub fn read_geotiff(reader: impl Read + Seek, name: &str) -> Result<ElevationGri
     let (width, height) = decoder
         .dimensions()
         .map_err(|e| tiff_fail("reading the image size", e))?;
-    let count = checked_sample_count(name, width.into(), height.into())?;
+    checked_sample_count(name, width.into(), height.into())?;
     let (ncols, nrows) = (width as usize, height as usize);
 
     let bands: u16 = decoder
@@ -108,16 +122,14 @@ pub fn read_geotiff(reader: impl Read + Seek, name: &str) -> Result<ElevationGri
         ));
     }
 
-    // The size guard above bounds the image; let the decoder hold any image that passes it (at
-    // most 8 bytes per sample).
-    let mut limits = Limits::default();
-    limits.decoding_buffer_size = MAX_SAMPLES.saturating_mul(8);
-    limits.intermediate_buffer_size = MAX_SAMPLES.saturating_mul(8);
-    let mut decoder = decoder.with_limits(limits);
-    let decoded = decoder
-        .read_image()
-        .map_err(|e| tiff_fail("decoding the raster data", e))?;
-    let heights = to_heights(name, decoded, sample_type, nodata, ncols, count)?;
+    let heights = decode_raster(
+        name,
+        decoder,
+        sample_type,
+        nodata,
+        (ncols, nrows),
+        file_bytes,
+    )?;
 
     Ok(ElevationGrid {
         ncols,
@@ -411,74 +423,226 @@ fn gdal_nodata<R: Read + Seek>(name: &str, decoder: &mut Decoder<R>) -> Result<O
     })
 }
 
-/// Converts decoded samples into heights, applying NODATA.
-fn to_heights(
+impl SampleType {
+    fn bytes(self) -> u64 {
+        match self {
+            SampleType::U8 | SampleType::I8 => 1,
+            SampleType::U16 | SampleType::I16 => 2,
+            SampleType::U32 | SampleType::I32 | SampleType::F32 => 4,
+            SampleType::F64 => 8,
+        }
+    }
+}
+
+/// The most a TIFF compression can expand its input (output bytes per input byte), and its name.
+/// Unknown codes get the largest factor; the decoder refuses what it does not support.
+fn expansion(compression: u16) -> (u64, &'static str) {
+    match compression {
+        1 => (1, "uncompressed data"),
+        32773 => (64, "PackBits"),
+        8 | 32946 => (1032, "DEFLATE"),
+        5 => (4096, "LZW"),
+        _ => (4096, "this compression"),
+    }
+}
+
+/// Checks the strip or tile table against the file, then decodes the raster one chunk at a
+/// time into heights (row-major), applying NODATA.
+fn decode_raster<R: Read + Seek>(
     name: &str,
-    decoded: DecodingResult,
-    expected: SampleType,
+    mut decoder: Decoder<R>,
+    sample_type: SampleType,
     nodata: Option<f64>,
-    ncols: usize,
-    count: usize,
+    (ncols, nrows): (usize, usize),
+    file_bytes: u64,
 ) -> Result<Vec<Option<f64>>, Error> {
-    fn convert<T: Copy>(
-        name: &str,
-        samples: &[T],
-        to_f64: impl Fn(T) -> f64,
-        nodata: Option<f64>,
-        ncols: usize,
-        count: usize,
-    ) -> Result<Vec<Option<f64>>, Error> {
-        if samples.len() < count {
-            return Err(parse_error(
-                name,
-                None,
-                format!("decoded {} samples, expected {count}", samples.len()),
-            ));
-        }
-        let mut heights = alloc_heights(name, count)?;
-        for (i, &s) in samples[..count].iter().enumerate() {
-            let v = to_f64(s);
-            if nodata == Some(v) || v.is_nan() {
-                heights.push(None);
-            } else if v.is_finite() {
-                heights.push(Some(v));
-            } else {
-                return Err(parse_error(
-                    name,
-                    None,
-                    format!(
-                        "infinite sample {v} at row {}, column {} (not the GDAL_NODATA value)",
-                        i / ncols,
-                        i % ncols
-                    ),
-                ));
-            }
-        }
-        Ok(heights)
+    let fail = |message: String| parse_error(name, None, message);
+    let tiff_fail = |what: &str, e: TiffError| tiff_error(name, what, e);
+    let count = ncols * nrows;
+    let sample_bytes = sample_type.bytes();
+
+    let compression: u16 = decoder
+        .find_tag_unsigned(Tag::Compression)
+        .map_err(|e| tiff_fail("reading Compression (259)", e))?
+        .unwrap_or(1);
+    let (factor, codec) = expansion(compression);
+    let raster_bytes = count as u64 * sample_bytes;
+    let most = file_bytes.saturating_mul(factor);
+    if raster_bytes > most {
+        return Err(fail(format!(
+            "file is truncated, or its raster data is missing or repeated: the header claims \
+             {ncols} columns x {nrows} rows ({raster_bytes} bytes of samples), but {codec} in a \
+             file of {file_bytes} bytes gives at most {most} bytes"
+        )));
     }
 
-    let n = nodata;
+    let (kind, offsets_tag, counts_tag) = match decoder.get_chunk_type() {
+        ChunkType::Strip => ("strip", Tag::StripOffsets, Tag::StripByteCounts),
+        ChunkType::Tile => ("tile", Tag::TileOffsets, Tag::TileByteCounts),
+    };
+    let (chunk_w, chunk_h) = decoder.chunk_dimensions();
+    let (chunk_w, chunk_h) = (chunk_w as usize, chunk_h as usize);
+    if chunk_w == 0 || chunk_h == 0 {
+        return Err(fail(format!(
+            "the {kind} size is {chunk_w} x {chunk_h} pixels; it must not be empty"
+        )));
+    }
+    let across = ncols.div_ceil(chunk_w);
+    let down = nrows.div_ceil(chunk_h);
+    let chunks = across * down;
+    let offsets = decoder
+        .get_tag_u64_vec(offsets_tag)
+        .map_err(|e| tiff_fail(&format!("reading the {kind} offsets"), e))?;
+    let byte_counts = decoder
+        .get_tag_u64_vec(counts_tag)
+        .map_err(|e| tiff_fail(&format!("reading the {kind} byte counts"), e))?;
+    if offsets.len() < chunks || byte_counts.len() < chunks {
+        return Err(fail(format!(
+            "the raster needs {chunks} {kind}s, but the file lists {} offsets and {} byte \
+             counts",
+            offsets.len(),
+            byte_counts.len()
+        )));
+    }
+    // Where chunk k goes: its first column and row, and its size without padding.
+    let place = |k: usize| {
+        let (col, row) = ((k % across) * chunk_w, (k / across) * chunk_h);
+        (col, row, chunk_w.min(ncols - col), chunk_h.min(nrows - row))
+    };
+    let mut largest = 0u64;
+    for k in 0..chunks {
+        let (offset, length) = (offsets[k], byte_counts[k]);
+        let end = offset.checked_add(length).filter(|&end| end <= file_bytes);
+        if end.is_none() {
+            return Err(fail(format!(
+                "file is truncated, or its raster data is missing: {kind} {k} claims bytes \
+                 {offset}..+{length}, past the end of the file ({file_bytes} bytes)"
+            )));
+        }
+        let (_, _, w, h) = place(k);
+        let decoded = (w * h) as u64 * sample_bytes;
+        if decoded > length.saturating_mul(factor) {
+            return Err(fail(format!(
+                "file is truncated, or its raster data is missing: {kind} {k} holds {length} \
+                 bytes, but its {w} x {h} samples need {decoded} bytes, more than {codec} can \
+                 give"
+            )));
+        }
+        largest = largest.max(decoded);
+    }
+
+    check_plausible(name, ncols as u64, nrows as u64, file_bytes)?;
+    let mut heights = alloc_heights(name, count)?;
+    heights.resize(count, None);
+    // One chunk's samples at a time, and only as many compressed bytes as the file holds.
+    let mut limits = Limits::default();
+    limits.decoding_buffer_size = usize::try_from(largest).unwrap_or(usize::MAX);
+    limits.intermediate_buffer_size = usize::try_from(file_bytes).unwrap_or(usize::MAX);
+    let mut decoder = decoder.with_limits(limits);
     // NODATA is compared in the raster's own sample type, like GDAL does, so
     // e.g. "-3.4028234663852886e+38" matches f32::MIN.
-    let n32 = nodata.map(|v| f64::from(v as f32));
-    match (decoded, expected) {
-        (DecodingResult::U8(v), SampleType::U8) => convert(name, &v, f64::from, n, ncols, count),
-        (DecodingResult::I8(v), SampleType::I8) => convert(name, &v, f64::from, n, ncols, count),
-        (DecodingResult::U16(v), SampleType::U16) => convert(name, &v, f64::from, n, ncols, count),
-        (DecodingResult::I16(v), SampleType::I16) => convert(name, &v, f64::from, n, ncols, count),
-        (DecodingResult::U32(v), SampleType::U32) => convert(name, &v, f64::from, n, ncols, count),
-        (DecodingResult::I32(v), SampleType::I32) => convert(name, &v, f64::from, n, ncols, count),
-        (DecodingResult::F32(v), SampleType::F32) => {
-            convert(name, &v, f64::from, n32, ncols, count)
-        }
-        (DecodingResult::F64(v), SampleType::F64) => convert(name, &v, |x| x, n, ncols, count),
-        (_, expected) => Err(parse_error(
+    let nodata = match sample_type {
+        SampleType::F32 => nodata.map(|v| f64::from(v as f32)),
+        _ => nodata,
+    };
+    for k in 0..chunks {
+        let decoded = decoder
+            .read_chunk(k as u32)
+            .map_err(|e| tiff_fail(&format!("decoding {kind} {k} of the raster data"), e))?;
+        let at = Placement {
             name,
-            None,
-            format!(
-                "decoder returned samples of another type than the tags declare ({expected:?})"
-            ),
-        )),
+            kind,
+            index: k,
+            ncols,
+            nodata,
+            place: place(k),
+        };
+        at.put(decoded, sample_type, &mut heights)?;
+    }
+    Ok(heights)
+}
+
+/// Where one decoded strip or tile goes in the grid.
+struct Placement<'a> {
+    name: &'a str,
+    kind: &'a str,
+    index: usize,
+    ncols: usize,
+    nodata: Option<f64>,
+    /// First column, first row, width and height of the chunk's data.
+    place: (usize, usize, usize, usize),
+}
+
+impl Placement<'_> {
+    /// Converts the chunk's samples into heights at their place, applying NODATA.
+    fn put(
+        &self,
+        decoded: DecodingResult,
+        expected: SampleType,
+        heights: &mut [Option<f64>],
+    ) -> Result<(), Error> {
+        match (decoded, expected) {
+            (DecodingResult::U8(v), SampleType::U8) => self.convert(&v, f64::from, heights),
+            (DecodingResult::I8(v), SampleType::I8) => self.convert(&v, f64::from, heights),
+            (DecodingResult::U16(v), SampleType::U16) => self.convert(&v, f64::from, heights),
+            (DecodingResult::I16(v), SampleType::I16) => self.convert(&v, f64::from, heights),
+            (DecodingResult::U32(v), SampleType::U32) => self.convert(&v, f64::from, heights),
+            (DecodingResult::I32(v), SampleType::I32) => self.convert(&v, f64::from, heights),
+            (DecodingResult::F32(v), SampleType::F32) => self.convert(&v, f64::from, heights),
+            (DecodingResult::F64(v), SampleType::F64) => self.convert(&v, |x| x, heights),
+            (_, expected) => Err(parse_error(
+                self.name,
+                None,
+                format!(
+                    "decoder returned samples of another type than the tags declare \
+                     ({expected:?})"
+                ),
+            )),
+        }
+    }
+
+    fn convert<T: Copy>(
+        &self,
+        samples: &[T],
+        to_f64: impl Fn(T) -> f64,
+        heights: &mut [Option<f64>],
+    ) -> Result<(), Error> {
+        let (col0, row0, w, h) = self.place;
+        if samples.len() < w * h {
+            return Err(parse_error(
+                self.name,
+                None,
+                format!(
+                    "decoded {} samples for {} {}, expected {}",
+                    samples.len(),
+                    self.kind,
+                    self.index,
+                    w * h
+                ),
+            ));
+        }
+        for (r, line) in samples.chunks_exact(w).take(h).enumerate() {
+            let start = (row0 + r) * self.ncols + col0;
+            for (c, (&s, slot)) in line.iter().zip(&mut heights[start..start + w]).enumerate() {
+                let v = to_f64(s);
+                *slot = if self.nodata == Some(v) || v.is_nan() {
+                    None
+                } else if v.is_finite() {
+                    Some(v)
+                } else {
+                    return Err(parse_error(
+                        self.name,
+                        None,
+                        format!(
+                            "infinite sample {v} at row {}, column {} (not the GDAL_NODATA value)",
+                            row0 + r,
+                            col0 + c
+                        ),
+                    ));
+                };
+            }
+        }
+        Ok(())
     }
 }
 

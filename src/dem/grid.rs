@@ -1,5 +1,6 @@
 //! The elevation grid type every loader produces, its sample-placement
-//! convention, and the size guard loaders apply before allocating.
+//! convention, and the size guards loaders apply before allocating (see the
+//! [`dem`](super) module docs for the rules).
 
 use glam::DVec3;
 
@@ -81,9 +82,48 @@ pub(crate) fn checked_sample_count(path: &str, ncols: u64, nrows: u64) -> Result
     }
 }
 
-/// An empty height vector with room for `capacity` samples, or a
-/// [`Error::Parse`] naming `path` if the memory cannot be reserved.
+/// Samples a compressed raster (GeoTIFF, PNG) may hold per byte of its file, beyond
+/// [`COMPRESSED_FLOOR`] samples.
+pub const SAMPLES_PER_FILE_BYTE: u64 = 4;
+
+/// Samples any compressed raster may hold, whatever the size of its file (a 2048 × 2048 grid).
+pub const COMPRESSED_FLOOR: u64 = 1 << 22;
+
+/// Refuses a compressed raster whose header claims more samples than its file plausibly holds:
+/// more than `max(COMPRESSED_FLOOR, SAMPLES_PER_FILE_BYTE × file_bytes)`. Decompression bombs (a
+/// few kilobytes of zeros that inflate to gigabytes) stop here, before anything is allocated.
+pub(crate) fn check_plausible(
+    path: &str,
+    ncols: u64,
+    nrows: u64,
+    file_bytes: u64,
+) -> Result<(), Error> {
+    let count = ncols.saturating_mul(nrows);
+    let most = COMPRESSED_FLOOR.max(SAMPLES_PER_FILE_BYTE.saturating_mul(file_bytes));
+    if count <= most {
+        return Ok(());
+    }
+    Err(parse_error(
+        path,
+        None,
+        format!(
+            "a grid of {ncols} columns x {nrows} rows ({count} samples) from a file of \
+             {file_bytes} bytes is implausible: a compressed raster may hold at most \
+             {SAMPLES_PER_FILE_BYTE} samples per byte of file (or {COMPRESSED_FLOOR} samples \
+             in all), so {most} here; refusing to decompress it"
+        ),
+    ))
+}
+
+/// An empty height vector with room for `capacity` samples, checked against the memory budget
+/// ([`crate::budget`], 16 bytes a sample); a [`Error::Parse`] naming `path` if the memory cannot
+/// be reserved.
 pub(crate) fn alloc_heights(path: &str, capacity: usize) -> Result<Vec<Option<f64>>, Error> {
+    crate::budget::check(
+        &format!("{path}: the grid's heights"),
+        capacity as u64,
+        std::mem::size_of::<Option<f64>>() as u64,
+    )?;
     let mut heights = Vec::new();
     heights.try_reserve_exact(capacity).map_err(|_| {
         parse_error(
@@ -144,5 +184,26 @@ mod tests {
         assert!(e.to_string().contains("too large"), "{e}");
         assert!(checked_sample_count("f", 1 << 16, (1 << 15) + 1).is_err());
         assert!(checked_sample_count("f", 1 << 16, 1 << 15).is_ok());
+    }
+
+    #[test]
+    fn compressed_rasters_must_be_plausible_for_their_file_size() {
+        assert!(check_plausible("f", 2048, 2048, 10).is_ok());
+        assert!(check_plausible("f", 2049, 2048, 10).is_err());
+        assert!(check_plausible("f", 4096, 4096, 4 << 20).is_ok());
+        let e = check_plausible("f.tif", 46340, 46340, 254).unwrap_err();
+        assert!(
+            e.to_string().starts_with("f.tif: a grid of 46340 columns"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn heights_over_the_budget_are_refused_by_name() {
+        let e = alloc_heights("g.asc", usize::MAX / 32).unwrap_err();
+        assert!(
+            e.to_string().starts_with("g.asc: the grid's heights"),
+            "{e}"
+        );
     }
 }

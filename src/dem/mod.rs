@@ -14,8 +14,29 @@
 //! # Ok::<(), raypick::Error>(())
 //! ```
 //!
-//! Errors are [`crate::error::Error`]: [`Error::Io`] when a file cannot be read and
-//! [`Error::Parse`] (with the line for text formats) when its content is malformed.
+//! Errors are [`crate::error::Error`]: [`Error::Io`] when a file cannot be read (or is not a
+//! regular file) and [`Error::Parse`] (with the line for text formats) when its content is
+//! malformed.
+//!
+//! # Sizes
+//!
+//! A header decides how much a loader allocates, so every size it implies is checked before
+//! anything is allocated for the grid:
+//!
+//! - at most [`MAX_SAMPLES`] samples in all;
+//! - against the file's real size: an ESRI ASCII grid reserves no more than its file can hold;
+//!   a GeoTIFF's strips or tiles must lie inside the file, and a raster (GeoTIFF, PNG) must not
+//!   be larger than its compression can expand the file's bytes to (×1 uncompressed, ×64
+//!   PackBits, ×1032 DEFLATE, ×4096 LZW);
+//! - plausibility, for compressed rasters: at most [`SAMPLES_PER_FILE_BYTE`] samples per byte of
+//!   file, or [`COMPRESSED_FLOOR`] samples whatever the file's size (any grid up to 2048 × 2048).
+//!   Real elevation rasters compress far less than this (the Jacksboro GeoTIFFs hold 0.5 to 0.6
+//!   samples per byte), while a few kilobytes of DEFLATE zeros that claim a huge grid (a
+//!   decompression bomb) are refused;
+//! - the memory budget ([`crate::budget`]): 16 bytes a sample for the heights, and when a scene
+//!   is loaded 48 more for the mesh.
+//!
+//! The compressed formats are then decoded a strip, tile or row at a time into the heights.
 
 pub mod asc;
 pub mod geotiff;
@@ -29,7 +50,7 @@ use crate::error::Error;
 
 pub use asc::{load_asc, read_asc};
 pub use geotiff::{load_geotiff, read_geotiff};
-pub use grid::{ElevationGrid, MAX_SAMPLES};
+pub use grid::{COMPRESSED_FLOOR, ElevationGrid, MAX_SAMPLES, SAMPLES_PER_FILE_BYTE};
 pub use mesh::{cell_of_triangle, grid_to_mesh};
 pub use png16::{PngGrid, load_png16, read_png16};
 
@@ -47,7 +68,11 @@ pub fn load_elevation(path: &Path) -> Result<ElevationGrid, Error> {
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
     match extension.as_deref() {
-        Some("asc") => load_asc(path),
+        Some("asc") => {
+            // Before opening it: a FIFO would block the open, a device never ends.
+            crate::io::regular_file(path)?;
+            load_asc(path)
+        }
         Some("tif" | "tiff") => load_geotiff(path),
         Some("png") => Err(Error::Invalid(format!(
             "{}: a PNG heightmap has no georeferencing; load it with \

@@ -9,14 +9,19 @@
 //! Other colour types (RGB, palette, alpha) and 1/2/4-bit grayscale are
 //! refused. PNG has no NODATA notion: every pixel becomes `Some` height, and
 //! a tRNS chunk is ignored.
+//!
+//! Sizes: the header is checked against the file before anything is allocated (see the
+//! [`dem`](super) module docs): the image must not be larger than the file's bytes can inflate
+//! to (DEFLATE expands at most 1032×), it must be plausible for the file's size
+//! ([`check_plausible`](super::grid::check_plausible)) and its heights must fit the memory
+//! budget. A non-interlaced image is then decoded row by row, straight into the heights.
 
-use std::fs::File;
-use std::io::{BufRead, BufReader, Seek};
+use std::io::{BufRead, BufReader, Seek, SeekFrom};
 use std::path::Path;
 
 use png::{BitDepth, ColorType, Decoder, DecodingError};
 
-use super::grid::{ElevationGrid, alloc_heights, checked_sample_count};
+use super::grid::{ElevationGrid, alloc_heights, check_plausible, checked_sample_count};
 use super::{io_error, parse_error};
 use crate::error::Error;
 
@@ -45,7 +50,7 @@ pub struct PngGrid {
 pub fn load_png16(path: impl AsRef<Path>, grid: PngGrid) -> Result<ElevationGrid, Error> {
     let path = path.as_ref();
     let name = path.display().to_string();
-    let file = File::open(path).map_err(|e| io_error(&name, e))?;
+    let (file, _) = crate::io::open_regular(path)?;
     read_png16(BufReader::new(file), &name, grid)
 }
 
@@ -54,12 +59,17 @@ pub fn load_png16(path: impl AsRef<Path>, grid: PngGrid) -> Result<ElevationGrid
 /// # Errors
 /// As [`load_png16`].
 pub fn read_png16(
-    reader: impl BufRead + Seek,
+    mut reader: impl BufRead + Seek,
     name: &str,
     grid: PngGrid,
 ) -> Result<ElevationGrid, Error> {
     let fail = |message: String| parse_error(name, None, message);
     check_params(name, &grid)?;
+    // The file's real size bounds what its header may claim.
+    let file_bytes = reader
+        .seek(SeekFrom::End(0))
+        .and_then(|end| reader.seek(SeekFrom::Start(0)).map(|_| end))
+        .map_err(|e| io_error(name, e))?;
 
     let mut decoder = Decoder::new(reader);
     let info = decoder
@@ -78,6 +88,17 @@ pub fn read_png16(
         }
     };
     let count = checked_sample_count(name, width.into(), height.into())?;
+    // Each row inflates to a filter byte and its samples.
+    let inflated = u64::from(height) * (1 + u64::from(width) * bytes_per_sample as u64);
+    let most = file_bytes.saturating_mul(1032);
+    if inflated > most {
+        return Err(fail(format!(
+            "file is truncated, or its image data is missing: the header claims {width} x \
+             {height} pixels ({inflated} bytes inflated), but DEFLATE in a file of {file_bytes} \
+             bytes gives at most {most} bytes"
+        )));
+    }
+    check_plausible(name, width.into(), height.into(), file_bytes)?;
     let (ncols, nrows) = (width as usize, height as usize);
 
     let x1 = grid.x0 + (ncols - 1) as f64 * grid.cell_size;
@@ -89,28 +110,10 @@ pub fn read_png16(
         ));
     }
 
-    // Reserve the grid first: it is the larger allocation, and failing here
-    // avoids touching memory for a header that lies about its size.
     let mut heights = alloc_heights(name, count)?;
     let mut reader = decoder
         .read_info()
         .map_err(|e| png_error(name, "reading the PNG metadata", e))?;
-    let size = reader
-        .output_buffer_size()
-        .ok_or_else(|| fail("image too large to decode".into()))?;
-    // Zeroed allocation: pages are only touched as rows are decoded.
-    let mut buf = vec![0u8; size];
-    let frame = reader
-        .next_frame(&mut buf)
-        .map_err(|e| png_error(name, "decoding the image data", e))?;
-
-    let line = frame.line_size;
-    let row_bytes = ncols * bytes_per_sample;
-    if line < row_bytes || buf.len() / line < nrows {
-        return Err(fail(
-            "decoded image is smaller than its header declares".into(),
-        ));
-    }
     let to_height = |value: f64| {
         let h = grid.height_offset + value * grid.height_scale;
         if h.is_finite() {
@@ -121,8 +124,11 @@ pub fn read_png16(
             )))
         }
     };
-    for row in buf.chunks_exact(line).take(nrows) {
-        let row = &row[..row_bytes];
+    let row_bytes = ncols * bytes_per_sample;
+    let mut push_row = |row: &[u8]| -> Result<(), Error> {
+        let row = row
+            .get(..row_bytes)
+            .ok_or_else(|| fail("decoded image is smaller than its header declares".into()))?;
         if bytes_per_sample == 2 {
             for pair in row.chunks_exact(2) {
                 let value = u16::from_be_bytes([pair[0], pair[1]]);
@@ -133,6 +139,38 @@ pub fn read_png16(
                 heights.push(to_height(value.into())?);
             }
         }
+        Ok(())
+    };
+    if reader.info().interlaced {
+        // Adam7 passes come out of order: decode the frame (its size was checked above).
+        let size = reader
+            .output_buffer_size()
+            .ok_or_else(|| fail("image too large to decode".into()))?;
+        let mut buf = vec![0u8; size];
+        let frame = reader
+            .next_frame(&mut buf)
+            .map_err(|e| png_error(name, "decoding the image data", e))?;
+        let line = frame.line_size;
+        if line < row_bytes || buf.len() / line < nrows {
+            return Err(fail(
+                "decoded image is smaller than its header declares".into(),
+            ));
+        }
+        for row in buf.chunks_exact(line).take(nrows) {
+            push_row(row)?;
+        }
+    } else {
+        for _ in 0..nrows {
+            let row = reader
+                .next_row()
+                .map_err(|e| png_error(name, "decoding the image data", e))?
+                .ok_or_else(|| fail("decoded image is smaller than its header declares".into()))?;
+            push_row(row.data())?;
+        }
+        // Past the last row: the decoder checks the end of the image data, as next_frame does.
+        reader
+            .next_row()
+            .map_err(|e| png_error(name, "decoding the image data", e))?;
     }
     Ok(ElevationGrid {
         ncols,

@@ -67,13 +67,24 @@ use ::gltf::scene::Transform;
 use ::gltf::{Accessor, Document, Node, Primitive};
 use glam::{DMat4, DQuat, DVec3};
 
+use crate::budget::quote;
 use crate::error::Error;
+use crate::io::{Refusal, resolve_inside};
 use crate::scene::Mesh;
 
-/// Elements of an accessor without a `bufferView` (zeros plus sparse
-/// values) are limited to this many, so a tiny file cannot ask for an
-/// arbitrarily large allocation.
-const MAX_ZERO_FILLED: usize = 1 << 24;
+/// Bytes the accessors of a file may claim per byte of input (see
+/// [Sizes](self#sizes)).
+pub const READ_PER_INPUT_BYTE: u64 = 2;
+
+/// Bytes the accessors of any file may claim, whatever its size (16 MiB).
+pub const READ_FLOOR: u64 = 16 << 20;
+
+/// Vertices plus triangles a file may produce per byte of input (see
+/// [Sizes](self#sizes)).
+pub const OUTPUT_PER_INPUT_BYTE: u64 = 8;
+
+/// Vertices plus triangles any file may produce, whatever its size.
+pub const OUTPUT_FLOOR: u64 = 1 << 23;
 
 /// Loads every triangle primitive placed in the scene of the glTF 2.0 file
 /// at `path` (`.gltf` with external or `data:` buffers, or binary `.glb`),
@@ -88,10 +99,7 @@ const MAX_ZERO_FILLED: usize = 1 << 24;
 /// primitive, accessor or node at fault.
 pub fn load_gltf(path: &Path) -> Result<Vec<(String, Mesh)>, Error> {
     let name = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| Error::Io {
-        path: name.clone(),
-        source,
-    })?;
+    let bytes = crate::io::read_regular(path)?;
     let parse = |line: Option<usize>, message: String| Error::Parse {
         path: name.clone(),
         line,
@@ -133,6 +141,7 @@ pub fn load_gltf(path: &Path) -> Result<Vec<(String, Mesh)>, Error> {
         blob,
         buffers: vec![None; document.buffers().len()],
         primitives: HashMap::new(),
+        input_bytes: bytes.len() as u64,
     };
     loader.load()
 }
@@ -272,6 +281,8 @@ struct Loader<'a> {
     buffers: Vec<Option<Vec<u8>>>,
     /// Keyed by `(mesh, primitive)`; `None` for skipped (non-triangle) ones.
     primitives: HashMap<(usize, usize), Option<LocalPrimitive>>,
+    /// The glTF file's size plus the sizes of the external buffers loaded.
+    input_bytes: u64,
 }
 
 impl Loader<'_> {
@@ -285,6 +296,7 @@ impl Loader<'_> {
 
     fn load(&mut self) -> Result<Vec<(String, Mesh)>, Error> {
         let instances = self.instances()?;
+        self.check_sizes(&instances)?;
         let mut per_mesh: HashMap<usize, usize> = HashMap::new();
         let mut node_scenes: HashMap<usize, Vec<usize>> = HashMap::new();
         for instance in &instances {
@@ -356,6 +368,125 @@ impl Loader<'_> {
             }
         }
         Ok(out)
+    }
+
+    /// Loads every buffer the walked triangle primitives read, then checks
+    /// the whole file's sizes (see [Sizes](self#sizes)) before any accessor
+    /// is read.
+    fn check_sizes(&mut self, instances: &[Instance]) -> Result<(), Error> {
+        let document = self.document;
+        let triangles_of = |mode: Mode, n: u64| match mode {
+            Mode::Triangles => n / 3,
+            _ => n.saturating_sub(2),
+        };
+        // Per walked (mesh, primitive): vertices, index count and triangles.
+        let mut shapes: HashMap<(usize, usize), (u64, u64, u64)> = HashMap::new();
+        let mut claimed_by: HashMap<usize, u64> = HashMap::new();
+        for instance in instances {
+            let Some(mesh) = document.meshes().nth(instance.mesh) else {
+                continue;
+            };
+            for primitive in mesh.primitives() {
+                let key = (instance.mesh, primitive.index());
+                let mode = primitive.mode();
+                if shapes.contains_key(&key)
+                    || !matches!(
+                        mode,
+                        Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+                    )
+                {
+                    continue;
+                }
+                let at = format!(
+                    "mesh {} primitive {}",
+                    describe_mesh(&mesh),
+                    primitive.index()
+                );
+                let positions = primitive.get(&Semantic::Positions);
+                let indices = primitive.indices();
+                for (accessor, size, kind) in [
+                    positions.as_ref().map(|a| (a, 12, "POSITION")),
+                    indices.as_ref().map(|a| (a, a.size() as u64, "index")),
+                ]
+                .into_iter()
+                .flatten()
+                {
+                    let what = format!("{kind} accessor {}", accessor.index());
+                    let mut views = Vec::new();
+                    views.extend(accessor.view());
+                    if let Some(sparse) = accessor.sparse() {
+                        views.push(sparse.indices().view());
+                        views.push(sparse.values().view());
+                    }
+                    for view in &views {
+                        self.ensure_buffer(view, &at, &what)?;
+                    }
+                    claimed_by.insert(
+                        accessor.index(),
+                        (accessor.count() as u64).saturating_mul(size),
+                    );
+                }
+                let vertices = positions.map_or(0, |a| a.count() as u64);
+                let n = indices.map_or(vertices, |a| a.count() as u64);
+                shapes.insert(key, (vertices, n, triangles_of(mode, n)));
+            }
+        }
+
+        let input = self.input_bytes;
+        let claimed: u64 = claimed_by.values().fold(0, |a, &b| a.saturating_add(b));
+        let most = READ_FLOOR.max(input.saturating_mul(READ_PER_INPUT_BYTE));
+        if claimed > most {
+            return Err(self.parse(format!(
+                "the accessors read claim {claimed} bytes, but a file with {input} bytes of \
+                 input may claim at most {most} ({READ_PER_INPUT_BYTE} per byte of input, or \
+                 {READ_FLOOR} in all): zero-filled (sparse) accessors or accessors sharing \
+                 their data ask for more than the file holds"
+            )));
+        }
+
+        let (mut vertices, mut triangles, mut objects) = (0u64, 0u64, 0u64);
+        for instance in instances {
+            for primitive in self
+                .document
+                .meshes()
+                .nth(instance.mesh)
+                .into_iter()
+                .flat_map(|m| m.primitives())
+            {
+                if let Some(&(v, _, t)) = shapes.get(&(instance.mesh, primitive.index())) {
+                    vertices = vertices.saturating_add(v);
+                    triangles = triangles.saturating_add(t);
+                    objects += 1;
+                }
+            }
+        }
+        let output = vertices.saturating_add(triangles);
+        let most = OUTPUT_FLOOR.max(input.saturating_mul(OUTPUT_PER_INPUT_BYTE));
+        if output > most {
+            return Err(self.parse(format!(
+                "the scene places {objects} objects with {vertices} vertices and {triangles} \
+                 triangles, but a file with {input} bytes of input may give at most {most} \
+                 vertices and triangles ({OUTPUT_PER_INPUT_BYTE} per byte of input, or \
+                 {OUTPUT_FLOOR} in all)"
+            )));
+        }
+        // The objects, plus the accessors' decoded data and indices while they are read.
+        let reading: u64 = shapes.values().fold(0, |a, &(v, n, _)| {
+            a.saturating_add(v.saturating_mul(12))
+                .saturating_add(n.saturating_mul(4))
+        });
+        let bytes = vertices
+            .saturating_mul(24)
+            .saturating_add(triangles.saturating_mul(12))
+            .saturating_add(reading);
+        crate::budget::check(
+            &format!(
+                "{}: {objects} objects with {vertices} vertices and {triangles} triangles",
+                self.file
+            ),
+            bytes,
+            1,
+        )
     }
 
     /// The mesh placements in walk order (see the module documentation).
@@ -637,19 +768,22 @@ impl Loader<'_> {
                 out
             }
             None => {
-                if count > MAX_ZERO_FILLED {
-                    return Err(fail(
-                        self,
-                        format!(
-                            "has no bufferView and {count} elements (at most {MAX_ZERO_FILLED} are read from zero-filled accessors)"
-                        ),
-                    ));
-                }
-                vec![T::default(); count]
+                // Zero-filled: the size was checked with the file's (see `check_sizes`).
+                let mut out = Vec::new();
+                out.try_reserve_exact(count)
+                    .map_err(|_| fail(self, format!("{count} elements do not fit in memory")))?;
+                out.resize(count, T::default());
+                out
             }
         };
         if let Some(sparse) = sparse {
             let n = sparse.count();
+            if n > count {
+                return Err(fail(
+                    self,
+                    format!("sparse.count is {n}, more than the accessor's count {count}"),
+                ));
+            }
             let indices = sparse.indices();
             let index_size = match indices.index_type() {
                 IndexType::U8 => 1,
@@ -742,6 +876,39 @@ impl Loader<'_> {
         }
     }
 
+    /// The first `length` bytes of the buffer file `file` (a regular file),
+    /// after checking `length` against the memory budget.
+    fn read_buffer_file(
+        &self,
+        file: &Path,
+        length: usize,
+        context: &dyn Fn() -> String,
+    ) -> Result<Vec<u8>, Error> {
+        use std::io::Read;
+        crate::budget::check(&format!("{}: {}", self.file, context()), length as u64, 1)?;
+        let io = |e: std::io::Error| Error::Io {
+            path: file.display().to_string(),
+            source: std::io::Error::new(e.kind(), format!("{e} ({})", context())),
+        };
+        let (handle, size) = crate::io::open_regular(file).map_err(|e| match e {
+            Error::Io { source, .. } => io(source),
+            other => other,
+        })?;
+        let mut data = Vec::new();
+        data.try_reserve_exact(length.min(size as usize))
+            .map_err(|_| {
+                self.parse(format!(
+                    "{}: {length} bytes do not fit in memory",
+                    context()
+                ))
+            })?;
+        handle
+            .take(length as u64)
+            .read_to_end(&mut data)
+            .map_err(io)?;
+        Ok(data)
+    }
+
     /// Loads the buffer under `view` if it is not loaded yet.
     fn ensure_buffer(&mut self, view: &View<'_>, at: &str, what: &str) -> Result<(), Error> {
         let buffer = view.buffer();
@@ -775,17 +942,37 @@ impl Loader<'_> {
                         .map_err(|m| self.parse(format!("{}: bad data URI: {m}", context())))?
                 } else if has_scheme(uri) {
                     return Err(self.parse(format!(
-                        "{}: the URI '{uri}' is neither relative nor a data URI",
-                        context()
+                        "{}: the URI '{}' is neither relative nor a data URI",
+                        context(),
+                        quote(uri)
                     )));
                 } else {
-                    let relative = percent_decode(uri)
-                        .map_err(|m| self.parse(format!("{}: bad URI '{uri}': {m}", context())))?;
-                    let file = self.dir.join(relative);
-                    std::fs::read(&file).map_err(|e| Error::Io {
-                        path: file.display().to_string(),
-                        source: std::io::Error::new(e.kind(), format!("{e} ({})", context())),
-                    })?
+                    let relative = percent_decode(uri).map_err(|m| {
+                        self.parse(format!("{}: bad URI '{}': {m}", context(), quote(uri)))
+                    })?;
+                    let file = match resolve_inside(&self.dir, Path::new(&relative)) {
+                        Ok(file) => file,
+                        Err(Refusal::Io(e)) => {
+                            return Err(Error::Io {
+                                path: self.dir.join(&relative).display().to_string(),
+                                source: std::io::Error::new(
+                                    e.kind(),
+                                    format!("{e} ({})", context()),
+                                ),
+                            });
+                        }
+                        Err(refusal) => {
+                            return Err(self.parse(format!(
+                                "{}: the URI '{}' is refused: {refusal}; a buffer must be a \
+                                 data URI or a relative path inside the glTF file's folder",
+                                context(),
+                                quote(uri)
+                            )));
+                        }
+                    };
+                    let data = self.read_buffer_file(&file, buffer.length(), &context)?;
+                    self.input_bytes = self.input_bytes.saturating_add(data.len() as u64);
+                    data
                 }
             }
         };

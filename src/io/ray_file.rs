@@ -1,6 +1,10 @@
 //! Reading ray files (one ray per line, `ox oy oz dx dy dz [tmax]`), and the point (`x y z`)
 //! and pair (`x1 y1 z1 x2 y2 z2`) files of the line-of-sight commands.
 //!
+//! [`load_rays`] reads a whole ray file; [`RayReader`] reads one a chunk at a time, so memory
+//! stays bounded whatever the number of rays ([`count_rays`] checks a file and counts its rays
+//! first, in constant memory).
+//!
 //! Numbers are whitespace separated, `#` starts a comment anywhere on a line
 //! and blank lines are skipped. The parser accepts any value Rust parses as
 //! an `f64`, including `nan` and `inf`: deciding what such rays mean (they
@@ -10,6 +14,7 @@ use std::path::Path;
 
 use glam::DVec3;
 
+use crate::budget::quote;
 use crate::error::Error;
 
 /// One ray read from a ray file.
@@ -74,32 +79,62 @@ pub(crate) fn parse_number_lines(
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines = Vec::new();
     for (i, raw) in text.lines().enumerate() {
-        let error = |message: String| Error::Parse {
-            path: path.to_owned(),
-            line: Some(i + 1),
-            message,
-        };
-        let content = raw.split('#').next().unwrap_or_default();
-        let values = content
-            .split_whitespace()
-            .map(|token| {
-                token
-                    .parse::<f64>()
-                    .map_err(|_| error(format!("'{token}' is not a number")))
-            })
-            .collect::<Result<Vec<f64>, Error>>()?;
-        if values.is_empty() {
-            continue;
+        if let Some(numbers) = parse_line(path, i + 1, raw, counts, expected)? {
+            lines.push((i + 1, numbers.values().to_vec()));
         }
-        if !counts.contains(&values.len()) {
-            return Err(error(format!(
-                "expected {expected}, found {}",
-                values.len()
-            )));
-        }
-        lines.push((i + 1, values));
     }
     Ok(lines)
+}
+
+/// The numbers of one line (up to [`Numbers::MOST`] kept).
+struct Numbers {
+    values: [f64; Numbers::MOST],
+    len: usize,
+}
+
+impl Numbers {
+    const MOST: usize = 8;
+
+    fn values(&self) -> &[f64] {
+        &self.values[..self.len.min(Self::MOST)]
+    }
+}
+
+/// Parses line `number` (1-based) of a number file: `None` when it is blank or a comment,
+/// otherwise its numbers, which must be one of `counts` (each at most [`Numbers::MOST`]).
+fn parse_line(
+    path: &str,
+    number: usize,
+    raw: &str,
+    counts: &[usize],
+    expected: &str,
+) -> Result<Option<Numbers>, Error> {
+    let error = |message: String| Error::Parse {
+        path: path.to_owned(),
+        line: Some(number),
+        message,
+    };
+    let content = raw.split('#').next().unwrap_or_default();
+    let mut numbers = Numbers {
+        values: [0.0; Numbers::MOST],
+        len: 0,
+    };
+    for token in content.split_whitespace() {
+        let value = token
+            .parse::<f64>()
+            .map_err(|_| error(format!("'{}' is not a number", quote(token))))?;
+        if let Some(slot) = numbers.values.get_mut(numbers.len) {
+            *slot = value;
+        }
+        numbers.len += 1;
+    }
+    if numbers.len == 0 {
+        return Ok(None);
+    }
+    if !counts.contains(&numbers.len) {
+        return Err(error(format!("expected {expected}, found {}", numbers.len)));
+    }
+    Ok(Some(numbers))
 }
 
 /// Reads and parses the ray file at `path` (see [`parse_rays`]).
@@ -138,6 +173,192 @@ fn read_text(path: &Path) -> Result<String, Error> {
             message: "the file is not valid UTF-8 text".to_owned(),
         }
     })
+}
+
+/// The longest line a [`RayReader`] accepts, in bytes: a ray line holds 6 or 7 numbers, so a
+/// longer line is not a ray file, and refusing it keeps the reader's memory bounded.
+pub const MAX_LINE_BYTES: usize = 1 << 20;
+
+/// Reads a ray file a chunk of rays at a time, so memory stays bounded whatever the number of
+/// rays: the reader holds one line, the caller one chunk.
+///
+/// It reads the format of [`parse_rays`], with the same errors (file, 1-based line, message),
+/// found in file order: an error on a later line is only reported when the reading gets there,
+/// after the chunks before it were returned. A line that is not valid UTF-8 is reported with
+/// its number, as [`load_rays`] does; a line longer than [`MAX_LINE_BYTES`] is an error.
+///
+/// ```
+/// use raypick::io::ray_file::RayReader;
+///
+/// let text = "0 0 5 0 0 -1\n# a comment\n1 1 5 0 0 -1 2.5\n3 3 5 0 0 -1\n";
+/// let mut reader = RayReader::new("rays.txt", text.as_bytes());
+/// let first = reader.next_chunk(2)?;
+/// assert_eq!(first.len(), 2);
+/// assert_eq!(first[1].tmax, Some(2.5));
+/// assert_eq!(reader.next_chunk(2)?.len(), 1);
+/// assert!(reader.next_chunk(2)?.is_empty()); // the end
+/// # Ok::<(), raypick::Error>(())
+/// ```
+pub struct RayReader<R> {
+    name: String,
+    reader: R,
+    /// Lines read so far (the number of the last line read).
+    line: usize,
+    buf: Vec<u8>,
+    /// Set after the end of the input, or after an error (which ends the reading).
+    done: bool,
+}
+
+impl RayReader<std::io::BufReader<std::fs::File>> {
+    /// Opens the ray file at `path` (a regular file, or a pipe such as `/dev/stdin`).
+    pub fn open(path: &Path) -> Result<Self, Error> {
+        let name = path.display().to_string();
+        let file = std::fs::File::open(path).map_err(|source| Error::Io {
+            path: name.clone(),
+            source,
+        })?;
+        Ok(Self::new(
+            name,
+            std::io::BufReader::with_capacity(1 << 16, file),
+        ))
+    }
+}
+
+impl<R: std::io::BufRead> RayReader<R> {
+    /// A reader of the ray file `reader`; `name` is the file named in errors.
+    pub fn new(name: impl Into<String>, reader: R) -> Self {
+        Self {
+            name: name.into(),
+            reader,
+            line: 0,
+            buf: Vec::new(),
+            done: false,
+        }
+    }
+
+    /// The number of the last line read (1-based; 0 before the first).
+    pub fn line(&self) -> usize {
+        self.line
+    }
+
+    /// The next ray, or `None` at the end of the file.
+    pub fn next_ray(&mut self) -> Result<Option<RayLine>, Error> {
+        const EXPECTED: &str = "6 or 7 numbers (ox oy oz dx dy dz [tmax])";
+        while !self.done {
+            let result = self.next_line().and_then(|read| match read {
+                None => Ok(None),
+                Some(start) => match std::str::from_utf8(&self.buf[start..]) {
+                    Ok(text) => {
+                        parse_line(&self.name, self.line, text, &[6, 7], EXPECTED).map(Some)
+                    }
+                    Err(_) => Err(Error::Parse {
+                        path: self.name.clone(),
+                        line: Some(self.line),
+                        message: "the file is not valid UTF-8 text".to_owned(),
+                    }),
+                },
+            });
+            match result {
+                Ok(None) => self.done = true,
+                Ok(Some(None)) => {} // a blank or comment line
+                Ok(Some(Some(numbers))) => {
+                    let v = numbers.values();
+                    return Ok(Some(RayLine {
+                        origin: DVec3::new(v[0], v[1], v[2]),
+                        dir: DVec3::new(v[3], v[4], v[5]),
+                        tmax: v.get(6).copied(),
+                    }));
+                }
+                Err(e) => {
+                    self.done = true;
+                    return Err(e);
+                }
+            }
+        }
+        Ok(None)
+    }
+
+    /// The next at most `max` rays (at least 1); an empty vector at the end of the file.
+    pub fn next_chunk(&mut self, max: usize) -> Result<Vec<RayLine>, Error> {
+        let mut chunk = Vec::new();
+        self.read_chunk(&mut chunk, max)?;
+        Ok(chunk)
+    }
+
+    /// Replaces the content of `chunk` with the next at most `max` rays (at least 1), reusing
+    /// its memory; returns how many were read (0 at the end of the file). On an error, `chunk`
+    /// holds the rays read before it.
+    pub fn read_chunk(&mut self, chunk: &mut Vec<RayLine>, max: usize) -> Result<usize, Error> {
+        chunk.clear();
+        let max = max.max(1);
+        while chunk.len() < max {
+            match self.next_ray()? {
+                Some(ray) => chunk.push(ray),
+                None => break,
+            }
+        }
+        Ok(chunk.len())
+    }
+
+    /// Reads the rest of the file, checking every line, and returns how many rays it holds.
+    pub fn count_rest(&mut self) -> Result<u64, Error> {
+        let mut count = 0;
+        while self.next_ray()?.is_some() {
+            count += 1;
+        }
+        Ok(count)
+    }
+
+    /// Reads the next line into `buf` and returns where its text starts (after a byte-order
+    /// mark on line 1), or `None` at the end.
+    fn next_line(&mut self) -> Result<Option<usize>, Error> {
+        self.buf.clear();
+        let io = |source| Error::Io {
+            path: self.name.clone(),
+            source,
+        };
+        loop {
+            let available = match self.reader.fill_buf() {
+                Ok(available) => available,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(io(e)),
+            };
+            if available.is_empty() {
+                if self.buf.is_empty() {
+                    return Ok(None);
+                }
+                break;
+            }
+            let (take, complete) = match available.iter().position(|&b| b == b'\n') {
+                Some(i) => (i + 1, true),
+                None => (available.len(), false),
+            };
+            self.buf.extend_from_slice(&available[..take]);
+            self.reader.consume(take);
+            if self.buf.len() > MAX_LINE_BYTES + 1 {
+                return Err(Error::Parse {
+                    path: self.name.clone(),
+                    line: Some(self.line + 1),
+                    message: format!(
+                        "the line is longer than {MAX_LINE_BYTES} bytes; a ray line holds 6 or \
+                         7 numbers"
+                    ),
+                });
+            }
+            if complete {
+                break;
+            }
+        }
+        self.line += 1;
+        let bom = self.line == 1 && self.buf.starts_with(b"\xEF\xBB\xBF");
+        Ok(Some(if bom { 3 } else { 0 }))
+    }
+}
+
+/// Checks every line of the ray file at `path` and returns how many rays it holds, holding one
+/// line in memory (see [`RayReader`]).
+pub fn count_rays(path: &Path) -> Result<u64, Error> {
+    RayReader::open(path)?.count_rest()
 }
 
 #[cfg(test)]
@@ -256,5 +477,116 @@ mod tests {
         let err = load_rays(&path).unwrap_err();
         assert!(matches!(err, Error::Io { .. }));
         assert!(err.to_string().contains(&path.display().to_string()));
+    }
+
+    /// Every chunk size gives the rays and errors of `parse_rays`.
+    fn streamed(text: &[u8], max: usize) -> Result<Vec<RayLine>, Error> {
+        let mut reader = RayReader::new("r.txt", text);
+        let mut all = Vec::new();
+        loop {
+            let chunk = reader.next_chunk(max)?;
+            if chunk.is_empty() {
+                return Ok(all);
+            }
+            assert!(chunk.len() <= max.max(1));
+            all.extend(chunk);
+        }
+    }
+
+    #[test]
+    fn streaming_reads_what_parse_rays_reads_with_the_same_errors() {
+        let texts: &[&str] = &[
+            "",
+            "\n\n",
+            "0 0 -5 0 0 1\n1 2 3\t4 5 6 7.5\n",
+            "# header\n\n   \n0 0 0 1 0 0 # trailing\n0 0 0 0 1 0 2#glued\n  # indented\n",
+            "0 0 0 1 0 0\r\n0 0 0 0 0 1 3\r\n",
+            "0 0 0 1 0 0\n0 0 0 0 0 1 3",
+            "\u{feff}0 0 0 1 0 0\n",
+            "0 0 0 1 0 0\n# c\n1 2 3 4 5\n",
+            "1 2 3 4 5 6 7 8\n",
+            "1 2 3 4 5 6 7 8 x\n",
+            "\n0 0 0 1 0 0\n0 0 x 1 0 0\n",
+            "0 0 0 1 0 0 1,5\n",
+            "nan 0 0 inf -inf 0\n0 0 0 1 0 0 inf\n",
+            "0 0 0 1 0 0\n0 0 0 1 0 0\n0 0 0 1 0 0\n0 0 0 1 0 0\n0 0 0 1 0 0\n",
+            "0 0 0 1\r0 0\n",
+        ];
+        for text in texts {
+            let expected = parse_rays("r.txt", text);
+            for max in [0, 1, 2, 3, 1000] {
+                let got = streamed(text.as_bytes(), max);
+                match (&expected, &got) {
+                    (Ok(a), Ok(b)) => {
+                        assert_eq!(a.len(), b.len(), "{text:?}");
+                        for (x, y) in a.iter().zip(b) {
+                            assert_eq!(format!("{x:?}"), format!("{y:?}"), "{text:?}");
+                        }
+                    }
+                    (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string(), "{text:?}"),
+                    _ => panic!("{text:?} (chunks of {max}): {expected:?} vs {got:?}"),
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn streaming_names_the_line_of_bad_utf8_and_of_overlong_lines() {
+        let e = streamed(b"0 0 0 1 0 0\n0 0 0 1 0 0 \xff\n", 1).unwrap_err();
+        assert_eq!(e.to_string(), "r.txt:2: the file is not valid UTF-8 text");
+        let mut long = b"0 0 0 1 0 0\n".to_vec();
+        long.extend(std::iter::repeat_n(b' ', MAX_LINE_BYTES + 10));
+        long.extend(b"\n0 0 0 1 0 0\n");
+        let e = streamed(&long, 4).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("r.txt:2: the line is longer than"),
+            "{e}"
+        );
+        // A line of exactly the limit is fine.
+        let mut edge = vec![b' '; MAX_LINE_BYTES - 12];
+        edge.extend(b"0 0 0 1 0 0\n");
+        assert_eq!(streamed(&edge, 4).unwrap().len(), 1);
+    }
+
+    #[test]
+    fn chunks_come_in_order_and_an_error_ends_the_reading() {
+        let mut text = String::new();
+        for i in 0..10 {
+            text.push_str(&format!("{i} 0 0 1 0 0\n"));
+        }
+        text.push_str("bad\n0 0 0 1 0 0\n");
+        let mut reader = RayReader::new("r.txt", text.as_bytes());
+        let mut chunk = Vec::new();
+        assert_eq!(reader.read_chunk(&mut chunk, 4).unwrap(), 4);
+        assert_eq!(chunk[3].origin.x, 3.0);
+        assert_eq!(reader.read_chunk(&mut chunk, 4).unwrap(), 4);
+        assert_eq!(chunk[0].origin.x, 4.0);
+        assert_eq!(reader.line(), 8);
+        let e = reader.read_chunk(&mut chunk, 4).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "r.txt:11: '' is not a number".replace("''", "'bad'")
+        );
+        assert!(
+            reader.next_chunk(4).unwrap().is_empty(),
+            "no rays after an error"
+        );
+    }
+
+    #[test]
+    fn count_rays_checks_every_line() {
+        let path =
+            std::env::temp_dir().join(format!("raypick-rays-count-{}.txt", std::process::id()));
+        std::fs::write(&path, "0 0 0 1 0 0\n# c\n0 0 0 1 0 0 5\n").unwrap();
+        assert_eq!(count_rays(&path).unwrap(), 2);
+        std::fs::write(&path, "0 0 0 1 0 0\n0 0\n").unwrap();
+        let e = count_rays(&path).unwrap_err();
+        let _ = std::fs::remove_file(&path);
+        assert!(
+            e.to_string()
+                .ends_with(":2: expected 6 or 7 numbers (ox oy oz dx dy dz [tmax]), found 2"),
+            "{e}"
+        );
     }
 }

@@ -1,12 +1,19 @@
 //! Turning files into a scene: each OBJ file is one object, each elevation grid (ESRI ASCII
 //! `.asc`, GeoTIFF `.tif`/`.tiff`) one terrain object whose hits report row and column, and each
-//! glTF (`.gltf`, `.glb`) mesh primitive one object, with node transforms applied. Object ids follow the order of the files, then of the objects
-//! inside a file. A scene description file (JSON) lists files with their layer masks.
+//! glTF (`.gltf`, `.glb`) mesh primitive one object, with node transforms applied. Object ids
+//! follow the order of the files, then of the objects inside a file. A scene description file
+//! (JSON) lists files with their layer masks.
+//!
+//! Every scene file must be a regular file (a FIFO or a device is refused before it is opened),
+//! and the files a description lists must stay inside its folder: relative paths without `..`
+//! that resolve, symbolic links followed, to regular files in that folder or below it (see
+//! [`crate::io::resolve_inside`]).
 
 use crate::dem::{grid_to_mesh, load_elevation};
 use crate::error::{Error, Result};
 use crate::io::gltf::load_gltf;
 use crate::io::obj::load_obj;
+use crate::io::{Refusal, read_regular, regular_file, resolve_inside};
 use crate::scene::{GridShape, Scene};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -30,26 +37,48 @@ struct Description {
 }
 
 /// Reads a scene description (JSON) and returns its files, resolved against its folder.
+///
+/// # Errors
+/// [`Error::Io`] when the description or a file it lists cannot be read (or is not a regular
+/// file); [`Error::Parse`] naming the description for malformed JSON, and for a listed path that
+/// is absolute, contains `..` or leads out of the description's folder through a symbolic link.
 pub fn load_description(path: &Path) -> Result<Vec<SceneFile>> {
     let name = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
-        path: name.clone(),
-        source,
-    })?;
-    let description: Description = serde_json::from_str(&text).map_err(|e| Error::Parse {
+    let bytes = read_regular(path)?;
+    let description: Description = serde_json::from_slice(&bytes).map_err(|e| Error::Parse {
         path: name.clone(),
         line: Some(e.line()),
         message: e.to_string(),
     })?;
     let folder = path.parent().unwrap_or(Path::new(""));
-    Ok(description
+    description
         .objects
         .into_iter()
-        .map(|f| SceneFile {
-            file: folder.join(f.file),
-            mask: f.mask,
+        .enumerate()
+        .map(|(k, f)| {
+            let file = match resolve_inside(folder, &f.file) {
+                Ok(file) => file,
+                Err(Refusal::Io(source)) => {
+                    return Err(Error::Io {
+                        path: folder.join(&f.file).display().to_string(),
+                        source,
+                    });
+                }
+                Err(refusal) => {
+                    return Err(Error::Parse {
+                        path: name.clone(),
+                        line: None,
+                        message: format!(
+                            "object {k}: file \"{}\" is refused: {refusal}; the files of a \
+                             scene description must be relative paths inside its folder",
+                            crate::budget::quote(&f.file.display().to_string())
+                        ),
+                    });
+                }
+            };
+            Ok(SceneFile { file, mask: f.mask })
         })
-        .collect())
+        .collect()
 }
 
 /// Loads every file into one scene, in order.
@@ -69,6 +98,8 @@ pub fn load_scene(files: &[SceneFile]) -> Result<Scene> {
 
 fn add_file(scene: &mut Scene, path: &Path) -> Result<()> {
     let name = path.display().to_string();
+    // Before any loader opens it: a FIFO would block the open, a device never ends.
+    regular_file(path)?;
     let extension = path
         .extension()
         .and_then(|e| e.to_str())
@@ -84,6 +115,15 @@ fn add_file(scene: &mut Scene, path: &Path) -> Result<()> {
         }
         Some("asc" | "tif" | "tiff") => {
             let grid = load_elevation(path)?;
+            // The mesh: a vertex (24 bytes) and two triangles (2 × 12 bytes) per sample.
+            crate::budget::check(
+                &format!(
+                    "{name}: the mesh of the {} × {} grid",
+                    grid.ncols, grid.nrows
+                ),
+                (grid.ncols as u64).saturating_mul(grid.nrows as u64),
+                48,
+            )?;
             let shape = GridShape {
                 columns: grid.ncols as u32,
                 rows: grid.nrows as u32,
