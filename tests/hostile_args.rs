@@ -418,11 +418,22 @@ fn error_messages_quote_at_most_a_few_dozen_characters_of_a_bad_token() {
         &["pick", "--backend", "cpu", "--scene", &asc],
         "unknown header key",
     );
-    let rays = temp_file("long-rays.txt", &format!("0 0 0 0 0 {junk}\n"));
+    // Ray files are read a line at a time: a token under the 1 MiB line limit is quoted short,
+    // a longer line is refused as such, both naming the file and line.
+    let rays = temp_file(
+        "long-rays.txt",
+        &format!("0 0 0 0 0 {}\n", &junk[..100_000]),
+    );
     check(
         &["pick", "--backend", "cpu", "--rays", &rays],
         "is not a number",
     );
+    let rays = temp_file("longer-rays.txt", &format!("0 0 0 0 0 {junk}\n"));
+    let err = assert_refused(
+        &["pick", "--backend", "cpu", "--rays", &rays],
+        &["longer-rays.txt:1", "longer than"],
+    );
+    assert!(err.len() < 400, "{} bytes", err.len());
     let pixels = temp_file("long-pixels.txt", &format!("1 {junk}\n"));
     let camera = camera_file("small-camera.json", 8, 6);
     check(

@@ -645,10 +645,8 @@ fn streamed_and_whole_file_reading_agree_on_errors() {
 }
 
 /// `pick` reads its ray file a chunk at a time: 5 million rays (a 70 MB file) stay under the
-/// issue's 300 MB of resident memory. Ignored until `src/cli/pick.rs` reads rays through
-/// `RayReader` (today it holds every ray, about 1 GB).
+/// issue's 300 MB of resident memory (holding them all took about 1 GB).
 #[test]
-#[ignore = "needs pick to read rays through raypick::io::ray_file::RayReader (issue 11 item 7)"]
 fn pick_memory_does_not_grow_with_the_ray_file() {
     let dir = TempDir::new("pick");
     let path = dir.0.join("rays.txt");

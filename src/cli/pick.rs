@@ -2,12 +2,13 @@
 
 use super::query_args::QueryArgs;
 use super::scene_args::SceneArgs;
-use super::{make_picker, progress, read_rays, show_notes, stream_chunk_rays, write_output};
+use super::{make_picker, progress, show_notes, stream_chunk_rays, write_output};
 use clap::{ArgMatches, Args};
 use raypick::camera::{Camera, load_pixel_indices_as_centers};
 use raypick::io::output::{AnswerWriter, Format, OutputOptions};
+use raypick::io::ray_file::{RayReader, count_rays};
 use raypick::synthetic::{RayKind, rays as synthetic_rays};
-use raypick::{Backend, Error, Ray};
+use raypick::{Answers, Backend, Error, Ray};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -46,8 +47,11 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let query = q.query();
     query.validate()?;
     let built = Arc::new(args.scene.build(matches)?);
+    // A ray file is read in chunks while answers are written (memory bounded whatever its
+    // length); it is first checked whole, line by line in constant memory, so that a bad line is
+    // reported before any output. Camera pixels and the default camera grid are small.
     let rays: Vec<Ray> = match (&args.rays, &args.camera, &args.pixels) {
-        (Some(path), _, _) => read_rays(path, q.tmin, q.tmax, q.ray_mask)?,
+        (Some(_), _, _) => Vec::new(),
         (None, Some(camera), Some(pixels)) => {
             let camera = Camera::from_json_file(camera)?;
             load_pixel_indices_as_centers(pixels)?
@@ -65,6 +69,17 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             .map(|r| r.with_range(q.tmin, q.tmax).with_mask(q.ray_mask))
             .collect(),
     };
+    let mut reader = match &args.rays {
+        Some(path) => {
+            let total = if std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+                Some(count_rays(path)?)
+            } else {
+                None
+            };
+            Some((RayReader::open(path)?, total))
+        }
+        None => None,
+    };
     let options = OutputOptions {
         format: args.format,
         mode: q.mode,
@@ -76,21 +91,47 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     // Large batches stream: answers are written chunk by chunk, so memory stays bounded. In
     // all-hits mode the chunk shrinks so that its lists fit the memory budget.
     let chunk = stream_chunk_rays(&query);
-    let bar = progress::rays_bar(rays.len() as u64, "picking");
+    let total = match &reader {
+        Some((_, total)) => total.unwrap_or(0),
+        None => rays.len() as u64,
+    };
+    let bar = progress::rays_bar(total, "picking");
     write_output(args.out.as_deref(), |out| {
         let mut writer = AnswerWriter::begin(out, options)?;
-        let result = picker.query_chunked(&rays, &query, chunk, &mut |_, answers| {
+        let mut sink = |answers: Answers| {
             bar.inc(answers.nearest.len() as u64);
             invalid += answers.nearest.iter().filter(|h| h.invalid).count();
             writer.write(out, &answers).map_err(|source| Error::Io {
                 path: "output".into(),
                 source,
             })
-        });
+        };
+        let result = match reader.as_mut() {
+            Some((reader, _)) => {
+                let (mut lines, mut batch) = (Vec::new(), Vec::new());
+                // Ray-file chunks stay small enough to keep a pick of millions of rays in
+                // a few hundred MB (a chunk's rays, scene-frame rays and answers).
+                let chunk = chunk.min(1 << 18);
+                (|| {
+                    while reader.read_chunk(&mut lines, chunk)? > 0 {
+                        batch.clear();
+                        batch.extend(lines.iter().map(|r| {
+                            Ray::new(r.origin, r.dir)
+                                .with_range(q.tmin, r.tmax.unwrap_or(q.tmax))
+                                .with_mask(q.ray_mask)
+                        }));
+                        sink(picker.query(&batch, &query)?)?;
+                    }
+                    Ok(())
+                })()
+            }
+            None => picker.query_chunked(&rays, &query, chunk, &mut |_, answers| sink(answers)),
+        };
         if let Err(e) = result {
             failure = Some(e);
             return Ok(());
         }
+        drop(sink);
         writer.finish(out)
     })?;
     bar.finish_and_clear();
