@@ -18,6 +18,7 @@ passes="${PASSES:-5}"
 mkdir -p "$dir"
 rate() { grep -o "$1=[0-9.]*" | tail -1 | cut -d= -f2; }
 printf '%-28s %-11s %12s %12s %12s %12s %9s %9s\n' scene rays "cpu 1t" "cpu 2t" "ref 2t" "open3d 2t" "cpu/o3d" "cpu/ref"
+echo '(M rays/s: raypick pick = bench --ray-file, best of passes; Open3D cast_rays, best of passes)'
 for scene in bunny.obj dragon_res2.obj jacksboro_fault_dem_utm.asc; do
     stem="${scene%%.*}"
     if [ ! -f "$dir/$stem-camera.txt" ]; then
@@ -30,8 +31,7 @@ for scene in bunny.obj dragon_res2.obj jacksboro_fault_dem_utm.asc; do
         cpu2=$(bench --backend cpu --threads 2)
         ref2=$(bench --backend reference --threads 2)
         o3d=$("$python" benches/open3d_peer.py --scene "$data/$scene" --rays "$rays" --threads 2 --passes "$passes" | rate open3d_rays_per_s)
-        printf '%-28s %-11s %12.2f %12.2f %12.2f %12.2f %9.2f %9.2f\n' "$stem" "$set" \
-            "$(echo "$cpu1/1e6" | bc -l)" "$(echo "$cpu2/1e6" | bc -l)" "$(echo "$ref2/1e6" | bc -l)" \
-            "$(echo "$o3d/1e6" | bc -l)" "$(echo "$cpu2/$o3d" | bc -l)" "$(echo "$cpu2/$ref2" | bc -l)"
+        awk -v s="$stem" -v r="$set" -v c1="$cpu1" -v c2="$cpu2" -v f="$ref2" -v o="$o3d" 'BEGIN {
+            printf "%-28s %-11s %12.2f %12.2f %12.2f %12.2f %9.2f %9.2f\n", s, r, c1/1e6, c2/1e6, f/1e6, o/1e6, c2/o, c2/f }'
     done
 done

@@ -96,6 +96,30 @@ fn run_ray_file(
         rays.len(),
         args.repeat
     );
+    // The CPU paths' tracer alone on the same rays (scene-frame rays made once, in input order,
+    // no reordering, no f64 refinement): what the pick pipeline costs around it.
+    let tracer: Option<Box<dyn raypick::picker::Tracer + Send>> = match args.backend {
+        raypick::Backend::Cpu => Some(Box::new(raypick::CpuPicker::new(built.clone()))),
+        raypick::Backend::Reference => Some(Box::new(raypick::ReferencePicker::new(built.clone()))),
+        _ => None,
+    };
+    if let Some(mut tracer) = tracer {
+        let query = raypick::Query::default();
+        let (local, _) = raypick::frame::scene_rays(built.bvh.origin, &rays, &query);
+        let settings = built.settings(&query);
+        let mut trace_best = f64::INFINITY;
+        pool.install(|| tracer.trace(&local, &settings))?;
+        for _ in 0..args.repeat {
+            let start = Instant::now();
+            pool.install(|| tracer.trace(&local, &settings))?;
+            trace_best = trace_best.min(start.elapsed().as_secs_f64());
+        }
+        println!(
+            "trace alone: {:.0} rays/s; pick / trace = {:.2}",
+            rays.len() as f64 / trace_best,
+            trace_best / best
+        );
+    }
     println!("pick_rays_per_s={:.0}", rays.len() as f64 / best);
     Ok(ExitCode::SUCCESS)
 }

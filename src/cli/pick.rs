@@ -131,7 +131,6 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             failure = Some(e);
             return Ok(());
         }
-        drop(sink);
         writer.finish(out)
     })?;
     bar.finish_and_clear();
