@@ -89,7 +89,12 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e}");
+            // Every message is cut to short tokens here too, so no reader's message (JSON,
+            // glTF, GeoTIFF) can repeat a huge bad token.
+            eprintln!(
+                "error: {}",
+                raypick::error::shorten_tokens(&e.to_string(), 2000)
+            );
             ExitCode::from(2)
         }
     }

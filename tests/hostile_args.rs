@@ -595,3 +595,18 @@ fn server_answers_name_objects_by_file_name_only() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A scene description whose bad value is a 2 MB string: the error quotes a short piece of it.
+#[test]
+fn scene_description_errors_quote_a_short_piece_of_a_bad_token() {
+    let junk = "z".repeat(2_000_000);
+    let description = temp_file(
+        "long-scene.json",
+        &format!(r#"{{"objects": [{{"file": "{junk}", "mask": "{junk}"}}]}}"#),
+    );
+    let err = assert_refused(
+        &["pick", "--backend", "cpu", "--scenes", &description],
+        &["long-scene.json"],
+    );
+    assert!(err.len() < 2100, "{} bytes", err.len());
+}
