@@ -89,12 +89,14 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => code,
         Err(e) => {
-            // Every message is cut to short tokens here too, so no reader's message (JSON,
-            // glTF, GeoTIFF) can repeat a huge bad token.
-            eprintln!(
-                "error: {}",
-                raypick::error::shorten_tokens(&e.to_string(), 2000)
-            );
+            // A long message (one that repeats a huge bad token: a JSON, glTF or GeoTIFF
+            // reader's) is cut to short tokens; ordinary ones, with their paths, stay whole.
+            let message = e.to_string();
+            if message.len() > 1000 {
+                eprintln!("error: {}", raypick::error::shorten_tokens(&message, 2000));
+            } else {
+                eprintln!("error: {message}");
+            }
             ExitCode::from(2)
         }
     }

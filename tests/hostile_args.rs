@@ -610,3 +610,23 @@ fn scene_description_errors_quote_a_short_piece_of_a_bad_token() {
     );
     assert!(err.len() < 2100, "{} bytes", err.len());
 }
+
+/// Options the commands need are required by the parser: leaving one out is exit 2 and a
+/// sentence naming it, never a panic (issue 16).
+#[test]
+fn missing_required_options_are_named_not_panics() {
+    let dem = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/jacksboro_fault_dem_utm.asc"
+    );
+    let (code, _, err) = raypick(&["viewshed", "--scene", dem]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("--observer") && !err.contains("panicked"),
+        "{err}"
+    );
+    let camera = camera_file("required-camera.json", 8, 6);
+    let (code, _, err) = raypick(&["select", "--camera", &camera]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--rect") && !err.contains("panicked"), "{err}");
+}

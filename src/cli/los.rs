@@ -33,7 +33,7 @@ pub struct ViewshedArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
     /// Observer position `x y z`.
-    #[arg(long, num_args = 3, value_names = ["X", "Y", "Z"], allow_negative_numbers = true)]
+    #[arg(long, required = true, num_args = 3, value_names = ["X", "Y", "Z"], allow_negative_numbers = true)]
     pub observer: Vec<f64>,
     /// Targets file: one `x y z` per line. Default: every sample of every terrain grid in the scene.
     #[arg(long)]

@@ -19,7 +19,7 @@ pub struct SelectArgs {
     #[arg(long)]
     pub camera: PathBuf,
     /// The rectangle in pixels, top-left origin: columns X0..X1 and rows Y0..Y1 (X1, Y1 excluded).
-    #[arg(long, num_args = 4, value_names = ["X0", "Y0", "X1", "Y1"])]
+    #[arg(long, required = true, num_args = 4, value_names = ["X0", "Y0", "X1", "Y1"])]
     pub rect: Vec<u32>,
     /// Cast a ray through every STEP-th pixel in each direction.
     #[arg(long, default_value_t = 1)]
