@@ -256,6 +256,22 @@ pub trait Tracer {
         rays: &[GpuRay],
         settings: &TraceSettings<'_>,
     ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)>;
+    /// The batch size from which [`pick_through`] traces rays in [`RayOrder`].
+    fn reorder_from(&self) -> usize;
+    /// Which path this is, for messages ([`Picker::describe`]).
+    fn path_name(&self) -> String;
+}
+
+/// Every tracer is a picker through the one pipeline.
+impl<T: Tracer> Picker for T {
+    fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers> {
+        let from = self.reorder_from();
+        pick_through(self, from, rays, query)
+    }
+
+    fn describe(&self) -> String {
+        self.path_name()
+    }
 }
 
 /// The one pick pipeline: validates `query`, takes `rays` into the scene frame, traces them
@@ -348,14 +364,12 @@ impl Tracer for CpuPicker {
             self.packets,
         ))
     }
-}
 
-impl Picker for CpuPicker {
-    fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers> {
-        pick_through(self, self.reorder_from, rays, query)
+    fn reorder_from(&self) -> usize {
+        self.reorder_from
     }
 
-    fn describe(&self) -> String {
+    fn path_name(&self) -> String {
         let simd = if self.simd.is_available() {
             self.simd
         } else {
@@ -405,14 +419,12 @@ impl Tracer for ReferencePicker {
     ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
         Ok(trace_batch(&self.built.bvh, rays, settings))
     }
-}
 
-impl Picker for ReferencePicker {
-    fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers> {
-        pick_through(self, self.reorder_from, rays, query)
+    fn reorder_from(&self) -> usize {
+        self.reorder_from
     }
 
-    fn describe(&self) -> String {
+    fn path_name(&self) -> String {
         format!(
             "reference (the kernel's twin, {} threads)",
             rayon::current_num_threads()

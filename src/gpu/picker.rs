@@ -7,9 +7,7 @@ use super::context::GpuContext;
 use crate::cpu::TraceSettings;
 use crate::error::{Error, Result};
 use crate::layout::{GpuHit, GpuHitEntry, GpuNode, GpuParams, GpuRay, GpuTriangle};
-use crate::picker::{BuiltScene, Picker, Tracer, pick_through};
-use crate::query::{Answers, Query};
-use crate::ray::Ray;
+use crate::picker::{BuiltScene, Tracer};
 use crate::ray_order::DEFAULT_REORDER_FROM;
 use std::mem::size_of;
 use std::sync::Arc;
@@ -439,14 +437,12 @@ impl Tracer for GpuPicker {
     ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
         self.trace_batch(rays, settings.max_hits, settings.watertight)
     }
-}
 
-impl Picker for GpuPicker {
-    fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers> {
-        pick_through(self, self.reorder_from, rays, query)
+    fn reorder_from(&self) -> usize {
+        self.reorder_from
     }
 
-    fn describe(&self) -> String {
+    fn path_name(&self) -> String {
         format!("gpu {}", self.context.describe())
     }
 }
