@@ -97,9 +97,8 @@ pub enum CameraSpec {
 /// cameras, so every camera maps every finite pixel coordinate to a valid ray.
 ///
 /// Serializes as its [`CameraSpec`], and deserializing checks it like [`Camera::from_spec`].
-/// (Deserializing through serde_json directly may read a 17-digit number one unit in the last
-/// place off, as serde_json does without its `float_roundtrip` feature;
-/// [`Camera::from_json_str`] reads them exactly.)
+/// Numbers read back bit for bit: this crate enables serde_json's `float_roundtrip`
+/// (`tests/camera.rs` holds it to that).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(into = "CameraSpec", try_from = "CameraSpec")]
 pub struct Camera {
@@ -428,7 +427,7 @@ impl Camera {
     /// [`Error::Invalid`] whose sentence starts with `path`.
     pub fn from_json_str(path: &str, text: &str) -> Result<Camera> {
         let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-        let mut spec: CameraSpec = serde_json::from_str(text).map_err(|e| {
+        let spec: CameraSpec = serde_json::from_str(text).map_err(|e| {
             let full = e.to_string();
             let suffix = format!(" at line {} column {}", e.line(), e.column());
             // serde_json repeats bad keys and strings whole: cut them short.
@@ -452,7 +451,6 @@ impl Camera {
                 message,
             }
         })?;
-        exact_numbers(text, &mut spec);
         Self::from_spec(spec).map_err(|e| Error::Invalid(format!("{path}: {e}")))
     }
 
@@ -633,173 +631,6 @@ fn unproject(projection_inv: &DMat4, sx: f64, sy: f64) -> (DVec3, DVec3) {
     (point - dir * (point.z / dir.z), dir)
 }
 
-/// Re-reads the floating-point numbers of `text`, a camera file that `spec` was just parsed from
-/// by serde_json, with Rust's correctly rounded parser (serde_json without its `float_roundtrip`
-/// feature can be an ulp off on 17-digit numbers, which would break exact round trips). A number
-/// is replaced only when its place in the JSON names a field of `spec` and the two readings agree
-/// to within a few ulps, so this pass can only refine what serde_json read.
-fn exact_numbers(text: &str, spec: &mut CameraSpec) {
-    let mut walker = JsonWalker {
-        text: text.as_bytes(),
-        at: 0,
-        path: Vec::new(),
-    };
-    walker.value(&mut |path, token| {
-        let (Some(PathStep::Key(field)), index) = (path.get(1), path.get(2)) else {
-            return;
-        };
-        let index = match index {
-            Some(PathStep::Index(i)) => Some(*i),
-            Some(PathStep::Key(_)) => return,
-            None => None,
-        };
-        let Ok(exact) = token.parse::<f64>() else {
-            return;
-        };
-        let slot: Option<&mut f64> = match (&mut *spec, field.as_str(), index) {
-            (CameraSpec::Perspective { eye, .. }, "eye", Some(i))
-            | (CameraSpec::Orthographic { eye, .. }, "eye", Some(i)) => eye.as_mut().get_mut(i),
-            (CameraSpec::Perspective { target, .. }, "target", Some(i))
-            | (CameraSpec::Orthographic { target, .. }, "target", Some(i)) => {
-                target.as_mut().get_mut(i)
-            }
-            (CameraSpec::Perspective { up, .. }, "up", Some(i))
-            | (CameraSpec::Orthographic { up, .. }, "up", Some(i)) => up.as_mut().get_mut(i),
-            (CameraSpec::Perspective { fov_y_deg, .. }, "fov_y_deg", None) => Some(fov_y_deg),
-            (CameraSpec::Orthographic { view_height, .. }, "view_height", None) => {
-                Some(view_height)
-            }
-            (CameraSpec::Matrices { view, .. }, "view", Some(i)) => view.as_mut().get_mut(i),
-            (CameraSpec::Matrices { projection, .. }, "projection", Some(i)) => {
-                projection.as_mut().get_mut(i)
-            }
-            _ => None,
-        };
-        if let Some(slot) = slot {
-            if (*slot - exact).abs() <= 4.0 * f64::EPSILON * exact.abs() {
-                *slot = exact;
-            }
-        }
-    });
-}
-
-/// One step of a path into a JSON document.
-enum PathStep {
-    /// An object member (the key as written, escapes not decoded).
-    Key(String),
-    /// An array element.
-    Index(usize),
-}
-
-/// A minimal walker over JSON text that serde_json has already accepted: it reports each number
-/// literal with its path, and gives up quietly (never panics) on anything unexpected.
-struct JsonWalker<'a> {
-    text: &'a [u8],
-    at: usize,
-    path: Vec<PathStep>,
-}
-
-impl JsonWalker<'_> {
-    fn peek(&mut self) -> Option<u8> {
-        while let Some(&c) = self.text.get(self.at) {
-            if !c.is_ascii_whitespace() {
-                return Some(c);
-            }
-            self.at += 1;
-        }
-        None
-    }
-
-    /// Walks one value, calling `found(path, literal)` for each number; `None` means it gave up.
-    fn value(&mut self, found: &mut dyn FnMut(&[PathStep], &str)) -> Option<()> {
-        match self.peek()? {
-            b'{' => {
-                self.at += 1;
-                if self.peek()? == b'}' {
-                    self.at += 1;
-                    return Some(());
-                }
-                loop {
-                    let key = self.string()?;
-                    (self.peek()? == b':').then_some(())?;
-                    self.at += 1;
-                    self.path.push(PathStep::Key(key));
-                    self.value(found)?;
-                    self.path.pop();
-                    match self.peek()? {
-                        b',' => self.at += 1,
-                        b'}' => {
-                            self.at += 1;
-                            return Some(());
-                        }
-                        _ => return None,
-                    }
-                }
-            }
-            b'[' => {
-                self.at += 1;
-                if self.peek()? == b']' {
-                    self.at += 1;
-                    return Some(());
-                }
-                for index in 0.. {
-                    self.path.push(PathStep::Index(index));
-                    self.value(found)?;
-                    self.path.pop();
-                    match self.peek()? {
-                        b',' => self.at += 1,
-                        b']' => {
-                            self.at += 1;
-                            return Some(());
-                        }
-                        _ => return None,
-                    }
-                }
-                None
-            }
-            b'"' => self.string().map(|_| ()),
-            c if c == b'-' || c.is_ascii_digit() => {
-                let start = self.at;
-                while self
-                    .text
-                    .get(self.at)
-                    .is_some_and(|c| c.is_ascii_digit() || b"+-.eE".contains(c))
-                {
-                    self.at += 1;
-                }
-                let token = std::str::from_utf8(self.text.get(start..self.at)?).ok()?;
-                found(&self.path, token);
-                Some(())
-            }
-            _ => {
-                // true, false, null
-                while self.text.get(self.at).is_some_and(u8::is_ascii_alphabetic) {
-                    self.at += 1;
-                }
-                Some(())
-            }
-        }
-    }
-
-    /// Reads a string literal, returning its raw content.
-    fn string(&mut self) -> Option<String> {
-        (self.peek()? == b'"').then_some(())?;
-        self.at += 1;
-        let start = self.at;
-        loop {
-            match *self.text.get(self.at)? {
-                b'"' => break,
-                b'\\' => self.at += 2,
-                _ => self.at += 1,
-            }
-        }
-        let raw = std::str::from_utf8(self.text.get(start..self.at)?).ok()?;
-        self.at += 1;
-        Some(raw.to_owned())
-    }
-}
-
-/// `(x, y, z)` with each number in Rust's shortest round-trip form.
 fn show(v: DVec3) -> String {
     format!("({:?}, {:?}, {:?})", v.x, v.y, v.z)
 }
