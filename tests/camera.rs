@@ -8,9 +8,8 @@ use glam::dcamera::rh::proj::{directx, opengl};
 use glam::dcamera::rh::view::look_at_mat4;
 use glam::{DMat4, DVec3};
 use proptest::prelude::*;
-use raypick::camera::{
-    Camera, CameraSpec, load_pixel_indices_as_centers, parse_pixel_indices_as_centers,
-};
+use raypick::camera::{Camera, CameraSpec};
+use raypick::io::pixel_file::{load_pixel_indices_as_centers, parse_pixel_indices_as_centers};
 use raypick::{Error, Ray};
 use std::path::PathBuf;
 

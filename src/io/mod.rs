@@ -15,6 +15,7 @@
 pub mod gltf;
 pub mod obj;
 pub mod output;
+pub mod pixel_file;
 pub mod ray_file;
 pub mod scene_files;
 

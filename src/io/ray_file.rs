@@ -156,7 +156,8 @@ pub fn load_pairs(path: &Path) -> Result<Vec<(DVec3, DVec3)>, Error> {
 }
 
 /// The file as UTF-8 text; errors name the file (and the line of the first invalid byte).
-fn read_text(path: &Path) -> Result<String, Error> {
+/// Reads a whole text file, naming it (and the line of the first invalid UTF-8) on failure.
+pub(crate) fn read_text(path: &Path) -> Result<String, Error> {
     let name = path.display().to_string();
     let bytes = std::fs::read(path).map_err(|source| Error::Io {
         path: name.clone(),

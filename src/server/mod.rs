@@ -56,7 +56,7 @@
 //! ```
 //!
 //! `camera` is a camera file's JSON ([`crate::camera`]). Pixel coordinates are pixel
-//! *indices*, as in pixel files ([`crate::camera::parse_pixel_indices_as_centers`]): `x` is the
+//! *indices*, as in pixel files ([`crate::io::pixel_file::parse_pixel_indices_as_centers`]): `x` is the
 //! column from the left, `y` the row from the top, integers name whole pixels and are picked
 //! through their centres (`[3, 4]` is the ray through `(3.5, 4.5)`), fractional values are
 //! offsets from that centre. Options, all optional: `mode` (`closest`, `any`, `all`), `cull`
