@@ -1,6 +1,8 @@
 //! The automatic backend: small batches run on the CPU path (no dispatch and readback latency),
 //! large ones on the GPU; when no GPU can be opened, or the GPU fails, everything runs on the CPU
-//! and the picker says so.
+//! and the picker says so. The GPU picker (scene upload, kernel compilation) is made the first
+//! time a batch reaches the crossover, so a software adapter, where the CPU answers every batch,
+//! costs only opening the device.
 
 use crate::error::Result;
 use crate::gpu::{GpuContext, GpuPicker};
@@ -17,30 +19,47 @@ pub const DEFAULT_CROSSOVER_RAYS: usize = 4096;
 /// Picks on the CPU or the GPU by batch size, falling back to the CPU when the GPU is missing or
 /// fails.
 pub struct AutoPicker {
+    built: Arc<BuiltScene>,
     cpu: CpuPicker,
+    /// The device, until the GPU picker is made from it or fails.
+    context: Option<GpuContext>,
     gpu: Option<GpuPicker>,
     crossover: usize,
     notes: Vec<String>,
 }
 
 impl AutoPicker {
-    /// Opens the GPU if it can; otherwise records why and uses the CPU alone.
+    /// Opens the GPU device if it can; otherwise records why and uses the CPU alone.
     pub fn new(built: Arc<BuiltScene>) -> Self {
         let mut notes = Vec::new();
-        let gpu = GpuContext::new()
-            .and_then(|context| GpuPicker::new(&context, built.clone()))
+        let context = GpuContext::new()
             .map_err(|e| notes.push(format!("no GPU ({e}); using the CPU path")))
             .ok();
-        let crossover = match &gpu {
-            Some(g) if g.context().is_software() => usize::MAX,
+        let crossover = match &context {
+            Some(c) if c.is_software() => usize::MAX,
             _ => DEFAULT_CROSSOVER_RAYS,
         };
         Self {
-            cpu: CpuPicker::new(built),
-            gpu,
+            cpu: CpuPicker::new(built.clone()),
+            built,
+            context,
+            gpu: None,
             crossover,
             notes,
         }
+    }
+
+    /// The GPU picker, made from the device on first use; `None` (saying why, once) when there
+    /// is no device or the scene cannot go on it.
+    fn gpu(&mut self) -> Option<&mut GpuPicker> {
+        if self.gpu.is_none() {
+            let context = self.context.take()?;
+            match GpuPicker::new(&context, self.built.clone()) {
+                Ok(gpu) => self.gpu = Some(gpu),
+                Err(e) => self.notes.push(format!("no GPU ({e}); using the CPU path")),
+            }
+        }
+        self.gpu.as_mut()
     }
 
     /// Sets the batch size from which the GPU is used.
@@ -57,7 +76,7 @@ impl AutoPicker {
 impl Picker for AutoPicker {
     fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers> {
         if rays.len() >= self.crossover {
-            if let Some(gpu) = &mut self.gpu {
+            if let Some(gpu) = self.gpu() {
                 match gpu.query(rays, query) {
                     Ok(answers) => return Ok(answers),
                     Err(e) => {
@@ -77,14 +96,17 @@ impl Picker for AutoPicker {
     }
 
     fn describe(&self) -> String {
-        match &self.gpu {
-            Some(gpu) if self.crossover != usize::MAX => {
-                format!(
-                    "auto: cpu below {} rays, {} above",
-                    self.crossover,
-                    gpu.describe()
-                )
-            }
+        let device = match (&self.gpu, &self.context) {
+            (Some(gpu), _) => Some(gpu.context()),
+            (None, Some(context)) => Some(context),
+            (None, None) => None,
+        };
+        match device {
+            Some(device) if self.crossover != usize::MAX => format!(
+                "auto: cpu below {} rays, gpu {} above",
+                self.crossover,
+                device.describe()
+            ),
             _ => format!("auto: {}", self.cpu.describe()),
         }
     }

@@ -130,17 +130,7 @@ pub fn resolve(scene: &Scene, bvh: &Bvh, ray: &Ray, found: &GpuHit) -> Result<Hi
     let Some((_, dir_length)) = local_ray(bvh.origin, ray, &Query::default()) else {
         return Ok(Hit::INVALID);
     };
-    if found.prim == CAP_REACHED {
-        return Err(Error::Invalid(
-            "traversal reached its iteration cap: the tree's links are corrupted".into(),
-        ));
-    }
-    if found.prim != NO_HIT && found.prim as usize >= bvh.triangle_ids.len() {
-        return Err(Error::Invalid(format!(
-            "traversal returned triangle {} past the end",
-            found.prim
-        )));
-    }
+    check_found(bvh, std::slice::from_ref(found), |f| f.prim)?;
     Ok(resolve_with(scene, bvh, ray, dir_length, found))
 }
 

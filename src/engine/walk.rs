@@ -57,7 +57,6 @@ struct RayLanes<L: Lanes> {
     inv: [L; 3],
     /// Per axis: the direction is below `MIN_DIR`, so the slab may leave the ray free.
     parallel: [bool; 3],
-    origin_scalar: Vec3,
     tmin: L,
 }
 
@@ -75,7 +74,7 @@ fn boxes4<L: Lanes>(node: &WideNode, r: &RayLanes<L>, limit: f32) -> (u32, L) {
         near[a] = t0.min(t1);
         far[a] = t0.max(t1);
         if r.parallel[a] {
-            let o = L::splat(r.origin_scalar[a]);
+            let o = r.origin[a];
             let free = L::and(o.ge(min), o.le(max));
             near[a] = L::select(free, L::splat(-HUGE), near[a]);
             far[a] = L::select(free, L::splat(HUGE), far[a]);
@@ -221,7 +220,6 @@ impl<'r, L: Lanes> RayState<'r, L> {
                 origin: [0, 1, 2].map(|a| L::splat(origin[a])),
                 inv: [0, 1, 2].map(|a| L::splat(inv[a])),
                 parallel: [0, 1, 2].map(|a| dir[a].abs() < MIN_DIR),
-                origin_scalar: origin,
                 tmin: L::splat(ray.tmin),
             },
             dir_lanes: [0, 1, 2].map(|a| L::splat(dir[a])),

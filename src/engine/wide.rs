@@ -95,20 +95,26 @@ impl WideBvh {
             out.depth = 1;
             return Ok(out);
         }
-        pending.push((0, 0, 1));
-        while let Some((source, slot, depth)) = pending.pop() {
-            out.depth = out.depth.max(depth);
+        // Opens a binary inner node: its two children, after checking the links. A node opened
+        // more often than there are nodes means a cycle.
+        let mut open = |n: u32| -> Result<[u32; 2]> {
             opened += 1;
             if opened > cap {
                 return Err(corrupted("a cycle".into()));
             }
+            let pair = children(n, &binary[n as usize]);
+            match pair.iter().find(|&&c| c as usize >= cap) {
+                Some(&bad) => Err(corrupted(format!("a child {bad} past the end"))),
+                None => Ok(pair),
+            }
+        };
+        pending.push((0, 0, 1));
+        while let Some((source, slot, depth)) = pending.pop() {
+            out.depth = out.depth.max(depth);
             // The children so far, in a fixed array (no allocation per node).
-            let [left, right] = children(source, &binary[source as usize]);
+            let [left, right] = open(source)?;
             let mut slots = [left, right, 0, 0];
             let mut len = 2;
-            if let Some(&bad) = slots[..2].iter().find(|&&n| n as usize >= cap) {
-                return Err(corrupted(format!("a child {bad} past the end")));
-            }
             while len < WIDTH {
                 let widest = slots[..len]
                     .iter()
@@ -120,15 +126,7 @@ impl WideBvh {
                     })
                     .map(|(i, _)| i);
                 let Some(i) = widest else { break };
-                let n = slots[i];
-                opened += 1;
-                let pair = children(n, &binary[n as usize]);
-                if let Some(&bad) = pair.iter().find(|&&c| c as usize >= cap) {
-                    return Err(corrupted(format!("a child {bad} past the end")));
-                }
-                if opened > cap {
-                    return Err(corrupted("a cycle".into()));
-                }
+                let pair = open(slots[i])?;
                 // Replace child i by its pair, keeping the order.
                 slots.copy_within(i + 1..len, i + 2);
                 slots[i] = pair[0];

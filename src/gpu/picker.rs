@@ -392,14 +392,8 @@ impl GpuPicker {
                 ("triangle_ids", &self.triangle_ids),
             ],
         );
-        let entries = match entries {
-            Ok(entries) => entries,
-            Err(e) => {
-                let _ = pollster::block_on(oom.pop());
-                let _ = pollster::block_on(validation.pop());
-                return Err(e);
-            }
-        };
+        // On an error the scope guards pop themselves as they drop.
+        let entries = entries?;
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("pick"),
             layout: &self.layout,

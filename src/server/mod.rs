@@ -408,6 +408,24 @@ impl LimitedIo {
             Poll::Pending => Poll::Pending,
         }
     }
+
+    /// A write's outcome: pending waits on the deadline; written bytes count as activity.
+    fn after_write(
+        &mut self,
+        cx: &mut Context<'_>,
+        written: Poll<std::io::Result<usize>>,
+    ) -> Poll<std::io::Result<usize>> {
+        match written {
+            Poll::Pending => self.poll_deadline(cx),
+            Poll::Ready(Ok(n)) => {
+                if n > 0 {
+                    self.state.touch();
+                }
+                Poll::Ready(Ok(n))
+            }
+            ready => ready,
+        }
+    }
 }
 
 impl AsyncRead for LimitedIo {
@@ -435,16 +453,8 @@ impl AsyncWrite for LimitedIo {
         buf: &[u8],
     ) -> Poll<std::io::Result<usize>> {
         let this = self.get_mut();
-        match Pin::new(&mut this.inner).poll_write(cx, buf) {
-            Poll::Pending => this.poll_deadline(cx),
-            Poll::Ready(Ok(n)) => {
-                if n > 0 {
-                    this.state.touch();
-                }
-                Poll::Ready(Ok(n))
-            }
-            ready => ready,
-        }
+        let written = Pin::new(&mut this.inner).poll_write(cx, buf);
+        this.after_write(cx, written)
     }
 
     fn poll_write_vectored(
@@ -453,16 +463,8 @@ impl AsyncWrite for LimitedIo {
         bufs: &[std::io::IoSlice<'_>],
     ) -> Poll<std::io::Result<usize>> {
         let this = self.get_mut();
-        match Pin::new(&mut this.inner).poll_write_vectored(cx, bufs) {
-            Poll::Pending => this.poll_deadline(cx),
-            Poll::Ready(Ok(n)) => {
-                if n > 0 {
-                    this.state.touch();
-                }
-                Poll::Ready(Ok(n))
-            }
-            ready => ready,
-        }
+        let written = Pin::new(&mut this.inner).poll_write_vectored(cx, bufs);
+        this.after_write(cx, written)
     }
 
     fn is_write_vectored(&self) -> bool {
