@@ -23,11 +23,11 @@ mod short_groups;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use raypick::bvh::sah_cost::sah_cost;
 use raypick::bvh::terrain_blocks::single_grid;
+use raypick::check::synthetic::{RayKind, hills, rays, terrain, triangle_soup};
 use raypick::frame::local_rays;
 use raypick::io::obj::load_obj;
 use raypick::io::scene_files::{SceneFile, load_scene};
 use raypick::layout::{GpuHit, GpuRay};
-use raypick::synthetic::{RayKind, hills, rays, terrain, triangle_soup};
 use raypick::{
     BuildOptions, Builder, BuiltScene, Bvh, GpuContext, GpuPicker, GridShape, Scene, cpu,
 };

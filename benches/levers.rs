@@ -21,12 +21,12 @@
 mod short_groups;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use raypick::check::synthetic::{RayKind, hills, rays, terrain};
 use raypick::frame::local_rays;
 use raypick::gpu::picker::SWEPT_WORKGROUP_SIZES;
 use raypick::io::obj::load_obj;
 use raypick::layout::GpuRay;
 use raypick::ray_order::{RayOrder, trace_in_order};
-use raypick::synthetic::{RayKind, hills, rays, terrain};
 use raypick::{BuildOptions, BuiltScene, GpuContext, GpuPicker, Scene, cpu};
 use short_groups::configure;
 use std::hint::black_box;

@@ -23,9 +23,9 @@ use glam::Vec3A;
 use obvhs::ray::RayHit;
 use obvhs::triangle::Triangle;
 use obvhs_peer::{obvhs_build, obvhs_trace};
+use raypick::check::synthetic::{RayKind, hills, rays, terrain};
 use raypick::frame::local_rays;
 use raypick::layout::{GpuRay, NO_HIT};
-use raypick::synthetic::{RayKind, hills, rays, terrain};
 use raypick::{
     BuildOptions, BuiltScene, CpuPicker, GpuContext, GpuPicker, Picker, Ray, Scene, cpu,
 };

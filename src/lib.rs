@@ -6,7 +6,7 @@
 //!
 //! ```
 //! use std::sync::Arc;
-//! use raypick::{BuildOptions, BuiltScene, CpuPicker, Picker, Ray, synthetic};
+//! use raypick::{BuildOptions, BuiltScene, CpuPicker, Picker, Ray, check::synthetic};
 //! use glam::DVec3;
 //!
 //! let scene = synthetic::example_scene();
@@ -24,11 +24,11 @@
 
 #![warn(missing_docs)]
 
+pub mod apps;
 pub mod auto;
 pub mod budget;
 pub mod bvh;
-pub mod camera;
-pub mod compare;
+pub mod check;
 pub mod cpu;
 pub mod dem;
 pub mod engine;
@@ -38,17 +38,14 @@ pub mod frame;
 pub mod gpu;
 pub mod io;
 pub mod layout;
-pub mod oracle;
+pub mod names;
 pub mod picker;
-pub mod probe;
 pub mod query;
 pub mod ray;
 pub mod ray_order;
-pub mod render;
 pub mod scene;
-pub mod select;
+#[cfg(feature = "server")]
 pub mod server;
-pub mod synthetic;
 
 pub use bvh::{BuildOptions, Builder, Bvh, SplitAxis};
 pub use error::{Error, Result};

@@ -433,7 +433,7 @@ impl Tracer for ReferencePicker {
 }
 
 /// Which path answers picks.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Backend {
     /// The CPU engine on a CPU-only or software-GPU machine and for small batches; the GPU for
     /// large batches on a real GPU (see [`crate::auto::AutoPicker`]). Says so when it falls back.
@@ -447,17 +447,12 @@ pub enum Backend {
     Reference,
 }
 
-impl Backend {
-    /// The name the command line and the server use.
-    pub fn name(self) -> &'static str {
-        match self {
-            Backend::Auto => "auto",
-            Backend::Gpu => "gpu",
-            Backend::Cpu => "cpu",
-            Backend::Reference => "reference",
-        }
-    }
-}
+crate::names::named!(Backend {
+    Auto => ("auto", "The CPU engine on a CPU-only or software-GPU machine and for small batches; the GPU for large batches on a real GPU."),
+    Gpu => ("gpu", "The WGSL kernel on a GPU (lavapipe on machines without one); fails when there is none."),
+    Cpu => ("cpu", "The CPU engine: wide SIMD traversal on all cores."),
+    Reference => ("reference", "The kernel's twin on the CPU: the reference the other paths are checked against."),
+});
 
 /// The picker for `backend`: the one factory the command line and the server share.
 pub fn make_picker(backend: Backend, built: Arc<BuiltScene>) -> Result<Box<dyn Picker + Send>> {

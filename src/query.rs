@@ -8,17 +8,7 @@ use crate::layout::{
 use crate::ray::{Hit, Ray};
 
 /// Which hits a ray asks for.
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    Default,
-    PartialEq,
-    Eq,
-    clap::ValueEnum,
-    serde::Deserialize,
-    serde::Serialize,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Mode {
     /// The nearest hit.
@@ -32,17 +22,7 @@ pub enum Mode {
 
 /// Face culling. A triangle is front-facing when its vertices run counter-clockwise as seen from
 /// the ray's origin, i.e. when the ray runs against the normal `(v1 − v0) × (v2 − v0)`.
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    Default,
-    PartialEq,
-    Eq,
-    clap::ValueEnum,
-    serde::Deserialize,
-    serde::Serialize,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Cull {
     /// Both faces are hit.
@@ -59,7 +39,7 @@ pub enum Cull {
 /// The default is the watertight test: on 1M probes aimed exactly at shared edges and vertices
 /// it let none through where Möller–Trumbore let 8–11% through, at no measured cost in speed
 /// (BENCHMARKS.md).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Intersector {
     /// Möller–Trumbore, as in the paper.
     MollerTrumbore,
@@ -191,3 +171,20 @@ impl Answers {
         out
     }
 }
+
+crate::names::named!(Mode {
+    Closest => ("closest", "The nearest hit."),
+    Any => ("any", "Any hit: traversal stops at the first one found (line of sight, shadows)."),
+    All => ("all", "Every hit along the ray, sorted by t, up to --max-hits (the nearest are kept)."),
+});
+
+crate::names::named!(Cull {
+    None => ("none", "Both faces are hit."),
+    Back => ("back", "Back faces are skipped."),
+    Front => ("front", "Front faces are skipped."),
+});
+
+crate::names::named!(Intersector {
+    MollerTrumbore => ("moller-trumbore", "Möller–Trumbore, as in the paper."),
+    Watertight => ("watertight", "Woop, Benthin and Wald's watertight test: rays never slip between triangles sharing an edge."),
+});

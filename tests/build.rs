@@ -3,7 +3,7 @@
 
 use glam::DVec3;
 use proptest::prelude::*;
-use raypick::synthetic::{hills, terrain, triangle_soup};
+use raypick::check::synthetic::{hills, terrain, triangle_soup};
 use raypick::{BuildOptions, Builder, Bvh, Mesh, Scene, SplitAxis};
 
 fn scene(mesh: Mesh) -> Scene {
@@ -102,7 +102,7 @@ proptest! {
         let hittable = (0..s.triangle_count()).filter(|&i| !s.is_degenerate(i)).count();
         prop_assert!(bvh.triangles.len() <= hittable);
         // Traversal terminates within its bound for every ray.
-        let rays = raypick::synthetic::rays(&s, raypick::synthetic::RayKind::Random, 64, 1);
+        let rays = raypick::check::synthetic::rays(&s, raypick::check::synthetic::RayKind::Random, 64, 1);
         let local = raypick::frame::local_rays(bvh.origin, &rays);
         for hit in raypick::cpu::trace_all(&bvh, &local) {
             prop_assert!(hit.prim != raypick::layout::CAP_REACHED);

@@ -8,7 +8,7 @@ use glam::dcamera::rh::proj::{directx, opengl};
 use glam::dcamera::rh::view::look_at_mat4;
 use glam::{DMat4, DVec3};
 use proptest::prelude::*;
-use raypick::camera::{Camera, CameraSpec};
+use raypick::apps::camera::{Camera, CameraSpec};
 use raypick::io::pixel_file::{load_pixel_indices_as_centers, parse_pixel_indices_as_centers};
 use raypick::{Error, Ray};
 use std::path::PathBuf;
@@ -732,7 +732,7 @@ proptest! {
 #[test]
 fn camera_file_numbers_round_trip_bit_for_bit() {
     use rand::Rng;
-    let mut rng = raypick::synthetic::rng(77);
+    let mut rng = raypick::check::synthetic::rng(77);
     for i in 0..5000 {
         let eye: [f64; 3] = std::array::from_fn(|_| {
             let magnitude = 10f64.powf(rng.random_range(-3.0..7.0));
@@ -757,10 +757,11 @@ fn camera_file_numbers_round_trip_bit_for_bit() {
             ),
         ] {
             // Eyes straight above the target are degenerate with up = z: skip those draws.
-            let Ok(camera) = raypick::camera::Camera::from_json_str("roundtrip.json", &text) else {
+            let Ok(camera) = raypick::apps::camera::Camera::from_json_str("roundtrip.json", &text)
+            else {
                 continue;
             };
-            let raypick::camera::CameraSpec::Perspective {
+            let raypick::apps::camera::CameraSpec::Perspective {
                 eye: got,
                 fov_y_deg,
                 ..

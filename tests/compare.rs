@@ -1,9 +1,9 @@
 //! The equivalence check itself can fail: real disagreements are flagged, ties are not.
 
 use glam::DVec3;
-use raypick::compare::{Verdict, classify};
-use raypick::oracle::brute_force;
-use raypick::synthetic::single_triangle;
+use raypick::check::compare::{Verdict, classify};
+use raypick::check::oracle::brute_force;
+use raypick::check::synthetic::single_triangle;
 use raypick::{Hit, Ray, Scene};
 
 fn scene() -> Scene {

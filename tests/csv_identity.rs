@@ -5,8 +5,8 @@
 
 mod common;
 
+use raypick::check::synthetic::mixed_rays;
 use raypick::io::scene_files::{SceneFile, load_scene};
-use raypick::synthetic::mixed_rays;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

@@ -5,10 +5,10 @@
 
 use glam::DVec3;
 use rand::Rng;
-use raypick::compare::Tally;
+use raypick::check::compare::Tally;
+use raypick::check::oracle::brute_force_all;
+use raypick::check::synthetic::{hills, rng, terrain};
 use raypick::dem::{ElevationGrid, cell_of_triangle, grid_to_mesh, load_elevation};
-use raypick::oracle::brute_force_all;
-use raypick::synthetic::{hills, rng, terrain};
 use raypick::{BuildOptions, BuiltScene, CpuPicker, Error, Hit, Mesh, Picker, Ray, Scene};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};

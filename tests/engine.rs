@@ -5,11 +5,11 @@
 
 mod common;
 
-use raypick::compare::differences;
+use raypick::check::compare::differences;
+use raypick::check::synthetic::{RayKind, hills, mixed_rays, rays, terrain, triangle_soup};
 use raypick::engine::wide::{EMPTY, INNER, WideNode};
 use raypick::engine::{Simd, WideBvh};
 use raypick::io::scene_files::{SceneFile, load_scene};
-use raypick::synthetic::{RayKind, hills, mixed_rays, rays, terrain, triangle_soup};
 use raypick::{
     Answers, BuildOptions, Builder, BuiltScene, CpuPicker, GpuPicker, Mode, Picker, Query, Ray,
     ReferencePicker, Scene,

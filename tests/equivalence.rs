@@ -3,8 +3,10 @@
 mod common;
 
 use common::check_scene;
+use raypick::check::synthetic::{
+    hills, single_triangle, terrain, thin_and_degenerate, triangle_soup,
+};
 use raypick::io::obj::load_obj;
-use raypick::synthetic::{hills, single_triangle, terrain, thin_and_degenerate, triangle_soup};
 use raypick::{BuildOptions, Builder, Scene, SplitAxis};
 use std::path::Path;
 

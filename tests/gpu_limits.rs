@@ -1,7 +1,7 @@
 //! GPU limits: a scene larger than the adapter's storage-binding limit is refused with an error
 //! that names the limit and the size (never truncated), and ray batches are chunked to fit.
 
-use raypick::synthetic::{RayKind, hills, rays, terrain, triangle_soup};
+use raypick::check::synthetic::{RayKind, hills, rays, terrain, triangle_soup};
 use raypick::{BuildOptions, BuiltScene, CpuPicker, Error, GpuContext, GpuPicker, Picker, Scene};
 use std::sync::Arc;
 
@@ -62,7 +62,7 @@ fn ray_batches_are_chunked_to_the_binding_limit() {
         .unwrap();
     let cpu = CpuPicker::new(scene.clone()).pick(&batch).unwrap();
     assert_eq!(gpu.len(), cpu.len());
-    let (tally, _) = raypick::compare::Tally::compare(&scene.scene, &batch, &gpu, &cpu);
+    let (tally, _) = raypick::check::compare::Tally::compare(&scene.scene, &batch, &gpu, &cpu);
     assert_eq!(tally.mismatches, 0, "{tally:?}");
     assert!(gpu.iter().filter(|h| h.hit).count() > 10_000);
 }

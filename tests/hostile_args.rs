@@ -8,8 +8,8 @@
 //! a panic or an abort. This file owns those checks; `tests/cli.rs` owns ordinary CLI behaviour.
 
 use glam::DVec3;
-use raypick::oracle::brute_force_query;
-use raypick::synthetic::example_scene;
+use raypick::check::oracle::brute_force_query;
+use raypick::check::synthetic::example_scene;
 use raypick::{
     Backend, BuildOptions, BuiltScene, CpuPicker, Mode, Picker, Query, Ray, ReferencePicker,
 };

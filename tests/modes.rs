@@ -4,8 +4,8 @@
 mod common;
 
 use common::assert_query_equivalent;
+use raypick::check::synthetic::{example_scene, hills, mixed_rays, terrain, triangle_soup};
 use raypick::io::obj::load_obj;
-use raypick::synthetic::{example_scene, hills, mixed_rays, terrain, triangle_soup};
 use raypick::{BuildOptions, BuiltScene, Cull, Intersector, Mode, Query, Scene};
 use std::path::Path;
 use std::sync::Arc;

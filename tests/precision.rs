@@ -5,10 +5,10 @@
 mod common;
 
 use glam::{DMat3, DVec3};
-use raypick::camera::Camera;
+use raypick::apps::camera::Camera;
+use raypick::check::synthetic::{hills, terrain};
 use raypick::exact::ray_triangle_f64;
 use raypick::io::scene_files::{SceneFile, load_scene};
-use raypick::synthetic::{hills, terrain};
 use raypick::{
     BuildOptions, Builder, BuiltScene, CpuPicker, GpuPicker, GridShape, Hit, Mesh, Picker, Ray,
     Scene,

@@ -5,11 +5,11 @@ mod common;
 
 use common::gpu;
 use proptest::prelude::*;
+use raypick::check::synthetic::{RayKind, hills, mixed_rays, rays, terrain};
 use raypick::frame::local_rays;
 use raypick::io::obj::load_obj;
 use raypick::layout::GpuRay;
 use raypick::ray_order::{RayOrder, trace_in_order};
-use raypick::synthetic::{RayKind, hills, mixed_rays, rays, terrain};
 use raypick::{
     Answers, BuildOptions, BuiltScene, CpuPicker, GpuPicker, Mode, Picker, Query, Ray, Scene, cpu,
 };
@@ -223,7 +223,7 @@ fn cpu_picker_answers_are_identical_with_and_without_reordering() {
             sorted.set_reorder_from(0);
             let a = given.query(&rays, &query).expect("cpu");
             let b = sorted.query(&rays, &query).expect("cpu reordered");
-            let differ = raypick::compare::differences(query.mode, &a, &b);
+            let differ = raypick::check::compare::differences(query.mode, &a, &b);
             assert!(
                 differ.is_empty(),
                 "cpu {query:?}: {} rays differ",

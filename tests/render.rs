@@ -7,9 +7,9 @@
 mod common;
 
 use glam::DVec3;
-use raypick::camera::Camera;
-use raypick::render::{Image, SKY, Shade, object_color, render};
-use raypick::synthetic::{box_mesh, example_scene, hills};
+use raypick::apps::camera::Camera;
+use raypick::apps::render::{Image, SKY, Shade, object_color, render};
+use raypick::check::synthetic::{box_mesh, example_scene, hills};
 use raypick::{BuildOptions, BuiltScene, CpuPicker, GpuPicker, Picker, Scene};
 use std::sync::{Arc, OnceLock};
 

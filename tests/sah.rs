@@ -9,11 +9,13 @@ use glam::DVec3;
 use proptest::prelude::*;
 use raypick::bvh::binned_sah;
 use raypick::bvh::sah_cost::{TRAVERSAL_COST, TRIANGLE_COST, sah_cost};
-use raypick::compare::compare_answers;
+use raypick::check::compare::compare_answers;
+use raypick::check::oracle::brute_force_query;
+use raypick::check::synthetic::{
+    RayKind, hills, mixed_rays, terrain, thin_and_degenerate, triangle_soup,
+};
 use raypick::io::obj::load_obj;
 use raypick::layout::{GpuNode, KIND_INNER};
-use raypick::oracle::brute_force_query;
-use raypick::synthetic::{RayKind, hills, mixed_rays, terrain, thin_and_degenerate, triangle_soup};
 use raypick::{
     Answers, BuildOptions, BuiltScene, Bvh, CpuPicker, Intersector, Mesh, Mode, Picker, Query, Ray,
     Scene,

@@ -4,7 +4,7 @@
 mod common;
 
 use glam::DVec3;
-use raypick::synthetic::{single_triangle, terrain};
+use raypick::check::synthetic::{single_triangle, terrain};
 use raypick::{BuildOptions, BuiltScene, CpuPicker, GpuPicker, Hit, Mesh, Picker, Ray, Scene};
 use std::sync::Arc;
 
@@ -146,9 +146,14 @@ fn large_batches_split_into_chunks_give_the_same_answers() {
         0.0,
         19.0,
         1.0,
-        raypick::synthetic::hills,
+        raypick::check::synthetic::hills,
     )]);
-    let rays = raypick::synthetic::rays(&b.scene, raypick::synthetic::RayKind::Random, 5000, 3);
+    let rays = raypick::check::synthetic::rays(
+        &b.scene,
+        raypick::check::synthetic::RayKind::Random,
+        5000,
+        3,
+    );
     let mut gpu = GpuPicker::new(common::gpu(), b.clone()).unwrap();
     let whole = gpu.pick(&rays).unwrap();
     gpu.set_chunk_rays(333);
@@ -170,14 +175,19 @@ fn a_corrupted_link_hits_the_iteration_cap_instead_of_hanging() {
         0.0,
         9.0,
         1.0,
-        raypick::synthetic::hills,
+        raypick::check::synthetic::hills,
     )]);
     let mut broken = (*b).clone();
     // Point the deepest-right inner node's right child back at the root: a cycle.
     let inner = broken.bvh.nodes.iter().rposition(|n| !n.is_leaf()).unwrap();
     broken.bvh.nodes[inner].first = 0;
     let broken = Arc::new(broken);
-    let rays = raypick::synthetic::rays(&broken.scene, raypick::synthetic::RayKind::Camera, 256, 1);
+    let rays = raypick::check::synthetic::rays(
+        &broken.scene,
+        raypick::check::synthetic::RayKind::Camera,
+        256,
+        1,
+    );
     let cpu = CpuPicker::new(broken.clone()).pick(&rays);
     let gpu = GpuPicker::new(common::gpu(), broken.clone())
         .unwrap()
@@ -198,7 +208,7 @@ fn axis_parallel_rays_on_the_scene_border_hit_on_both_backends() {
         10.0,
         26.0,
         2.0,
-        raypick::synthetic::hills,
+        raypick::check::synthetic::hills,
     )]);
     let (lo, hi) = b.scene.bounds().unwrap();
     let mut rays = Vec::new();

@@ -4,9 +4,9 @@
 //! requests are batched into shared query calls and still get their own answers.
 
 use glam::DVec3;
-use raypick::camera::Camera;
+use raypick::apps::camera::Camera;
+use raypick::check::synthetic::{RayKind, example_scene, mixed_rays, rays as synthetic_rays};
 use raypick::server::{Server, ServerConfig};
-use raypick::synthetic::{RayKind, example_scene, mixed_rays, rays as synthetic_rays};
 use raypick::{
     Answers, Backend, BuildOptions, BuiltScene, Cull, GpuContext, GpuPicker, Hit, Intersector,
     Mode, Picker, Query, Ray,

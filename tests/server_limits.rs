@@ -7,8 +7,8 @@
 //! a request over the memory budget gets 503 while the next normal request answers 200. Every
 //! loop is bounded; the whole file runs in a few seconds.
 
+use raypick::check::synthetic::example_scene;
 use raypick::server::{Server, ServerConfig};
-use raypick::synthetic::example_scene;
 use raypick::{Backend, BuildOptions, BuiltScene};
 use std::io::{ErrorKind, Read, Write};
 use std::net::{SocketAddr, TcpStream};

@@ -6,10 +6,10 @@ mod common;
 
 use common::assert_equivalent;
 use raypick::bvh::terrain_blocks::BLOCK_CELLS;
-use raypick::compare::{Verdict, classify};
+use raypick::check::compare::{Verdict, classify};
+use raypick::check::synthetic::{RayKind, hills, mixed_rays, terrain};
 use raypick::io::scene_files::{SceneFile, load_scene};
 use raypick::layout::KIND_INNER;
-use raypick::synthetic::{RayKind, hills, mixed_rays, terrain};
 use raypick::{BuildOptions, Builder, BuiltScene, Bvh, CpuPicker, GridShape, Picker, Scene};
 use std::path::Path;
 use std::sync::Arc;
@@ -136,12 +136,12 @@ fn auto_uses_the_grid_builder_for_one_grid_only() {
     let grid = Bvh::build(&grid_scene(70, 70, 5.0, false), &BuildOptions::default()).unwrap();
     assert_eq!(grid.blocks.len(), 4);
     let example = Bvh::build(
-        &raypick::synthetic::example_scene(),
+        &raypick::check::synthetic::example_scene(),
         &BuildOptions::default(),
     );
     assert!(example.unwrap().blocks.is_empty());
     let e = Bvh::build(
-        &raypick::synthetic::example_scene(),
+        &raypick::check::synthetic::example_scene(),
         &with(Builder::Grid, 4),
     )
     .unwrap_err();

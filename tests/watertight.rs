@@ -4,8 +4,8 @@
 mod common;
 
 use glam::DVec3;
-use raypick::probe::{edge_probes, leaks};
-use raypick::synthetic::{hills, icosphere, terrain};
+use raypick::check::probe::{edge_probes, leaks};
+use raypick::check::synthetic::{hills, icosphere, terrain};
 use raypick::{BuildOptions, BuiltScene, CpuPicker, GpuPicker, Intersector, Picker, Query, Scene};
 use std::sync::Arc;
 

@@ -5,10 +5,10 @@
 mod common;
 
 use common::gpu;
-use raypick::compare::compare_answers;
+use raypick::check::compare::compare_answers;
+use raypick::check::synthetic::{hills, mixed_rays, terrain};
 use raypick::gpu::picker::{SWEPT_WORKGROUP_SIZES, WORKGROUP_SIZE};
 use raypick::io::obj::load_obj;
-use raypick::synthetic::{hills, mixed_rays, terrain};
 use raypick::{BuildOptions, BuiltScene, CpuPicker, Error, GpuPicker, Picker, Query, Scene};
 use std::path::Path;
 use std::sync::Arc;

@@ -3,8 +3,8 @@
 //! soup of 200,000 random triangles and a 2M-triangle terrain. The three terrains sample the
 //! same `synthetic::hills` 1 m apart, so throughput can be plotted against scene size alone.
 
+use raypick::check::synthetic::{hills, terrain, triangle_soup};
 use raypick::io::scene_files::{SceneFile, load_scene};
-use raypick::synthetic::{hills, terrain, triangle_soup};
 use raypick::{GridShape, Scene};
 use std::path::{Path, PathBuf};
 

@@ -2,7 +2,7 @@
 
 /// Which builder makes the tree. Every builder produces the same flattened layout, so both
 /// traversal paths and every query work on any of them.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Builder {
     /// The grid builder for a scene that is one height grid, median cut for anything else.
     #[default]
@@ -11,7 +11,6 @@ pub enum Builder {
     MedianCut,
     /// Binned surface-area heuristic over triangles ([`super::binned_sah`]): slower builds,
     /// fewer box and triangle tests per ray.
-    #[value(name = "sah")]
     BinnedSah,
     /// Median cut over the cells of a height grid, cut first into rectangular blocks with their
     /// own box and f64 origin ([`super::terrain_blocks`]); for scenes that are one height grid.
@@ -19,7 +18,7 @@ pub enum Builder {
 }
 
 /// How the builder picks the axis to split a node along.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum SplitAxis {
     /// x, then y, then z, by depth, as in the paper.
     Cycle,
@@ -50,3 +49,15 @@ impl Default for BuildOptions {
         }
     }
 }
+
+crate::names::named!(Builder {
+    Auto => ("auto", "The grid builder for a scene that is one height grid, median cut for anything else."),
+    MedianCut => ("median-cut", "The paper's median cut over individual triangles."),
+    BinnedSah => ("sah", "Binned surface-area heuristic over triangles: slower builds, fewer box and triangle tests per ray."),
+    Grid => ("grid", "Median cut over the cells of a height grid, cut first into rectangular blocks; for scenes that are one height grid."),
+});
+
+crate::names::named!(SplitAxis {
+    Cycle => ("cycle", "x, then y, then z, by depth, as in the paper."),
+    Longest => ("longest", "The longest axis of the node's box."),
+});

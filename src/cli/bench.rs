@@ -4,7 +4,7 @@
 use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
 use raypick::auto::AutoPicker;
-use raypick::synthetic::{RayKind, rays};
+use raypick::check::synthetic::{RayKind, rays};
 use raypick::{BuiltScene, CpuPicker, Error, GpuContext, GpuPicker, Picker, Ray};
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -42,7 +42,7 @@ pub struct BenchArgs {
     #[arg(long, requires = "ray_file", value_parser = clap::value_parser!(u32).range(1..=1024))]
     pub threads: Option<u32>,
     /// With `--ray-file`: the backend to time.
-    #[arg(long, value_enum, default_value_t = raypick::Backend::Auto)]
+    #[arg(long, value_parser = crate::cli::choice::choice::<raypick::Backend>(), default_value_t = raypick::Backend::Auto)]
     pub backend: raypick::Backend,
 }
 

@@ -54,7 +54,7 @@ pub struct SightArgs {
     #[arg(long, value_parser = parse_mask, default_value = "0xffffffff")]
     pub ray_mask: u32,
     /// Which path answers.
-    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    #[arg(long, value_parser = crate::cli::choice::choice::<Backend>(), default_value_t = Backend::Auto)]
     pub backend: Backend,
     /// Output file (default: standard output).
     #[arg(long)]

@@ -1,6 +1,7 @@
 //! The command-line front end: one file per command, shared scene and query options.
 
 pub mod bench;
+pub mod choice;
 pub mod los;
 pub mod pick;
 pub mod probe;

@@ -4,11 +4,11 @@ use super::query_args::QueryArgs;
 use super::scene_args::SceneArgs;
 use super::{make_picker, progress, show_notes, stream_chunk_rays, write_output};
 use clap::{ArgMatches, Args};
-use raypick::camera::Camera;
+use raypick::apps::camera::Camera;
+use raypick::check::synthetic::{RayKind, rays as synthetic_rays};
 use raypick::io::output::{AnswerWriter, Format, OutputOptions};
 use raypick::io::pixel_file::load_pixel_indices_as_centers;
 use raypick::io::ray_file::{RayReader, count_rays};
-use raypick::synthetic::{RayKind, rays as synthetic_rays};
 use raypick::{Answers, Backend, Error, Ray};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -32,10 +32,10 @@ pub struct PickArgs {
     #[command(flatten)]
     pub query: QueryArgs,
     /// Which path answers.
-    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    #[arg(long, value_parser = crate::cli::choice::choice::<Backend>(), default_value_t = Backend::Auto)]
     pub backend: Backend,
     /// Output format.
-    #[arg(long, value_enum, default_value_t = Format::Csv)]
+    #[arg(long, value_parser = crate::cli::choice::choice::<Format>(), default_value_t = Format::Csv)]
     pub format: Format,
     /// Output file (default: standard output).
     #[arg(long)]

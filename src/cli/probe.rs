@@ -3,7 +3,7 @@
 
 use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
-use raypick::probe::{edge_probes, leaks};
+use raypick::check::probe::{edge_probes, leaks};
 use raypick::{CpuPicker, Error, GpuContext, GpuPicker, Intersector, Picker, Query};
 use std::process::ExitCode;
 use std::sync::Arc;

@@ -8,17 +8,17 @@ use raypick::{Cull, Intersector, Mode, Query};
 #[derive(Args, Debug)]
 pub struct QueryArgs {
     /// closest: the nearest hit; any: stop at the first hit found; all: every hit, sorted by t.
-    #[arg(long, value_enum, default_value_t = Mode::Closest)]
+    #[arg(long, value_parser = crate::cli::choice::choice::<Mode>(), default_value_t = Mode::Closest)]
     pub mode: Mode,
     /// In `--mode all`, the most hits kept per ray (the nearest); more are flagged as overflow.
     #[arg(long, default_value_t = 16)]
     pub max_hits: u32,
     /// Skip back faces or front faces (front = counter-clockwise as seen from the ray).
-    #[arg(long, value_enum, default_value_t = Cull::None)]
+    #[arg(long, value_parser = crate::cli::choice::choice::<Cull>(), default_value_t = Cull::None)]
     pub cull: Cull,
     /// The ray/triangle test (watertight: rays never slip between triangles; moller-trumbore: the
     /// paper's test).
-    #[arg(long, value_enum, default_value_t = Intersector::Watertight)]
+    #[arg(long, value_parser = crate::cli::choice::choice::<Intersector>(), default_value_t = Intersector::Watertight)]
     pub intersector: Intersector,
     /// Layer mask of every ray (decimal, 0x.. or 0b..): only objects sharing a bit are hit.
     #[arg(long, value_parser = parse_mask, default_value = "0xffffffff")]

@@ -5,8 +5,8 @@ use super::make_picker;
 use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
 use glam::DVec3;
-use raypick::camera::Camera;
-use raypick::render::{Shade, check_size, render};
+use raypick::apps::camera::Camera;
+use raypick::apps::render::{Shade, check_size, render};
 use raypick::{Backend, Error};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -24,7 +24,7 @@ pub struct RenderArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// How pixels are coloured (misses show the sky).
-    #[arg(long, value_enum, default_value_t = Shade::Normal)]
+    #[arg(long, value_parser = crate::cli::choice::choice::<Shade>(), default_value_t = Shade::Normal)]
     pub shade: Shade,
     /// Image width in pixels, without --camera [default: 800].
     #[arg(long, conflicts_with = "camera")]
@@ -33,7 +33,7 @@ pub struct RenderArgs {
     #[arg(long, conflicts_with = "camera")]
     pub height: Option<u32>,
     /// Which path answers.
-    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    #[arg(long, value_parser = crate::cli::choice::choice::<Backend>(), default_value_t = Backend::Auto)]
     pub backend: Backend,
 }
 

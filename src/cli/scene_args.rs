@@ -2,8 +2,8 @@
 //! applies to the `--scene` just before it), `--scenes DESCRIPTION.json`, and the builder settings.
 
 use clap::{ArgMatches, Args};
+use raypick::check::synthetic::example_scene;
 use raypick::io::scene_files::{SceneFile, load_description, load_scene};
-use raypick::synthetic::example_scene;
 use raypick::{BuildOptions, Builder, BuiltScene, Error, SplitAxis};
 use std::path::PathBuf;
 
@@ -23,10 +23,10 @@ pub struct SceneArgs {
     pub scenes: Option<PathBuf>,
     /// Tree builder: `grid` cuts a height grid into blocks and builds over them (the default for
     /// a scene that is one grid); `median-cut` splits triangles (the default otherwise).
-    #[arg(long, value_enum, default_value_t = BuildOptions::default().builder)]
+    #[arg(long, value_parser = crate::cli::choice::choice::<Builder>(), default_value_t = BuildOptions::default().builder)]
     pub builder: Builder,
     /// Split-axis policy of the median-cut builder.
-    #[arg(long, value_enum, default_value_t = BuildOptions::default().split_axis)]
+    #[arg(long, value_parser = crate::cli::choice::choice::<SplitAxis>(), default_value_t = BuildOptions::default().split_axis)]
     pub split: SplitAxis,
     /// Most triangles per leaf (1 ..= 15).
     #[arg(long, default_value_t = BuildOptions::default().leaf_size)]

@@ -4,8 +4,8 @@
 use super::scene_args::{SceneArgs, parse_mask};
 use super::{make_picker, write_output};
 use clap::{ArgMatches, Args};
-use raypick::camera::Camera;
-use raypick::select::{NO_OBJECT, Rect, check_id_buffer_size, marquee, object_id_buffer};
+use raypick::apps::camera::Camera;
+use raypick::apps::select::{NO_OBJECT, Rect, check_id_buffer_size, marquee, object_id_buffer};
 use raypick::{Backend, Error};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -45,7 +45,7 @@ pub struct ViewArgs {
     #[arg(long, value_parser = parse_mask, default_value = "0xffffffff")]
     pub ray_mask: u32,
     /// Which path answers.
-    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    #[arg(long, value_parser = crate::cli::choice::choice::<Backend>(), default_value_t = Backend::Auto)]
     pub backend: Backend,
     /// Output file (default: standard output). For idbuffer, a `.png` file gets a 16-bit
     /// grayscale image of object id + 1 (0 = nothing); anything else gets CSV rows of ids

@@ -4,8 +4,8 @@
 
 use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
-use raypick::compare::Tally;
-use raypick::synthetic::mixed_rays;
+use raypick::check::compare::Tally;
+use raypick::check::synthetic::mixed_rays;
 use raypick::{CpuPicker, Error, GpuContext, GpuPicker, Picker, Query, Ray};
 use std::process::ExitCode;
 use std::sync::Arc;

@@ -7,9 +7,9 @@ use super::query_args::QueryArgs;
 use super::read_rays;
 use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
-use raypick::compare::{Tally, compare_answers, differences};
-use raypick::oracle::brute_force_query;
-use raypick::synthetic::mixed_rays;
+use raypick::check::compare::{Tally, compare_answers, differences};
+use raypick::check::oracle::brute_force_query;
+use raypick::check::synthetic::mixed_rays;
 use raypick::{
     Answers, CpuPicker, Error, GpuContext, GpuPicker, Mode, Picker, Query, Ray, ReferencePicker,
 };

@@ -1,5 +1,5 @@
 //! Turning an [`ElevationGrid`] into a pickable [`Mesh`], and mapping hit triangle ids back to
-//! grid cells. The numbering is the one [`crate::synthetic::terrain`] uses.
+//! grid cells. The numbering is the one [`crate::check::synthetic::terrain`] uses.
 //!
 //! Convention:
 //! - vertex `r·ncols + c` is sample (r, c), row-major, row 0 north, at the sample's exact world

@@ -13,7 +13,7 @@ use crate::ray::Hit;
 use std::io::Write;
 
 /// Output formats.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Format {
     /// Comma-separated values with a header line.
     #[default]
@@ -229,3 +229,8 @@ impl std::fmt::Display for CsvNumber {
         }
     }
 }
+
+crate::names::named!(Format {
+    Csv => ("csv", "Comma-separated values with a header line."),
+    Json => ("json", "A JSON array with one object per ray."),
+});

@@ -6,7 +6,7 @@ use crate::error::{Error, Result};
 use std::path::Path;
 
 /// Parses the text of a pixel list file of pixel *indices*, returning the pixel-space coordinates
-/// of their centres, ready for [`crate::camera::Camera::pixel_ray`]; `path` is only used in error messages.
+/// of their centres, ready for [`crate::apps::camera::Camera::pixel_ray`]; `path` is only used in error messages.
 ///
 /// Each line holds `x y`: column `x` from the left and row `y` from the top. Integers name whole
 /// pixels, and each value comes back with 0.5 added: the line `3 4` means pixel (3, 4) and gives

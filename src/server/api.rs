@@ -5,11 +5,12 @@
 use super::ServerConfig;
 use super::batcher::{Job, Stats, Worker};
 use super::page;
-use crate::camera::{Camera, CameraSpec};
+use crate::apps::camera::{Camera, CameraSpec};
+use crate::apps::render::Shade;
+use crate::names::Named;
 use crate::picker::{Backend, BuiltScene};
 use crate::query::{Answers, Cull, Intersector, Mode, Query};
 use crate::ray::{Hit, Ray};
-use crate::render::Shade;
 use axum::Router;
 use axum::body::{Body, Bytes};
 use axum::extract::rejection::QueryRejection;
@@ -17,7 +18,6 @@ use axum::extract::{Query as UrlQuery, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
-use clap::ValueEnum;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
@@ -309,7 +309,7 @@ impl PickRequest {
     fn into_rays(self, config: &ServerConfig) -> Result<(Vec<Ray>, Query), ApiError> {
         let intersector = match self.intersector.as_deref() {
             None => Intersector::default(),
-            Some(name) => Intersector::from_str(&name.replace('_', "-"), true).map_err(|_| {
+            Some(name) => Intersector::from_name(name).ok_or_else(|| {
                 ApiError::bad_request(format!(
                     "unknown intersector '{name}'; expected 'moller-trumbore' or 'watertight'"
                 ))
@@ -708,7 +708,7 @@ async fn render_view(
     })?;
     let shade = match params.shade.as_deref() {
         None => Shade::default(),
-        Some(name) => Shade::from_str(name, true).map_err(|_| {
+        Some(name) => Shade::from_name(name).ok_or_else(|| {
             ApiError::bad_request(format!(
                 "unknown shade '{name}'; expected normal, depth or object"
             ))

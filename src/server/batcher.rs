@@ -4,12 +4,12 @@
 //! query settings, and the answers are split back to each job. The worker also renders views,
 //! since only it may touch the picker, and keeps the [`Stats`] counters.
 
-use crate::camera::Camera;
+use crate::apps::camera::Camera;
+use crate::apps::render::{Image, Shade, render};
 use crate::error::{Error, Result};
 use crate::picker::{Backend, BuiltScene, Picker};
 use crate::query::{Answers, Mode, Query};
 use crate::ray::Ray;
-use crate::render::{Image, Shade, render};
 use serde::Serialize;
 use std::ops::Range;
 use std::panic::{AssertUnwindSafe, catch_unwind};
@@ -346,7 +346,7 @@ pub(crate) fn slice_answers(answers: &Answers, range: Range<usize>) -> Answers {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synthetic::{RayKind, example_scene, rays};
+    use crate::check::synthetic::{RayKind, example_scene, rays};
     use crate::{BuildOptions, Query};
 
     #[test]

@@ -55,7 +55,7 @@
 //! {"camera": {"perspective": {...}}, "pixels": [[x, y], ...], "mode": "closest"}
 //! ```
 //!
-//! `camera` is a camera file's JSON ([`crate::camera`]). Pixel coordinates are pixel
+//! `camera` is a camera file's JSON ([`crate::apps::camera`]). Pixel coordinates are pixel
 //! *indices*, as in pixel files ([`crate::io::pixel_file::parse_pixel_indices_as_centers`]): `x` is the
 //! column from the left, `y` the row from the top, integers name whole pixels and are picked
 //! through their centres (`[3, 4]` is the ray through `(3.5, 4.5)`), fractional values are
@@ -88,8 +88,8 @@
 //!
 //! ## `GET /render?camera=<url-encoded camera JSON>&shade=normal`
 //!
-//! A PNG of the view ([`crate::render`]); `shade` is `normal`, `depth` or `object`. Without
-//! `camera`, the framing camera ([`crate::camera::Camera::frame_bounds`]) at `width` x `height`
+//! A PNG of the view ([`crate::apps::render`]); `shade` is `normal`, `depth` or `object`. Without
+//! `camera`, the framing camera ([`crate::apps::camera::Camera::frame_bounds`]) at `width` x `height`
 //! (default [`ServerConfig::view_width`] x [`ServerConfig::view_height`]).
 //!
 //! ## `GET /stats`

@@ -2,10 +2,10 @@
 //! every backend and the oracle.
 #![allow(dead_code)]
 
-use raypick::compare::{compare_answers, differences};
+use raypick::check::compare::{compare_answers, differences};
+use raypick::check::oracle::brute_force_query;
+use raypick::check::synthetic::{RayKind, mixed_rays};
 use raypick::engine::Simd;
-use raypick::oracle::brute_force_query;
-use raypick::synthetic::{RayKind, mixed_rays};
 use raypick::{
     Answers, BuildOptions, BuiltScene, CpuPicker, GpuContext, GpuPicker, Hit, Intersector, Mode,
     Picker, Query, Ray, ReferencePicker, Scene,

@@ -1,7 +1,7 @@
 //! Screen-space selection: the objects visible inside a marquee rectangle, and an object-id
 //! buffer for a whole view, both by casting one ray per pixel (or per `step` pixels).
 
-use crate::camera::Camera;
+use crate::apps::camera::Camera;
 use crate::error::{Error, Result};
 use crate::picker::Picker;
 use crate::query::Query;

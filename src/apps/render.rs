@@ -9,9 +9,9 @@
 //!
 //! ```
 //! use std::sync::Arc;
-//! use raypick::camera::Camera;
-//! use raypick::render::{Shade, render};
-//! use raypick::{BuildOptions, BuiltScene, CpuPicker, synthetic};
+//! use raypick::apps::camera::Camera;
+//! use raypick::apps::render::{Shade, render};
+//! use raypick::{BuildOptions, BuiltScene, CpuPicker, check::synthetic};
 //!
 //! let built = BuiltScene::new(synthetic::example_scene(), &BuildOptions::default()).unwrap();
 //! let (min, max) = built.scene.bounds().unwrap();
@@ -27,7 +27,7 @@ use std::path::Path;
 
 use glam::DVec3;
 
-use crate::camera::Camera;
+use crate::apps::camera::Camera;
 use crate::error::{Error, Result};
 use crate::picker::Picker;
 use crate::query::Query;
@@ -40,17 +40,7 @@ use crate::ray::{Hit, Ray};
 /// hillshades have it ([`sun_direction`]); pixels are `tint * (ambient + diffuse)` of the
 /// geometric normal turned to face the viewer. [`Shade::Object`] colours are [`object_color`].
 /// Misses are [`SKY`] in every mode.
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    Default,
-    PartialEq,
-    Eq,
-    clap::ValueEnum,
-    serde::Deserialize,
-    serde::Serialize,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Shade {
     /// Hillshade: Lambert lighting with the sun in the north-west, 45° up; height-grid terrain
@@ -368,3 +358,9 @@ mod tests {
         assert!(matches!(image.to_png(), Err(Error::Invalid(_))));
     }
 }
+
+crate::names::named!(Shade {
+    Normal => ("normal", "Hillshade: Lambert lighting, sun in the north-west 45° up; height grids tinted by height."),
+    Depth => ("depth", "Grayscale by hit distance: the nearest hit white, the farthest dark gray."),
+    Object => ("object", "A flat, distinct colour per object id."),
+});

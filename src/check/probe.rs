@@ -4,9 +4,9 @@
 //! Such a ray must hit something no farther than its target (t ≤ 1); a miss, or a first hit
 //! beyond the target, means it slipped through a crack: a leak.
 
+use crate::check::synthetic::rng;
 use crate::ray::{Hit, Ray};
 use crate::scene::Scene;
-use crate::synthetic::rng;
 use glam::DVec3;
 use rand::Rng;
 use std::collections::HashMap;
