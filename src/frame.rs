@@ -7,7 +7,7 @@ use crate::error::{Error, Result};
 use crate::exact::ray_triangle_f64;
 use crate::layout::{CAP_REACHED, GpuHit, GpuRay, NO_HIT};
 use crate::query::Query;
-use crate::ray::{Hit, Ray, direction_length};
+use crate::ray::{Hit, Ray};
 use crate::scene::Scene;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -34,21 +34,35 @@ pub const NEVER_TRACED: GpuRay = GpuRay {
 /// The local range is capped so that every hit's world `t` stays finite: a hit farther than
 /// `f64::MAX` in the ray's own units is no hit.
 pub fn local_ray(scene_origin: DVec3, ray: &Ray, query: &Query) -> Option<(GpuRay, f64)> {
-    if !ray.is_valid() {
+    // `Ray::is_valid`, with `direction_length` taken apart so that the scaled direction and its
+    // length are computed once (the same operations in the same order, so the same bits):
+    // scaled first so that huge or tiny directions neither overflow nor underflow.
+    if !(ray.origin.is_finite()
+        && ray.dir.is_finite()
+        && !ray.tmin.is_nan()
+        && !ray.tmax.is_nan()
+        && ray.tmin <= ray.tmax)
+    {
         return None;
     }
-    // Scaled first (in `direction_length`) so that huge or tiny directions neither overflow nor
-    // underflow.
-    let dir_length = direction_length(ray.dir)?;
     let scale = ray.dir.abs().max_element();
+    if scale == 0.0 {
+        return None;
+    }
     let scaled = ray.dir / scale;
-    let unit = (scaled / scaled.length()).as_vec3();
+    let scaled_length = scaled.length();
+    let dir_length = scaled_length * scale;
+    if !(dir_length.is_finite() && (dir_length >= 1.0 || (1.0 / dir_length).is_finite())) {
+        return None;
+    }
+    let unit = (scaled / scaled_length).as_vec3();
     let origin = (ray.origin - scene_origin).as_vec3();
     let to_f32 = |t: f64| (t * dir_length).clamp(f32::MIN as f64, f32::MAX as f64) as f32;
     let finite = |t: f64| t.clamp(-f64::MAX, f64::MAX);
     let mut tmax = to_f32(finite(ray.tmax));
-    // Rounding to f32 may carry the cap just past the largest finite world t.
-    while tmax > 0.0 && !(f64::from(tmax) / dir_length).is_finite() {
+    // Rounding to f32 may carry the cap just past the largest finite world t (only when the
+    // direction is shorter than 1: a finite f32 divided by 1 or more stays finite).
+    while dir_length < 1.0 && tmax > 0.0 && !(f64::from(tmax) / dir_length).is_finite() {
         tmax = tmax.next_down();
     }
     // `tmin <= tmax` in the world (checked above); the caps keep it so.

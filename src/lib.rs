@@ -36,6 +36,7 @@ pub mod error;
 pub mod exact;
 pub mod frame;
 pub mod gpu;
+pub mod huge_pages;
 pub mod io;
 pub mod layout;
 pub mod names;

@@ -7,7 +7,7 @@ use crate::bvh::{BuildOptions, Bvh};
 use crate::cpu::{TraceSettings, trace_batch};
 use crate::engine::{Simd, WideBvh};
 use crate::error::Result;
-use crate::frame::{check_found, resolve_with, scene_rays};
+use crate::frame::{NEVER_TRACED, check_found, local_ray, resolve_with, scene_rays};
 use crate::layout::{GpuHit, GpuHitEntry, GpuRay, NO_HIT};
 use crate::query::{Answers, Intersector, Mode, Query};
 use crate::ray::{Hit, Ray};
@@ -258,9 +258,21 @@ pub trait Tracer {
     ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)>;
     /// The batch size from which [`pick_through`] traces rays in [`RayOrder`].
     fn reorder_from(&self) -> usize;
+    /// This tracer as a [`ChunkTrace`] for `settings`, or `None` when it traces whole batches
+    /// only (the GPU). With one, [`pick_through`] takes each chunk of closest- or any-hit rays
+    /// into the scene frame, traces it and refines its hits in one pass on one thread, with no
+    /// batch-sized buffers between the steps.
+    fn chunk_trace<'a>(&'a self, settings: &TraceSettings<'a>) -> Result<Option<ChunkTrace<'a>>> {
+        let _ = settings;
+        Ok(None)
+    }
     /// Which path this is, for messages ([`Picker::describe`]).
     fn path_name(&self) -> String;
 }
+
+/// Traces one chunk of closest- or any-hit scene-frame rays into `hits` (one per ray), on the
+/// calling thread: how a CPU tracer runs inside [`pick_through`]'s own parallel loop.
+pub type ChunkTrace<'a> = Box<dyn Fn(&[GpuRay], &mut [GpuHit]) + Sync + 'a>;
 
 /// Every tracer is a picker through the one pipeline.
 impl<T: Tracer> Picker for T {
@@ -284,8 +296,13 @@ pub fn pick_through<T: Tracer + ?Sized>(
 ) -> Result<Answers> {
     query.validate()?;
     let built = tracer.built().clone();
-    let (local, dir_lengths) = scene_rays(built.bvh.origin, rays, query);
     let settings = built.settings(query);
+    if query.mode != Mode::All
+        && let Some(chunk) = tracer.chunk_trace(&settings)?
+    {
+        return pick_fused(&built, &chunk, reorder_from, rays, query);
+    }
+    let (local, dir_lengths) = scene_rays(built.bvh.origin, rays, query);
     let reorder = local.len() >= reorder_from;
     if query.mode == Mode::All {
         let (found, lists) = trace_in_order(&local, settings.max_hits, reorder, |rays| {
@@ -303,6 +320,84 @@ pub fn pick_through<T: Tracer + ?Sized>(
             built.answers_in(Some(&order), rays, &dir_lengths, query, &found, &lists)
         }
     }
+}
+
+/// Rays per step of [`pick_fused`]: small enough that a step's scene-frame rays and raw
+/// results stay in the core's cache (and on its stack), large enough to amortise a task.
+const FUSED_CHUNK: usize = 256;
+
+/// [`pick_through`] for a [`ChunkTrace`] in closest or any mode: each parallel step takes
+/// [`FUSED_CHUNK`] rays into the scene frame, traces them and refines their hits straight into
+/// their answer slots. The answers are those of the batch path, bit for bit: the same
+/// conversion, trace, check and refinement per ray, only without the batch-sized buffers
+/// between them. Batches from `reorder_from` rays are traced in [`RayOrder`] (the sort needs
+/// their scene-frame rays, so those are made first).
+fn pick_fused(
+    built: &BuiltScene,
+    chunk: &ChunkTrace<'_>,
+    reorder_from: usize,
+    rays: &[Ray],
+    query: &Query,
+) -> Result<Answers> {
+    let n = rays.len();
+    let origin = built.bvh.origin;
+    let ordered = (n >= reorder_from)
+        .then(|| {
+            let (local, lengths) = scene_rays(origin, rays, query);
+            RayOrder::new(&local).map(|order| (local, lengths, order))
+        })
+        .flatten();
+    let mut nearest: Vec<Hit> = crate::huge_pages::vec_with_capacity(n);
+    let out = SlotWriter(nearest.as_mut_ptr());
+    (0..n.div_ceil(FUSED_CHUNK))
+        .into_par_iter()
+        .try_for_each(|c| -> Result<()> {
+            let span = c * FUSED_CHUNK..((c + 1) * FUSED_CHUNK).min(n);
+            let m = span.len();
+            let mut local = [NEVER_TRACED; FUSED_CHUNK];
+            let mut lengths = [0.0f64; FUSED_CHUNK];
+            let mut input = [0usize; FUSED_CHUNK];
+            for (k, j) in span.enumerate() {
+                let i = match &ordered {
+                    Some((all, all_lengths, order)) => {
+                        let i = order.order()[j] as usize;
+                        (local[k], lengths[k]) = (all[i], all_lengths[i]);
+                        i
+                    }
+                    None => {
+                        (local[k], lengths[k]) =
+                            local_ray(origin, &rays[j], query).unwrap_or((NEVER_TRACED, f64::NAN));
+                        j
+                    }
+                };
+                input[k] = i;
+            }
+            let mut found = [GpuHit::default(); FUSED_CHUNK];
+            chunk(&local[..m], &mut found[..m]);
+            if found[..m]
+                .iter()
+                .any(|f| f.prim != NO_HIT && f.prim as usize >= built.bvh.triangle_ids.len())
+            {
+                // Names the corruption as the batch path does.
+                check_found(&built.bvh, &found[..m], |f| f.prim)?;
+            }
+            for k in 0..m {
+                let i = input[k];
+                let hit = resolve_with(&built.scene, &built.bvh, &rays[i], lengths[k], &found[k]);
+                // SAFETY: `input` holds each step's slots of a permutation of 0..n (the
+                // identity, or `RayOrder`), and steps cover disjoint spans of it, so each slot
+                // of the reserved capacity is written exactly once, by one task.
+                unsafe { out.write(i, hit) };
+            }
+            Ok(())
+        })?;
+    // SAFETY: every slot below n was written above (on an error we return before this, and Hit
+    // is Copy, so the vector is dropped empty).
+    unsafe { nearest.set_len(n) };
+    Ok(Answers {
+        nearest,
+        ..Answers::default()
+    })
 }
 
 /// The CPU engine (`--backend cpu`): the wide SIMD walk of [`crate::engine`], on all cores.
@@ -365,6 +460,20 @@ impl Tracer for CpuPicker {
         ))
     }
 
+    fn chunk_trace<'a>(&'a self, settings: &TraceSettings<'a>) -> Result<Option<ChunkTrace<'a>>> {
+        let built = &self.built;
+        let engine = crate::engine::Engine::new(
+            built.wide()?,
+            &built.bvh,
+            settings,
+            self.simd,
+            self.packets,
+        );
+        Ok(Some(Box::new(move |rays, hits| {
+            engine.trace_chunk(rays, hits, &mut [])
+        })))
+    }
+
     fn reorder_from(&self) -> usize {
         self.reorder_from
     }
@@ -418,6 +527,15 @@ impl Tracer for ReferencePicker {
         settings: &TraceSettings<'_>,
     ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
         Ok(trace_batch(&self.built.bvh, rays, settings))
+    }
+
+    fn chunk_trace<'a>(&'a self, settings: &TraceSettings<'a>) -> Result<Option<ChunkTrace<'a>>> {
+        let buffers = crate::cpu::buffers(&self.built.bvh, settings);
+        Ok(Some(Box::new(move |rays, hits| {
+            for (ray, hit) in rays.iter().zip(hits) {
+                *hit = crate::cpu::traverse::trace(buffers, ray, &mut []);
+            }
+        })))
     }
 
     fn reorder_from(&self) -> usize {

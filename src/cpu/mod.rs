@@ -25,14 +25,9 @@ pub fn trace_all(bvh: &Bvh, rays: &[GpuRay]) -> Vec<GpuHit> {
     trace_batch(bvh, rays, &TraceSettings::default()).0
 }
 
-/// Traces each ray as its flags say, in parallel. Returns the per-ray records and the all-hits
-/// lists (`max_hits` entries per ray).
-pub fn trace_batch(
-    bvh: &Bvh,
-    rays: &[GpuRay],
-    settings: &TraceSettings<'_>,
-) -> (Vec<GpuHit>, Vec<GpuHitEntry>) {
-    let buffers = traverse::Buffers {
+/// The kernel's buffers for `bvh` and one batch's `settings`.
+pub fn buffers<'a>(bvh: &'a Bvh, settings: &TraceSettings<'a>) -> traverse::Buffers<'a> {
+    traverse::Buffers {
         nodes: bvh.nodes.as_slice(),
         triangles: bvh.triangles.as_slice(),
         triangle_ids: bvh.triangle_ids.as_slice(),
@@ -40,7 +35,17 @@ pub fn trace_batch(
         iteration_cap: bvh.iteration_cap(),
         max_hits: settings.max_hits,
         watertight: settings.watertight,
-    };
+    }
+}
+
+/// Traces each ray as its flags say, in parallel. Returns the per-ray records and the all-hits
+/// lists (`max_hits` entries per ray).
+pub fn trace_batch(
+    bvh: &Bvh,
+    rays: &[GpuRay],
+    settings: &TraceSettings<'_>,
+) -> (Vec<GpuHit>, Vec<GpuHitEntry>) {
+    let buffers = buffers(bvh, settings);
     let k = settings.max_hits as usize;
     let mut lists = vec![GpuHitEntry::default(); rays.len() * k];
     let hits = if k == 0 {

@@ -77,7 +77,65 @@ impl Simd {
 }
 
 /// Rays handed to one rayon task at a time.
-const RAYS_PER_TASK: usize = 512;
+pub const RAYS_PER_TASK: usize = 512;
+
+/// The engine bound to one tree and one batch's settings: traces chunks of rays from any thread
+/// ([`Engine::trace_chunk`]); [`trace_batch`] and the pick pipeline's fused loop
+/// (`picker::pick_through`) both run on it.
+pub struct Engine<'a> {
+    scene: walk::Scene<'a>,
+    simd: Simd,
+    stack: usize,
+}
+
+impl<'a> Engine<'a> {
+    /// The engine over `wide` (collapsed from `bvh`) for `settings`, on `simd` lanes (the
+    /// portable lanes where the CPU lacks them), with coherent groups of four rays as packets
+    /// when `packets` holds.
+    pub fn new(
+        wide: &'a WideBvh,
+        bvh: &'a Bvh,
+        settings: &TraceSettings<'a>,
+        simd: Simd,
+        packets: bool,
+    ) -> Self {
+        Self {
+            scene: walk::Scene {
+                nodes: &wide.nodes,
+                triangles: &bvh.triangles,
+                triangle_ids: &bvh.triangle_ids,
+                triangle_masks: settings.triangle_masks,
+                watertight: settings.watertight,
+                packets,
+                size: wide.size(),
+            },
+            simd: if simd.is_available() {
+                simd
+            } else {
+                Simd::Portable
+            },
+            stack: walk::stack_size(wide.depth),
+        }
+    }
+
+    /// Traces `rays` into `hits` (one per ray) and `lists` (`lists.len() / rays.len()` entries
+    /// per ray; empty outside all-hits mode), on the calling thread.
+    pub fn trace_chunk(&self, rays: &[GpuRay], hits: &mut [GpuHit], lists: &mut [GpuHitEntry]) {
+        let mut stacks = Stacks {
+            single: vec![walk::Entry::default(); self.stack],
+            packet: vec![walk::PacketEntry::default(); self.stack],
+        };
+        let scene = &self.scene;
+        match self.simd {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Engine::new` checked that this CPU has AVX2.
+            Simd::Avx2 => unsafe { trace_chunk_avx2(scene, rays, hits, lists, &mut stacks) },
+            #[cfg(target_arch = "x86_64")]
+            Simd::Sse => trace_chunk::<lanes::Sse>(scene, rays, hits, lists, &mut stacks),
+            _ => trace_chunk::<Portable>(scene, rays, hits, lists, &mut stacks),
+        }
+    }
+}
 
 /// Traces each ray as its flags say, in parallel, on `simd` lanes (falling back to the portable
 /// lanes where the CPU lacks them), with coherent groups of four rays as packets when `packets`
@@ -91,47 +149,19 @@ pub fn trace_batch(
     simd: Simd,
     packets: bool,
 ) -> (Vec<GpuHit>, Vec<GpuHitEntry>) {
-    let scene = walk::Scene {
-        nodes: &wide.nodes,
-        triangles: &bvh.triangles,
-        triangle_ids: &bvh.triangle_ids,
-        triangle_masks: settings.triangle_masks,
-        watertight: settings.watertight,
-        packets,
-        size: wide.size(),
-    };
+    let engine = Engine::new(wide, bvh, settings, simd, packets);
     let k = settings.max_hits as usize;
     let mut hits = vec![GpuHit::default(); rays.len()];
     let mut lists = vec![GpuHitEntry::default(); rays.len() * k];
-    let stack = walk::stack_size(wide.depth);
-    let simd = if simd.is_available() {
-        simd
-    } else {
-        Simd::Portable
-    };
-    let run = |(rays, hits, lists): (&[GpuRay], &mut [GpuHit], &mut [GpuHitEntry])| {
-        let mut entries = Stacks {
-            single: vec![walk::Entry::default(); stack],
-            packet: vec![walk::PacketEntry::default(); stack],
-        };
-        match simd {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: `is_available` checked that this CPU has AVX2.
-            Simd::Avx2 => unsafe { trace_chunk_avx2(&scene, rays, hits, lists, &mut entries) },
-            #[cfg(target_arch = "x86_64")]
-            Simd::Sse => trace_chunk::<lanes::Sse>(&scene, rays, hits, lists, &mut entries),
-            _ => trace_chunk::<Portable>(&scene, rays, hits, lists, &mut entries),
-        }
-    };
     if k == 0 {
         rays.par_chunks(RAYS_PER_TASK)
             .zip(hits.par_chunks_mut(RAYS_PER_TASK))
-            .for_each(|(r, h)| run((r, h, &mut [])));
+            .for_each(|(r, h)| engine.trace_chunk(r, h, &mut []));
     } else {
         rays.par_chunks(RAYS_PER_TASK)
             .zip(hits.par_chunks_mut(RAYS_PER_TASK))
             .zip(lists.par_chunks_mut(RAYS_PER_TASK * k))
-            .for_each(|((r, h), l)| run((r, h, l)));
+            .for_each(|((r, h), l)| engine.trace_chunk(r, h, l));
     }
     (hits, lists)
 }
