@@ -16,8 +16,10 @@ pub mod gltf;
 pub mod obj;
 pub mod output;
 pub mod pixel_file;
+pub mod ply;
 pub mod ray_file;
 pub mod scene_files;
+pub mod stl;
 
 use std::fs::{File, FileType, Metadata};
 use std::io::Read;

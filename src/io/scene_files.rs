@@ -1,4 +1,5 @@
-//! Turning files into a scene: each OBJ file is one object, each elevation grid (ESRI ASCII
+//! Turning files into a scene: each mesh file (OBJ, PLY — `.ply` or gzip-compressed `.ply.gz` —
+//! and STL) is one object, each elevation grid (ESRI ASCII
 //! `.asc`, GeoTIFF `.tif`/`.tiff`) one terrain object whose hits report row and column, and each
 //! glTF (`.gltf`, `.glb`) mesh primitive one object, with node transforms applied. Object ids
 //! follow the order of the files, then of the objects inside a file. A scene description file
@@ -13,6 +14,8 @@ use crate::dem::{grid_to_mesh, load_elevation};
 use crate::error::{Error, Result};
 use crate::io::gltf::load_gltf;
 use crate::io::obj::load_obj;
+use crate::io::ply::load_ply;
+use crate::io::stl::load_stl;
 use crate::io::{Refusal, read_regular, regular_file, resolve_inside};
 use crate::scene::{GridShape, Scene};
 use serde::Deserialize;
@@ -104,9 +107,24 @@ fn add_file(scene: &mut Scene, path: &Path) -> Result<()> {
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
+    let inner_extension = path
+        .file_stem()
+        .map(Path::new)
+        .and_then(Path::extension)
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
     match extension.as_deref() {
         Some("obj") => {
             scene.add_mesh(name, load_obj(path)?)?;
+        }
+        Some("ply") => {
+            scene.add_mesh(name, load_ply(path)?)?;
+        }
+        Some("gz") if inner_extension.as_deref() == Some("ply") => {
+            scene.add_mesh(name, load_ply(path)?)?;
+        }
+        Some("stl") => {
+            scene.add_mesh(name, load_stl(path)?)?;
         }
         Some("gltf" | "glb") => {
             for (object_name, mesh) in load_gltf(path)? {
@@ -132,7 +150,8 @@ fn add_file(scene: &mut Scene, path: &Path) -> Result<()> {
         }
         _ => {
             return Err(Error::Invalid(format!(
-                "{name}: unknown scene format (expected .obj, .gltf, .glb, .asc, .tif or .tiff)"
+                "{name}: unknown scene format (expected .obj, .ply, .ply.gz, .stl, .gltf, .glb, .asc, \
+                 .tif or .tiff)"
             )));
         }
     }
