@@ -3,9 +3,10 @@
 //!
 //! `cargo run --release --example pick_bunny`
 
-use glam::DVec3;
 use raypick::io::obj::load_obj;
-use raypick::{BuildOptions, BuiltScene, CpuPicker, GpuContext, GpuPicker, Picker, Ray, Scene};
+use raypick::{
+    BuildOptions, BuiltScene, CpuPicker, DVec3, GpuContext, GpuPicker, Picker, Ray, Scene,
+};
 use std::path::Path;
 use std::sync::Arc;
 

@@ -1,6 +1,7 @@
 //! The automatic backend: small batches run on the CPU path (no dispatch and readback latency),
 //! large ones on the GPU; when no GPU can be opened, or the GPU fails, everything runs on the CPU
-//! and the picker says so. The GPU picker (scene upload, kernel compilation) is made the first
+//! and the picker says so. A software adapter (lavapipe) is slower than the CPU path at every
+//! batch size, so with one everything runs on the CPU, and the picker says that too (once). The GPU picker (scene upload, kernel compilation) is made the first
 //! time a batch reaches the crossover, so a software adapter, where the CPU answers every batch,
 //! costs only opening the device.
 
@@ -29,14 +30,22 @@ pub struct AutoPicker {
 }
 
 impl AutoPicker {
-    /// Opens the GPU device if it can; otherwise records why and uses the CPU alone.
+    /// Opens the GPU device if it can; otherwise records why and uses the CPU alone. A software
+    /// adapter is kept (for [`Picker::describe`]) but never traced on, with a note saying so.
     pub fn new(built: Arc<BuiltScene>) -> Self {
         let mut notes = Vec::new();
         let context = GpuContext::new()
             .map_err(|e| notes.push(format!("no GPU ({e}); using the CPU path")))
             .ok();
         let crossover = match &context {
-            Some(c) if c.is_software() => usize::MAX,
+            Some(c) if c.is_software() => {
+                notes.push(format!(
+                    "software adapter: the CPU path is faster here, so it answers every batch \
+                     (adapter: {})",
+                    c.describe()
+                ));
+                usize::MAX
+            }
             _ => DEFAULT_CROSSOVER_RAYS,
         };
         Self {

@@ -6,8 +6,7 @@
 //!
 //! ```
 //! use std::sync::Arc;
-//! use raypick::{BuildOptions, BuiltScene, CpuPicker, Picker, Ray, check::synthetic};
-//! use glam::DVec3;
+//! use raypick::{BuildOptions, BuiltScene, CpuPicker, DVec3, Picker, Ray, check::synthetic};
 //!
 //! let scene = synthetic::example_scene();
 //! let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
@@ -21,6 +20,9 @@
 //! [`gpu::GpuPicker`] (`wgsl/pick.wgsl`), [`CpuPicker`] (the wide SIMD [`engine`]) or
 //! [`picker::ReferencePicker`] (the kernel's twin, [`cpu::traverse`]) -> [`frame::resolve`]
 //! (f64 refinement) -> [`Hit`].
+//!
+//! Vectors are [`glam`]'s (`DVec3` for world positions and directions), re-exported as
+//! [`raypick::glam`](glam) and [`DVec3`], so callers need no `glam` dependency of their own.
 
 #![warn(missing_docs)]
 
@@ -47,6 +49,17 @@ pub mod ray_order;
 pub mod scene;
 #[cfg(feature = "server")]
 pub mod server;
+
+/// The vector library of the API (rays, hits, cameras, scenes), re-exported so that callers use
+/// the very version raypick is built with.
+pub use glam;
+/// glam's f64 3-vector: world positions, directions and normals.
+pub use glam::DVec3;
+
+/// The README's Rust example, compiled and run as a doctest (`cargo test --doc`).
+#[doc = include_str!("../README.md")]
+#[cfg(doctest)]
+pub struct ReadmeDoctests;
 
 pub use bvh::{BuildOptions, Builder, Bvh, SplitAxis};
 pub use error::{Error, Result};

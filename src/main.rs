@@ -1,8 +1,9 @@
 //! The `raypick` command line. `pick` answers rays (or camera pixels), `verify` checks the GPU
 //! path, the CPU path and the brute-force oracle against each other, `los` and `viewshed` test
 //! lines of sight, `select` and `idbuffer` pick objects on screen, `render` draws the scene,
-//! `probe` and `soak` check watertightness and endurance. Every command uses a built-in
-//! example scene when no `--scene` is given. Errors print as one sentence and exit with code 2.
+//! `probe` and `soak` check watertightness and endurance, `example` writes the built-in
+//! example scene as files. Every command uses the built-in example scene when no `--scene` is
+//! given. Errors print as one sentence and exit with code 2.
 
 mod cli;
 
@@ -16,7 +17,7 @@ use std::process::ExitCode;
     about = "Exact, fast ray picking for 3D scenes on any GPU wgpu reaches, with a CPU path that gives the same answers"
 )]
 struct Cli {
-    /// Show no progress on standard error.
+    /// Show no progress (and no summary line) on standard error.
     #[arg(long, short, global = true)]
     quiet: bool,
     /// Memory budget for everything sized by arguments or file contents (image sizes, ray and
@@ -40,20 +41,25 @@ enum Command {
     Los(cli::los::LosArgs),
     /// Which targets (default: every terrain sample) an observer can see.
     Viewshed(cli::los::ViewshedArgs),
-    /// The objects visible inside a screen rectangle of a camera view.
+    /// The objects visible inside a screen rectangle of a camera view (default: the view
+    /// `render` frames).
     Select(cli::select::SelectArgs),
-    /// The object id under every pixel of a camera view.
+    /// The object under every pixel of a camera view (default: the view `render` frames), as a
+    /// colour PNG, a 16-bit id PNG or CSV.
     Idbuffer(cli::select::IdBufferArgs),
     /// Watertightness probes at shared edges and vertices, through both intersectors; exits 1
     /// if the watertight test leaks.
     Probe(cli::probe::ProbeArgs),
-    /// Many batches through the GPU picker: memory must stay flat, and a sample of each batch
-    /// must match the CPU path.
+    /// Many batches through the GPU picker: a sample of each batch must match the CPU path, and
+    /// resident memory may grow by at most --max-growth MiB after warm-up; exits 1 otherwise.
     Soak(cli::soak::SoakArgs),
     /// A ray-cast picture of the scene as a PNG, shaded by normal (hillshade), depth or object.
     Render(cli::render::RenderArgs),
     /// Serve an HTTP JSON API (pick, scene, render) and a viewer page over one resident scene.
     Serve(cli::serve::ServeArgs),
+    /// Write the built-in example scene as files (terrain.asc, tower.obj, hall.obj, and a scene
+    /// description scene.json with layer masks), to load with --scene or --scenes.
+    Example(cli::example::ExampleArgs),
     /// Build time, memory, throughput, end-to-end time and single-ray latency of every path
     /// (CPU at 1 and 2 threads, GPU, auto), and the CPU/GPU crossover batch size.
     Bench(cli::bench::BenchArgs),
@@ -84,6 +90,7 @@ fn main() -> ExitCode {
         Command::Soak(args) => cli::soak::run(args, sub),
         Command::Render(args) => cli::render::run(args, sub),
         Command::Serve(args) => cli::serve::run(args, sub),
+        Command::Example(args) => cli::example::run(args),
         Command::Bench(args) => cli::bench::run(args, sub),
     };
     match result {

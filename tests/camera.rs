@@ -639,6 +639,69 @@ fn frame_bounds_shows_the_whole_box_from_above() {
     }
 }
 
+/// `pick`'s default view (issue 16): straight down, north up, east right, the box's bottom face
+/// in view and filling it along one side, the eye above the box.
+#[test]
+fn frame_from_above_looks_straight_down_with_north_up() {
+    let boxes = [
+        (DVec3::new(0.0, 0.0, -11.0), DVec3::new(95.0, 95.0, 28.0)), // the example scene
+        (DVec3::new(-1.0, -2.0, 0.0), DVec3::new(3.0, 1.0, 0.5)),
+        (
+            DVec3::new(500_000.0, 4_000_000.0, 100.0),
+            DVec3::new(510_000.0, 4_012_000.0, 900.0),
+        ),
+        (DVec3::new(0.0, 0.0, 0.0), DVec3::new(1.0, 1.0, 0.0)), // flat
+        (DVec3::new(0.0, 0.0, -50.0), DVec3::new(0.1, 0.1, 50.0)), // tall and thin
+    ];
+    for (min, max) in boxes {
+        for (w, h) in [(8, 8), (800, 600), (300, 1000), (1, 1)] {
+            let camera = Camera::frame_from_above(min, max, w, h);
+            assert_eq!((camera.width(), camera.height()), (w, h));
+            let (fw, fh) = (f64::from(w), f64::from(h));
+            let centre = camera.pixel_ray(fw / 2.0, fh / 2.0);
+            assert!(centre.origin.z > max.z, "the eye is above the box");
+            assert!(
+                (centre.dir - DVec3::NEG_Z).length() < 1e-12,
+                "{}",
+                centre.dir
+            );
+            let c = (min + max) * 0.5;
+            assert!(
+                (centre.origin.truncate() - c.truncate()).length() < 1e-6 * c.length().max(1.0)
+            );
+            // North is up, east is right.
+            assert!(camera.pixel_ray(fw / 2.0, 0.0).dir.y > 0.0);
+            assert!(camera.pixel_ray(fw, fh / 2.0).dir.x > 0.0);
+            for k in 0..4 {
+                let corner = DVec3::new(
+                    if k & 1 == 0 { min.x } else { max.x },
+                    if k & 2 == 0 { min.y } else { max.y },
+                    min.z,
+                );
+                assert!(
+                    in_view(&camera, corner),
+                    "{min}..{max} {w}x{h}: corner {corner} outside"
+                );
+            }
+        }
+    }
+    // Degenerate boxes fall back to the oblique framing camera, never panic.
+    let nan = DVec3::splat(f64::NAN);
+    for (min, max) in [
+        (nan, nan),
+        (DVec3::ONE, DVec3::ZERO),
+        (DVec3::splat(5.0), DVec3::splat(5.0)),
+        (DVec3::splat(-1e308), DVec3::splat(1e308)),
+    ] {
+        let camera = Camera::frame_from_above(min, max, 8, 0);
+        assert_eq!((camera.width(), camera.height()), (8, 1));
+        assert!(
+            camera.pixel_center_rays().all(|r| r.is_valid()),
+            "{min}..{max}"
+        );
+    }
+}
+
 #[test]
 fn pixel_list_files_give_pixel_centres() {
     let text = "# pixels\n3 4\n\n  0\t0   # top-left\n1.25 2\n-1 7\n";

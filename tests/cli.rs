@@ -20,18 +20,277 @@ fn temp_file(name: &str, text: &str) -> String {
     path.display().to_string()
 }
 
+/// The quick start (issue 16): an 8 × 8 grid from straight above, row i = pixel (i mod 8,
+/// i div 8) with row 0 north; most rays hit (at least 75%), each building at least once; the
+/// terrain is a height grid, so its hits carry row and col; a summary line on standard error.
 #[test]
 fn pick_on_the_example_scene_prints_one_row_per_ray_on_both_backends() {
-    let (gpu_code, gpu_out, gpu_err) = raypick(&["pick"]);
-    assert_eq!(gpu_code, 0, "{gpu_err}");
-    let (cpu_code, cpu_out, _) = raypick(&["pick", "--backend", "cpu"]);
+    let (auto_code, auto_out, auto_err) = raypick(&["pick"]);
+    assert_eq!(auto_code, 0, "{auto_err}");
+    let (cpu_code, cpu_out, cpu_err) = raypick(&["pick", "--backend", "cpu"]);
     assert_eq!(cpu_code, 0);
-    assert_eq!(gpu_out, cpu_out, "the backends agree on the example");
-    let lines: Vec<&str> = gpu_out.lines().collect();
-    assert_eq!(lines[0], "ray,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz");
+    assert_eq!(auto_out, cpu_out, "the backends agree on the example");
+    let lines: Vec<&str> = auto_out.lines().collect();
+    assert_eq!(
+        lines[0],
+        "ray,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz,row,col,invalid,overflow"
+    );
     assert_eq!(lines.len(), 65);
-    assert!(lines.iter().any(|l| l.split(',').nth(1) == Some("1")));
-    assert!(lines[1..].iter().all(|l| l.split(',').count() == 13));
+    let rows: Vec<Vec<&str>> = lines[1..].iter().map(|l| l.split(',').collect()).collect();
+    assert!(rows.iter().all(|r| r.len() == 17), "{auto_out}");
+    let hits = rows.iter().filter(|r| r[1] == "1").count();
+    assert!(hits * 4 >= 64 * 3, "{hits} of 64 rays hit");
+    for (object, name) in [("0", "terrain"), ("1", "tower"), ("2", "hall")] {
+        assert!(
+            rows.iter().any(|r| r[3] == object),
+            "no ray hits the {name}: {auto_out}"
+        );
+    }
+    for r in &rows {
+        let (x, y): (f64, f64) = (r[7].parse().unwrap(), r[8].parse().unwrap());
+        let i: usize = r[0].parse().unwrap();
+        let (column, row) = (i % 8, i / 8);
+        // West to east along a row of pixels, north to south down the columns.
+        assert!(
+            x > 95.0 * column as f64 / 8.0 - 6.0 && x < 95.0 * (column + 1) as f64 / 8.0 + 6.0,
+            "ray {i}: x {x}"
+        );
+        assert!(
+            y < 95.0 - 95.0 * row as f64 / 8.0 + 6.0
+                && y > 95.0 - 95.0 * (row + 1) as f64 / 8.0 - 6.0,
+            "ray {i}: y {y}"
+        );
+        match r[3] {
+            "0" => {
+                // Terrain hits carry the quad's row and col (samples 1 apart, row 0 at y = 95).
+                let (grid_row, grid_col): (f64, f64) =
+                    (r[13].parse().unwrap(), r[14].parse().unwrap());
+                assert_eq!(grid_col, x.floor(), "ray {i}");
+                assert_eq!(grid_row, (95.0 - y).floor(), "ray {i}");
+            }
+            _ => assert_eq!((r[13], r[14]), ("", ""), "ray {i}: off the grid"),
+        }
+        assert_eq!((r[15], r[16]), ("0", "0"), "ray {i}: valid, no overflow");
+    }
+    let summary = "picked 64 rays: 64 hit, 0 missed; scene: the built-in example (3 objects, 18074 triangles); backend: ";
+    for err in [&auto_err, &cpu_err] {
+        assert_eq!(err.matches(summary).count(), 1, "{err}");
+    }
+    assert!(auto_err.contains("backend: auto"), "{auto_err}");
+    assert!(cpu_err.contains("backend: cpu"), "{cpu_err}");
+    let (_, quiet_out, quiet_err) = raypick(&["pick", "--backend", "cpu", "--quiet"]);
+    assert_eq!(quiet_out, cpu_out);
+    assert!(!quiet_err.contains("picked"), "{quiet_err}");
+}
+
+/// `--backend auto` says once, on standard error, why it uses the CPU path: there is no GPU, or
+/// the GPU is a software adapter (issue 16).
+#[test]
+fn auto_says_why_it_uses_the_cpu_path() {
+    let (code, _, err) = raypick(&["pick"]);
+    assert_eq!(code, 0, "{err}");
+    match raypick::GpuContext::new() {
+        Ok(context) if context.is_software() => assert_eq!(
+            err.matches("note: software adapter: the CPU path is faster here")
+                .count(),
+            1,
+            "{err}"
+        ),
+        Ok(_) => assert!(!err.contains("software adapter"), "{err}"),
+        Err(_) => assert!(err.contains("note: no GPU"), "{err}"),
+    }
+    let (_, _, err) = raypick(&["pick", "--backend", "cpu"]);
+    assert!(!err.contains("note:"), "{err}");
+}
+
+/// The CSV flags (issue 16): `invalid` and `overflow` end every row, after every other column,
+/// in every mode; JSON says the same.
+#[test]
+fn csv_rows_end_with_invalid_and_overflow() {
+    // Through the tower (roof, terrain, floor), a zero direction, and a ray over the terrain.
+    let rays = temp_file(
+        "flags.txt",
+        "33.3 45.1 100 0 0 -1\n33.3 45.1 100 0 0 0\n10.5 10.5 100 0 0 -1\n",
+    );
+    let (code, out, err) = raypick(&["pick", "--rays", &rays, "--backend", "cpu"]);
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<&str> = out.lines().collect();
+    assert!(lines[0].ends_with(",row,col,invalid,overflow"), "{out}");
+    let flags = |line: &str| line.rsplitn(3, ',').take(2).collect::<Vec<_>>().join("");
+    assert_eq!(
+        lines[1..].iter().map(|l| flags(l)).collect::<Vec<_>>(),
+        ["00", "01", "00"],
+        "overflow,invalid reversed: {out}"
+    );
+    assert!(
+        lines[2].starts_with("1,0,,,"),
+        "an invalid ray is a miss: {out}"
+    );
+    assert!(err.contains("1 ray(s) were invalid"), "{err}");
+    let (code, out, err) = raypick(&[
+        "pick",
+        "--rays",
+        &rays,
+        "--backend",
+        "cpu",
+        "--mode",
+        "all",
+        "--max-hits",
+        "2",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(
+        lines[0],
+        "ray,rank,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz,row,col,invalid,overflow"
+    );
+    let ray0: Vec<&str> = lines
+        .iter()
+        .filter(|l| l.starts_with("0,"))
+        .copied()
+        .collect();
+    assert_eq!(ray0.len(), 2, "two kept, the floor dropped: {out}");
+    assert!(
+        ray0.iter().all(|l| l.ends_with(",0,1")),
+        "overflow on every row: {out}"
+    );
+    assert!(
+        lines
+            .iter()
+            .any(|l| l.starts_with("1,,0,") && l.ends_with(",1,0")),
+        "{out}"
+    );
+    assert!(
+        lines
+            .iter()
+            .any(|l| l.starts_with("2,0,1,") && l.ends_with(",0,0")),
+        "{out}"
+    );
+    let (_, json, _) = raypick(&[
+        "pick",
+        "--rays",
+        &rays,
+        "--backend",
+        "cpu",
+        "--mode",
+        "all",
+        "--max-hits",
+        "2",
+        "--format",
+        "json",
+    ]);
+    let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(
+        (v[0]["overflow"].clone(), v[0]["invalid"].clone()),
+        (true.into(), false.into())
+    );
+    assert_eq!(
+        (v[1]["overflow"].clone(), v[1]["invalid"].clone()),
+        (false.into(), true.into())
+    );
+}
+
+/// Without `--format`, `--out`'s extension chooses it (issue 16): `.json` is JSON.
+#[test]
+fn the_output_format_follows_the_out_extension() {
+    let rays = temp_file("format.txt", "33.3 45.1 100 0 0 -1\n");
+    let dir = std::env::temp_dir();
+    let json_out = dir.join(format!("raypick-cli-{}-o.JSON", std::process::id()));
+    let csv_out = dir.join(format!("raypick-cli-{}-o.txt", std::process::id()));
+    let forced = dir.join(format!("raypick-cli-{}-forced.json", std::process::id()));
+    for (out, format) in [(&json_out, None), (&csv_out, None), (&forced, Some("csv"))] {
+        let mut args = vec![
+            "pick",
+            "--rays",
+            &rays,
+            "--backend",
+            "cpu",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        if let Some(format) = format {
+            args.extend(["--format", format]);
+        }
+        let (code, _, err) = raypick(&args);
+        assert_eq!(code, 0, "{err}");
+    }
+    let json = std::fs::read_to_string(&json_out).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&json).expect("JSON");
+    assert_eq!(v[0]["object"], 1);
+    for csv in [&csv_out, &forced] {
+        let text = std::fs::read_to_string(csv).unwrap();
+        assert!(text.starts_with("ray,hit,"), "{text}");
+    }
+}
+
+/// `raypick example` writes the built-in scene as files that answer exactly as it does, with
+/// the layer masks of its scene description (issue 16).
+#[test]
+fn the_example_scene_written_out_answers_as_the_built_in_one() {
+    let dir = std::env::temp_dir().join(format!("raypick-cli-{}-example", std::process::id()));
+    let dir_arg = dir.to_str().unwrap();
+    let (code, out, err) = raypick(&["example", "--out", dir_arg]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out.lines().count(), 4, "{out}");
+    let file = |name: &str| dir.join(name).display().to_string();
+    let (_, built_in, _) = raypick(&["pick", "--backend", "cpu"]);
+    let (code, from_files, err) = raypick(&[
+        "pick",
+        "--backend",
+        "cpu",
+        "--scene",
+        &file("terrain.asc"),
+        "--scene",
+        &file("tower.obj"),
+        "--scene",
+        &file("hall.obj"),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(from_files, built_in, "the same triangles, ids and answers");
+    let rays = temp_file("example-masks.txt", "33.3 45.1 100 0 0 -1\n");
+    let object = |mask: &str| {
+        let (code, out, err) = raypick(&[
+            "pick",
+            "--backend",
+            "cpu",
+            "--scenes",
+            &file("scene.json"),
+            "--rays",
+            &rays,
+            "--ray-mask",
+            mask,
+        ]);
+        assert_eq!(code, 0, "{err}");
+        out.lines()
+            .nth(1)
+            .unwrap()
+            .split(',')
+            .nth(3)
+            .unwrap()
+            .to_string()
+    };
+    assert_eq!(object("1"), "0", "layer 1: the terrain, through the tower");
+    assert_eq!(object("2"), "1", "layer 2: the tower's roof");
+    assert_eq!(object("0"), "", "mask 0: a miss");
+    // The very same triangles, vertex for vertex, and the terrain a grid again.
+    let files: Vec<_> =
+        raypick::io::scene_files::load_description(&dir.join("scene.json")).unwrap();
+    let loaded = raypick::io::scene_files::load_scene(&files).unwrap();
+    let built_in = raypick::check::synthetic::example_scene();
+    assert_eq!(loaded.triangle_count(), built_in.triangle_count());
+    for t in 0..built_in.triangle_count() {
+        assert_eq!(
+            loaded.world_triangle(t),
+            built_in.world_triangle(t),
+            "triangle {t}"
+        );
+    }
+    for (a, b) in loaded.objects().iter().zip(built_in.objects()) {
+        assert_eq!((a.grid, a.triangle_count), (b.grid, b.triangle_count));
+    }
+    let masks: Vec<u32> = loaded.objects().iter().map(|o| o.mask).collect();
+    assert_eq!(masks, raypick::check::synthetic::EXAMPLE_MASKS);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -120,7 +379,7 @@ fn modes_culling_masks_and_ranges_on_the_command_line() {
     let lines: Vec<&str> = out.lines().collect();
     assert_eq!(
         lines[0],
-        "ray,rank,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz"
+        "ray,rank,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz,row,col,invalid,overflow"
     );
     let ray0: Vec<&str> = lines
         .iter()
@@ -168,10 +427,24 @@ fn modes_culling_masks_and_ranges_on_the_command_line() {
         row[2].parse::<f64>().unwrap() > closest_t,
         "the floor lies below the roof"
     );
+    assert!(
+        (82.0..82.2).contains(&closest_t),
+        "the roof, as the README says"
+    );
+    // The README's --tmin example: past the roof (t ≈ 82.1) only beyond it; at 90, the terrain
+    // inside the tower (t ≈ 107.1).
     let (code, out, _) = raypick(&["pick", "--rays", &rays, "--tmin", "60", "--backend", "cpu"]);
     assert_eq!(code, 0);
     let row: Vec<&str> = out.lines().nth(1).unwrap().split(',').collect();
-    assert!(row[2].parse::<f64>().unwrap() > 60.0);
+    assert_eq!((row[2].parse::<f64>().unwrap(), row[3]), (closest_t, "1"));
+    let (code, out, _) = raypick(&["pick", "--rays", &rays, "--tmin", "90", "--backend", "cpu"]);
+    assert_eq!(code, 0);
+    let row: Vec<&str> = out.lines().nth(1).unwrap().split(',').collect();
+    assert_eq!(row[3], "0", "the terrain: {out}");
+    assert!(
+        (107.0..107.2).contains(&row[2].parse::<f64>().unwrap()),
+        "{out}"
+    );
 }
 
 #[test]
@@ -314,7 +587,7 @@ fn camera_pixels_on_a_real_dem_report_row_and_col() {
     let lines: Vec<&str> = out.lines().collect();
     assert_eq!(
         lines[0],
-        "ray,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz,row,col"
+        "ray,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz,row,col,invalid,overflow"
     );
     for line in &lines[1..] {
         let f: Vec<&str> = line.split(',').collect();
@@ -332,4 +605,115 @@ fn camera_pixels_on_a_real_dem_report_row_and_col() {
         let x: f64 = f[7].parse().unwrap();
         assert!((512730.0..512730.0 + 403.0 * 30.0).contains(&x));
     }
+}
+
+/// The PNG at `path`: (colour type, bit depth, width, height, pixel bytes).
+fn read_png(path: &std::path::Path) -> (png::ColorType, png::BitDepth, u32, u32, Vec<u8>) {
+    let file = std::fs::File::open(path).unwrap();
+    let mut reader = png::Decoder::new(std::io::BufReader::new(file))
+        .read_info()
+        .unwrap();
+    let mut buffer = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buffer).unwrap();
+    buffer.truncate(info.buffer_size());
+    (
+        info.color_type,
+        info.bit_depth,
+        info.width,
+        info.height,
+        buffer,
+    )
+}
+
+/// `select` and `idbuffer` frame the scene as `render` does when given no camera, and
+/// `idbuffer`'s PNG is a colour picture unless `--raw-ids` asks for the 16-bit ids (issue 16).
+#[test]
+fn select_and_idbuffer_frame_the_scene_without_a_camera() {
+    let (code, out, err) = raypick(&[
+        "select", "--rect", "320", "260", "400", "400", "--step", "4",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let objects: Vec<&str> = out
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(1).unwrap())
+        .collect();
+    assert_eq!(objects, ["terrain", "tower"], "{out}");
+    let (code, out, err) = raypick(&["select", "--rect", "0", "0", "800", "600", "--step", "8"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out.lines().count(), 4, "every object is in view: {out}");
+    let (code, _, err) = raypick(&["select", "--rect", "0", "0", "801", "600"]);
+    assert_eq!(code, 2, "outside the default 800 x 600 view");
+    assert!(err.contains("800×600"), "{err}");
+    let (code, out, err) = raypick(&[
+        "select", "--width", "80", "--height", "60", "--rect", "0", "0", "80", "60",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out.lines().count(), 4, "{out}");
+
+    let dir = std::env::temp_dir();
+    let colour = dir.join(format!("raypick-cli-{}-ids.png", std::process::id()));
+    let raw = dir.join(format!("raypick-cli-{}-ids16.PNG", std::process::id()));
+    let (code, _, err) = raypick(&["idbuffer", "--out", colour.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = raypick(&["idbuffer", "--out", raw.to_str().unwrap(), "--raw-ids"]);
+    assert_eq!(code, 0, "{err}");
+    let (code, csv, err) = raypick(&["idbuffer"]);
+    assert_eq!(code, 0, "{err}");
+    let ids: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
+    assert_eq!((ids.len(), ids[0].len()), (600, 800));
+    let (kind, depth, w, h, rgba) = read_png(&colour);
+    assert_eq!(
+        (kind, depth, w, h),
+        (png::ColorType::Rgba, png::BitDepth::Eight, 800, 600)
+    );
+    let (kind, depth, w, h, grey) = read_png(&raw);
+    assert_eq!(
+        (kind, depth, w, h),
+        (png::ColorType::Grayscale, png::BitDepth::Sixteen, 800, 600)
+    );
+    for (i, id) in ids.iter().flatten().enumerate() {
+        let raw_id = u16::from_be_bytes([grey[2 * i], grey[2 * i + 1]]);
+        let pixel: [u8; 4] = rgba[4 * i..4 * i + 4].try_into().unwrap();
+        match id.parse::<u32>() {
+            Ok(id) => {
+                assert_eq!(u32::from(raw_id), id + 1, "pixel {i}");
+                assert_eq!(pixel, raypick::apps::render::object_color(id), "pixel {i}");
+            }
+            Err(_) => {
+                assert_eq!(raw_id, 0, "pixel {i}");
+                assert_eq!(pixel, raypick::apps::render::SKY, "pixel {i}");
+            }
+        }
+    }
+    let _ = std::fs::remove_file(&colour);
+    let _ = std::fs::remove_file(&raw);
+}
+
+/// `soak` counts its batches right when --rays is smaller than --batch, says its columns are
+/// totals, and states the memory bound it checks (issue 16).
+#[test]
+fn soak_reports_batches_totals_and_its_memory_bound() {
+    let (code, out, err) = raypick(&["soak", "--rays", "2000", "--check", "100"]);
+    assert_eq!(code, 0, "{out}\n{err}");
+    assert!(
+        out.starts_with("soak: 2000 rays in 1 batch of 2000 on "),
+        "{out}"
+    );
+    assert!(
+        out.contains("may grow by 64 MiB after 3 warm-up batches"),
+        "{out}"
+    );
+    assert!(out.contains("totals so far"), "{out}");
+    assert!(
+        out.contains("(bound 64 MiB); 0 mismatches in 100 checked rays"),
+        "{out}"
+    );
+    let (code, out, err) = raypick(&["soak", "--rays", "5000", "--batch", "1000", "--check", "10"]);
+    assert_eq!(code, 0, "{out}\n{err}");
+    assert!(
+        out.starts_with("soak: 5000 rays in 5 batches of 1000 on "),
+        "{out}"
+    );
+    assert!(out.contains("0 mismatches in 50 checked rays"), "{out}");
 }

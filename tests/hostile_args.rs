@@ -2,7 +2,8 @@
 //! over the memory budget (`--max-memory`), zero and huge counts, directions too short to
 //! normalize, ray mask 0, NaN arguments, huge tokens in error messages, extreme numbers in CSV,
 //! arguments checked before any output, short OBJ faces, and server answers that must not show
-//! the server's paths.
+//! the server's paths; and (issue 16) every command's missing required options, and outputs
+//! named as a format the command does not write.
 //!
 //! Every refusal is exit code 2 with one sentence on standard error that names the value, never
 //! a panic or an abort. This file owns those checks; `tests/cli.rs` owns ordinary CLI behaviour.
@@ -611,22 +612,158 @@ fn scene_description_errors_quote_a_short_piece_of_a_bad_token() {
     assert!(err.len() < 2100, "{} bytes", err.len());
 }
 
-/// Options the commands need are required by the parser: leaving one out is exit 2 and a
-/// sentence naming it, never a panic (issue 16).
+/// The options each command cannot run without, as `--help`'s usage line must show them (issue
+/// 16). A command missing here fails the test below, so every new command is looked at.
+const REQUIRED: &[(&str, &[&str])] = &[
+    ("pick", &[]),
+    ("verify", &[]),
+    ("los", &["--pairs"]),
+    ("viewshed", &["--observer"]),
+    ("select", &["--rect"]),
+    ("idbuffer", &[]),
+    ("probe", &[]),
+    ("soak", &[]),
+    ("render", &["--out"]),
+    ("serve", &[]),
+    ("example", &["--out"]),
+    ("bench", &[]),
+];
+
+/// Asserts a parser refusal: exit 2, nothing on standard output, a first line that is one
+/// sentence starting with `error:` and naming every one of `named`, and no panic.
+fn assert_parser_refused(args: &[&str], named: &[&str]) {
+    let (code, out, err) = raypick(args);
+    assert_eq!(code, 2, "{args:?}: {err}");
+    assert!(out.is_empty(), "{args:?} wrote {out}");
+    assert!(!err.contains("panicked"), "{args:?}: {err}");
+    let first = err.lines().next().unwrap_or_default();
+    assert!(first.starts_with("error:"), "{args:?}: {err}");
+    for n in named {
+        assert!(err.contains(n), "{args:?}: {n} not named in {err}");
+    }
+}
+
+/// Every command, without its required options, is exit 2 and a sentence naming them, never a
+/// panic (issue 16: `viewshed` without `--observer` and `select` without `--rect` used to
+/// panic). The required options are the parser's (its usage line), and match [`REQUIRED`];
+/// options that need each other, and options given too few values, are refused the same way.
 #[test]
 fn missing_required_options_are_named_not_panics() {
+    let (code, help, _) = raypick(&["--help"]);
+    assert_eq!(code, 0);
+    let commands: Vec<&str> = help
+        .lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .take_while(|l| !l.trim().is_empty())
+        .filter_map(|l| l.split_whitespace().next())
+        .filter(|&c| c != "help")
+        .collect();
+    let listed: Vec<&str> = REQUIRED.iter().map(|(c, _)| *c).collect();
+    assert_eq!(commands, listed, "every command has its row in REQUIRED");
+    for (command, required) in REQUIRED {
+        let (code, help, _) = raypick(&[command, "--help"]);
+        assert_eq!(code, 0, "{command} --help");
+        let usage = help
+            .lines()
+            .find(|l| l.starts_with("Usage:"))
+            .unwrap_or_else(|| panic!("{command}: no usage line in {help}"));
+        let in_usage: Vec<&str> = usage
+            .split_whitespace()
+            .filter(|w| w.starts_with("--"))
+            .collect();
+        assert_eq!(&in_usage, required, "{command}: {usage}");
+        if !required.is_empty() {
+            let mut named = vec!["required arguments were not provided"];
+            named.extend(required.iter());
+            assert_parser_refused(&[command], &named);
+            assert_parser_refused(&[command, "--backend", "cpu"], required);
+        }
+    }
     let dem = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/tests/data/jacksboro_fault_dem_utm.asc"
     );
-    let (code, _, err) = raypick(&["viewshed", "--scene", dem]);
-    assert_eq!(code, 2, "{err}");
-    assert!(
-        err.contains("--observer") && !err.contains("panicked"),
-        "{err}"
-    );
+    assert_parser_refused(&["viewshed", "--scene", dem], &["--observer"]);
     let camera = camera_file("required-camera.json", 8, 6);
-    let (code, _, err) = raypick(&["select", "--camera", &camera]);
-    assert_eq!(code, 2, "{err}");
-    assert!(err.contains("--rect") && !err.contains("panicked"), "{err}");
+    assert_parser_refused(&["select", "--camera", &camera], &["--rect"]);
+    // Too few values.
+    assert_parser_refused(
+        &["viewshed", "--observer", "1", "2"],
+        &["--observer", "3 values"],
+    );
+    assert_parser_refused(
+        &["select", "--rect", "1", "2", "3"],
+        &["--rect", "4 values"],
+    );
+    // Options that need another.
+    assert_parser_refused(&["pick", "--camera", &camera], &["--pixels"]);
+    let pixels = temp_file("required-pixels.txt", "1 1\n");
+    assert_parser_refused(&["pick", "--pixels", &pixels], &["--camera"]);
+    assert_parser_refused(&["bench", "--threads", "2"], &["--ray-file"]);
+    // Options that exclude each other.
+    assert_parser_refused(
+        &[
+            "render",
+            "--camera",
+            &camera,
+            "--width",
+            "8",
+            "--out",
+            "/dev/null",
+        ],
+        &["--width", "--camera"],
+    );
+    assert_parser_refused(
+        &["idbuffer", "--camera", &camera, "--height", "8"],
+        &["--height", "--camera"],
+    );
+}
+
+/// Commands that write CSV only refuse an `--out` file named `.json` (issue 16: `pick --out
+/// o.json` used to write CSV); `--raw-ids` needs a PNG; `soak --max-growth` is a size.
+#[test]
+fn outputs_that_cannot_be_what_their_name_says_are_refused() {
+    let pairs = temp_file("json-pairs.txt", "10 10 60 60 60 60\n");
+    assert_refused(
+        &["los", "--pairs", &pairs, "--out", "seen.json"],
+        &["--out seen.json", "CSV"],
+    );
+    assert_refused(
+        &[
+            "viewshed",
+            "--observer",
+            "50",
+            "50",
+            "150",
+            "--out",
+            "seen.JSON",
+        ],
+        &["--out seen.JSON", "CSV"],
+    );
+    assert_refused(
+        &[
+            "select",
+            "--rect",
+            "0",
+            "0",
+            "8",
+            "8",
+            "--out",
+            "objects.json",
+        ],
+        &["--out objects.json", "CSV"],
+    );
+    assert_refused(
+        &["idbuffer", "--out", "ids.json"],
+        &["--out ids.json", "CSV"],
+    );
+    assert_refused(
+        &["idbuffer", "--raw-ids", "--out", "ids.csv"],
+        &["--raw-ids", ".png"],
+    );
+    assert_refused(&["idbuffer", "--raw-ids"], &["--raw-ids", ".png"]);
+    for bad in ["-1", "nan", "inf"] {
+        assert_refused(&["soak", "--max-growth", bad], &["--max-growth"]);
+    }
 }

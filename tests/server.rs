@@ -284,8 +284,16 @@ fn scene_reports_the_scene_and_the_tree() {
             Some(u64::from(want.triangle_count))
         );
         assert_eq!(o["mask"].as_u64(), Some(u64::from(want.mask)));
-        assert_eq!(o["grid"], Value::Null);
+        match want.grid {
+            // The example's terrain is a height grid; the buildings are meshes.
+            Some(grid) => assert_eq!(
+                o["grid"],
+                json!({"columns": grid.columns, "rows": grid.rows})
+            ),
+            None => assert_eq!(o["grid"], Value::Null),
+        }
     }
+    assert_eq!(objects[0]["grid"], json!({"columns": 96, "rows": 96}));
     assert_eq!(objects[1]["name"], "tower");
     let tree = &scene["tree"];
     assert_eq!(tree["nodes"].as_u64(), Some(built.bvh.nodes.len() as u64));
@@ -371,6 +379,52 @@ fn picks_rays_exactly_as_the_cpu_picker_in_every_mode() {
     assert_eq!(answer["results"][1], json!({"hit": false, "invalid": true}));
     let (status, answer) = post(&format!("{base}/pick"), r#"{"rays": []}"#);
     assert_eq!((status, answer), (200, json!({"results": []})));
+}
+
+/// The request's layer mask is `mask`, or `ray_mask` as the command line's `--ray-mask` names
+/// it (issue 16), in the request and in a ray; both at once is a 400.
+#[test]
+fn the_mask_field_is_also_read_as_ray_mask() {
+    let base = start(example(), Backend::Cpu, ServerConfig::default());
+    let down = r#"{"origin": [33.3, 45.1, 100], "dir": [0, 0, -1]"#;
+    let object_of = |body: String| {
+        let (status, answer) = post(&format!("{base}/pick"), &body);
+        assert_eq!(status, 200, "{body}: {answer}");
+        answer["results"][0]["object"].clone()
+    };
+    // Every object of the example keeps all bits: any mask but 0 meets the tower's roof.
+    assert_eq!(object_of(format!(r#"{{"rays": [{down}}}]}}"#)), json!(1));
+    for field in ["mask", "ray_mask"] {
+        assert_eq!(
+            object_of(format!(r#"{{"rays": [{down}}}], "{field}": 0}}"#)),
+            Value::Null,
+            "{field} 0 matches no layer"
+        );
+        assert_eq!(
+            object_of(format!(r#"{{"rays": [{down}, "{field}": 0}}]}}"#)),
+            Value::Null,
+            "a ray's own {field} 0"
+        );
+        assert_eq!(
+            object_of(format!(
+                r#"{{"rays": [{down}, "{field}": 2}}], "mask": 0}}"#
+            )),
+            json!(1),
+            "the ray's {field} wins over the request's"
+        );
+    }
+    let (status, answer) = post(
+        &format!("{base}/pick"),
+        &format!(r#"{{"rays": [{down}}}], "mask": 1, "ray_mask": 1}}"#),
+    );
+    assert_eq!(status, 400, "{answer}");
+    assert!(
+        answer["error"]
+            .as_str()
+            .unwrap()
+            .contains("duplicate field"),
+        "{answer}"
+    );
 }
 
 #[test]

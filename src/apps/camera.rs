@@ -420,6 +420,35 @@ impl Camera {
         )
     }
 
+    /// A perspective camera looking straight down (`-z`) on the axis-aligned box `[min, max]`,
+    /// north (`+y`) at the top of the image and east (`+x`) on the right, with a
+    /// [`FRAME_FOV_Y_DEG`] vertical field of view: the eye stands above the centre of the box,
+    /// just high enough that the box's bottom face fills the image (its longer side edge to
+    /// edge), and always above the box's top. A map view: on a terrain nearly every pixel sees
+    /// the ground, and row 0 of the image is the northern edge. `raypick pick` traces its
+    /// default 8 × 8 grid through it.
+    ///
+    /// Never fails: a width or height of 0 is taken as 1, and a box that is not finite, has
+    /// `min > max` on some axis, or is (nearly) a point falls back to [`Camera::frame_bounds`].
+    pub fn frame_from_above(min: DVec3, max: DVec3, width: u32, height: u32) -> Camera {
+        let (width, height) = (width.max(1), height.max(1));
+        let usable = min.is_finite() && max.is_finite() && min.cmple(max).all();
+        let half = max * 0.5 - min * 0.5;
+        let scale = (min * 0.5 + max * 0.5).abs().max_element().max(1.0);
+        if !usable || half.x.max(half.y) <= 1e-9 * scale {
+            return Self::frame_bounds(min, max, width, height);
+        }
+        let centre = min * 0.5 + max * 0.5;
+        let tan_y = (FRAME_FOV_Y_DEG.to_radians() * 0.5).tan();
+        let tan_x = tan_y * f64::from(width) / f64::from(height);
+        let distance = (half.x / tan_x).max(half.y / tan_y);
+        let eye_z = (min.z + distance).max(max.z + 0.1 * half.x.max(half.y));
+        let eye = DVec3::new(centre.x, centre.y, eye_z);
+        let target = DVec3::new(centre.x, centre.y, min.z);
+        Self::perspective(eye, target, DVec3::Y, FRAME_FOV_Y_DEG, width, height)
+            .unwrap_or_else(|_| Self::frame_bounds(min, max, width, height))
+    }
+
     /// Parses and checks the JSON text of a camera file (format in the [module docs](self));
     /// `path` is only used in error messages. Numbers are read correctly rounded, so
     /// [`Camera::to_json`] output reads back bit for bit. Malformed JSON, an unknown key or a wrong type is an

@@ -1,8 +1,9 @@
-//! Synthetic scenes and ray sets, seeded so every run replays: the built-in example scene, the
-//! test scenes, and the ray kinds `raypick verify` and the tests check.
+//! Synthetic scenes and ray sets, seeded so every run replays: the built-in example scene (and
+//! its files, which `raypick example` writes), the test scenes, and the ray kinds `raypick
+//! verify` and the tests check.
 
 use crate::ray::Ray;
-use crate::scene::{Mesh, Scene};
+use crate::scene::{GridShape, Mesh, Scene};
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -113,22 +114,101 @@ pub fn single_triangle() -> Mesh {
     }
 }
 
-/// The built-in example scene: a 96 × 96 terrain (object 0) with two box "buildings" on it
-/// (objects 1 and 2).
+/// The built-in example scene: a 96 × 96 height-grid terrain (object 0; samples 1 apart at
+/// integer x, y from 0 to 95, row 0 north at y = 95, heights [`hills`]; hits report row and
+/// column) with two box "buildings" on it, the "tower" (object 1) and the "hall" (object 2).
 pub fn example_scene() -> Scene {
-    let ground = terrain(96, 96, 0.0, 95.0, 1.0, hills);
+    let mut scene = Scene::new();
+    for (name, mesh, grid) in example_objects() {
+        let added = match grid {
+            Some(grid) => scene.add_grid_mesh(name, mesh, grid),
+            None => scene.add_mesh(name, mesh),
+        };
+        added.expect("the example scene is well formed");
+    }
+    scene
+}
+
+/// The objects of [`example_scene`] in id order: name, mesh and, for the terrain, its grid
+/// shape.
+pub fn example_objects() -> Vec<(String, Mesh, Option<GridShape>)> {
+    let (columns, rows) = (96, 96);
+    let ground = terrain(columns, rows, 0.0, 95.0, 1.0, hills);
     let building = |x: f64, y: f64, w: f64, h: f64| {
         let z0 = hills(x, y) - 2.0;
         let lo = DVec3::new(x, y, z0);
         let hi = DVec3::new(x + w, y + w, z0 + h);
         box_mesh(lo, hi)
     };
-    Scene::from_meshes([
-        ("terrain".to_string(), ground),
-        ("tower".to_string(), building(30.0, 40.0, 8.0, 30.0)),
-        ("hall".to_string(), building(60.0, 55.0, 14.0, 12.0)),
-    ])
-    .expect("the example scene is well formed")
+    let grid = GridShape {
+        columns: columns as u32,
+        rows: rows as u32,
+    };
+    vec![
+        ("terrain".to_string(), ground, Some(grid)),
+        ("tower".to_string(), building(30.0, 40.0, 8.0, 30.0), None),
+        ("hall".to_string(), building(60.0, 55.0, 14.0, 12.0), None),
+    ]
+}
+
+/// The layer masks of [`example_scene_files`]' scene description: the terrain is layer 1, the
+/// buildings layer 2.
+pub const EXAMPLE_MASKS: [u32; 3] = [1, 2, 2];
+
+/// [`example_scene`] as files, `(file name, text)`: `terrain.asc` (an ESRI ASCII grid whose
+/// samples sit where the terrain's vertices do), `tower.obj` and `hall.obj`, and `scene.json`, a
+/// scene description listing the three in object order with the layer masks
+/// [`EXAMPLE_MASKS`]. Numbers are written in shortest round-trip form, so the files load into
+/// the very same triangles, ids and answers as the built-in scene (`raypick example`).
+pub fn example_scene_files() -> Vec<(String, String)> {
+    use std::fmt::Write;
+    let number = crate::io::output::csv_number;
+    let mut files = Vec::new();
+    for (name, mesh, grid) in example_objects() {
+        let mut text = String::new();
+        let file = match grid {
+            Some(grid) => {
+                let (columns, rows) = (grid.columns as usize, grid.rows as usize);
+                let (first, cell) = (mesh.positions[0], mesh.positions[1].x - mesh.positions[0].x);
+                // Sample (r, c) at x = xllcenter + c·cell, y = yllcenter + (rows − 1 − r)·cell:
+                // the south-west sample is the last row's first.
+                let _ = writeln!(text, "ncols {columns}\nnrows {rows}");
+                let _ = writeln!(text, "xllcenter {}", number(first.x));
+                let _ = writeln!(
+                    text,
+                    "yllcenter {}",
+                    number(first.y - (rows - 1) as f64 * cell)
+                );
+                let _ = writeln!(text, "cellsize {}", number(cell));
+                for row in mesh.positions.chunks(columns) {
+                    let heights: Vec<String> = row.iter().map(|p| number(p.z)).collect();
+                    let _ = writeln!(text, "{}", heights.join(" "));
+                }
+                format!("{name}.asc")
+            }
+            None => {
+                let _ = writeln!(text, "# raypick's built-in example scene: the {name}");
+                for p in &mesh.positions {
+                    let _ = writeln!(text, "v {} {} {}", number(p.x), number(p.y), number(p.z));
+                }
+                for [a, b, c] in &mesh.triangles {
+                    let _ = writeln!(text, "f {} {} {}", a + 1, b + 1, c + 1);
+                }
+                format!("{name}.obj")
+            }
+        };
+        files.push((file, text));
+    }
+    let objects: Vec<String> = files
+        .iter()
+        .zip(EXAMPLE_MASKS)
+        .map(|((file, _), mask)| format!("    {{\"file\": \"{file}\", \"mask\": {mask}}}"))
+        .collect();
+    files.push((
+        "scene.json".to_string(),
+        format!("{{\"objects\": [\n{}\n]}}\n", objects.join(",\n")),
+    ));
+    files
 }
 
 /// A closed axis-aligned box as 12 outward-facing triangles.

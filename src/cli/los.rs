@@ -6,7 +6,7 @@
 //! block the view.
 
 use super::scene_args::{SceneArgs, parse_mask};
-use super::{make_picker, write_output};
+use super::{csv_only, make_picker, write_output};
 use clap::{ArgMatches, Args};
 use glam::DVec3;
 use raypick::dem::cell_of_triangle;
@@ -56,7 +56,7 @@ pub struct SightArgs {
     /// Which path answers.
     #[arg(long, value_parser = crate::cli::choice::choice::<Backend>(), default_value_t = Backend::Auto)]
     pub backend: Backend,
-    /// Output file (default: standard output).
+    /// Output file for the CSV rows (default: standard output).
     #[arg(long)]
     pub out: Option<PathBuf>,
 }
@@ -117,6 +117,7 @@ fn finite_argument(name: &str, values: &[f64]) -> Result<(), Error> {
 }
 
 pub fn run_los(args: LosArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    csv_only("los", args.sight.out.as_deref())?;
     let built = Arc::new(args.scene.build(matches)?);
     let segments = load_pairs(&args.pairs)?;
     let seen = visible(built, &segments, &args.sight, "pair")?;
@@ -131,6 +132,7 @@ pub fn run_los(args: LosArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
 }
 
 pub fn run_viewshed(args: ViewshedArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    csv_only("viewshed", args.sight.out.as_deref())?;
     finite_argument("--observer", &args.observer)?;
     finite_argument("--target-height", &[args.target_height])?;
     let built = Arc::new(args.scene.build(matches)?);

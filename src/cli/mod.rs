@@ -1,7 +1,9 @@
 //! The command-line front end: one file per command, shared scene and query options.
 
 pub mod bench;
+pub mod camera_args;
 pub mod choice;
+pub mod example;
 pub mod los;
 pub mod pick;
 pub mod probe;
@@ -14,6 +16,7 @@ pub mod serve;
 pub mod soak;
 pub mod verify;
 
+use raypick::io::output::Format;
 use raypick::io::ray_file::load_rays;
 use raypick::{Backend, BuiltScene, Error, Picker, Query, Ray};
 use std::io::Write;
@@ -88,6 +91,33 @@ pub fn read_rays(path: &Path, tmin: f64, tmax: f64, mask: u32) -> Result<Vec<Ray
                 .with_mask(mask)
         })
         .collect())
+}
+
+/// Whether `path`'s extension is `extension` (ASCII case ignored).
+fn has_extension(path: &Path, extension: &str) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case(extension))
+}
+
+/// The output format: `--format` when given, else the one `--out`'s extension names (`.json`:
+/// JSON), else CSV.
+pub fn output_format(format: Option<Format>, out: Option<&Path>) -> Format {
+    format.unwrap_or(match out {
+        Some(path) if has_extension(path, "json") => Format::Json,
+        _ => Format::Csv,
+    })
+}
+
+/// Refuses an `--out` file named `.json` for `command`, which writes CSV only (rather than
+/// writing CSV into a file named as JSON).
+pub fn csv_only(command: &str, out: Option<&Path>) -> Result<(), Error> {
+    match out {
+        Some(path) if has_extension(path, "json") => Err(Error::Invalid(format!(
+            "--out {} names a JSON file, but {command} writes CSV only; name it .csv",
+            path.display()
+        ))),
+        _ => Ok(()),
+    }
 }
 
 /// Runs `write` against `out` (a file) or standard output, turning I/O failures into errors

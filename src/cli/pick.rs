@@ -2,14 +2,14 @@
 
 use super::query_args::QueryArgs;
 use super::scene_args::SceneArgs;
-use super::{make_picker, progress, show_notes, stream_chunk_rays, write_output};
+use super::{make_picker, output_format, progress, show_notes, stream_chunk_rays, write_output};
 use clap::{ArgMatches, Args};
+use glam::DVec3;
 use raypick::apps::camera::Camera;
-use raypick::check::synthetic::{RayKind, rays as synthetic_rays};
 use raypick::io::output::{AnswerWriter, Format, OutputOptions};
 use raypick::io::pixel_file::load_pixel_indices_as_centers;
 use raypick::io::ray_file::{RayReader, count_rays};
-use raypick::{Answers, Backend, Error, Ray};
+use raypick::{Answers, Backend, BuiltScene, Error, Ray};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -19,7 +19,8 @@ pub struct PickArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
     /// Ray file: one ray per line, `ox oy oz dx dy dz [tmax]`, `#` starts a comment. Default
-    /// (without --camera): an 8 × 8 camera grid over the scene.
+    /// (without --camera): an 8 × 8 grid of camera rays looking straight down on the scene,
+    /// north up; ray i is pixel (i mod 8, i div 8), row 0 north.
     #[arg(long, conflicts_with = "camera")]
     pub rays: Option<PathBuf>,
     /// Camera file (JSON: perspective, orthographic or matrices); pick its pixels.
@@ -34,9 +35,9 @@ pub struct PickArgs {
     /// Which path answers.
     #[arg(long, value_parser = crate::cli::choice::choice::<Backend>(), default_value_t = Backend::Auto)]
     pub backend: Backend,
-    /// Output format.
-    #[arg(long, value_parser = crate::cli::choice::choice::<Format>(), default_value_t = Format::Csv)]
-    pub format: Format,
+    /// Output format [default: json when --out ends in .json, else csv].
+    #[arg(long, value_parser = crate::cli::choice::choice::<Format>())]
+    pub format: Option<Format>,
     /// Output file (default: standard output).
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -65,10 +66,13 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
                 })
                 .collect()
         }
-        _ => synthetic_rays(&built.scene, RayKind::Camera, 64, 1)
-            .into_iter()
-            .map(|r| r.with_range(q.tmin, q.tmax).with_mask(q.ray_mask))
-            .collect(),
+        _ => {
+            let (min, max) = built.scene.bounds().unwrap_or((DVec3::ZERO, DVec3::ZERO));
+            Camera::frame_from_above(min, max, GRID_SIDE, GRID_SIDE)
+                .pixel_center_rays()
+                .map(|r| r.with_range(q.tmin, q.tmax).with_mask(q.ray_mask))
+                .collect()
+        }
     };
     let mut reader = match &args.rays {
         Some(path) => {
@@ -82,12 +86,13 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         None => None,
     };
     let options = OutputOptions {
-        format: args.format,
+        format: output_format(args.format, args.out.as_deref()),
         mode: q.mode,
         cells: built.scene.objects().iter().any(|o| o.grid.is_some()),
     };
+    let scene_name = scene_summary(&args.scene, &built);
     let mut picker = make_picker(args.backend, built)?;
-    let mut invalid = 0;
+    let (mut invalid, mut answered, mut hit) = (0, 0u64, 0u64);
     let mut failure = None;
     // Large batches stream: answers are written chunk by chunk, so memory stays bounded. In
     // all-hits mode the chunk shrinks so that its lists fit the memory budget.
@@ -102,6 +107,8 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         let mut sink = |answers: Answers| {
             bar.inc(answers.nearest.len() as u64);
             invalid += answers.nearest.iter().filter(|h| h.invalid).count();
+            answered += answers.nearest.len() as u64;
+            hit += answers.nearest.iter().filter(|h| h.hit).count() as u64;
             writer.write(out, &answers).map_err(|source| Error::Io {
                 path: "output".into(),
                 source,
@@ -145,5 +152,41 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
              too short or too long to normalize, or tmin > tmax) and are reported as misses"
         );
     }
+    if !progress::is_quiet() {
+        eprintln!(
+            "picked {answered} ray{}: {hit} hit, {} missed; scene: {scene_name}; backend: {}",
+            if answered == 1 { "" } else { "s" },
+            answered - hit,
+            picker.describe()
+        );
+    }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Rays per side of the default camera grid.
+const GRID_SIDE: u32 = 8;
+
+/// The scene for the summary line: the built-in example, or the files (the first three, then a
+/// count), with the object and triangle counts.
+fn scene_summary(args: &SceneArgs, built: &BuiltScene) -> String {
+    let scene = &built.scene;
+    let objects = scene.objects().len();
+    let counts = format!(
+        "{objects} object{}, {} triangles",
+        if objects == 1 { "" } else { "s" },
+        scene.triangle_count()
+    );
+    let files: Vec<String> = match &args.scenes {
+        Some(description) => vec![description.display().to_string()],
+        None => args.scene.iter().map(|p| p.display().to_string()).collect(),
+    };
+    if files.is_empty() {
+        return format!("the built-in example ({counts})");
+    }
+    let shown = files.len().min(3);
+    let more = match files.len() - shown {
+        0 => String::new(),
+        n => format!(" and {n} more"),
+    };
+    format!("{}{more} ({counts})", files[..shown].join(", "))
 }

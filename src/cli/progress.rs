@@ -1,5 +1,5 @@
 //! Progress on standard error for the slow steps (loading, building, large batches), drawn only
-//! on a terminal and never with `--quiet`.
+//! on a terminal and never with `--quiet` (which also leaves out `pick`'s summary line).
 
 use indicatif::{ProgressBar, ProgressStyle};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -14,6 +14,11 @@ pub fn set_quiet(quiet: bool) {
 
 fn hidden() -> bool {
     QUIET.load(Ordering::Relaxed)
+}
+
+/// Whether `--quiet` was given (summary lines are left out too).
+pub fn is_quiet() -> bool {
+    hidden()
 }
 
 /// Runs `work` behind a spinner saying `message` (with the time spent).

@@ -10,7 +10,8 @@ pub struct QueryArgs {
     /// closest: the nearest hit; any: stop at the first hit found; all: every hit, sorted by t.
     #[arg(long, value_parser = crate::cli::choice::choice::<Mode>(), default_value_t = Mode::Closest)]
     pub mode: Mode,
-    /// In `--mode all`, the most hits kept per ray (the nearest); more are flagged as overflow.
+    /// In `--mode all`, the most hits kept per ray (the nearest), 1 ..= 1024; a ray that had
+    /// more is flagged (`overflow`).
     #[arg(long, default_value_t = 16)]
     pub max_hits: u32,
     /// Skip back faces or front faces (front = counter-clockwise as seen from the ray).
@@ -20,7 +21,8 @@ pub struct QueryArgs {
     /// paper's test).
     #[arg(long, value_parser = crate::cli::choice::choice::<Intersector>(), default_value_t = Intersector::Watertight)]
     pub intersector: Intersector,
-    /// Layer mask of every ray (decimal, 0x.. or 0b..): only objects sharing a bit are hit.
+    /// Layer mask of every ray (decimal, 0x.. or 0b..): only objects sharing a bit with it are
+    /// hit (objects have mask 0xffffffff unless --mask says otherwise; ray mask 0 hits nothing).
     #[arg(long, value_parser = parse_mask, default_value = "0xffffffff")]
     pub ray_mask: u32,
     /// Default tmin of every ray (hits need t > tmin).

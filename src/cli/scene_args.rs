@@ -9,10 +9,11 @@ use std::path::PathBuf;
 
 #[derive(Args, Debug)]
 pub struct SceneArgs {
-    /// Scene file: Wavefront .obj (one object), glTF 2.0 .gltf/.glb (one object per mesh
-    /// primitive, node transforms applied), or an elevation grid (.asc ESRI ASCII grid,
-    /// .tif/.tiff GeoTIFF; one terrain object). Repeat for several. Object ids follow the order
-    /// given. Default: the built-in example scene (a terrain with two buildings).
+    /// Scene file: a mesh (Wavefront .obj, PLY .ply or .ply.gz, STL .stl; one object each), glTF
+    /// 2.0 .gltf/.glb (one object per mesh primitive, node transforms applied), or an elevation
+    /// grid (.asc ESRI ASCII grid, .tif/.tiff GeoTIFF; one terrain object). Repeat for several.
+    /// Object ids follow the order given. Default: the built-in example scene (a height-grid
+    /// terrain with two buildings; `raypick example` writes it as files).
     #[arg(long, action = clap::ArgAction::Append)]
     pub scene: Vec<PathBuf>,
     /// Layer mask (decimal, 0x.. or 0b..) for the objects of the `--scene` just before it.

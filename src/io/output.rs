@@ -2,8 +2,11 @@
 //!
 //! CSV: one row per ray, `ray,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz`; in all-hits mode one row
 //! per hit with `rank` (0-based order along the ray) after `ray`, and a ray with no hit keeps one
-//! row with `hit` 0. Scenes with a terrain grid add `row,col` at the end (empty off the grid).
-//! A miss keeps its row with the other fields empty. Numbers are printed in Rust's shortest
+//! row with `hit` 0. Scenes with a terrain grid add `row,col` (empty off the grid). Every row
+//! ends with `invalid,overflow` (0 or 1): `invalid` marks a ray that could not be traced (a miss),
+//! `overflow` a ray that had more hits than `max_hits` in all-hits mode (always 0 in the other
+//! modes); both repeat on every row of a ray. A miss keeps its row with the fields between `hit`
+//! and `invalid` empty. Numbers are printed in Rust's shortest
 //! round-trip form, so an f64 world coordinate keeps every digit (well below a millimetre at map
 //! coordinates); beyond 1e-7 ..= 1e21 in magnitude, with an exponent ([`csv_number`]). JSON
 //! numbers take the exponent form below 1e-5 and from 1e16 (Rust's `{:?}`).
@@ -22,8 +25,14 @@ pub enum Format {
     Json,
 }
 
-/// The CSV header line of closest and any-hit answers.
-pub const CSV_HEADER: &str = "ray,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz";
+/// The CSV header line of closest and any-hit answers on a scene without a terrain grid.
+pub const CSV_HEADER: &str = "ray,hit,t,object,triangle,u,v,x,y,z,nx,ny,nz,invalid,overflow";
+
+/// The columns of [`CSV_HEADER`] that follow `ray` and come before the terrain's `row,col`.
+const CSV_HIT_COLUMNS: &str = "hit,t,object,triangle,u,v,x,y,z,nx,ny,nz";
+
+/// The flag columns every CSV row ends with.
+const CSV_FLAG_COLUMNS: &str = "invalid,overflow";
 
 /// How to write a batch of answers.
 #[derive(Clone, Copy, Debug, Default)]
@@ -86,7 +95,7 @@ impl AnswerWriter {
                     "ray,"
                 };
                 let cells = if options.cells { ",row,col" } else { "" };
-                writeln!(out, "{rank}{}{cells}", &CSV_HEADER["ray,".len()..])?;
+                writeln!(out, "{rank}{CSV_HIT_COLUMNS}{cells},{CSV_FLAG_COLUMNS}")?;
             }
             Format::Json => write!(out, "[")?,
         }
@@ -107,11 +116,13 @@ impl AnswerWriter {
         for (k, nearest) in answers.nearest.iter().enumerate() {
             let i = self.rays_written + k;
             let hits = answers.hits_of(k);
+            let overflow = answers.overflow.get(k).copied().unwrap_or(false);
+            let flags = format!("{},{}", u8::from(nearest.invalid), u8::from(overflow));
             match options.format {
                 Format::Csv if hits.is_empty() => {
                     let empty_cells = if options.cells { ",," } else { "" };
                     let rank = if all { "," } else { "" };
-                    writeln!(out, "{i},{rank}0,,,,,,,,,,,{empty_cells}")?;
+                    writeln!(out, "{i},{rank}0,,,,,,,,,,,{empty_cells},{flags}")?;
                 }
                 Format::Csv => {
                     for (r, h) in hits.iter().enumerate() {
@@ -139,7 +150,7 @@ impl AnswerWriter {
                                 None => write!(out, ",,")?,
                             }
                         }
-                        writeln!(out)?;
+                        writeln!(out, ",{flags}")?;
                     }
                 }
                 Format::Json => {
@@ -149,7 +160,7 @@ impl AnswerWriter {
                         format!(
                             "{{\"ray\":{i},\"invalid\":{},\"overflow\":{},\"hits\":[{}]}}",
                             nearest.invalid,
-                            answers.overflow[k],
+                            overflow,
                             hits.join(",")
                         )
                     } else if nearest.hit {

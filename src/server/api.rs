@@ -289,7 +289,8 @@ struct PickRequest {
     tmin: Option<f64>,
     /// Default `tmax` (`null` or absent: unbounded).
     tmax: Option<f64>,
-    /// Default layer mask.
+    /// Default layer mask (`ray_mask`, as the command line names it, is accepted too).
+    #[serde(alias = "ray_mask")]
     mask: Option<u32>,
 }
 
@@ -301,6 +302,7 @@ struct RayRequest {
     dir: [f64; 3],
     tmin: Option<f64>,
     tmax: Option<f64>,
+    #[serde(alias = "ray_mask")]
     mask: Option<u32>,
 }
 

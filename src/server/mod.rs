@@ -63,7 +63,8 @@
 //! (`none`, `back`, `front`), `max_hits` (mode `all`, 1 ..= 1024, default 16), `intersector`
 //! (`watertight` or `moller-trumbore`; default [`crate::Intersector::default`]), and `tmin`,
 //! `tmax`, `mask` as defaults for rays without their own (and for pixel rays); `tmax` absent
-//! or `null` is unbounded. Numbers are read correctly rounded (serde_json's
+//! or `null` is unbounded. `mask` may also be spelled `ray_mask`, as the command line's
+//! `--ray-mask` (in a request and in a ray; one of the two, not both). Numbers are read correctly rounded (serde_json's
 //! `float_roundtrip`), so rays and cameras arrive bit for bit as the client wrote them.
 //!
 //! The answer has one result per ray, in order:
