@@ -15,10 +15,19 @@
 //!
 //! Cells equal to `nodata_value` become `None`. NaN or infinite cells are an
 //! error, unless `nodata_value` is itself `nan` (then NaN cells are NODATA).
+//!
+//! The header is read a line at a time. The values are read in blocks of whole lines (8 MiB),
+//! each cut into pieces at line ends and parsed in parallel (rayon); the pieces are joined in
+//! file order. Numbers follow Rust's `f64` syntax and are read correctly rounded. A piece with
+//! anything unusual in it (an error, a NaN or infinite value, non-ASCII text) is read again a
+//! line at a time with `str::parse`, which finds the first error and its line, so the rules and
+//! messages are those of the sequential reader this one replaced (`tests/asc_reader.rs` checks).
 
-use std::fs::File;
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Read};
+use std::ops::Range;
 use std::path::Path;
+
+use rayon::prelude::*;
 
 use super::grid::{ElevationGrid, alloc_heights, checked_sample_count};
 use super::{io_error, parse_error};
@@ -41,17 +50,24 @@ const KEYS: [&str; 10] = [
 
 /// Loads an ESRI ASCII grid from `path`; see the module docs for the conventions.
 ///
+/// The file must be a regular file. Its values are read a block of lines at a time and parsed
+/// in parallel (rayon).
+///
 /// # Errors
-/// [`Error::Io`] if the file cannot be read; [`Error::Parse`] (with the line
-/// where it applies) for a missing/repeated/unknown header key, a bad number,
-/// too few or too many values, a non-positive cell size, NaN/infinite cells or
-/// a grid larger than [`MAX_SAMPLES`](crate::dem::MAX_SAMPLES).
+/// [`Error::Io`] if the file cannot be read or is not a regular file; [`Error::Parse`] (with the
+/// line where it applies) for a missing/repeated/unknown header key, a bad number, too few or
+/// too many values, a non-positive cell size, NaN/infinite cells or a grid larger than
+/// [`MAX_SAMPLES`](crate::dem::MAX_SAMPLES).
 pub fn load_asc(path: impl AsRef<Path>) -> Result<ElevationGrid, Error> {
     let path = path.as_ref();
     let name = path.display().to_string();
-    let file = File::open(path).map_err(|e| io_error(&name, e))?;
-    let size_hint = file.metadata().ok().map(|m| m.len());
-    parse(BufReader::new(file), &name, size_hint)
+    let (file, length) = crate::io::open_regular(path)?;
+    parse(
+        BufReader::new(file),
+        &name,
+        Some(length),
+        (BLOCK_BYTES, PIECE_BYTES),
+    )
 }
 
 /// Parses an ESRI ASCII grid from `reader`; `name` labels errors (usually the file path).
@@ -59,7 +75,19 @@ pub fn load_asc(path: impl AsRef<Path>) -> Result<ElevationGrid, Error> {
 /// # Errors
 /// As [`load_asc`].
 pub fn read_asc(reader: impl BufRead, name: &str) -> Result<ElevationGrid, Error> {
-    parse(reader, name, None)
+    parse(reader, name, None, (BLOCK_BYTES, PIECE_BYTES))
+}
+
+/// [`read_asc`] reading the values `block_bytes` at a time (at least 1) in pieces of about
+/// `piece_bytes`, for tests of the block and piece seams.
+#[doc(hidden)]
+pub fn read_asc_in_pieces(
+    reader: impl BufRead,
+    name: &str,
+    block_bytes: usize,
+    piece_bytes: usize,
+) -> Result<ElevationGrid, Error> {
+    parse(reader, name, None, (block_bytes.max(1), piece_bytes.max(1)))
 }
 
 /// A header value as written, with the line it came from.
@@ -248,27 +276,37 @@ impl Header {
     }
 }
 
+/// Text read from the file at a time (plus the partial line left from the last read).
+const BLOCK_BYTES: usize = 8 << 20;
+
+/// Text one parallel task parses, about: below it, a task costs more than it saves.
+const PIECE_BYTES: usize = 128 << 10;
+
+/// Reads a grid from `reader` (`size_hint`: the file's length, when known), the values in
+/// blocks of `sizes.0` bytes and pieces of about `sizes.1`.
 fn parse(
     mut reader: impl BufRead,
     path: &str,
     size_hint: Option<u64>,
+    sizes: (usize, usize),
 ) -> Result<ElevationGrid, Error> {
     let mut header = Header {
         path: path.to_owned(),
         entries: Default::default(),
     };
-    let mut geometry: Option<Geometry> = None;
-    let mut heights = Vec::new();
     let mut buf = Vec::new();
     let mut line_no = 0usize;
 
-    loop {
+    // The header, a line at a time, up to the first line that starts with a number.
+    let g = loop {
         buf.clear();
         let read = reader
             .read_until(b'\n', &mut buf)
             .map_err(|e| io_error(path, e))?;
         if read == 0 {
-            break;
+            // No data line: the header's defects first, then too few values.
+            let g = header.geometry()?;
+            return Err(too_few(path, &g, 0, line_no));
         }
         line_no += 1;
         let mut text = std::str::from_utf8(&buf)
@@ -276,101 +314,86 @@ fn parse(
         if line_no == 1 {
             text = text.strip_prefix('\u{feff}').unwrap_or(text);
         }
-        let mut tokens = text.split_whitespace().peekable();
-
-        if geometry.is_none() {
-            let Some(first) = tokens.peek().copied() else {
-                continue; // blank header line
-            };
-            if first.parse::<f64>().is_err() {
-                tokens.next();
-                let value = tokens.next().ok_or_else(|| {
-                    parse_error(
-                        path,
-                        Some(line_no),
-                        format!("header key '{}' has no value", quote(first)),
-                    )
-                })?;
-                if let Some(extra) = tokens.next() {
-                    return Err(parse_error(
-                        path,
-                        Some(line_no),
-                        format!(
-                            "unexpected '{}' after header value '{} {}'",
-                            quote(extra),
-                            quote(first),
-                            quote(value)
-                        ),
-                    ));
-                }
-                header.insert(first, value, line_no)?;
-                continue;
-            }
-            // First data line: the header is complete.
-            let g = header.geometry()?;
-            // Each value takes at least two bytes (digit + separator), so a
-            // file cannot justify more capacity than half its size.
-            let plausible = size_hint.map_or(1 << 20, |s| {
-                usize::try_from(s / 2 + 1).unwrap_or(usize::MAX)
-            });
-            heights = alloc_heights(path, g.count.min(plausible))?;
-            geometry = Some(g);
-        }
-        let Some(g) = geometry.as_ref() else {
-            continue;
+        let mut tokens = text.split_whitespace();
+        let Some(first) = tokens.next() else {
+            continue; // blank header line
         };
-
-        for token in tokens {
-            let value = token.parse::<f64>().map_err(|_| {
-                parse_error(
-                    path,
-                    Some(line_no),
-                    format!("bad number '{}'", quote(token)),
-                )
-            })?;
-            if heights.len() == g.count {
-                return Err(parse_error(
-                    path,
-                    Some(line_no),
-                    format!(
-                        "too many values: expected {} ({} columns x {} rows)",
-                        g.count, g.ncols, g.nrows
-                    ),
-                ));
-            }
-            let is_nodata = g
-                .nodata
-                .is_some_and(|nd| nd == value || (nd.is_nan() && value.is_nan()));
-            if is_nodata {
-                heights.push(None);
-            } else if value.is_finite() {
-                heights.push(Some(value));
-            } else {
-                return Err(parse_error(
-                    path,
-                    Some(line_no),
-                    format!("non-finite value '{}' (not the nodata_value)", quote(token)),
-                ));
-            }
+        if first.parse::<f64>().is_ok() {
+            break header.geometry()?;
         }
+        let value = tokens.next().ok_or_else(|| {
+            parse_error(
+                path,
+                Some(line_no),
+                format!("header key '{}' has no value", quote(first)),
+            )
+        })?;
+        if let Some(extra) = tokens.next() {
+            return Err(parse_error(
+                path,
+                Some(line_no),
+                format!(
+                    "unexpected '{}' after header value '{} {}'",
+                    quote(extra),
+                    quote(first),
+                    quote(value)
+                ),
+            ));
+        }
+        header.insert(first, value, line_no)?;
+    };
+
+    // Each value takes at least two bytes (digit + separator), so a file cannot justify more
+    // capacity than half its size.
+    let plausible = size_hint.map_or(1 << 20, |s| {
+        usize::try_from(s / 2 + 1).unwrap_or(usize::MAX)
+    });
+    let mut heights = alloc_heights(path, g.count.min(plausible))?;
+    crate::huge_pages::advise(&mut heights);
+    let mut values = Values {
+        path,
+        g: &g,
+        heights,
+        lines: line_no - 1,
+        scratch: Vec::new(),
+    };
+
+    // The values, from the first data line on, a block of whole lines at a time.
+    let (block_bytes, piece_bytes) = sizes;
+    let mut text = buf;
+    loop {
+        let want = block_bytes as u64;
+        let read = (&mut reader).take(want).read_to_end(&mut text);
+        let at_end = match read {
+            Ok(n) => (n as u64) < want,
+            Err(e) => {
+                // The whole lines before the failure are parsed first, as they were read.
+                let whole = text.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+                values.parse_block(&text[..whole], piece_bytes)?;
+                return Err(io_error(path, e));
+            }
+        };
+        let whole = if at_end {
+            text.len()
+        } else {
+            match text.iter().rposition(|&b| b == b'\n') {
+                Some(i) => i + 1,
+                None => continue, // one long line: read on
+            }
+        };
+        values.parse_block(&text[..whole], piece_bytes)?;
+        if at_end {
+            if !text.is_empty() && !text.ends_with(b"\n") {
+                values.lines += 1; // the last line has no newline
+            }
+            break;
+        }
+        text.drain(..whole);
     }
 
-    let g = match geometry {
-        Some(g) => g,
-        None => header.geometry()?,
-    };
+    let Values { heights, lines, .. } = values;
     if heights.len() < g.count {
-        return Err(parse_error(
-            path,
-            (line_no > 0).then_some(line_no),
-            format!(
-                "too few values: file ends after {} of {} ({} columns x {} rows)",
-                heights.len(),
-                g.count,
-                g.ncols,
-                g.nrows
-            ),
-        ));
+        return Err(too_few(path, &g, heights.len(), lines));
     }
     Ok(ElevationGrid {
         ncols: g.ncols,
@@ -381,6 +404,301 @@ fn parse(
         dy: g.dy,
         heights,
     })
+}
+
+/// The error for a file that ends after `read` values, on line `lines` (0: an empty file).
+fn too_few(path: &str, g: &Geometry, read: usize, lines: usize) -> Error {
+    parse_error(
+        path,
+        (lines > 0).then_some(lines),
+        format!(
+            "too few values: file ends after {read} of {} ({} columns x {} rows)",
+            g.count, g.ncols, g.nrows
+        ),
+    )
+}
+
+/// The values read so far.
+struct Values<'a> {
+    path: &'a str,
+    g: &'a Geometry,
+    heights: Vec<Option<f64>>,
+    /// Lines of the file before the text still to parse.
+    lines: usize,
+    /// One buffer for the values of each piece of a block, kept from block to block: fresh
+    /// buffers would cost a page fault every 4 KiB each time.
+    scratch: Vec<Vec<Option<f64>>>,
+}
+
+/// What [`scan`] made of a piece of text (its values are in a scratch buffer).
+struct Scanned {
+    /// Its `\n` bytes.
+    newlines: usize,
+    /// False when the piece holds something other than ASCII whitespace and numbers that are
+    /// finite or the NODATA value: an error, or non-ASCII text. [`Values::parse_lines`] reads it.
+    clean: bool,
+}
+
+impl Values<'_> {
+    /// Parses `text`, whole lines (the last one may lack its newline), in pieces of about
+    /// `piece_bytes` in parallel; the pieces are joined in file order, and a piece that is not
+    /// [`Scanned::clean`] or would overflow the grid is parsed again by [`Self::parse_lines`],
+    /// which finds its first error.
+    fn parse_block(&mut self, text: &[u8], piece_bytes: usize) -> Result<(), Error> {
+        let pieces = split(text, piece_bytes.max(1));
+        if self.scratch.len() < pieces.len() {
+            self.scratch.resize_with(pieces.len(), Vec::new);
+        }
+        let nodata = self.g.nodata;
+        let mut scratch = std::mem::take(&mut self.scratch);
+        let scan_piece = |(r, values): (&Range<usize>, &mut Vec<Option<f64>>)| {
+            values.clear();
+            scan(&text[r.clone()], nodata, values)
+        };
+        let scanned: Vec<Scanned> = if pieces.len() == 1 {
+            pieces.iter().zip(&mut scratch).map(scan_piece).collect()
+        } else {
+            pieces
+                .par_iter()
+                .zip(&mut scratch[..pieces.len()])
+                .map(scan_piece)
+                .collect()
+        };
+        // Clean pieces are appended in runs, in parallel; the others are parsed again in turn.
+        let mut run = 0..0;
+        let mut run_values = 0;
+        let mut result = Ok(());
+        for (k, s) in scanned.iter().enumerate() {
+            let room = self.g.count - self.heights.len() - run_values;
+            if s.clean && scratch[k].len() <= room {
+                run.end = k + 1;
+                run_values += scratch[k].len();
+                self.lines += s.newlines;
+                continue;
+            }
+            append(&mut self.heights, &scratch[run.clone()]);
+            (run, run_values) = (k + 1..k + 1, 0);
+            result = self.parse_lines(&text[pieces[k].clone()]);
+            if result.is_err() {
+                break;
+            }
+        }
+        if result.is_ok() {
+            append(&mut self.heights, &scratch[run]);
+        }
+        self.scratch = scratch;
+        result
+    }
+
+    /// Parses whole lines one at a time with `str::parse`: the reference for every rule and
+    /// message, used where [`scan`] finds something unusual.
+    fn parse_lines(&mut self, text: &[u8]) -> Result<(), Error> {
+        let (path, g) = (self.path, self.g);
+        for line in text.split_inclusive(|&b| b == b'\n') {
+            self.lines += 1;
+            let line_no = self.lines;
+            let text = std::str::from_utf8(line)
+                .map_err(|_| parse_error(path, Some(line_no), "line is not valid UTF-8 text"))?;
+            for token in text.split_whitespace() {
+                let value = token.parse::<f64>().map_err(|_| {
+                    parse_error(
+                        path,
+                        Some(line_no),
+                        format!("bad number '{}'", quote(token)),
+                    )
+                })?;
+                if self.heights.len() == g.count {
+                    return Err(parse_error(
+                        path,
+                        Some(line_no),
+                        format!(
+                            "too many values: expected {} ({} columns x {} rows)",
+                            g.count, g.ncols, g.nrows
+                        ),
+                    ));
+                }
+                match cell(value, g.nodata) {
+                    Some(height) => self.heights.push(height),
+                    None => {
+                        return Err(parse_error(
+                            path,
+                            Some(line_no),
+                            format!("non-finite value '{}' (not the nodata_value)", quote(token)),
+                        ));
+                    }
+                }
+            }
+        }
+        // A last line without its newline was counted, as one.
+        if text.last().is_some_and(|&b| b != b'\n') {
+            self.lines -= 1;
+        }
+        Ok(())
+    }
+}
+
+/// A cell's height: `Some(None)` for NODATA, `Some(Some(v))` for a finite value, `None` for a
+/// NaN or infinite value that is not the NODATA value (an error).
+fn cell(value: f64, nodata: Option<f64>) -> Option<Option<f64>> {
+    let is_nodata = nodata.is_some_and(|nd| nd == value || (nd.is_nan() && value.is_nan()));
+    if is_nodata {
+        Some(None)
+    } else if value.is_finite() {
+        Some(Some(value))
+    } else {
+        None
+    }
+}
+
+/// The whitespace `str::split_whitespace` splits ASCII text at.
+fn is_space(b: u8) -> bool {
+    matches!(b, b' ' | b'\n' | b'\t' | b'\r' | 0x0b | 0x0c)
+}
+
+/// Reads the values of an ASCII piece of text into `values`. A plain decimal (a sign, at most
+/// 19 digits worth at most 2^53, a point anywhere) is read here; any other token with
+/// `fast-float2`; one that it does not take whole, or reads as NaN or infinite, with
+/// `str::parse`. All three give the correctly rounded value. A token that is not a number, a NaN
+/// or infinite value that is not the NODATA value, or any non-ASCII byte, stops the scan with
+/// `clean: false`.
+fn scan(text: &[u8], nodata: Option<f64>, values: &mut Vec<Option<f64>>) -> Scanned {
+    let mut newlines = 0;
+    let unclean = |newlines| Scanned {
+        newlines,
+        clean: false,
+    };
+    let mut i = 0;
+    loop {
+        while let Some(&b) = text.get(i) {
+            match b {
+                b'\n' => newlines += 1,
+                b' ' | b'\t' | b'\r' | 0x0b | 0x0c => {}
+                _ => break,
+            }
+            i += 1;
+        }
+        if i == text.len() {
+            break;
+        }
+        let rest = &text[i..];
+        let (value, used) = match plain_decimal(rest) {
+            Some(found) => found,
+            None => match fast_float2::parse_partial::<f64, _>(rest) {
+                Ok((v, n)) if v.is_finite() && rest.get(n).is_none_or(|&b| is_space(b)) => (v, n),
+                _ => {
+                    let n = rest.iter().position(|&b| is_space(b)).unwrap_or(rest.len());
+                    let token = &rest[..n];
+                    let parsed = if token.is_ascii() {
+                        // ASCII is UTF-8.
+                        std::str::from_utf8(token)
+                            .ok()
+                            .and_then(|t| t.parse::<f64>().ok())
+                    } else {
+                        None
+                    };
+                    match parsed {
+                        Some(v) => (v, n),
+                        None => return unclean(newlines),
+                    }
+                }
+            },
+        };
+        match cell(value, nodata) {
+            Some(height) => values.push(height),
+            None => return unclean(newlines),
+        }
+        i += used;
+    }
+    Scanned {
+        newlines,
+        clean: true,
+    }
+}
+
+/// Exact powers of ten, 10^0 to 10^22: every one is a double.
+const POW10: [f64; 23] = [
+    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16,
+    1e17, 1e18, 1e19, 1e20, 1e21, 1e22,
+];
+
+/// The value and length of the token at the start of `text` when it is a plain decimal
+/// (`[+-]digits[.digits]`, or with no digits on one side of the point) of at most 19 digits,
+/// worth at most 2^53 without its point, and ends at whitespace or at the end of `text`.
+///
+/// Such a value is `m / 10^k` with `m` and `10^k` (k ≤ 19) exact doubles, so the one division,
+/// correctly rounded, gives the correctly rounded decimal (Clinger's fast path; `str::parse` and
+/// `fast-float2` take the same path for these tokens).
+fn plain_decimal(text: &[u8]) -> Option<(f64, usize)> {
+    let mut i = 0;
+    let negative = match text.first() {
+        Some(b'-') => {
+            i = 1;
+            true
+        }
+        Some(b'+') => {
+            i = 1;
+            false
+        }
+        _ => false,
+    };
+    let mut m = 0u64;
+    let mut digits = 0usize;
+    let mut point = None;
+    while let Some(&b) = text.get(i) {
+        match b {
+            b'0'..=b'9' => {
+                m = m.wrapping_mul(10).wrapping_add(u64::from(b - b'0'));
+                digits += 1;
+            }
+            b'.' if point.is_none() => point = Some(digits),
+            _ => break,
+        }
+        i += 1;
+    }
+    if digits == 0 || digits > 19 || m > 1 << 53 || text.get(i).is_some_and(|&b| !is_space(b)) {
+        return None;
+    }
+    let fraction = digits - point.unwrap_or(digits);
+    let magnitude = m as f64 / POW10[fraction];
+    Some((if negative { -magnitude } else { magnitude }, i))
+}
+
+/// Appends `parts`, in order, to `heights`, copying them in parallel.
+fn append(heights: &mut Vec<Option<f64>>, parts: &[Vec<Option<f64>>]) {
+    let total: usize = parts.iter().map(Vec::len).sum();
+    heights.reserve(total);
+    let mut spare = &mut heights.spare_capacity_mut()[..total];
+    let mut slots = Vec::with_capacity(parts.len());
+    for part in parts {
+        let (slot, rest) = spare.split_at_mut(part.len());
+        slots.push(slot);
+        spare = rest;
+    }
+    slots.into_par_iter().zip(parts).for_each(|(slot, part)| {
+        for (to, from) in slot.iter_mut().zip(part) {
+            to.write(*from);
+        }
+    });
+    // SAFETY: the `total` slots after the length were all written just above (each slot has
+    // the length of its part).
+    unsafe { heights.set_len(heights.len() + total) };
+}
+
+/// Cuts `text` into ranges of about `target` bytes (at least 1) that end after a `\n` (or at the
+/// end of `text`).
+fn split(text: &[u8], target: usize) -> Vec<Range<usize>> {
+    let mut ranges = Vec::new();
+    let mut start = 0;
+    while start < text.len() {
+        let cut = start.saturating_add(target).min(text.len());
+        let end = text[cut..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(text.len(), |i| cut + i + 1);
+        ranges.push(start..end);
+        start = end;
+    }
+    ranges
 }
 
 #[cfg(test)]
