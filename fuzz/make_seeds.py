@@ -11,7 +11,9 @@ hand-written text inputs, tiny GeoTIFFs covering the sample types,
 byte orders, BigTIFF, strips/tiles, deflate and the three georeferencing tags,
 tiny 16-bit / 8-bit grayscale PNGs, small glTF / GLB files (external, subfolder
 and data-URI buffers, sparse accessors, instancing, strips) and scene
-descriptions naming the files of the fuzz targets' scratch folder.
+descriptions naming the files of the fuzz targets' scratch folder, and four
+small saved scenes (.rpk: empty, one triangle, two masked objects, a grid with
+a terrain block) written from the format's description.
 """
 
 import base64
@@ -315,8 +317,147 @@ def scene_description_seeds() -> None:
     put("scene_description", "dotdot.json", '{"objects": [{"file": "../tri.obj"}]}')
 
 
+# --- rpk ---------------------------------------------------------------------
+# Saved scenes written from the format description in src/rpk/mod.rs alone (an
+# independent writer of the format: the fuzz target reads them back, and
+# `RAYPICK_FUZZ_DEBUG=1 cargo fuzz run rpk corpus/rpk/<seed>` shows they load).
+
+RPK_MAGIC = b"\x89RPK\r\n\x1a\n"
+
+
+def f32(x: float) -> float:
+    return struct.unpack("<f", struct.pack("<f", x))[0]
+
+
+def rpk_tree(local, shape):
+    """Depth-first nodes for `shape` over leaf-order triangles `local` (f32
+    vertex triples): ("leaf", count) or ("inner", axis, left, right). Returns
+    nodes [(min, parent, kind, max, first)] and the wide tree's one node."""
+    nodes = []
+    taken = [0]
+
+    def build(s, parent):
+        index = len(nodes)
+        nodes.append(None)
+        if s[0] == "leaf":
+            first = taken[0]
+            taken[0] += s[1]
+            vs = [v for t in local[first:first + s[1]] for v in t]
+            lo = [min(v[a] for v in vs) for a in range(3)]
+            hi = [max(v[a] for v in vs) for a in range(3)]
+            nodes[index] = (lo, parent, s[1], hi, first)
+        else:
+            left = build(s[2], index)
+            right = build(s[3], index)
+            lo = [min(nodes[left][0][a], nodes[right][0][a]) for a in range(3)]
+            hi = [max(nodes[left][3][a], nodes[right][3][a]) for a in range(3)]
+            nodes[index] = (lo, parent, 16 + s[1], hi, right)
+        return index
+
+    build(shape, 0)
+    # The collapse of a tree of at most four leaves: one wide node whose slots
+    # are the leaves in order (inner children opened in place).
+    slots = [0] if nodes[0][2] < 16 else [1, nodes[0][4]]
+    while any(nodes[n][2] >= 16 for n in slots):
+        i = next(k for k, n in enumerate(slots) if nodes[n][2] >= 16)
+        slots[i:i + 1] = [slots[i] + 1, nodes[slots[i]][4]]
+    assert len(slots) <= 4
+    wide = ([[0.0] * 4 for _ in range(3)], [[0.0] * 4 for _ in range(3)], [0] * 4, [0] * 4)
+    for lane, n in enumerate(slots):
+        lo, _, kind, hi, first = nodes[n]
+        for a in range(3):
+            wide[0][a][lane] = lo[a]
+            wide[1][a][lane] = hi[a]
+        wide[2][lane] = first
+        wide[3][lane] = kind
+    return nodes, [wide] if nodes else []
+
+
+def rpk_file(positions, triangles, objects, leaf_ids=(), shape=None, blocks=()):
+    """A version 1 .rpk. objects: (name, first triangle, count, first vertex,
+    mask, (columns, rows) or None); leaf_ids: scene triangles in leaf order;
+    blocks: (rows, cols, node, triangles, min, max) with (start, end) ranges."""
+    if positions:
+        lo = [min(p[a] for p in positions) for a in range(3)]
+        hi = [max(p[a] for p in positions) for a in range(3)]
+        origin = [lo[a] + (hi[a] - lo[a]) * 0.5 for a in range(3)]
+    else:
+        origin = [0.0, 0.0, 0.0]
+    local = [[[f32(positions[i][a] - origin[a]) for a in range(3)] for i in triangles[t]]
+             for t in leaf_ids]
+    nodes, wide = rpk_tree(local, shape) if shape else ([], [])
+    mask_of = {}
+    for _, first, count, _, mask, _ in objects:
+        for t in range(first, first + count):
+            mask_of[t] = mask
+    masks = ([mask_of[t] for t in leaf_ids]
+             if any(o[4] != 0xFFFFFFFF for o in objects) else [])
+    names = b"".join(o[0].encode() for o in objects)
+    summary = struct.pack("<10Q", len(positions), len(triangles), len(objects), len(names),
+                          len(nodes), len(leaf_ids), len(blocks), len(wide),
+                          1 if wide else 0, len(masks))
+    summary += struct.pack("<6d", *origin, *origin)
+    payloads = [
+        (b"SUMM", summary),
+        (b"VERT", b"".join(struct.pack("<3d", *p) for p in positions)),
+        (b"TRIS", b"".join(struct.pack("<3I", *t) for t in triangles)),
+        (b"OBJS", b"".join(
+            struct.pack("<10I", k, first, count, vertex, mask, int(grid is not None),
+                        *(grid or (0, 0)), len(name.encode()), 0)
+            for k, (name, first, count, vertex, mask, grid) in enumerate(objects))),
+        (b"NAME", names),
+        (b"NODE", b"".join(struct.pack("<3fI3fI", *lo, parent << 5 | kind, *hi, first)
+                           for lo, parent, kind, hi, first in nodes)),
+        (b"LTRI", b"".join(struct.pack("<9f", *(c for v in t for c in v)) for t in local)),
+        (b"TIDS", b"".join(struct.pack("<I", t) for t in leaf_ids)),
+        (b"MASK", b"".join(struct.pack("<I", m) for m in masks)),
+        (b"BLKS", b"".join(
+            struct.pack("<8I9d", *rows, *cols, node, *tris, 0, *bmin, *bmax,
+                        *[bmin[a] + (bmax[a] - bmin[a]) * 0.5 for a in range(3)])
+            for rows, cols, node, tris, bmin, bmax in blocks)),
+        (b"WIDE", b"".join(
+            struct.pack("<12f12f4I4BB11x", *(v for axis in lo for v in axis),
+                        *(v for axis in hi for v in axis), *child, *kind,
+                        sum(1 << lane for lane in range(4) if kind[lane]))
+            for lo, hi, child, kind in wide)),
+    ]
+    body = b"".join(tag + struct.pack("<IQ", zlib.crc32(p), len(p)) + p + b"\0" * (-len(p) % 16)
+                    for tag, p in payloads)
+    head = RPK_MAGIC + struct.pack("<IIQI", 1, len(payloads), 32 + len(body), 0)
+    return head + struct.pack("<I", zlib.crc32(head)) + body
+
+
+def rpk_seeds() -> None:
+    put("rpk", "empty.rpk", rpk_file([], [], []))
+    tri = [(0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)]
+    put("rpk", "one_triangle.rpk",
+        rpk_file(tri, [(0, 1, 2)], [("tri", 0, 1, 0, 0xFFFFFFFF, None)], [0], ("leaf", 1)))
+    # Two objects with masks; object "b"'s last triangle has zero area and is
+    # left out of the tree.
+    positions = tri + [(2.0, 0.0, 1.0), (3.0, 0.0, 1.0), (2.0, 1.0, 1.5), (3.0, 1.0, 2.0)]
+    put("rpk", "masks.rpk", rpk_file(
+        positions, [(0, 1, 2), (3, 4, 5), (4, 6, 5), (3, 3, 4)],
+        [("a", 0, 1, 0, 1, None), ("b", 1, 3, 3, 6, None)], [0, 1, 2],
+        ("inner", 0, ("leaf", 1), ("inner", 1, ("leaf", 1), ("leaf", 1)))))
+    # A 3 x 3 height grid (8 triangles, grid numbering) split at x = 1, with one
+    # terrain block.
+    heights = [1.0, 2.0, 1.5, 0.5, 3.0, 2.0, 1.0, 1.0, 2.5]
+    grid = [(float(c), float(2 - r), heights[3 * r + c]) for r in range(3) for c in range(3)]
+    triangles = []
+    for r in range(2):
+        for c in range(2):
+            nw, ne, sw, se = 3 * r + c, 3 * r + c + 1, 3 * (r + 1) + c, 3 * (r + 1) + c + 1
+            triangles += [(nw, sw, se), (nw, se, ne)]
+    bmin = [min(p[a] for p in grid) for a in range(3)]
+    bmax = [max(p[a] for p in grid) for a in range(3)]
+    put("rpk", "grid.rpk", rpk_file(
+        grid, triangles, [("grid.asc", 0, 8, 0, 0xFFFFFFFF, (3, 3))],
+        [0, 1, 4, 5, 2, 3, 6, 7], ("inner", 0, ("leaf", 4), ("leaf", 4)),
+        [((0, 2), (0, 2), 0, (0, 8), bmin, bmax)]))
+
+
 if __name__ == "__main__":
-    for t in ("obj", "ray_file", "asc", "geotiff", "png16", "gltf", "scene_description"):
+    for t in ("obj", "ray_file", "asc", "geotiff", "png16", "gltf", "scene_description", "rpk"):
         (CORPUS / t).mkdir(parents=True, exist_ok=True)
     obj_seeds()
     ray_seeds()
@@ -325,5 +466,6 @@ if __name__ == "__main__":
     png_seeds()
     gltf_seeds()
     scene_description_seeds()
+    rpk_seeds()
     for t in sorted(CORPUS.iterdir()):
         print(t.name, len(list(t.iterdir())), "files")

@@ -46,6 +46,7 @@ pub mod picker;
 pub mod query;
 pub mod ray;
 pub mod ray_order;
+pub mod rpk;
 pub mod scene;
 #[cfg(feature = "server")]
 pub mod server;

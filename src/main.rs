@@ -55,6 +55,9 @@ enum Command {
     Soak(cli::soak::SoakArgs),
     /// A ray-cast picture of the scene as a PNG, shaded by normal (hillshade), depth or object.
     Render(cli::render::RenderArgs),
+    /// Build a scene's trees once and save the whole built scene as a .rpk file, which
+    /// `--scene FILE.rpk` loads in every command with no rebuild.
+    Build(cli::build::BuildArgs),
     /// Serve an HTTP JSON API (pick, scene, render) and a viewer page over one resident scene.
     Serve(cli::serve::ServeArgs),
     /// Write the built-in example scene as files (terrain.asc, tower.obj, hall.obj, and a scene
@@ -92,6 +95,7 @@ fn main() -> ExitCode {
         Command::Serve(args) => cli::serve::run(args, sub),
         Command::Example(args) => cli::example::run(args),
         Command::Bench(args) => cli::bench::run(args, sub),
+        Command::Build(args) => cli::build::run(args, sub),
     };
     match result {
         Ok(code) => code,

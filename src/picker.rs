@@ -60,6 +60,17 @@ impl BuiltScene {
         }
     }
 
+    /// A built scene whose CPU engine tree was collapsed elsewhere (a saved scene,
+    /// [`crate::rpk`]); `wide` must be what `WideBvh::collapse(&bvh)` makes.
+    pub fn with_wide(scene: Scene, bvh: Bvh, triangle_masks: Vec<u32>, wide: WideBvh) -> Self {
+        Self {
+            scene,
+            bvh,
+            triangle_masks,
+            wide: OnceLock::from(Ok(wide)),
+        }
+    }
+
     /// The CPU engine's wide tree (collapsed from `bvh` on first use, then kept); an error for a
     /// corrupted tree.
     pub fn wide(&self) -> Result<&WideBvh> {

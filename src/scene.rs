@@ -238,6 +238,38 @@ impl Scene {
 }
 
 impl Scene {
+    /// Every vertex's world position, in scene order (objects' vertices one after another).
+    pub fn positions(&self) -> &[DVec3] {
+        &self.positions
+    }
+
+    /// Every triangle's scene vertex indices, in scene order.
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+
+    /// A scene from its parts, as [`Scene::add_mesh`] would have made them; the bounds are
+    /// computed here, in the same order as `add_mesh` computes them. The caller has checked
+    /// what `add_mesh` guarantees (finite positions; objects numbered in order, covering the
+    /// triangles contiguously; vertex indices in range): [`crate::rpk::validate`] does.
+    pub(crate) fn from_checked_parts(
+        positions: Vec<DVec3>,
+        triangles: Vec<[u32; 3]>,
+        objects: Vec<Object>,
+    ) -> Self {
+        let mut scene = Self::new();
+        for p in &positions {
+            scene.bounds_min = scene.bounds_min.min(*p);
+            scene.bounds_max = scene.bounds_max.max(*p);
+        }
+        Self {
+            positions,
+            triangles,
+            objects,
+            ..scene
+        }
+    }
+
     /// The scene triangle index of `(object id, triangle id within the object)`.
     pub fn global_index(&self, object: u32, triangle: u32) -> Option<usize> {
         let o = self.objects.get(object as usize)?;

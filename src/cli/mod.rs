@@ -1,6 +1,7 @@
 //! The command-line front end: one file per command, shared scene and query options.
 
 pub mod bench;
+pub mod build;
 pub mod camera_args;
 pub mod choice;
 pub mod example;

@@ -12,6 +12,8 @@ pub struct SceneArgs {
     /// Scene file: a mesh (Wavefront .obj, PLY .ply or .ply.gz, STL .stl; one object each), glTF
     /// 2.0 .gltf/.glb (one object per mesh primitive, node transforms applied), or an elevation
     /// grid (.asc ESRI ASCII grid, .tif/.tiff GeoTIFF; one terrain object). Repeat for several.
+    /// A built scene saved by `raypick build` (.rpk) is given alone: it loads with its trees,
+    /// with no rebuild (its masks and builder are those it was built with).
     /// Object ids follow the order given. Default: the built-in example scene (a height-grid
     /// terrain with two buildings; `raypick example` writes it as files).
     #[arg(long, action = clap::ArgAction::Append)]
@@ -100,6 +102,34 @@ impl SceneArgs {
         }
     }
 
+    /// The built scene of a `.rpk` file given as the only `--scene` (`None` when no `.rpk` is
+    /// given); an error when a `.rpk` comes with other scene files, masks or builder options.
+    fn saved(&self, matches: &ArgMatches) -> Result<Option<BuiltScene>, Error> {
+        let Some(rpk) = self
+            .scene
+            .iter()
+            .find(|p| raypick::rpk::has_rpk_extension(p) || raypick::rpk::is_rpk(p))
+        else {
+            return Ok(None);
+        };
+        let explicit =
+            |id: &str| matches.value_source(id) == Some(clap::parser::ValueSource::CommandLine);
+        if self.scene.len() > 1 || !self.mask.is_empty() {
+            return Err(Error::Invalid(format!(
+                "{} is a built scene (.rpk): give it as the only --scene, without --mask",
+                rpk.display()
+            )));
+        }
+        if ["builder", "split", "leaf_size"].into_iter().any(explicit) {
+            return Err(Error::Invalid(format!(
+                "{} is a built scene (.rpk) with its trees: --builder, --split and --leaf-size \
+                 apply when building (`raypick build`)",
+                rpk.display()
+            )));
+        }
+        super::progress::phase("loading the built scene", || raypick::rpk::load(rpk)).map(Some)
+    }
+
     /// Loads the scene (or the example) and builds the tree.
     pub fn build(&self, matches: &ArgMatches) -> Result<BuiltScene, Error> {
         self.build_timed(matches).map(|(built, _, _)| built)
@@ -108,6 +138,9 @@ impl SceneArgs {
     /// Like [`SceneArgs::build`], also returning the seconds spent loading and building.
     pub fn build_timed(&self, matches: &ArgMatches) -> Result<(BuiltScene, f64, f64), Error> {
         let start = std::time::Instant::now();
+        if let Some(built) = self.saved(matches)? {
+            return Ok((built, start.elapsed().as_secs_f64(), 0.0));
+        }
         let files = self.files(matches)?;
         let scene = if files.is_empty() {
             example_scene()

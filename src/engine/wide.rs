@@ -7,7 +7,7 @@
 
 use crate::bvh::Bvh;
 use crate::error::{Error, Result};
-use crate::layout::{GpuNode, KIND_INNER};
+use crate::layout::{GpuNode, KIND_INNER, MAX_LEAF_SIZE};
 
 /// Children per node.
 pub const WIDTH: usize = 4;
@@ -178,6 +178,79 @@ impl WideBvh {
     /// Bytes the engine adds to a built scene (its nodes; it reads the shared triangles).
     pub fn bytes(&self) -> u64 {
         std::mem::size_of_val(self.nodes.as_slice()) as u64
+    }
+}
+
+impl WideBvh {
+    /// Checks what the engine's walk relies on and returns the first violation as a sentence:
+    /// each child slot is [`EMPTY`], a leaf of 1 to [`MAX_LEAF_SIZE`] triangles within the
+    /// `triangle_count` leaf-order triangles, or [`INNER`] pointing to a later node in range;
+    /// `occupied` marks exactly the non-empty slots; every node is reached from the root
+    /// exactly once; and `depth` is the longest root-to-leaf path, which sizes the walk's stack.
+    /// For a tree made elsewhere (a saved scene) before it is walked; [`WideBvh::collapse`]'s
+    /// trees pass.
+    pub fn validate(&self, triangle_count: usize) -> std::result::Result<(), String> {
+        let n = self.nodes.len();
+        if n == 0 {
+            return match self.depth {
+                0 => Ok(()),
+                d => Err(format!("an empty wide tree has depth {d}, not 0")),
+            };
+        }
+        // Children lie after their parents, so one pass marks each node's one parent and a
+        // pass backwards gives every node its height.
+        let mut claimed = vec![false; n];
+        for (i, node) in self.nodes.iter().enumerate() {
+            for lane in 0..WIDTH {
+                let (kind, child) = (node.kind[lane], node.child[lane] as usize);
+                if (node.occupied >> lane & 1 == 1) != (kind != EMPTY) {
+                    return Err(format!(
+                        "wide node {i}'s occupied bits disagree with slot {lane}'s kind {kind}"
+                    ));
+                }
+                match kind {
+                    EMPTY => {}
+                    INNER if child > i && child < n => {
+                        if std::mem::replace(&mut claimed[child], true) {
+                            return Err(format!("wide node {child} is reached twice"));
+                        }
+                    }
+                    INNER => {
+                        return Err(format!(
+                            "wide node {i} links to {child}, which is not after it and in range"
+                        ));
+                    }
+                    k if u32::from(k) <= MAX_LEAF_SIZE => {
+                        if child + usize::from(k) > triangle_count {
+                            return Err(format!(
+                                "wide node {i} names triangles {child}..{} past the end ({triangle_count})",
+                                child + usize::from(k)
+                            ));
+                        }
+                    }
+                    k => return Err(format!("wide node {i} slot {lane} has an unknown kind {k}")),
+                }
+            }
+        }
+        if let Some(i) = claimed.iter().skip(1).position(|c| !c) {
+            return Err(format!("wide node {} is unreachable", i + 1));
+        }
+        let mut height = vec![1usize; n];
+        for i in (0..n).rev() {
+            let node = &self.nodes[i];
+            for lane in 0..WIDTH {
+                if node.kind[lane] == INNER {
+                    height[i] = height[i].max(1 + height[node.child[lane] as usize]);
+                }
+            }
+        }
+        if self.depth != height[0] {
+            return Err(format!(
+                "the wide tree says its depth is {}, but its longest path has {} nodes",
+                self.depth, height[0]
+            ));
+        }
+        Ok(())
     }
 }
 

@@ -1,0 +1,172 @@
+//! Writing a `.rpk` file: a built scene's sections, each checksummed, behind the header, written
+//! to a file beside the target and renamed into place.
+
+use super::records::{ObjectRecord, Out, SectionHeader, Summary, encode_block};
+use super::{ALIGN, HEADER_BYTES, Kind, SECTION_HEADER_BYTES, SECTIONS, VERSION, records};
+use crate::error::{Error, Result};
+use crate::picker::BuiltScene;
+use rayon::prelude::*;
+use std::borrow::Cow;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Writes `built` to `path` (see [`super::save`]).
+pub fn save(built: &BuiltScene, path: &Path) -> Result<()> {
+    refuse_big_endian()?;
+    let wide = built.wide()?;
+    let scene = &built.scene;
+    let bvh = &built.bvh;
+
+    let mut objects = Out::default();
+    let mut names = Vec::new();
+    for o in scene.objects() {
+        let name_length = u32::try_from(o.name.len())
+            .map_err(|_| Error::Invalid(format!("object {}'s name is too long to save", o.id)))?;
+        ObjectRecord {
+            id: o.id,
+            first_triangle: o.first_triangle,
+            triangle_count: o.triangle_count,
+            first_vertex: o.first_vertex,
+            mask: o.mask,
+            has_grid: u32::from(o.grid.is_some()),
+            columns: o.grid.map_or(0, |g| g.columns),
+            rows: o.grid.map_or(0, |g| g.rows),
+            name_length,
+            reserved: 0,
+        }
+        .encode(&mut objects);
+        names.extend_from_slice(o.name.as_bytes());
+    }
+    let mut blocks = Out::default();
+    for b in &bvh.blocks {
+        encode_block(b, &mut blocks);
+    }
+    let wide_nodes: Vec<records::WideRecord> =
+        wide.nodes.iter().map(records::WideRecord::of).collect();
+    let summary = Summary {
+        vertices: scene.vertex_count() as u64,
+        triangles: scene.triangle_count() as u64,
+        objects: scene.objects().len() as u64,
+        name_bytes: names.len() as u64,
+        nodes: bvh.nodes.len() as u64,
+        leaf_triangles: bvh.triangles.len() as u64,
+        blocks: bvh.blocks.len() as u64,
+        wide_nodes: wide.nodes.len() as u64,
+        wide_depth: wide.depth as u64,
+        masks: built.triangle_masks.len() as u64,
+        scene_origin: scene.origin(),
+        tree_origin: bvh.origin,
+    };
+
+    // In the order of `SECTIONS`.
+    let payloads: [Cow<'_, [u8]>; 11] = [
+        Cow::Owned(summary.encode()),
+        Cow::Borrowed(bytemuck::cast_slice(scene.positions())),
+        Cow::Borrowed(bytemuck::cast_slice(scene.triangles())),
+        Cow::Owned(objects.0),
+        Cow::Owned(names),
+        Cow::Borrowed(bytemuck::cast_slice(&bvh.nodes)),
+        Cow::Borrowed(bytemuck::cast_slice(&bvh.triangles)),
+        Cow::Borrowed(bytemuck::cast_slice(&bvh.triangle_ids)),
+        Cow::Borrowed(bytemuck::cast_slice(&built.triangle_masks)),
+        Cow::Owned(blocks.0),
+        Cow::Borrowed(bytemuck::cast_slice(&wide_nodes)),
+    ];
+    let crcs: Vec<u32> = payloads.par_iter().map(|p| crc32fast::hash(p)).collect();
+    let file_length = HEADER_BYTES as u64
+        + payloads
+            .iter()
+            .map(|p| (SECTION_HEADER_BYTES + p.len().next_multiple_of(ALIGN)) as u64)
+            .sum::<u64>();
+    let header = records::Header {
+        version: VERSION,
+        sections: SECTIONS.len() as u32,
+        file_length,
+    };
+
+    let temporary = temporary_path(path);
+    let result = write_file(&temporary, &header, &SECTIONS, &payloads, &crcs)
+        .and_then(|()| std::fs::rename(&temporary, path));
+    result.map_err(|source| {
+        let _ = std::fs::remove_file(&temporary);
+        Error::Io {
+            path: path.display().to_string(),
+            source,
+        }
+    })
+}
+
+/// The files are little-endian and their arrays are copied as they lie in memory.
+pub(crate) fn refuse_big_endian() -> Result<()> {
+    if cfg!(target_endian = "big") {
+        return Err(Error::Invalid(
+            ".rpk files are little-endian, and this build of raypick runs on a big-endian machine"
+                .into(),
+        ));
+    }
+    Ok(())
+}
+
+/// `.<name>.<pid>-<k>.tmp` beside `path`, `k` counting this process's saves (so saves from
+/// several threads never share one).
+fn temporary_path(path: &Path) -> PathBuf {
+    static SAVES: AtomicU64 = AtomicU64::new(0);
+    let name = path
+        .file_name()
+        .map_or_else(|| "scene.rpk".into(), |n| n.to_string_lossy());
+    let k = SAVES.fetch_add(1, Ordering::Relaxed);
+    path.with_file_name(format!(".{name}.{}-{k}.tmp", std::process::id()))
+}
+
+fn write_file(
+    path: &Path,
+    header: &records::Header,
+    kinds: &[Kind],
+    payloads: &[Cow<'_, [u8]>],
+    crcs: &[u32],
+) -> std::io::Result<()> {
+    let file = std::fs::File::create(path)?;
+    let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
+    out.write_all(&header.encode())?;
+    for ((kind, payload), &crc) in kinds.iter().zip(payloads).zip(crcs) {
+        let section = SectionHeader {
+            tag: kind.tag,
+            crc,
+            length: payload.len() as u64,
+        };
+        out.write_all(&section.encode())?;
+        out.write_all(payload)?;
+        let padding = payload.len().next_multiple_of(ALIGN) - payload.len();
+        out.write_all(&[0; ALIGN][..padding])?;
+    }
+    out.into_inner().map_err(|e| e.into_error())?.sync_all()
+}
+
+/// Recomputes the header's and every section's checksum over `bytes` as they lie, as far as the
+/// section headers can be followed: for tests and fuzzing, which change files on purpose and
+/// want the structural checks, not the checksums, to judge them.
+pub fn reseal(bytes: &mut [u8]) {
+    if bytes.len() >= HEADER_BYTES {
+        let crc = crc32fast::hash(&bytes[..HEADER_BYTES - 4]);
+        bytes[HEADER_BYTES - 4..HEADER_BYTES].copy_from_slice(&crc.to_le_bytes());
+    }
+    let mut at = HEADER_BYTES;
+    while let Some(header) = bytes.get(at..at + SECTION_HEADER_BYTES) {
+        let header = SectionHeader::decode(header.try_into().expect("16 bytes"));
+        let start = at + SECTION_HEADER_BYTES;
+        let Some(end) = usize::try_from(header.length)
+            .ok()
+            .and_then(|n| start.checked_add(n))
+            .filter(|&end| end <= bytes.len())
+        else {
+            return;
+        };
+        let crc = crc32fast::hash(&bytes[start..end]);
+        bytes[at + 4..at + 8].copy_from_slice(&crc.to_le_bytes());
+        let Some(next) = end.checked_next_multiple_of(ALIGN) else {
+            return;
+        };
+        at = next;
+    }
+}

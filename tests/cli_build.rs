@@ -1,0 +1,84 @@
+//! `raypick build --out FILE.rpk` and `--scene FILE.rpk`: the saved built scene answers every
+//! command's picks byte for byte as the scene it was built from, on every backend, and misuse
+//! or a damaged file is exit 2 with one sentence naming the file.
+
+use std::path::Path;
+use std::process::Command;
+
+fn raypick(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
+        .args(args)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .expect("the binary runs");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn tmp(name: &str) -> String {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("cli_build");
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name).display().to_string()
+}
+
+#[test]
+fn a_saved_scene_picks_byte_identically_on_every_backend() {
+    let cases: [(&str, Vec<&str>); 3] = [
+        ("bunny.rpk", vec!["--scene", "tests/data/bunny.obj"]),
+        (
+            "dem.rpk",
+            vec!["--scene", "tests/data/jacksboro_fault_dem_utm.asc"],
+        ),
+        ("example.rpk", vec![]),
+    ];
+    for (name, scene) in cases {
+        let rpk = tmp(name);
+        let mut build = vec!["build", "-q", "--out", &rpk];
+        build.extend(&scene);
+        let (code, _, err) = raypick(&build);
+        assert_eq!(code, 0, "{err}");
+        for backend in ["cpu", "reference", "gpu"] {
+            let mut from_files = vec!["pick", "-q", "--backend", backend];
+            from_files.extend(&scene);
+            let (c1, csv_files, e1) = raypick(&from_files);
+            let (c2, csv_rpk, e2) = raypick(&["pick", "-q", "--backend", backend, "--scene", &rpk]);
+            assert_eq!((c1, c2), (0, 0), "{e1}{e2}");
+            assert!(csv_files.lines().count() > 1);
+            assert_eq!(csv_files, csv_rpk, "{name} on {backend}");
+        }
+    }
+}
+
+#[test]
+fn misuse_and_damage_are_exit_2_naming_the_file() {
+    let rpk = tmp("misuse.rpk");
+    assert_eq!(raypick(&["build", "-q", "--out", &rpk]).0, 0);
+    let refused = [
+        vec!["pick", "--scene", &rpk, "--scene", "tests/data/bunny.obj"],
+        vec!["pick", "--scene", &rpk, "--mask", "1"],
+        vec!["pick", "--scene", &rpk, "--builder", "sah"],
+    ];
+    for args in refused {
+        let (code, _, err) = raypick(&args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.contains("misuse.rpk"), "{err}");
+    }
+    let bytes = std::fs::read(&rpk).unwrap();
+    let truncated = tmp("truncated.rpk");
+    std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
+    let mut flipped = bytes.clone();
+    let at = bytes.len() * 2 / 3;
+    flipped[at] ^= 0x5a;
+    let corrupted = tmp("corrupted.rpk");
+    std::fs::write(&corrupted, &flipped).unwrap();
+    for bad in [&truncated, &corrupted] {
+        let (code, _, err) = raypick(&["pick", "-q", "--scene", bad]);
+        assert_eq!(code, 2, "{err}");
+        let name = Path::new(bad).file_name().unwrap().to_str().unwrap();
+        assert!(err.contains(name), "{err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+}
