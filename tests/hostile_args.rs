@@ -624,6 +624,7 @@ const REQUIRED: &[(&str, &[&str])] = &[
     ("probe", &[]),
     ("soak", &[]),
     ("render", &["--out"]),
+    ("build", &["--out"]),
     ("serve", &[]),
     ("example", &["--out"]),
     ("bench", &[]),
