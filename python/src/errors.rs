@@ -1,0 +1,44 @@
+//! The library's errors as Python exceptions, with the library's sentence: a file that cannot
+//! be read or written is an `OSError` (`FileNotFoundError`, `PermissionError`,
+//! `IsADirectoryError` where the system says so), everything else a `ValueError`.
+
+use pyo3::PyErr;
+use pyo3::exceptions::{
+    PyFileNotFoundError, PyIsADirectoryError, PyMemoryError, PyOSError, PyPermissionError,
+    PyValueError,
+};
+use raypick::Error;
+use std::io::ErrorKind;
+
+/// The Python exception for a library error.
+pub fn to_py(error: Error) -> PyErr {
+    let sentence = error.to_string();
+    match &error {
+        Error::Io { source, .. } => match source.kind() {
+            ErrorKind::NotFound => PyFileNotFoundError::new_err(sentence),
+            ErrorKind::PermissionDenied => PyPermissionError::new_err(sentence),
+            ErrorKind::IsADirectory => PyIsADirectoryError::new_err(sentence),
+            _ => PyOSError::new_err(sentence),
+        },
+        _ => PyValueError::new_err(sentence),
+    }
+}
+
+/// A `ValueError` with one sentence.
+pub fn value_error(sentence: impl Into<String>) -> PyErr {
+    PyValueError::new_err(sentence.into())
+}
+
+/// A vector with room for `n` items, advised onto huge pages when large; a `MemoryError`
+/// instead of an abort when the memory is not there.
+pub fn vec_for<T>(n: usize, what: &str) -> Result<Vec<T>, PyErr> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(n).map_err(|_| {
+        PyMemoryError::new_err(format!(
+            "{what} would need {n} × {} bytes, more than this process can allocate",
+            size_of::<T>()
+        ))
+    })?;
+    raypick::huge_pages::advise(&mut v);
+    Ok(v)
+}

@@ -1,0 +1,463 @@
+//! `raypick.Scene`: a built scene (loaded from the files the CLI reads, from numpy arrays, or
+//! from a saved `.rpk`), its pickers, and the methods Python calls.
+
+use crate::arrays::{self, Dtype};
+use crate::errors::{to_py, value_error};
+use crate::pick::{self, QueryArgs};
+use crate::sight::{self, SightArgs};
+use crate::threads;
+use numpy::ToPyArray;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList, PyString};
+use raypick::auto::AutoPicker;
+use raypick::io::scene_files::{SceneFile, load_description, load_scene};
+use raypick::{
+    Backend, BuildOptions, Builder, BuiltScene, CpuPicker, Mesh, Picker, ReferencePicker, rpk,
+};
+use std::collections::HashSet;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex, PoisonError};
+
+/// A scene and its tree, ready to pick. Load one with `Scene.load(paths)` or make one with
+/// `Scene.from_arrays(vertices, triangles)`.
+#[pyclass(name = "Scene", module = "raypick", frozen)]
+pub struct Scene {
+    built: Arc<BuiltScene>,
+    /// The GPU picker (`backend="gpu"`), made on first use: it holds the scene's buffers.
+    gpu: Mutex<Option<Box<dyn Picker + Send>>>,
+    /// What `backend="auto"` resolved to on first use.
+    auto: Mutex<Auto>,
+}
+
+/// The automatic backend of a scene.
+enum Auto {
+    /// Not used yet.
+    Unopened,
+    /// No GPU, or a software one: the CPU engine answers everything (no lock needed).
+    Cpu,
+    /// A real GPU for large batches: the library's automatic picker.
+    Picker(Box<dyn Picker + Send>),
+}
+
+impl Scene {
+    fn new(built: BuiltScene) -> Self {
+        Self {
+            built: Arc::new(built),
+            gpu: Mutex::new(None),
+            auto: Mutex::new(Auto::Unopened),
+        }
+    }
+
+    /// The built scene.
+    pub fn built(&self) -> &Arc<BuiltScene> {
+        &self.built
+    }
+
+    /// Whether some object is a terrain grid (answers then carry `row` and `col`).
+    pub fn has_grid(&self) -> bool {
+        self.built.scene.objects().iter().any(|o| o.grid.is_some())
+    }
+
+    /// Runs `work` on `backend`'s picker, telling it whether the picker may run on a GPU (call
+    /// it without the interpreter). Also returns the automatic backend's notes for the caller
+    /// to log: what it chose when it opened (no GPU, a software GPU: informational) and what
+    /// happened while it traced (a GPU failure and the CPU fallback: a warning).
+    pub fn trace<R>(
+        &self,
+        backend: Backend,
+        work: impl FnOnce(&mut dyn Picker, bool) -> PyResult<R>,
+    ) -> (PyResult<R>, Vec<Note>) {
+        let mut notes = Vec::new();
+        let built = &self.built;
+        let result = match backend {
+            Backend::Cpu => work(&mut CpuPicker::new(built.clone()), false),
+            Backend::Reference => work(&mut ReferencePicker::new(built.clone()), false),
+            Backend::Gpu => {
+                let mut slot = self.gpu.lock().unwrap_or_else(PoisonError::into_inner);
+                if slot.is_none() {
+                    match raypick::make_picker(Backend::Gpu, built.clone()) {
+                        Ok(picker) => *slot = Some(picker),
+                        Err(e) => return (Err(to_py(e)), notes),
+                    }
+                }
+                match slot.as_mut() {
+                    Some(picker) => work(picker.as_mut(), true),
+                    None => Err(value_error("the GPU picker could not be made")),
+                }
+            }
+            Backend::Auto => {
+                let mut state = self.auto.lock().unwrap_or_else(PoisonError::into_inner);
+                if let Auto::Unopened = *state {
+                    let mut picker = AutoPicker::new(built.clone());
+                    notes.extend(picker.take_notes().into_iter().map(Note::Chose));
+                    *state = if picker.crossover() == usize::MAX {
+                        Auto::Cpu
+                    } else {
+                        Auto::Picker(Box::new(picker))
+                    };
+                }
+                match &mut *state {
+                    Auto::Picker(picker) => {
+                        let result = work(picker.as_mut(), true);
+                        notes.extend(picker.take_notes().into_iter().map(Note::Fell));
+                        result
+                    }
+                    _ => {
+                        drop(state);
+                        work(&mut CpuPicker::new(built.clone()), false)
+                    }
+                }
+            }
+        };
+        (result, notes)
+    }
+}
+
+/// A note of the automatic backend.
+pub enum Note {
+    /// What it chose when it opened (no GPU, or a software one: the CPU answers).
+    Chose(String),
+    /// What happened while it traced (the GPU failed; the CPU answered instead).
+    Fell(String),
+}
+
+/// Logs each note of the automatic backend once per process through
+/// `logging.getLogger("raypick")`, where the CLI says them on standard error: its choices at
+/// INFO (silent unless logging is configured), its fallbacks at WARNING.
+pub fn log_notes(py: Python<'_>, notes: Vec<Note>) -> PyResult<()> {
+    static SAID: Mutex<Option<HashSet<String>>> = Mutex::new(None);
+    for note in notes {
+        let (level, text) = match note {
+            Note::Chose(text) => ("info", text),
+            Note::Fell(text) => ("warning", text),
+        };
+        let new = SAID
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .get_or_insert_with(HashSet::new)
+            .insert(text.clone());
+        if new {
+            py.import("logging")?
+                .call_method1("getLogger", ("raypick",))?
+                .call_method1(level, (text,))?;
+        }
+    }
+    Ok(())
+}
+
+/// A name the library parses (mode, cull, builder, …), or a `ValueError` naming the argument.
+pub fn parse_name<T: std::str::FromStr<Err = String>>(argument: &str, value: &str) -> PyResult<T> {
+    value
+        .parse()
+        .map_err(|e: String| value_error(format!("{argument}: {e}")))
+}
+
+/// The builder settings of `builder=` and `leaf_size=`.
+fn build_options(builder: &str, leaf_size: i64) -> PyResult<BuildOptions> {
+    let builder: Builder = parse_name("builder", builder)?;
+    let leaf_size = u32::try_from(leaf_size).map_err(|_| {
+        value_error(format!(
+            "leaf size {leaf_size} is out of range; it must be 1 ..= {}",
+            raypick::layout::MAX_LEAF_SIZE
+        ))
+    })?;
+    Ok(BuildOptions {
+        builder,
+        leaf_size,
+        ..BuildOptions::default()
+    })
+}
+
+/// A layer mask argument: an integer in 0 ..= 0xFFFFFFFF.
+pub fn mask(argument: &str, value: i64) -> PyResult<u32> {
+    u32::try_from(value).map_err(|_| {
+        value_error(format!(
+            "{argument} {value} is out of range; it must be 0 ..= 0xFFFFFFFF"
+        ))
+    })
+}
+
+/// `paths`: one path (str or os.PathLike) or a sequence of them.
+fn path_list(paths: &Bound<'_, PyAny>) -> PyResult<Vec<PathBuf>> {
+    if let Ok(one) = paths.extract::<PathBuf>() {
+        return Ok(vec![one]);
+    }
+    let wrong = || {
+        value_error(format!(
+            "paths must be a path or a list of paths; got {}",
+            paths
+                .get_type()
+                .name()
+                .map(|n| n.to_string())
+                .unwrap_or_default()
+        ))
+    };
+    let items = paths.try_iter().map_err(|_| wrong())?;
+    items
+        .map(|item| item.and_then(|i| i.extract::<PathBuf>().map_err(|_| wrong())))
+        .collect()
+}
+
+/// `masks`: None, one mask for a single path, or one mask (or None) per path.
+fn mask_list(masks: Option<&Bound<'_, PyAny>>, count: usize) -> PyResult<Vec<Option<u32>>> {
+    let Some(masks) = masks.filter(|m| !m.is_none()) else {
+        return Ok(vec![None; count]);
+    };
+    let wrong = || {
+        value_error(format!(
+            "masks must be a list of {count} masks (an integer or None each), one per path"
+        ))
+    };
+    if let Ok(one) = masks.extract::<i64>() {
+        if count != 1 {
+            return Err(wrong());
+        }
+        return Ok(vec![Some(mask("mask", one)?)]);
+    }
+    if masks.is_instance_of::<PyString>() {
+        return Err(wrong());
+    }
+    let items: Vec<Bound<'_, PyAny>> = masks
+        .try_iter()
+        .map_err(|_| wrong())?
+        .collect::<PyResult<_>>()?;
+    if items.len() != count {
+        return Err(wrong());
+    }
+    items
+        .iter()
+        .map(|m| {
+            if m.is_none() {
+                Ok(None)
+            } else {
+                let v: i64 = m.extract().map_err(|_| wrong())?;
+                mask("mask", v).map(Some)
+            }
+        })
+        .collect()
+}
+
+fn is_description(path: &std::path::Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+}
+
+#[pymethods]
+impl Scene {
+    /// Scene.load(paths, masks=None, builder="auto", leaf_size=8)
+    ///
+    /// Loads the files the CLI reads (OBJ, PLY, STL, glTF, ESRI ASCII grids, GeoTIFF; a `.json`
+    /// scene description; a saved `.rpk`, alone) and builds the tree. `masks` gives each path's
+    /// layer mask (an integer or None). Object ids follow the order of the files.
+    #[staticmethod]
+    #[pyo3(signature = (paths, masks=None, builder="auto", leaf_size=8))]
+    fn load(
+        py: Python<'_>,
+        paths: &Bound<'_, PyAny>,
+        masks: Option<&Bound<'_, PyAny>>,
+        builder: &str,
+        leaf_size: i64,
+    ) -> PyResult<Scene> {
+        let paths = path_list(paths)?;
+        if paths.is_empty() {
+            return Err(value_error("paths is empty; give at least one scene file"));
+        }
+        let masks = mask_list(masks, paths.len())?;
+        let options = build_options(builder, leaf_size)?;
+        if paths.iter().any(|p| rpk::has_rpk_extension(p)) {
+            if paths.len() > 1 {
+                return Err(value_error(
+                    "an .rpk file holds a whole built scene; load it alone, not with other files",
+                ));
+            }
+            if masks[0].is_some() {
+                return Err(value_error(
+                    "an .rpk file keeps the masks it was saved with; load it without masks",
+                ));
+            }
+            let path = paths[0].clone();
+            let built = py
+                .detach(|| threads::run(|| rpk::load(&path)))
+                .map_err(to_py)?;
+            return Ok(Scene::new(built));
+        }
+        let built = py.detach(|| {
+            threads::run(|| -> PyResult<BuiltScene> {
+                let mut files = Vec::new();
+                for (path, mask) in paths.iter().zip(&masks) {
+                    if is_description(path) {
+                        if mask.is_some() {
+                            return Err(value_error(format!(
+                                "{}: a scene description gives its files' masks itself; \
+                                     give None as its mask",
+                                path.display()
+                            )));
+                        }
+                        files.extend(load_description(path).map_err(to_py)?);
+                    } else {
+                        files.push(SceneFile {
+                            file: path.clone(),
+                            mask: *mask,
+                        });
+                    }
+                }
+                let scene = load_scene(&files).map_err(to_py)?;
+                BuiltScene::new(scene, &options).map_err(to_py)
+            })
+        })?;
+        Ok(Scene::new(built))
+    }
+
+    /// Scene.from_arrays(vertices, triangles, builder="auto", leaf_size=8)
+    ///
+    /// One object (id 0) from float64 vertices (V, 3) and integer triangles (T, 3).
+    #[staticmethod]
+    #[pyo3(signature = (vertices, triangles, builder="auto", leaf_size=8))]
+    fn from_arrays(
+        py: Python<'_>,
+        vertices: &Bound<'_, PyAny>,
+        triangles: &Bound<'_, PyAny>,
+        builder: &str,
+        leaf_size: i64,
+    ) -> PyResult<Scene> {
+        let options = build_options(builder, leaf_size)?;
+        let vertices = arrays::rows(vertices, "vertices", 3, Dtype::Float64, false)?;
+        let positions = arrays::points(vertices.as_array());
+        let triangles = arrays::triangles(triangles)?;
+        let mesh = Mesh {
+            positions,
+            triangles,
+        };
+        let built = py
+            .detach(|| {
+                threads::run(|| {
+                    let scene = raypick::Scene::from_meshes([("arrays".to_string(), mesh)])?;
+                    BuiltScene::new(scene, &options)
+                })
+            })
+            .map_err(to_py)?;
+        Ok(Scene::new(built))
+    }
+
+    /// scene.save(path): writes the scene and its trees as an `.rpk` file, which
+    /// `Scene.load(path)` reads back with no rebuild.
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        if !rpk::has_rpk_extension(&path) {
+            return Err(value_error(format!(
+                "{}: a saved scene's file name must end in .rpk",
+                path.display()
+            )));
+        }
+        let built = &self.built;
+        py.detach(|| threads::run(|| rpk::save(built, &path)))
+            .map_err(to_py)
+    }
+
+    /// scene.pick(rays, mode="closest", max_hits=16, cull="none", tmin=0.0, tmax=inf,
+    /// ray_mask=0xFFFFFFFF, intersector="watertight", backend="auto")
+    ///
+    /// Answers `rays` — (N, 6) float64 (origin, direction), or a tuple (origins, directions) —
+    /// and returns a dict of numpy arrays named like the CLI's CSV columns.
+    #[pyo3(signature = (rays, mode="closest", max_hits=16, cull="none", tmin=0.0, tmax=f64::INFINITY, ray_mask=0xFFFF_FFFF, intersector="watertight", backend="auto"))]
+    #[allow(clippy::too_many_arguments)]
+    fn pick<'py>(
+        &self,
+        py: Python<'py>,
+        rays: &Bound<'py, PyAny>,
+        mode: &str,
+        max_hits: i64,
+        cull: &str,
+        tmin: f64,
+        tmax: f64,
+        ray_mask: i64,
+        intersector: &str,
+        backend: &str,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let args = QueryArgs::parse(mode, max_hits, cull, ray_mask, intersector, backend)?;
+        pick::pick(py, self, rays, &args, tmin, tmax)
+    }
+
+    /// scene.los(a, b, epsilon=1e-6, ray_mask=0xFFFFFFFF, backend="auto")
+    ///
+    /// Whether each segment a → b is unblocked: no triangle hit with t in (ε, 1 − ε) along
+    /// a + t·(b − a). `a` and `b` are (N, 3) float64, or one point (3,) for every segment.
+    #[pyo3(signature = (a, b, epsilon=1e-6, ray_mask=0xFFFF_FFFF, backend="auto"))]
+    fn los<'py>(
+        &self,
+        py: Python<'py>,
+        a: &Bound<'py, PyAny>,
+        b: &Bound<'py, PyAny>,
+        epsilon: f64,
+        ray_mask: i64,
+        backend: &str,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let args = SightArgs::parse(epsilon, ray_mask, backend)?;
+        sight::los(py, self, a, b, &args)
+    }
+
+    /// scene.viewshed(observer, targets=None, target_height=0.0, epsilon=1e-6,
+    /// ray_mask=0xFFFFFFFF, backend="auto")
+    ///
+    /// Which targets the observer sees. Without `targets`, every sample of every terrain grid.
+    /// Returns a dict: `position` (M, 3), `object`, `row`, `col` (−1 for given targets) and
+    /// `visible` (bool).
+    #[pyo3(signature = (observer, targets=None, target_height=0.0, epsilon=1e-6, ray_mask=0xFFFF_FFFF, backend="auto"))]
+    #[allow(clippy::too_many_arguments)]
+    fn viewshed<'py>(
+        &self,
+        py: Python<'py>,
+        observer: &Bound<'py, PyAny>,
+        targets: Option<&Bound<'py, PyAny>>,
+        target_height: f64,
+        epsilon: f64,
+        ray_mask: i64,
+        backend: &str,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let args = SightArgs::parse(epsilon, ray_mask, backend)?;
+        sight::viewshed(py, self, observer, targets, target_height, &args)
+    }
+
+    /// The number of triangles.
+    #[getter]
+    fn triangle_count(&self) -> usize {
+        self.built.scene.triangle_count()
+    }
+
+    /// The objects, in id order: dicts with `id`, `name`, `triangles`, `mask` and `grid`
+    /// ((rows, columns) of samples for a terrain grid, else None).
+    #[getter]
+    fn objects<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let list = PyList::empty(py);
+        for o in self.built.scene.objects() {
+            let d = PyDict::new(py);
+            d.set_item("id", o.id)?;
+            d.set_item("name", &o.name)?;
+            d.set_item("triangles", o.triangle_count)?;
+            d.set_item("mask", o.mask)?;
+            d.set_item("grid", o.grid.map(|g| (g.rows, g.columns)))?;
+            list.append(d)?;
+        }
+        Ok(list)
+    }
+
+    /// The world bounds as two float64 arrays (min, max), or None for an empty scene.
+    #[getter]
+    fn bounds<'py>(&self, py: Python<'py>) -> Option<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+        self.built.scene.bounds().map(|(lo, hi)| {
+            (
+                lo.to_array().to_pyarray(py).into_any(),
+                hi.to_array().to_pyarray(py).into_any(),
+            )
+        })
+    }
+
+    fn __repr__(&self) -> String {
+        let objects = self.built.scene.objects().len();
+        format!(
+            "raypick.Scene({objects} object{}, {} triangles)",
+            if objects == 1 { "" } else { "s" },
+            self.built.scene.triangle_count()
+        )
+    }
+}

@@ -1,0 +1,197 @@
+//! `Scene.los` and `Scene.viewshed`: batched any-hit queries, as `raypick los` and
+//! `raypick viewshed` make them (`src/cli/los.rs`).
+//!
+//! A segment from A to B is visible when no triangle is hit with t in (ε, 1 − ε) along
+//! A + t·(B − A), so surfaces the end points lie on do not block it. Segments with a NaN or
+//! infinite end, or both ends equal, are reported as not visible, with a `RuntimeWarning` that
+//! counts them (the CLI's warning).
+
+use crate::arrays::{self, Dtype};
+use crate::errors::{value_error, vec_for};
+use crate::pick::{QueryArgs, answer};
+use crate::scene::{Scene, mask, parse_name};
+use numpy::{IntoPyArray, PyArrayMethods};
+use pyo3::exceptions::PyRuntimeWarning;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use rayon::prelude::*;
+use raypick::{Backend, BuiltScene, DVec3, Mode, Query, Ray};
+use std::ops::Range;
+
+/// The checked settings of a line-of-sight query.
+pub struct SightArgs {
+    epsilon: f64,
+    ray_mask: u32,
+    backend: Backend,
+}
+
+impl SightArgs {
+    pub fn parse(epsilon: f64, ray_mask: i64, backend: &str) -> PyResult<Self> {
+        if !(0.0..0.5).contains(&epsilon) {
+            return Err(value_error(format!(
+                "epsilon {epsilon} must be in [0, 0.5)"
+            )));
+        }
+        Ok(Self {
+            epsilon,
+            ray_mask: mask("ray_mask", ray_mask)?,
+            backend: parse_name("backend", backend)?,
+        })
+    }
+}
+
+/// Whether each segment is visible; warns about invalid ones, calling them `what`s.
+fn visible(
+    py: Python<'_>,
+    scene: &Scene,
+    segments: &[(DVec3, DVec3)],
+    args: &SightArgs,
+    what: &str,
+) -> PyResult<Vec<bool>> {
+    let eps = args.epsilon;
+    let mask = args.ray_mask;
+    let read = |range: Range<usize>, out: &mut Vec<Ray>| {
+        out.clear();
+        out.extend(segments[range].iter().map(|&(a, b)| {
+            Ray::new(a, b - a)
+                .with_range(eps, 1.0 - eps)
+                .with_mask(mask)
+        }));
+    };
+    let query = QueryArgs {
+        query: Query {
+            mode: Mode::Any,
+            ..Query::default()
+        },
+        backend: args.backend,
+        ray_mask: args.ray_mask,
+    };
+    let mut seen = vec_for::<bool>(segments.len(), "the visibility column")?;
+    let mut invalid = 0usize;
+    answer(py, scene, segments.len(), &read, &query, |answers| {
+        invalid += answers.nearest.iter().filter(|h| h.invalid).count();
+        seen.par_extend(answers.nearest.par_iter().map(|h| !h.hit && !h.invalid));
+        Ok(())
+    })?;
+    if invalid > 0 {
+        let message = format!(
+            "{invalid} {what}(s) were invalid (a NaN or infinite coordinate, or both ends at \
+             the same point) and are reported as not visible"
+        );
+        py.import("warnings")?
+            .call_method1("warn", (message, py.get_type::<PyRuntimeWarning>(), 3))?;
+    }
+    Ok(seen)
+}
+
+/// `scene.los(a, b, …)`.
+pub fn los<'py>(
+    py: Python<'py>,
+    scene: &Scene,
+    a: &Bound<'py, PyAny>,
+    b: &Bound<'py, PyAny>,
+    args: &SightArgs,
+) -> PyResult<Bound<'py, PyAny>> {
+    let a = arrays::rows(a, "a", 3, Dtype::Float64, true)?;
+    let b = arrays::rows(b, "b", 3, Dtype::Float64, true)?;
+    let (a, b) = (arrays::points(a.as_array()), arrays::points(b.as_array()));
+    let segments: Vec<(DVec3, DVec3)> = match (a.len(), b.len()) {
+        (n, m) if n == m => a.into_iter().zip(b).collect(),
+        (1, _) => b.iter().map(|&q| (a[0], q)).collect(),
+        (_, 1) => a.iter().map(|&p| (p, b[0])).collect(),
+        (n, m) => {
+            return Err(value_error(format!(
+                "a has {n} points but b has {m}; give as many, or one point for every segment"
+            )));
+        }
+    };
+    Ok(visible(py, scene, &segments, args, "pair")?
+        .into_pyarray(py)
+        .into_any())
+}
+
+/// `scene.viewshed(observer, targets, target_height, …)`.
+pub fn viewshed<'py>(
+    py: Python<'py>,
+    scene: &Scene,
+    observer: &Bound<'py, PyAny>,
+    targets: Option<&Bound<'py, PyAny>>,
+    target_height: f64,
+    args: &SightArgs,
+) -> PyResult<Bound<'py, PyDict>> {
+    let observer = arrays::rows(observer, "observer", 3, Dtype::Float64, true)?;
+    let observer = arrays::points(observer.as_array());
+    let [observer] = observer.as_slice() else {
+        return Err(value_error(format!(
+            "observer must be one point (x, y, z); got {} points",
+            observer.len()
+        )));
+    };
+    if !observer.is_finite() {
+        return Err(value_error(format!(
+            "observer ({}, {}, {}) is not finite; give finite numbers",
+            observer.x, observer.y, observer.z
+        )));
+    }
+    if !target_height.is_finite() {
+        return Err(value_error(format!(
+            "target_height {target_height} is not finite; give a finite number"
+        )));
+    }
+    let lift = DVec3::Z * target_height;
+    // (target, [object, row, col]) pairs; −1 for given targets.
+    let targets: Vec<(DVec3, [i64; 3])> = match targets.filter(|t| !t.is_none()) {
+        Some(given) => {
+            let given = arrays::rows(given, "targets", 3, Dtype::Float64, true)?;
+            arrays::points(given.as_array())
+                .into_iter()
+                .map(|p| (p + lift, [-1; 3]))
+                .collect()
+        }
+        None => grid_targets(scene.built(), lift)?,
+    };
+    let segments: Vec<(DVec3, DVec3)> = targets.iter().map(|(t, _)| (*observer, *t)).collect();
+    let seen = visible(py, scene, &segments, args, "target")?;
+    let n = targets.len();
+    let dict = PyDict::new(py);
+    let position: Vec<f64> = targets.iter().flat_map(|(p, _)| p.to_array()).collect();
+    dict.set_item("position", position.into_pyarray(py).reshape([n, 3])?)?;
+    for (k, key) in ["object", "row", "col"].into_iter().enumerate() {
+        let column: Vec<i64> = targets.iter().map(|(_, label)| label[k]).collect();
+        dict.set_item(key, column.into_pyarray(py))?;
+    }
+    dict.set_item("visible", seen.into_pyarray(py))?;
+    Ok(dict)
+}
+
+/// Every sample of every terrain grid that a hittable triangle uses (NODATA samples are
+/// skipped), labelled `[object, row, col]`: the CLI's default viewshed targets.
+fn grid_targets(built: &BuiltScene, lift: DVec3) -> PyResult<Vec<(DVec3, [i64; 3])>> {
+    let scene = &built.scene;
+    let mut targets = Vec::new();
+    for object in scene.objects() {
+        let Some(grid) = object.grid else { continue };
+        let (cols, rows) = (grid.columns as usize, grid.rows as usize);
+        let mut used = vec![false; cols * rows];
+        for t in 0..object.triangle_count {
+            if !scene.is_degenerate((object.first_triangle + t) as usize) {
+                let (r, c) = grid.cell_of(t);
+                let (r, c) = (r as usize, c as usize);
+                for (dr, dc) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
+                    if let Some(u) = used.get_mut((r + dr) * cols + c + dc) {
+                        *u = true;
+                    }
+                }
+            }
+        }
+        for (sample, _) in used.iter().enumerate().filter(|(_, u)| **u) {
+            let p = scene.position(object.first_vertex as usize + sample);
+            let (r, c) = (sample / cols, sample % cols);
+            targets.push((p + lift, [i64::from(object.id), r as i64, c as i64]));
+        }
+    }
+    if targets.is_empty() {
+        return Err(value_error("the scene has no terrain grid: give targets"));
+    }
+    Ok(targets)
+}

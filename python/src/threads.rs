@@ -1,0 +1,58 @@
+//! How many threads this process traces with.
+//!
+//! By default every pick runs on rayon's global pool, one thread per core. A Dask worker
+//! process is one of possibly several on its machine and owns only its Dask threads' share of
+//! the cores, so `raypick.dask` sets a pool of that many threads once per worker process
+//! (`_set_threads`); every trace of the process then runs inside it.
+
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use std::sync::{Arc, Mutex, PoisonError};
+
+/// The process's own pool, when one was set.
+static POOL: Mutex<Option<Arc<rayon::ThreadPool>>> = Mutex::new(None);
+
+fn pool() -> Option<Arc<rayon::ThreadPool>> {
+    POOL.lock().unwrap_or_else(PoisonError::into_inner).clone()
+}
+
+/// Runs `work` on the process's pool (or rayon's global one).
+pub fn run<R: Send>(work: impl FnOnce() -> R + Send) -> R {
+    match pool() {
+        Some(pool) => pool.install(work),
+        None => work(),
+    }
+}
+
+/// `_set_threads(n)`: trace on `n` threads from now on in this process; 0 goes back to one
+/// thread per core.
+#[pyfunction]
+#[pyo3(name = "_set_threads")]
+pub fn set_threads(threads: i64) -> PyResult<()> {
+    let new = match threads {
+        0 => None,
+        1..=4096 => Some(Arc::new(
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads as usize)
+                .thread_name(|i| format!("raypick-{i}"))
+                .build()
+                .map_err(|e| {
+                    PyValueError::new_err(format!("cannot start {threads} threads: {e}"))
+                })?,
+        )),
+        _ => {
+            return Err(PyValueError::new_err(format!(
+                "threads {threads} is out of range; it must be 0 (one per core) ..= 4096"
+            )));
+        }
+    };
+    *POOL.lock().unwrap_or_else(PoisonError::into_inner) = new;
+    Ok(())
+}
+
+/// `_threads()`: how many threads a pick runs on in this process.
+#[pyfunction]
+#[pyo3(name = "_threads")]
+pub fn threads() -> usize {
+    run(rayon::current_num_threads)
+}

@@ -1,0 +1,126 @@
+"""The Python answers are the CLI's: the same rays through `raypick pick` (CSV), `raypick los`
+and `raypick viewshed` on the bunny and on the Jacksboro DEM, compared field by field, every
+number to the bit (the CSV prints shortest round-trip numbers, so parsing one gives back the
+exact f64)."""
+
+import csv
+import io
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+import raypick
+from conftest import BUNNY, DEM, incoherent_rays, rays_at
+
+FIELDS = ["t", "object", "triangle", "u", "v"]
+
+
+def run_cli(cli, *args):
+    done = subprocess.run([cli, *map(str, args)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    return list(csv.DictReader(io.StringIO(done.stdout)))
+
+
+def write_numbers(path, rows):
+    with open(path, "w") as out:
+        for row in rows:
+            out.write(" ".join(repr(float(x)) for x in row) + "\n")
+
+
+def number(text):
+    return float(text) if text != "" else None
+
+
+def expect_row(row, answers, i, cells, k=None):
+    """Checks one CSV row against ray i's answer (or hit k of the per-hit columns)."""
+    j = i if k is None else k
+    hit = row["hit"] == "1"
+    assert hit == bool(answers["hit"][i])
+    assert row["invalid"] == str(int(answers["invalid"][i]))
+    if not hit:
+        assert all(row[f] == "" for f in FIELDS + ["x", "y", "z", "nx", "ny", "nz"])
+        return
+    for f in FIELDS:
+        assert number(row[f]) == answers[f][j], (f, row[f], answers[f][j])
+    assert [number(row[c]) for c in ("x", "y", "z")] == list(answers["position"][j])
+    assert [number(row[c]) for c in ("nx", "ny", "nz")] == list(answers["normal"][j])
+    if cells:
+        for c in ("row", "col"):
+            assert (int(row[c]) if row[c] else -1) == answers[c][j]
+
+
+@pytest.mark.parametrize("which", ["bunny", "dem"])
+def test_pick_matches_the_clis_csv(cli, tmp_path, which, request):
+    scene = request.getfixturevalue(which)
+    path = BUNNY if which == "bunny" else DEM
+    rays = np.vstack([rays_at(scene, 1500, spread=0.1), incoherent_rays(scene, 1500)])
+    rays[7] = [np.nan, 0, 0, 0, 0, -1]  # an invalid ray
+    write_numbers(tmp_path / "rays.txt", rays)
+    cells = which == "dem"
+
+    for mode in ["closest", "any"]:
+        rows = run_cli(cli, "pick", "-q", "--scene", path, "--rays", tmp_path / "rays.txt",
+                       "--mode", mode)
+        answers = scene.pick(rays, mode=mode)
+        assert len(rows) == len(rays)
+        assert answers["invalid"][7]
+        for i, row in enumerate(rows):
+            assert int(row["ray"]) == i
+            if mode == "closest":
+                expect_row(row, answers, i, cells)
+            else:
+                assert row["hit"] == str(int(answers["hit"][i]))
+
+    rows = run_cli(cli, "pick", "-q", "--scene", path, "--rays", tmp_path / "rays.txt",
+                   "--mode", "all", "--max-hits", "4")
+    answers = scene.pick(rays, mode="all", max_hits=4)
+    offsets = answers["offsets"]
+    k = 0
+    for row in rows:
+        i = int(row["ray"])
+        assert row["overflow"] == str(int(answers["overflow"][i]))
+        if row["hit"] == "0":
+            assert offsets[i] == offsets[i + 1] and row["rank"] == ""
+            continue
+        rank = int(row["rank"])
+        assert (answers["ray"][k], answers["rank"][k]) == (i, rank)
+        expect_row(row, answers, i, cells, k)
+        k += 1
+    assert k == len(answers["ray"]) and answers["overflow"].any()
+
+
+def test_camera_pixels_match_the_cli(cli, dem, tmp_path):
+    camera = {"perspective": {"eye": [518775, 4030000, 4000], "target": [518775, 4037310, 300],
+                              "up": [0, 0, 1], "fov_y_deg": 40, "width": 64, "height": 48}}
+    (tmp_path / "view.json").write_text(json.dumps(camera))
+    pixels = np.array([[x, y] for y in range(0, 48, 3) for x in range(0, 64, 3)] + [[10.25, 3.5]])
+    write_numbers(tmp_path / "pixels.txt", pixels)
+    rows = run_cli(cli, "pick", "-q", "--scene", DEM, "--camera", tmp_path / "view.json",
+                   "--pixels", tmp_path / "pixels.txt")
+    answers = dem.pick(raypick.camera_rays(camera, pixels))
+    assert len(rows) == len(pixels) and answers["hit"].sum() > len(pixels) / 2
+    for i, row in enumerate(rows):
+        expect_row(row, answers, i, cells=True)
+
+
+def test_los_and_viewshed_match_the_cli(cli, dem, tmp_path):
+    lo, hi = dem.bounds
+    rng = np.random.default_rng(3)
+    a = lo + (hi - lo) * rng.random((2000, 3))
+    b = lo + (hi - lo) * rng.random((2000, 3))
+    write_numbers(tmp_path / "pairs.txt", np.hstack([a, b]))
+    rows = run_cli(cli, "los", "--scene", DEM, "--pairs", tmp_path / "pairs.txt")
+    seen = dem.los(a, b)
+    assert [r["visible"] == "1" for r in rows] == list(seen)
+    assert 0 < seen.sum() < len(seen)
+
+    observer = [517000.5, 4035000.25, 900.0]
+    rows = run_cli(cli, "viewshed", "--scene", DEM, "--observer", *observer, "--target-height", 2)
+    shed = dem.viewshed(observer, target_height=2.0)
+    assert len(rows) == len(shed["visible"])
+    assert [r["visible"] == "1" for r in rows] == list(shed["visible"])
+    assert [int(r["row"]) for r in rows] == list(shed["row"])
+    assert [int(r["col"]) for r in rows] == list(shed["col"])
+    assert [float(r["z"]) for r in rows] == list(shed["position"][:, 2])

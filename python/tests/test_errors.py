@@ -1,0 +1,219 @@
+"""Refusals: bad shapes and dtypes are ValueErrors, unreadable files OSErrors, other library
+refusals ValueErrors, each one sentence; hostile files never take the interpreter down."""
+
+import os
+
+import numpy as np
+import pytest
+
+import raypick
+from conftest import BUNNY, DATA, rays_at
+
+
+def one_sentence(excinfo):
+    text = str(excinfo.value)
+    assert text and "\n" not in text, text
+    return text
+
+
+@pytest.mark.parametrize(
+    "rays, words",
+    [
+        (np.zeros((4, 6), dtype=np.float32), "got dtype float32 (convert it with .astype(numpy.float64))"),
+        (np.zeros((4, 6), dtype=np.int64), "got dtype int64"),
+        (np.zeros((4, 5)), "got shape (4, 5)"),
+        (np.zeros(6), "got shape (6,)"),
+        (np.zeros((2, 4, 6)), "got shape (2, 4, 6)"),
+        (None, "got NoneType"),
+        ("rays", "got str"),
+        ([[1, 2, 3]], "got shape (1, 3)"),
+        ([["a", "b", "c", "d", "e", "f"]], "cannot be read as one"),
+        (np.zeros((4, 6), dtype=complex), "got dtype complex128"),
+    ],
+)
+def test_bad_rays(bunny, rays, words):
+    with pytest.raises(ValueError) as e:
+        bunny.pick(rays)
+    text = one_sentence(e)
+    assert text.startswith("rays must be a float64 array of shape (N, 6)"), text
+    assert words in text
+
+
+def test_bad_origin_direction_pairs(bunny):
+    with pytest.raises(ValueError) as e:
+        bunny.pick((np.zeros((3, 3)), np.zeros((4, 3))))
+    assert one_sentence(e) == "origins has 3 rows but directions has 4; give one direction per origin"
+    with pytest.raises(ValueError) as e:
+        bunny.pick((np.zeros((3, 3)), np.zeros((3, 3), dtype=np.float32)))
+    assert one_sentence(e).startswith("directions must be a float64 array of shape (N, 3)")
+
+
+@pytest.mark.parametrize(
+    "kwargs, text",
+    [
+        ({"mode": "nearest"}, "mode: unknown value nearest (expected one of: closest, any, all)"),
+        ({"cull": "both"}, "cull: unknown value both (expected one of: none, back, front)"),
+        ({"intersector": "fast"}, "intersector: unknown value fast (expected one of: moller-trumbore, watertight)"),
+        ({"backend": "tpu"}, "backend: unknown value tpu (expected one of: auto, gpu, cpu, reference)"),
+        ({"mode": "all", "max_hits": 0}, "max hits 0 is out of range; it must be 1 ..= 1024"),
+        ({"max_hits": 5000}, "max hits 5000 is out of range; it must be 1 ..= 1024"),
+        ({"ray_mask": -1}, "ray_mask -1 is out of range; it must be 0 ..= 0xFFFFFFFF"),
+        ({"ray_mask": 2**32}, "ray_mask 4294967296 is out of range; it must be 0 ..= 0xFFFFFFFF"),
+    ],
+)
+def test_bad_query_arguments(bunny, kwargs, text):
+    with pytest.raises(ValueError) as e:
+        bunny.pick(rays_at(bunny, 3), **kwargs)
+    assert one_sentence(e) == text
+
+
+def test_file_errors_are_oserrors_with_the_clis_sentence(tmp_path):
+    missing = tmp_path / "missing.obj"
+    with pytest.raises(FileNotFoundError) as e:
+        raypick.Scene.load(missing)
+    assert isinstance(e.value, OSError)
+    assert one_sentence(e).startswith(f"{missing}: ")
+    with pytest.raises(OSError) as e:
+        raypick.Scene.load([str(BUNNY), str(tmp_path)])
+    one_sentence(e)
+    fifo = tmp_path / "pipe.obj"
+    os.mkfifo(fifo)
+    with pytest.raises((OSError, ValueError)) as e:
+        raypick.Scene.load(fifo)
+    assert str(fifo) in one_sentence(e)
+    with pytest.raises(FileNotFoundError):
+        raypick.Scene.load(tmp_path / "missing.rpk")
+
+
+def test_content_errors_are_valueerrors_naming_the_file(tmp_path):
+    with pytest.raises(ValueError) as e:
+        raypick.Scene.load(DATA / "formats" / "ply-bad-number.ply")
+    assert one_sentence(e).startswith(str(DATA / "formats" / "ply-bad-number.ply"))
+    bad_obj = tmp_path / "bad.obj"
+    bad_obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n")
+    with pytest.raises(ValueError) as e:
+        raypick.Scene.load(bad_obj)
+    assert one_sentence(e).startswith(f"{bad_obj}:4")
+    unknown = tmp_path / "scene.xyz"
+    unknown.write_text("0 0 0\n")
+    with pytest.raises(ValueError, match="unknown scene format") as e:
+        raypick.Scene.load(unknown)
+    one_sentence(e)
+    not_rpk = tmp_path / "fake.rpk"
+    not_rpk.write_bytes(b"not a saved scene at all, just some bytes" * 4)
+    with pytest.raises(ValueError) as e:
+        raypick.Scene.load(not_rpk)
+    assert str(not_rpk) in one_sentence(e)
+
+
+def test_bad_load_arguments(bunny, tmp_path):
+    cases = [
+        (lambda: raypick.Scene.load([]), "paths is empty; give at least one scene file"),
+        (lambda: raypick.Scene.load(3), "paths must be a path or a list of paths; got int"),
+        (lambda: raypick.Scene.load(BUNNY, builder="octree"),
+         "builder: unknown value octree (expected one of: auto, median-cut, sah, grid)"),
+        (lambda: raypick.Scene.load(BUNNY, leaf_size=0), "leaf size 0 is out of range; it must be 1 ..= 15"),
+        (lambda: raypick.Scene.load(BUNNY, leaf_size=-2), "leaf size -2 is out of range; it must be 1 ..= 15"),
+        (lambda: raypick.Scene.load([BUNNY, BUNNY], masks=1),
+         "masks must be a list of 2 masks (an integer or None each), one per path"),
+        (lambda: raypick.Scene.load([BUNNY, BUNNY], masks=[1]),
+         "masks must be a list of 2 masks (an integer or None each), one per path"),
+        (lambda: raypick.Scene.load(BUNNY, masks=[-1]), "mask -1 is out of range; it must be 0 ..= 0xFFFFFFFF"),
+        (lambda: bunny.save(tmp_path / "scene.bin"),
+         f"{tmp_path / 'scene.bin'}: a saved scene's file name must end in .rpk"),
+    ]
+    for call, text in cases:
+        with pytest.raises(ValueError) as e:
+            call()
+        assert one_sentence(e) == text
+    bunny.save(tmp_path / "bunny.rpk")
+    with pytest.raises(ValueError, match="load it alone"):
+        raypick.Scene.load([tmp_path / "bunny.rpk", BUNNY])
+    with pytest.raises(ValueError, match="without masks"):
+        raypick.Scene.load(tmp_path / "bunny.rpk", masks=[3])
+    with pytest.raises(OSError):
+        bunny.save(tmp_path / "no" / "such" / "folder" / "bunny.rpk")
+
+
+def test_bad_arrays_for_from_arrays():
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    t = np.array([[0, 1, 2]])
+    assert raypick.Scene.from_arrays(v, t).triangle_count == 1
+    cases = [
+        ((v.astype(np.float32), t), "vertices must be a float64 array of shape (N, 3); got dtype float32"),
+        ((v[:, :2].copy(), t), "vertices must be a float64 array of shape (N, 3); got shape (3, 2)"),
+        ((v, t.astype(float)), "triangles must be an integer array of shape (T, 3); got dtype float64"),
+        ((v, t[:, :2]), "triangles must be an integer array of shape (T, 3); got shape (1, 2)"),
+        ((v, np.array([[0, 1, 5]])), "arrays: triangle 0 uses vertex 5, but the mesh has 3 vertices"),
+        ((v, np.array([[0, -1, 2]])), "triangles must hold vertex indices in 0 ..= 4294967295; triangle 0 has -1"),
+        ((v, np.array([[0, 1, 2**33]], dtype=np.uint64)), "triangles must hold vertex indices in 0 ..= 4294967295; triangle 0 has 8589934592"),
+        ((np.array([[0.0, 0, np.nan], [1, 0, 0], [0, 1, 0]]), t), "arrays: vertex 0 has a non-finite coordinate"),
+    ]
+    for args, text in cases:
+        with pytest.raises(ValueError) as e:
+            raypick.Scene.from_arrays(*args)
+        assert one_sentence(e).startswith(text), (str(e.value), text)
+
+
+def test_bad_cameras_and_pixels():
+    good = {"perspective": {"eye": [0, 0, 10], "target": [0, 0, 0], "up": [0, 1, 0],
+                            "fov_y_deg": 45, "width": 4, "height": 3}}
+    assert raypick.camera_rays(good).shape == (12, 6)
+    with pytest.raises(ValueError) as e:
+        raypick.camera_rays({"fisheye": {}})
+    assert one_sentence(e).startswith("camera:1: unknown variant")
+    flat = {"perspective": dict(good["perspective"], fov_y_deg=0)}
+    with pytest.raises(ValueError) as e:
+        raypick.camera_rays(flat)
+    assert one_sentence(e).startswith("camera: ")
+    with pytest.raises(ValueError) as e:
+        raypick.camera_rays(42)
+    assert one_sentence(e) == "camera must be a dict (the CLI's camera JSON) or JSON text; got int"
+    with pytest.raises(ValueError) as e:
+        raypick.camera_rays(good, np.zeros((3, 3)))
+    assert one_sentence(e) == "pixels must be a numeric array of shape (N, 2); got shape (3, 3)"
+    with pytest.raises(ValueError) as e:
+        raypick.camera_rays(good, np.array([[0, 0], [np.nan, 1]]))
+    assert one_sentence(e) == "pixels row 1 is (NaN, 1), not a finite pixel"
+    huge = {"perspective": dict(good["perspective"], width=4_000_000_000, height=4_000_000_000)}
+    with pytest.raises(ValueError, match="over the memory budget") as e:
+        raypick.camera_rays(huge)
+    assert "--max-memory" not in one_sentence(e)
+
+
+def test_bad_sight_arguments(bunny, dem):
+    p = np.zeros((2, 3))
+    with pytest.raises(ValueError) as e:
+        bunny.los(p, p, epsilon=0.5)
+    assert one_sentence(e) == "epsilon 0.5 must be in [0, 0.5)"
+    with pytest.raises(ValueError) as e:
+        bunny.los(np.zeros((2, 3)), np.zeros((3, 3)))
+    assert one_sentence(e) == "a has 2 points but b has 3; give as many, or one point for every segment"
+    with pytest.raises(ValueError) as e:
+        bunny.los(np.zeros((2, 3), dtype=np.float32), p)
+    assert one_sentence(e).startswith("a must be a float64 array of shape (N, 3) or (3,)")
+    with pytest.raises(ValueError) as e:
+        bunny.viewshed([0, 0, 1])
+    assert one_sentence(e) == "the scene has no terrain grid: give targets"
+    with pytest.raises(ValueError) as e:
+        dem.viewshed([0, np.nan, 1])
+    assert one_sentence(e) == "observer (0, NaN, 1) is not finite; give finite numbers"
+    with pytest.raises(ValueError) as e:
+        dem.viewshed(np.zeros((2, 3)))
+    assert one_sentence(e) == "observer must be one point (x, y, z); got 2 points"
+    with pytest.raises(ValueError) as e:
+        dem.viewshed([0, 0, 1], target_height=float("inf"))
+    assert one_sentence(e) == "target_height inf is not finite; give a finite number"
+
+
+def test_hostile_files_are_refused_or_read_never_fatal():
+    """Every file of the hostile corpus (decompression bombs, absurd headers, paths out of the
+    folder, device files): a sentence or a scene, and no crash."""
+    folder = DATA / "hostile"
+    names = sorted(n for n in os.listdir(folder) if not n.endswith((".md", ".py", ".bin")))
+    assert len(names) > 10
+    for name in names:
+        try:
+            raypick.Scene.load(folder / name)
+        except (OSError, ValueError) as e:
+            assert "\n" not in str(e), (name, str(e))
