@@ -1,8 +1,9 @@
 //! `Scene.pick`: the query's settings, the rays in, the answers out.
 //!
-//! Rays are answered in batches that fit half the memory budget (the library's, as the CLI's
-//! `--mode all` does), so a large all-hits query runs in bounded memory; closest and any-hit
-//! batches are that large only for tens of millions of rays.
+//! Rays are answered in batches: on the CPU of [`CPU_BATCH`] rays (converted, traced and
+//! written out one batch after the other, so a batch stays in the processor's cache), on a GPU
+//! of as many as fit half the library's memory budget. Every batch fits that budget, as the
+//! CLI's `--mode all` does, so a large all-hits query runs in bounded memory.
 
 use crate::arrays;
 use crate::columns::{Columns, Lists, Shape};
@@ -17,8 +18,11 @@ use std::ops::Range;
 
 /// The checked settings of one pick.
 pub struct QueryArgs {
+    /// Mode, culling, list length, intersector.
     pub query: Query,
+    /// Which picker answers.
     pub backend: Backend,
+    /// Every ray's layer mask.
     pub ray_mask: u32,
 }
 
@@ -100,10 +104,11 @@ pub fn pick<'py>(
 }
 
 /// Rays per batch of a pick on the CPU: small enough that a batch's rays and answers stay in
-/// the processor's cache between the steps (conversion, trace, columns). Measured on 1M-ray
-/// sets (BENCHMARKS.md): 32,768 was 1.0–1.2× the speed of one 1M batch on every set; it is
-/// also below the batch size from which the pipeline reorders rays, which on these sets cost
-/// more than it gained. A GPU gets the largest batch that fits the memory budget.
+/// the processor's cache between the steps (conversion, trace, columns). Measured on the 1M
+/// camera and incoherent sets of the bunny, the dragon and the DEM (BENCHMARKS.md): 32,768 rays
+/// a batch picked 1.1–1.3× as fast as one 1M batch, and as fast as 16,384 or 65,535; it is
+/// below the batch size from which the pipeline reorders rays, which on these sets cost more
+/// than it gained. A GPU gets the largest batch that fits the memory budget.
 pub const CPU_BATCH: usize = 1 << 15;
 
 /// Answers rays `0..n`, made by `read` a batch at a time, without the interpreter, handing
