@@ -122,11 +122,18 @@ pub fn check_found<T: Sync>(
     prim: impl Fn(&T) -> u32 + Sync + Send,
 ) -> Result<()> {
     let count = bvh.triangle_ids.len();
-    let bad = found
-        .par_iter()
-        .with_min_len(4096)
-        .map(prim)
-        .find_any(|&p| p != NO_HIT && (p == CAP_REACHED || p as usize >= count));
+    let is_bad = |&p: &u32| p != NO_HIT && (p == CAP_REACHED || p as usize >= count);
+    // A chunk of the fused pick (a few hundred results) is checked in place; a whole batch in
+    // parallel.
+    let bad = if found.len() <= 4096 {
+        found.iter().map(&prim).find(is_bad)
+    } else {
+        found
+            .par_iter()
+            .with_min_len(4096)
+            .map(prim)
+            .find_any(is_bad)
+    };
     match bad {
         None => Ok(()),
         Some(CAP_REACHED) => Err(Error::Invalid(

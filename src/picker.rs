@@ -385,13 +385,7 @@ fn pick_fused(
             }
             let mut found = [GpuHit::default(); FUSED_CHUNK];
             chunk(&local[..m], &mut found[..m]);
-            if found[..m]
-                .iter()
-                .any(|f| f.prim != NO_HIT && f.prim as usize >= built.bvh.triangle_ids.len())
-            {
-                // Names the corruption as the batch path does.
-                check_found(&built.bvh, &found[..m], |f| f.prim)?;
-            }
+            check_found(&built.bvh, &found[..m], |f| f.prim)?;
             for k in 0..m {
                 let i = input[k];
                 let hit = resolve_with(&built.scene, &built.bvh, &rays[i], lengths[k], &found[k]);
