@@ -29,6 +29,7 @@ Needs: raypick (pip install ./python[dask]), numpy; optional open3d==0.20.0, tri
 
 import argparse
 import os
+import statistics
 import re
 import subprocess
 import sys
@@ -179,7 +180,7 @@ def part2(args):
           f"{raypick._threads()} threads) is measured in rounds with its cluster's runs, "
           f"best of {args.rounds}")
     rows = []
-    for workers, threads in [(1, 1), (1, 2), (2, 1)]:
+    for workers, threads in (tuple(int(x) for x in c.split("x")) for c in args.clusters):
         with LocalCluster(n_workers=workers, threads_per_worker=threads, processes=True,
                           host="127.0.0.1", dashboard_address=None) as cluster, Client(cluster) as client:
             with warnings.catch_warnings():
@@ -207,12 +208,18 @@ def part2(args):
                     run()
                     times[name].append(time.perf_counter() - start)
             one, kept_rate, gathered_rate = (n / min(times[k]) for k in ("one", "kept", "gathered"))
+            median = {k: n / statistics.median(v) for k, v in times.items()}
             rows.append((workers, threads, kept_rate, gathered_rate))
             print(f"dask {workers} worker(s) x {threads} thread(s): kept {kept_rate / 1e6:.2f} M rays/s "
                   f"({kept_rate / one:.2f} of one process at {one / 1e6:.2f}), gathered "
-                  f"{gathered_rate / 1e6:.2f} ({gathered_rate / one:.2f})", flush=True)
-    (_, _, k11, g11), _, (_, _, k21, g21) = rows
-    print(f"scaling 1 -> 2 worker processes (1 thread each): kept {k21 / k11:.2f}x, gathered {g21 / g11:.2f}x")
+                  f"{gathered_rate / 1e6:.2f} ({gathered_rate / one:.2f}); medians: kept "
+                  f"{median['kept'] / median['one']:.2f} and gathered "
+                  f"{median['gathered'] / median['one']:.2f} of one process", flush=True)
+    by_shape = {(w, t): (k, g) for w, t, k, g in rows}
+    if (1, 1) in by_shape and (2, 1) in by_shape:
+        (k11, g11), (k21, g21) = by_shape[1, 1], by_shape[2, 1]
+        print(f"scaling 1 -> 2 worker processes (1 thread each): kept {k21 / k11:.2f}x, "
+              f"gathered {g21 / g11:.2f}x")
 
 
 def main():
@@ -227,6 +234,8 @@ def main():
     p.add_argument("--chunk", type=int, default=1_000_000)
     p.add_argument("--rounds", type=int, default=4, help="timed rounds of part 2")
     p.add_argument("--dask-side", type=int, default=2000, help="camera pixels per side (2000: 4M rays)")
+    p.add_argument("--clusters", nargs="+", default=["1x1", "1x2", "2x1"],
+                   help="LocalClusters of part 2 as WORKERSxTHREADS")
     p.add_argument("--no-peers", action="store_true", help="skip Open3D and trimesh")
     args = p.parse_args()
     if not args.dask_only:
