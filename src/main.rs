@@ -7,6 +7,10 @@
 
 mod cli;
 
+/// Large buffers (files, scenes, trees, answers) on transparent huge pages: fewer page faults.
+#[global_allocator]
+static ALLOCATOR: raypick::huge_pages::Allocator = raypick::huge_pages::Allocator;
+
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use std::process::ExitCode;
 

@@ -124,14 +124,21 @@ impl Scene {
             self.bounds_max = self.bounds_max.max(*p);
         }
         let base = vertex_base as u32;
-        self.positions.extend_from_slice(&mesh.positions);
-        self.triangles
-            .extend(mesh.triangles.iter().map(|t| t.map(|i| i + base)));
+        let triangle_count = mesh.triangles.len() as u32;
+        if self.positions.is_empty() && self.triangles.is_empty() {
+            // The first mesh is moved in, not copied: a loaded scene is never held twice.
+            self.positions = mesh.positions;
+            self.triangles = mesh.triangles;
+        } else {
+            self.positions.extend_from_slice(&mesh.positions);
+            self.triangles
+                .extend(mesh.triangles.iter().map(|t| t.map(|i| i + base)));
+        }
         self.objects.push(Object {
             id,
             name,
             first_triangle: first_triangle as u32,
-            triangle_count: mesh.triangles.len() as u32,
+            triangle_count,
             first_vertex: base,
             mask: u32::MAX,
             grid: None,

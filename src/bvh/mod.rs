@@ -89,10 +89,28 @@ impl Bvh {
     }
 }
 
-/// Scene triangle `index` as f32 offsets from `origin`, or `None` when it can never be hit (see
-/// [`is_traceable`]).
-pub(crate) fn traceable_triangle(scene: &Scene, origin: DVec3, index: usize) -> Option<[Vec3; 3]> {
-    let local = scene.world_triangle(index).map(|p| (p - origin).as_vec3());
+/// Every scene vertex as an f32 offset from `origin`, in scene order. Each vertex is rounded
+/// once here, so a triangle's corners are the same bits in every triangle that shares them.
+pub(crate) fn local_positions(scene: &Scene, origin: DVec3) -> Vec<Vec3> {
+    use rayon::prelude::*;
+    let mut local = Vec::new();
+    (0..scene.vertex_count())
+        .into_par_iter()
+        .map(|i| (scene.position(i) - origin).as_vec3())
+        .collect_into_vec(&mut local);
+    local
+}
+
+/// Scene triangle `index` as f32 offsets (from [`local_positions`]), or `None` when it can
+/// never be hit (see [`is_traceable`]).
+pub(crate) fn traceable_triangle(
+    scene: &Scene,
+    local_positions: &[Vec3],
+    index: usize,
+) -> Option<[Vec3; 3]> {
+    let local = scene
+        .triangle_vertices(index)
+        .map(|v| local_positions[v as usize]);
     is_traceable(scene, index, local).then_some(local)
 }
 
@@ -104,9 +122,11 @@ pub(crate) fn is_traceable(scene: &Scene, index: usize, [a, b, c]: [Vec3; 3]) ->
     !f32_area_zero && !scene.is_degenerate(index)
 }
 
-/// Scene triangle `index` as the kernel stores it: f32 offsets from `origin`.
-pub(crate) fn local_triangle(scene: &Scene, origin: DVec3, index: usize) -> GpuTriangle {
-    let [v0, v1, v2] = scene.world_triangle(index).map(|p| (p - origin).as_vec3());
+/// Scene triangle `index` as the kernel stores it: f32 offsets (from [`local_positions`]).
+pub(crate) fn local_triangle(scene: &Scene, local_positions: &[Vec3], index: usize) -> GpuTriangle {
+    let [v0, v1, v2] = scene
+        .triangle_vertices(index)
+        .map(|v| local_positions[v as usize]);
     GpuTriangle {
         v0: v0.into(),
         v1: v1.into(),

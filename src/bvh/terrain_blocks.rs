@@ -203,10 +203,7 @@ impl<'a> Grid<'a> {
             shape.columns.saturating_sub(1),
         );
         let origin = scene.origin();
-        let local_positions: Vec<Vec3> = (0..scene.vertex_count())
-            .into_par_iter()
-            .map(|i| (scene.position(i) - origin).as_vec3())
-            .collect();
+        let local_positions = super::local_positions(scene, origin);
         let first_triangle = object.first_triangle;
         let traceable: Vec<u8> = (0..cell_rows as usize * cell_cols as usize)
             .into_par_iter()

@@ -9,7 +9,7 @@
 
 use super::{
     BuildOptions, Bvh, check_leaf_size, check_node_count, inner_node, leaf_node, link_parents,
-    local_triangle, traceable_triangle,
+    local_positions, local_triangle, traceable_triangle,
 };
 use crate::error::Result;
 use crate::layout::GpuNode;
@@ -50,31 +50,48 @@ pub(super) fn build_with(
 ) -> Result<Bvh> {
     check_leaf_size(options)?;
     let origin = scene.origin();
-    let mut prims: Vec<PrimRef> = (0..scene.triangle_count())
+    // One indexed parallel pass straight into the vector (no per-task pieces to join), then
+    // the untraceable triangles (rare) taken out in order.
+    const LEFT_OUT: u32 = u32::MAX;
+    let local = local_positions(scene, origin);
+    let mut prims: Vec<PrimRef> = Vec::new();
+    (0..scene.triangle_count())
         .into_par_iter()
-        .filter_map(|i| {
-            let [a, b, c] = traceable_triangle(scene, origin, i)?;
-            Some(PrimRef {
+        .map(|i| match traceable_triangle(scene, &local, i) {
+            Some([a, b, c]) => PrimRef {
                 min: a.min(b).min(c),
                 max: a.max(b).max(c),
                 centroid: (a + b + c) / 3.0,
                 scene_index: i as u32,
-            })
+            },
+            None => PrimRef {
+                min: Vec3::ZERO,
+                max: Vec3::ZERO,
+                centroid: Vec3::ZERO,
+                scene_index: LEFT_OUT,
+            },
         })
-        .collect();
+        .collect_into_vec(&mut prims);
+    if prims.par_iter().any(|p| p.scene_index == LEFT_OUT) {
+        prims.retain(|p| p.scene_index != LEFT_OUT);
+    }
     if prims.is_empty() {
         return Ok(Bvh {
             origin,
             ..Bvh::default()
         });
     }
-    let mut nodes = build_subtree(&mut prims, 0, 0, &rule, options.leaf_size);
+    let top = build_subtree(&mut prims, 0, 0, &rule, options.leaf_size);
+    let mut nodes = Vec::with_capacity(top.len());
+    top.flatten_into(&mut nodes);
+    drop(top);
     check_node_count(nodes.len())?;
     link_parents(&mut nodes);
-    let triangles = prims
+    let mut triangles = Vec::new();
+    prims
         .par_iter()
-        .map(|p| local_triangle(scene, origin, p.scene_index as usize))
-        .collect();
+        .map(|p| local_triangle(scene, &local, p.scene_index as usize))
+        .collect_into_vec(&mut triangles);
     let triangle_ids = prims.iter().map(|p| p.scene_index).collect();
     Ok(Bvh {
         origin,
@@ -85,26 +102,74 @@ pub(super) fn build_with(
     })
 }
 
-/// Builds the subtree over `prims` (which start at leaf-order index `first`) in depth-first order,
-/// with child links relative to the subtree's root. Large ranges split into parallel tasks.
+/// A subtree as the parallel recursion leaves it: either finished nodes (depth-first, links
+/// relative to the first), or an inner node over two such pieces. Flattened once at the end,
+/// so the nodes are copied once, not once per parallel level.
+enum Piece {
+    Nodes(Vec<GpuNode>),
+    Inner {
+        min: Vec3,
+        max: Vec3,
+        axis: usize,
+        len: usize,
+        children: Box<(Piece, Piece)>,
+    },
+}
+
+impl Piece {
+    /// Nodes in this piece.
+    fn len(&self) -> usize {
+        match self {
+            Piece::Nodes(nodes) => nodes.len(),
+            Piece::Inner { len, .. } => *len,
+        }
+    }
+
+    /// Appends the piece's nodes depth-first, links made absolute.
+    fn flatten_into(&self, out: &mut Vec<GpuNode>) {
+        match self {
+            Piece::Nodes(nodes) => append_shifted(out, nodes),
+            Piece::Inner {
+                min,
+                max,
+                axis,
+                children,
+                ..
+            } => {
+                let here = out.len();
+                out.push(inner_node(
+                    *min,
+                    *max,
+                    *axis,
+                    (here + 1 + children.0.len()) as u32,
+                ));
+                children.0.flatten_into(out);
+                children.1.flatten_into(out);
+            }
+        }
+    }
+}
+
+/// Builds the subtree over `prims` (which start at leaf-order index `first`) in depth-first order.
+/// Large ranges split into parallel tasks.
 fn build_subtree(
     prims: &mut [PrimRef],
     first: u32,
     depth: u32,
     rule: &impl SplitRule,
     leaf_size: u32,
-) -> Vec<GpuNode> {
+) -> Piece {
     if prims.len() < PARALLEL_MIN {
         let mut nodes = Vec::with_capacity(2 * prims.len() / leaf_size as usize + 1);
         build_into(&mut nodes, prims, first, depth, rule);
-        return nodes;
+        return Piece::Nodes(nodes);
     }
     let (min, max) = bounds(prims);
     let Some((axis, left_count)) = rule(prims, min, max, depth) else {
-        return vec![leaf_node(min, max, prims.len() as u32, first)];
+        return Piece::Nodes(vec![leaf_node(min, max, prims.len() as u32, first)]);
     };
     let (left_prims, right_prims) = prims.split_at_mut(left_count);
-    let (left, right) = rayon::join(
+    let children = rayon::join(
         || build_subtree(left_prims, first, depth + 1, rule, leaf_size),
         || {
             build_subtree(
@@ -116,11 +181,13 @@ fn build_subtree(
             )
         },
     );
-    let mut nodes = Vec::with_capacity(1 + left.len() + right.len());
-    nodes.push(inner_node(min, max, axis, 1 + left.len() as u32));
-    append_shifted(&mut nodes, &left);
-    append_shifted(&mut nodes, &right);
-    nodes
+    Piece::Inner {
+        min,
+        max,
+        axis,
+        len: 1 + children.0.len() + children.1.len(),
+        children: Box::new(children),
+    }
 }
 
 /// Sequential build of one subtree, appended to `nodes` with links relative to `nodes[0]`.
@@ -157,15 +224,24 @@ pub(super) fn median_split(prims: &mut [PrimRef], axis: usize) -> usize {
 }
 
 /// In-place partition: moves the elements satisfying `goes_left` to the front, returns their count.
+/// Hoare's scheme (from both ends, swapping only misplaced pairs): about half the moves of a
+/// one-sided scan. The order inside each side depends only on the input order.
 pub(super) fn partition(prims: &mut [PrimRef], goes_left: impl Fn(&PrimRef) -> bool) -> usize {
-    let mut left = 0;
-    for i in 0..prims.len() {
-        if goes_left(&prims[i]) {
-            prims.swap(left, i);
-            left += 1;
+    let (mut i, mut j) = (0, prims.len());
+    loop {
+        while i < j && goes_left(&prims[i]) {
+            i += 1;
         }
+        while i < j && !goes_left(&prims[j - 1]) {
+            j -= 1;
+        }
+        if i == j {
+            return i;
+        }
+        prims.swap(i, j - 1);
+        i += 1;
+        j -= 1;
     }
-    left
 }
 
 /// The box around `prims`.

@@ -13,6 +13,7 @@
 //! that folder. So a scene file can only make raypick read files next to it or below it.
 
 pub mod gltf;
+pub(crate) mod mapped;
 pub mod obj;
 pub mod output;
 pub mod pixel_file;

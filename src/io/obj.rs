@@ -39,10 +39,14 @@ use rayon::prelude::*;
 
 use crate::budget::quote;
 use crate::error::Error;
+use crate::io::mapped::Pages;
 use crate::scene::Mesh;
 
 /// Chunks are about this long at least: below it, a thread costs more than it saves.
 const MIN_CHUNK_BYTES: usize = 256 << 10;
+/// Chunks are at most this long: the file's pages in flight stay few, and a chunk's vectors
+/// (sized for it at once) stay under a huge page, so untouched capacity is never resident.
+const MAX_CHUNK_BYTES: usize = 1 << 20;
 
 /// Loads the triangle mesh of the OBJ file at `path`.
 ///
@@ -53,7 +57,12 @@ const MIN_CHUNK_BYTES: usize = 256 << 10;
 pub fn load_obj(path: &Path) -> Result<Mesh, Error> {
     let name = path.display().to_string();
     let bytes = read_file(path)?;
-    let (mesh, short) = parse_obj(&name, &bytes)?;
+    let (pages, file) = match &bytes {
+        FileBytes::Mapped(map, file) => (Pages(Some(map)), Some(file)),
+        FileBytes::Read(_) => (Pages(None), None),
+    };
+    let chunk_bytes = chunk_bytes_for(bytes.len());
+    let (mesh, short) = parse_with(&name, &bytes, chunk_bytes, file, &pages)?;
     if let Some(short) = short {
         eprintln!("warning: {name}: {}", short.describe());
     }
@@ -63,9 +72,39 @@ pub fn load_obj(path: &Path) -> Result<Mesh, Error> {
 /// Parses the OBJ text `bytes` (named `name` in errors) into a mesh, and says which faces had
 /// fewer than 3 vertices, if any. [`load_obj`] without the file and the warning.
 pub fn parse_obj(name: &str, bytes: &[u8]) -> Result<(Mesh, Option<ShortFaces>), Error> {
+    parse_obj_in_chunks(name, bytes, chunk_bytes_for(bytes.len()))
+}
+
+/// The `len` bytes of `file` from `offset`, read into `buffer`; `None` without a file or when
+/// the read fails (the caller reads the map instead).
+fn read_chunk<'b>(
+    file: Option<&std::fs::File>,
+    buffer: &'b mut Vec<u8>,
+    offset: u64,
+    len: usize,
+) -> Option<&'b [u8]> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileExt;
+        if buffer.len() < len {
+            buffer.resize(len, 0);
+        }
+        let buffer = &mut buffer[..len];
+        file?.read_exact_at(buffer, offset).ok()?;
+        Some(buffer)
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = (file, buffer, offset, len);
+        None
+    }
+}
+
+/// The chunk length for `bytes` of text: 32 chunks per thread, for balance and so that the
+/// file's pages in flight (a chunk per thread) stay few; at most `MAX_CHUNK_BYTES`.
+fn chunk_bytes_for(bytes: usize) -> usize {
     let threads = rayon::current_num_threads().max(1);
-    let chunk = (bytes.len() / (8 * threads)).max(MIN_CHUNK_BYTES);
-    parse_obj_in_chunks(name, bytes, chunk)
+    (bytes / (32 * threads)).clamp(MIN_CHUNK_BYTES, MAX_CHUNK_BYTES)
 }
 
 /// [`parse_obj`] with chunks of about `chunk_bytes` (at least 1), for tests of the chunk seams.
@@ -75,47 +114,91 @@ pub fn parse_obj_in_chunks(
     bytes: &[u8],
     chunk_bytes: usize,
 ) -> Result<(Mesh, Option<ShortFaces>), Error> {
-    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
-    let ranges = split(bytes, chunk_bytes.max(1));
+    parse_with(name, bytes, chunk_bytes, None, &Pages(None))
+}
+
+/// [`parse_obj_in_chunks`] of bytes that may lie in a map of `file`. Then each chunk is read
+/// from the file into a buffer that each thread reuses, and the map is only touched where
+/// chunks are cut (and again on error paths), its pages let go at once: the file is never
+/// resident whole beside the mesh. (Parsing straight from the map let the kernel map whole
+/// page-cache folios around each chunk, and kept them mapped: a third of the file, at times.)
+fn parse_with(
+    name: &str,
+    whole: &[u8],
+    chunk_bytes: usize,
+    file: Option<&std::fs::File>,
+    pages: &Pages<'_>,
+) -> Result<(Mesh, Option<ShortFaces>), Error> {
+    let bytes = whole.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(whole);
+    let skipped = whole.len() - bytes.len();
+    // Each chunk's pages are let go as soon as it is cut: a touch can map a whole page-cache
+    // folio (2 MiB) of a mapped file, and cutting touches every chunk.
+    let ranges = split(bytes, chunk_bytes.max(1), |chunk| pages.done(chunk));
+    // One buffer per thread of the pool (and one for a caller outside it), for this load only.
+    let buffers: Vec<std::sync::Mutex<Vec<u8>>> = (0..=rayon::current_num_threads())
+        .map(|_| std::sync::Mutex::new(Vec::new()))
+        .collect();
+    let parse = |k: usize, r: &Range<usize>| {
+        let slot = rayon::current_thread_index().map_or(0, |i| (i + 1) % buffers.len());
+        let mut buffer = buffers[slot].lock().unwrap_or_else(|e| e.into_inner());
+        let chunk = read_chunk(file, &mut buffer, (skipped + r.start) as u64, r.len())
+            .unwrap_or(&bytes[r.clone()]);
+        parse_chunk(chunk, (k == 0).then_some(0))
+    };
     let outcomes: Vec<Outcome> = if ranges.len() == 1 {
-        vec![parse_chunk(bytes, Some(0))]
+        vec![parse(0, &ranges[0])]
     } else {
         ranges
             .par_iter()
             .enumerate()
-            .map(|(k, r)| parse_chunk(&bytes[r.clone()], (k == 0).then_some(0)))
+            .map(|(k, r)| parse(k, r))
             .collect()
     };
+    drop(buffers);
     join(name, bytes, &ranges, outcomes)
 }
 
-/// Reads the regular file at `path` after checking its length against the memory budget: in
-/// parallel pieces where the platform reads at an offset, as the copy out of the page cache is a
-/// fair part of the load time.
-fn read_file(path: &Path) -> Result<Vec<u8>, Error> {
+/// The bytes of an OBJ file: mapped when large, read when small.
+enum FileBytes {
+    /// The map, and the file for reading chunks.
+    Mapped(memmap2::Mmap, std::fs::File),
+    Read(Vec<u8>),
+}
+
+impl std::ops::Deref for FileBytes {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match self {
+            FileBytes::Mapped(map, _) => map,
+            FileBytes::Read(bytes) => bytes,
+        }
+    }
+}
+
+/// Files from this size are mapped rather than read.
+const MAP_FROM_BYTES: u64 = 1 << 20;
+
+/// The regular file at `path`, after checking its length against the memory budget. A large
+/// file is mapped (memmap2) for finding where to cut it, and kept open for reading the chunks:
+/// reading it whole into fresh memory cost the zeroing of as many new pages, a fair part of the
+/// load time, and held the whole file beside the mesh.
+fn read_file(path: &Path) -> Result<FileBytes, Error> {
     let (file, length) = crate::io::open_regular(path)?;
     crate::budget::check(&format!("reading {}", path.display()), length, 1)?;
     let io = |source| Error::Io {
         path: path.display().to_string(),
         source,
     };
-    let length = usize::try_from(length).map_err(|_| io(std::io::ErrorKind::OutOfMemory.into()))?;
-    let mut bytes = vec![0u8; length];
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::FileExt;
-        const PIECE: usize = 4 << 20;
-        bytes
-            .par_chunks_mut(PIECE)
-            .enumerate()
-            .try_for_each(|(k, piece)| file.read_exact_at(piece, (k * PIECE) as u64))
-            .map_err(io)?;
+    if length >= MAP_FROM_BYTES {
+        // SAFETY: as for the `.rpk` reader's map, the file is assumed not to change while the
+        // job reads it; the map is only read, by a parser that accepts any bytes. A file
+        // truncated by another process meanwhile raises SIGBUS, as for any mapped file.
+        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(io)?;
+        return Ok(FileBytes::Mapped(map, file));
     }
-    #[cfg(not(unix))]
-    {
-        std::io::Read::read_exact(&mut &file, &mut bytes).map_err(io)?;
-    }
-    Ok(bytes)
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(&mut std::io::Read::take(&file, length), &mut bytes).map_err(io)?;
+    Ok(FileBytes::Read(bytes))
 }
 
 fn parse_error(path: &str, line: Option<usize>, message: String) -> Error {
@@ -149,9 +232,10 @@ impl ShortFaces {
 // ---------------------------------------------------------------------------------------------
 // Chunks
 
-/// Cuts `bytes` into ranges of about `target` bytes that start at line starts. A cut never
-/// follows a line holding a `\` (which might continue onto the next line).
-fn split(bytes: &[u8], target: usize) -> Vec<Range<usize>> {
+/// Cuts `bytes` into ranges of about `target` bytes that start at line starts, handing each
+/// range to `cut` once it is cut. A cut never follows a line holding a `\` (which might
+/// continue onto the next line).
+fn split(bytes: &[u8], target: usize, cut: impl Fn(&[u8])) -> Vec<Range<usize>> {
     let mut ranges = Vec::new();
     let mut start = 0;
     while start < bytes.len() {
@@ -170,6 +254,7 @@ fn split(bytes: &[u8], target: usize) -> Vec<Range<usize>> {
                 break;
             }
         }
+        cut(&bytes[start..end]);
         ranges.push(start..end);
         start = end;
     }
@@ -193,15 +278,27 @@ fn count_lines(bytes: &[u8]) -> usize {
     bytes.iter().filter(|&&b| b == b'\n').count()
 }
 
-/// Face corners are stored per chunk as `i64`: `i − 1 ≥ 0` for a positive index `i` (already
-/// global), and `local + i − TAG < 0` for a negative one (`local`: the chunk's vertices before
-/// the face), which becomes global once the chunk's first vertex number is known.
+/// Face corners are read as `i64`: `i − 1 ≥ 0` for a positive index `i` (already global), and
+/// `local + i − TAG < 0` for a negative one (`local`: the chunk's vertices before the face),
+/// which becomes global once the chunk's first vertex number (`base`) is known.
 const TAG: i64 = 1 << 62;
+
+/// Face corners are stored per chunk in 4 bytes each (the i64 of a whole file's corners once
+/// held twice the mesh's memory): a value below `RELATIVE` is a global vertex number; a value
+/// `v` from `RELATIVE` up to `FAR` is a negative index not yet global, `base + (v − RELATIVE) −
+/// HALF`; `FAR` says the exact i64 corner is in the chunk's `far` list (only numbers no mesh
+/// that fits in memory reaches).
+const RELATIVE: u32 = 1 << 31;
+const HALF: i64 = 1 << 30;
+const FAR: u32 = u32::MAX;
 
 /// What parsing one chunk gave.
 struct Outcome {
     vertices: Vec<DVec3>,
-    triangles: Vec<[i64; 3]>,
+    /// Corners as [`RELATIVE`] says.
+    triangles: Vec<[u32; 3]>,
+    /// (position among the chunk's corners, i64 corner) of each corner stored as [`FAR`].
+    far: Vec<(usize, i64)>,
     /// The chunk's `\n` count when it was parsed to its end.
     lines: Option<usize>,
     /// The vertices the chunk needs before it: an index `i` on a line after `local` of the
@@ -219,10 +316,16 @@ struct Outcome {
 /// Parses one chunk; `base` is the number of vertices before it, when known (range errors
 /// are then found here, else [`Outcome::deficit`] says what the chunk needs).
 fn parse_chunk(bytes: &[u8], base: Option<u64>) -> Outcome {
+    // Room for the usual density at once (a vertex or face line is rarely under 16 bytes), so
+    // the vectors seldom grow: each growth left the old copy behind in the thread's allocator
+    // arena, and a whole file's worth raised the load's peak by half the mesh. Capacity never
+    // written is never resident.
+    let expected = bytes.len() / 16;
     let mut parser = Parser {
         base,
-        vertices: Vec::new(),
-        triangles: Vec::new(),
+        vertices: Vec::with_capacity(expected),
+        triangles: Vec::with_capacity(expected),
+        far: Vec::new(),
         deficit: 0,
         short: None,
         corners: Vec::new(),
@@ -237,6 +340,7 @@ fn parse_chunk(bytes: &[u8], base: Option<u64>) -> Outcome {
     Outcome {
         vertices: parser.vertices,
         triangles: parser.triangles,
+        far: parser.far,
         lines,
         deficit: parser.deficit,
         short: parser.short,
@@ -299,20 +403,21 @@ fn join(
         base += outcome.vertices.len() as u64;
         before += lines(k);
     }
-    let mesh = build_mesh(name, &outcomes, &bases)?;
+    let mesh = build_mesh(name, outcomes, &bases)?;
     Ok((mesh, short))
 }
 
 /// Concatenates the chunks' triangles, numbering the vertices in order of first use (as the
-/// `tobj` reader did): the corners are made global in parallel, numbered in one pass, and the
-/// used vertices gathered in parallel.
-fn build_mesh(name: &str, outcomes: &[Outcome], bases: &[u64]) -> Result<Mesh, Error> {
+/// `tobj` reader did). Memory stays near the mesh's own: each chunk's corners are made global
+/// in parallel straight into the mesh's triangles and freed, the vertices are moved into one
+/// vector and put in first-use order in place.
+fn build_mesh(name: &str, mut outcomes: Vec<Outcome>, bases: &[u64]) -> Result<Mesh, Error> {
     let vertex_count: usize = outcomes.iter().map(|o| o.vertices.len()).sum();
     let triangle_count: usize = outcomes.iter().map(|o| o.triangles.len()).sum();
     if triangle_count == 0 {
         return Ok(Mesh::default());
     }
-    // Global vertex numbers are u32 here (so below `UNUSED`); the mesh's can only be fewer.
+    // Global vertex numbers are u32 here (below `UNUSED`); the mesh's can only be fewer.
     if u32::try_from(vertex_count).is_err() {
         return Err(parse_error(
             name,
@@ -328,31 +433,51 @@ fn build_mesh(name: &str, outcomes: &[Outcome], bases: &[u64]) -> Result<Mesh, E
     )?;
     crate::budget::check(&format!("{name}: the triangles"), triangle_count as u64, 12)?;
 
-    // Global corners, each chunk into its own run of the triangles.
-    let mut triangles = vec![[0u32; 3]; triangle_count];
+    // Global corners, each chunk into its own run of the triangles, its own corners then freed.
+    let mut triangles: Vec<[u32; 3]> = Vec::with_capacity(triangle_count);
     let mut runs = Vec::with_capacity(outcomes.len());
-    let mut rest = triangles.as_mut_slice();
-    for outcome in outcomes {
+    let mut rest = &mut triangles.spare_capacity_mut()[..triangle_count];
+    for outcome in &outcomes {
         let (run, tail) = rest.split_at_mut(outcome.triangles.len());
         runs.push(run);
         rest = tail;
     }
+    let parts: Vec<_> = outcomes
+        .iter_mut()
+        .map(|o| (std::mem::take(&mut o.triangles), std::mem::take(&mut o.far)))
+        .collect();
+    // Every run is written whole (no early stop), as `set_len` below relies on.
     let in_range = runs
         .into_par_iter()
-        .zip(outcomes)
+        .zip(parts)
         .zip(bases)
-        .all(|((run, outcome), &base)| {
+        .map(|((run, (corners, far)), &base)| {
+            let mut far = far.into_iter().peekable();
             let mut ok = true;
-            for (out, corners) in run.iter_mut().zip(&outcome.triangles) {
-                for (slot, &c) in out.iter_mut().zip(corners) {
-                    let global = if c >= 0 { c } else { c + TAG + base as i64 };
+            for (k, (out, stored)) in run.iter_mut().zip(corners).enumerate() {
+                let mut global = [0u32; 3];
+                for (j, (slot, c)) in global.iter_mut().zip(stored).enumerate() {
+                    let g = match c {
+                        c if c < RELATIVE => i64::from(c),
+                        FAR => match far.next_if(|&(at, _)| at == 3 * k + j) {
+                            Some((_, c)) if c >= 0 => c,
+                            Some((_, c)) => c + TAG + base as i64,
+                            None => -1,
+                        },
+                        c => base as i64 + i64::from(c - RELATIVE) - HALF,
+                    };
                     // In range: the chunk was checked against its base.
-                    ok &= (0..vertex_count as i64).contains(&global);
-                    *slot = global as u32;
+                    ok &= (0..vertex_count as i64).contains(&g);
+                    *slot = g as u32;
                 }
+                out.write(global);
             }
             ok
-        });
+        })
+        .reduce(|| true, |a, b| a & b);
+    // SAFETY: the runs cover the first `triangle_count` slots, and each run's slots were all
+    // written above (a run is as long as its chunk's corner triples, each written once).
+    unsafe { triangles.set_len(triangle_count) };
     if !in_range {
         return Err(parse_error(
             name,
@@ -361,10 +486,10 @@ fn build_mesh(name: &str, outcomes: &[Outcome], bases: &[u64]) -> Result<Mesh, E
         ));
     }
 
-    // Numbers in order of first use.
+    // Numbers in order of first use; then the unused vertices, so `order` is a permutation.
     const UNUSED: u32 = u32::MAX;
     let mut number = vec![UNUSED; vertex_count];
-    let mut order: Vec<u32> = Vec::new();
+    let mut order: Vec<u32> = Vec::with_capacity(vertex_count);
     for corner in triangles.as_flattened_mut() {
         let global = *corner as usize;
         let mut n = number[global];
@@ -375,19 +500,47 @@ fn build_mesh(name: &str, outcomes: &[Outcome], bases: &[u64]) -> Result<Mesh, E
         }
         *corner = n;
     }
+    let used = order.len();
+    order.extend((0..vertex_count as u32).filter(|&g| number[g as usize] == UNUSED));
     drop(number);
 
-    let positions = order
-        .par_iter()
-        .map(|&global| {
-            let k = bases.partition_point(|&b| b <= u64::from(global)) - 1;
-            outcomes[k].vertices[(u64::from(global) - bases[k]) as usize]
-        })
-        .collect();
+    // The vertices in file order, moved into one vector (chunk by chunk, each freed), then
+    // put in first-use order in place.
+    let mut positions = std::mem::take(&mut outcomes[0].vertices);
+    positions.reserve_exact(vertex_count - positions.len());
+    for outcome in &mut outcomes[1..] {
+        positions.extend_from_slice(&std::mem::take(&mut outcome.vertices));
+    }
+    drop(outcomes);
+    gather_in_place(&mut positions, &mut order);
+    positions.truncate(used);
     Ok(Mesh {
         positions,
         triangles,
     })
+}
+
+/// Puts `values[order[n]]` at `values[n]` for every `n`, in place, by following the cycles of
+/// the permutation `order` (of `0..values.len()`, each below `u32::MAX`); `order` is spent.
+fn gather_in_place<T: Copy>(values: &mut [T], order: &mut [u32]) {
+    const DONE: u32 = u32::MAX;
+    for start in 0..values.len() {
+        if order[start] == DONE {
+            continue;
+        }
+        let first = values[start];
+        let mut at = start;
+        loop {
+            let from = order[at] as usize;
+            order[at] = DONE;
+            if from == start {
+                values[at] = first;
+                break;
+            }
+            values[at] = values[from];
+            at = from;
+        }
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -409,7 +562,8 @@ struct Parser {
     /// Vertices before the chunk, when known.
     base: Option<u64>,
     vertices: Vec<DVec3>,
-    triangles: Vec<[i64; 3]>,
+    triangles: Vec<[u32; 3]>,
+    far: Vec<(usize, i64)>,
     deficit: u64,
     short: Option<(usize, usize)>,
     /// The corners of the face being read.
@@ -570,14 +724,44 @@ impl Parser {
     /// Turns the corners read into triangles (a fan), or counts a short face.
     #[inline]
     fn commit_face(&mut self, line: usize) {
-        let c = &self.corners;
-        if c.len() < 3 {
+        let n = self.corners.len();
+        if n < 3 {
             self.short.get_or_insert((0, line)).0 += 1;
             return;
         }
-        for k in 1..c.len() - 1 {
-            self.triangles.push([c[0], c[k], c[k + 1]]);
+        for k in 1..n - 1 {
+            let slot = self.triangles.len() * 3;
+            let c = &self.corners;
+            let corners = [c[0], c[k], c[k + 1]];
+            let stored = [
+                self.pack(slot, corners[0]),
+                self.pack(slot + 1, corners[1]),
+                self.pack(slot + 2, corners[2]),
+            ];
+            self.triangles.push(stored);
         }
+    }
+
+    /// The 4-byte form of the i64 `corner` at position `slot` of the chunk's corners.
+    #[inline(always)]
+    fn pack(&mut self, slot: usize, corner: i64) -> u32 {
+        let global = match (corner >= 0, self.base) {
+            (true, _) => Some(corner),
+            (false, Some(base)) => Some(corner + TAG + base as i64),
+            (false, None) => None,
+        };
+        match global {
+            Some(g) if g < i64::from(RELATIVE) => return g as u32,
+            None => {
+                let relative = corner + TAG;
+                if (-HALF..HALF - 1).contains(&relative) {
+                    return RELATIVE + (relative + HALF) as u32;
+                }
+            }
+            Some(_) => {}
+        }
+        self.far.push((slot, corner));
+        FAR
     }
 
     /// Reads the line at `start` (with the lines it continues onto) by the reference rules;
@@ -752,6 +936,45 @@ mod tests {
 
     /// A temporary file removed on drop.
     struct TempFile(PathBuf);
+
+    #[test]
+    fn gathering_in_place_is_a_gather() {
+        use rand::SeedableRng;
+        use rand::seq::SliceRandom;
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+        for n in [0usize, 1, 2, 3, 10, 1000] {
+            let mut order: Vec<u32> = (0..n as u32).collect();
+            order.shuffle(&mut rng);
+            let values: Vec<u64> = (0..n as u64).map(|v| v * 31 + 5).collect();
+            let expected: Vec<u64> = order.iter().map(|&k| values[k as usize]).collect();
+            let mut in_place = values.clone();
+            gather_in_place(&mut in_place, &mut order.clone());
+            assert_eq!(in_place, expected, "n = {n}");
+        }
+    }
+
+    #[test]
+    fn corners_pack_into_four_bytes_and_back() {
+        // Chunk 0 (base known) stores globals; a later chunk stores negative indices relative
+        // to its base, and an index beyond every mesh in the far list (then an error).
+        let text =
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".repeat(40) + &"v 2 2 2\nf -1 -2 -4\n".repeat(40);
+        let whole = parse_obj_in_chunks("m.obj", text.as_bytes(), usize::MAX).expect("whole");
+        let chunked = parse_obj_in_chunks("m.obj", text.as_bytes(), 64).expect("chunked");
+        assert_eq!(whole.0.positions, chunked.0.positions);
+        assert_eq!(whole.0.triangles, chunked.0.triangles);
+        assert_eq!(whole.0.triangles.len(), 80);
+        let far = text.clone() + "f 1 2 3000000000\n";
+        for chunk in [usize::MAX, 64] {
+            let error = parse_obj_in_chunks("m.obj", far.as_bytes(), chunk)
+                .expect_err("index out of range")
+                .to_string();
+            assert!(
+                error.contains("m.obj:241:") && error.contains("3000000000"),
+                "{error}"
+            );
+        }
+    }
 
     impl TempFile {
         fn new(text: &str) -> Self {

@@ -12,6 +12,7 @@ use super::{
 use crate::bvh::Block;
 use crate::engine::wide::WideNode;
 use crate::error::{Error, Result};
+use crate::io::mapped::Pages;
 use crate::layout::{GpuNode, GpuTriangle};
 use bytemuck::Pod;
 use glam::DVec3;
@@ -74,41 +75,6 @@ pub fn read(path: &Path) -> Result<Parts> {
     // truncated by another process while it is mapped raises SIGBUS, as for any mapped file.
     let map = unsafe { memmap2::Mmap::map(&file) }.map_err(io)?;
     parse_from(path, &map, &Pages(Some(&map)))
-}
-
-/// Where a file's bytes lie: in a map, whose pages are brought in a section at a time and let
-/// go once the section is copied (so the file is never resident twice: the loaded scene plus
-/// one section at most), or already in memory.
-struct Pages<'a>(Option<&'a memmap2::Mmap>);
-
-impl Pages<'_> {
-    /// Section `range` is about to be read: fault its pages in at once (Linux).
-    fn need(&self, range: &Range<usize>) {
-        #[cfg(target_os = "linux")]
-        if let Some(map) = self.0.filter(|_| !range.is_empty()) {
-            // Only a hint: on an older kernel the copy faults the pages in itself.
-            let _ = map.advise_range(memmap2::Advice::PopulateRead, range.start, range.len());
-        }
-        let _ = range;
-    }
-
-    /// Section `range` is copied: let its pages go.
-    fn done(&self, range: &Range<usize>) {
-        #[cfg(unix)]
-        if let Some(map) = self.0.filter(|_| !range.is_empty()) {
-            // SAFETY: the map is a read-only shared map of a file; MADV_DONTNEED only drops
-            // the pages from this process, and a later read faults the same bytes back in
-            // from the file. Only a hint: errors are ignored.
-            let _ = unsafe {
-                map.unchecked_advise_range(
-                    memmap2::UncheckedAdvice::DontNeed,
-                    range.start,
-                    range.len(),
-                )
-            };
-        }
-        let _ = range;
-    }
 }
 
 /// The error for a file shorter than the header.
@@ -353,9 +319,9 @@ fn copy_sections(
     macro_rules! array {
         ($kind:expr) => {{
             let (r, crc) = range($kind);
-            pages.need(&r);
+            pages.need(&bytes[r.clone()]);
             let copy = copy_checked(path, $kind, &bytes[r.clone()], crc);
-            pages.done(&r);
+            pages.done(&bytes[r]);
             copy
         }};
     }
