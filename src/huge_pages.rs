@@ -59,6 +59,36 @@ fn advise_range(start: usize, bytes: usize) {
     }
 }
 
+/// Whether [`Allocator`] advises: yes unless the environment variable `RAYPICK_HUGE_PAGES` is
+/// `0` or `off` (read once; with no allocation, as the allocator itself asks).
+fn allocator_advises() -> bool {
+    use std::sync::atomic::{AtomicU8, Ordering};
+    const UNKNOWN: u8 = 0;
+    const YES: u8 = 1;
+    const NO: u8 = 2;
+    static STATE: AtomicU8 = AtomicU8::new(UNKNOWN);
+    match STATE.load(Ordering::Relaxed) {
+        YES => true,
+        NO => false,
+        _ => {
+            #[cfg(unix)]
+            // SAFETY: getenv with a NUL-terminated name; the result is read before any other
+            // call could change the environment, and only compared.
+            let off = unsafe {
+                let value = libc::getenv(c"RAYPICK_HUGE_PAGES".as_ptr());
+                !value.is_null() && {
+                    let value = std::ffi::CStr::from_ptr(value).to_bytes();
+                    value == b"0" || value.eq_ignore_ascii_case(b"off")
+                }
+            };
+            #[cfg(not(unix))]
+            let off = false;
+            STATE.store(if off { NO } else { YES }, Ordering::Relaxed);
+            !off
+        }
+    }
+}
+
 /// The system allocator, with every allocation of at least 4 MiB advised onto huge pages before
 /// the caller first writes it (a grown reallocation too). Install it with
 /// `#[global_allocator] static ALLOCATOR: raypick::huge_pages::Allocator = raypick::huge_pages::Allocator;`.
@@ -71,7 +101,7 @@ unsafe impl GlobalAlloc for Allocator {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         // SAFETY: forwarded with the caller's layout.
         let block = unsafe { System.alloc(layout) };
-        if !block.is_null() {
+        if !block.is_null() && layout.size() >= MIN_BYTES && allocator_advises() {
             advise_range(block as usize, layout.size());
         }
         block
@@ -82,7 +112,7 @@ unsafe impl GlobalAlloc for Allocator {
         // system allocator, so the advice still lands before the first write.
         // SAFETY: forwarded with the caller's layout.
         let block = unsafe { System.alloc_zeroed(layout) };
-        if !block.is_null() {
+        if !block.is_null() && layout.size() >= MIN_BYTES && allocator_advises() {
             advise_range(block as usize, layout.size());
         }
         block
@@ -96,7 +126,11 @@ unsafe impl GlobalAlloc for Allocator {
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
         // SAFETY: forwarded with the caller's arguments.
         let block = unsafe { System.realloc(ptr, layout, new_size) };
-        if !block.is_null() && new_size > layout.size() {
+        if !block.is_null()
+            && new_size > layout.size()
+            && new_size >= MIN_BYTES
+            && allocator_advises()
+        {
             advise_range(block as usize, new_size);
         }
         block
