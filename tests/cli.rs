@@ -717,3 +717,49 @@ fn soak_reports_batches_totals_and_its_memory_bound() {
     );
     assert!(out.contains("0 mismatches in 50 checked rays"), "{out}");
 }
+
+/// `RAYPICK_HUGE_PAGES=off` (the binary's allocator then gives no huge-page advice) changes no
+/// answer, on a mesh large enough to be mapped and to fill buffers of several MiB.
+#[test]
+fn huge_pages_off_changes_no_answer() {
+    let side = 400;
+    let mut text = String::new();
+    for k in 0..side * side {
+        let (x, y) = (k % side, k / side);
+        text += &format!("v {x} {y} {}\n", ((x * 7 + y * 3) % 11) as f64 * 0.1);
+    }
+    for y in 0..side - 1 {
+        for x in 0..side - 1 {
+            let k = y * side + x + 1;
+            text += &format!(
+                "f {k} {} {}\nf {} {} {}\n",
+                k + 1,
+                k + side,
+                k + 1,
+                k + side + 1,
+                k + side
+            );
+        }
+    }
+    assert!(text.len() > 4 << 20);
+    let obj = temp_file("huge-pages.obj", &text);
+    let run = |setting: Option<&str>| {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_raypick"));
+        command.args(["pick", "--scene", &obj, "--backend", "cpu"]);
+        if let Some(value) = setting {
+            command.env("RAYPICK_HUGE_PAGES", value);
+        }
+        let out = command.output().expect("run raypick");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        out.stdout
+    };
+    let default = run(None);
+    assert!(default.len() > 1000);
+    assert_eq!(run(Some("off")), default);
+    assert_eq!(run(Some("0")), default);
+    std::fs::remove_file(&obj).ok();
+}
