@@ -456,8 +456,55 @@ def rpk_seeds() -> None:
         [((0, 2), (0, 2), 0, (0, 8), bmin, bmax)]))
 
 
+# --- ply, stl -----------------------------------------------------------------
+
+def ply_seeds() -> None:
+    import gzip
+    import struct
+    for f in sorted((DATA / "formats").glob("*.ply")):
+        put("ply", f.name, f.read_bytes())
+    verts = [(0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (1.0, 1.0, 0.5), (0.0, 1.0, 0.25)]
+    faces = [(0, 1, 2, 3), (0, 2, 3)]
+
+    def header(fmt, coord, count, index, extra=""):
+        return (f"ply\nformat {fmt} 1.0\ncomment seed\nelement vertex {len(verts)}\n"
+                f"property {coord} x\nproperty {coord} y\nproperty {coord} z\n{extra}"
+                f"element face {len(faces)}\nproperty list {count} {index} vertex_indices\n"
+                "end_header\n").encode()
+
+    ascii_body = "".join(f"{x} {y} {z}\n" for x, y, z in verts)
+    ascii_body += "".join(f"{len(f)} " + " ".join(map(str, f)) + "\n" for f in faces)
+    put("ply", "quad_ascii.ply", header("ascii", "float", "uchar", "int") + ascii_body.encode())
+    for fmt, end in (("binary_little_endian", "<"), ("binary_big_endian", ">")):
+        for coord, code in (("float", "f"), ("double", "d")):
+            body = b"".join(struct.pack(end + 3 * code, *v) for v in verts)
+            body += b"".join(struct.pack(end + "B" + len(f) * "I", len(f), *f) for f in faces)
+            data = header(fmt, coord, "uchar", "uint") + body
+            put("ply", f"quad_{fmt}_{coord}.ply", data)
+    put("ply", "quad_ascii.ply.gz", gzip.compress(
+        header("ascii", "float", "uchar", "int") + ascii_body.encode(), mtime=0))
+
+
+def stl_seeds() -> None:
+    import struct
+    for f in sorted((DATA / "formats").glob("*.stl")):
+        put("stl", f.name, f.read_bytes())
+    tris = [((0, 0, 0), (1, 0, 0), (0, 1, 0)), ((1, 0, 0), (1, 1, 0.5), (0, 1, 0))]
+    text = "solid seed\n"
+    for t in tris:
+        text += " facet normal 0 0 1\n  outer loop\n"
+        text += "".join(f"   vertex {x} {y} {z}\n" for x, y, z in t)
+        text += "  endloop\n endfacet\n"
+    put("stl", "two_ascii.stl", text + "endsolid seed\n")
+    body = b"".join(struct.pack("<12fH", 0, 0, 1, *[c for v in t for c in v], 0) for t in tris)
+    put("stl", "two_binary.stl", b"binary seed".ljust(80, b" ") + struct.pack("<I", len(tris)) + body)
+    put("stl", "two_binary_solid.stl",
+        b"solid but binary".ljust(80, b" ") + struct.pack("<I", len(tris)) + body)
+
+
 if __name__ == "__main__":
-    for t in ("obj", "ray_file", "asc", "geotiff", "png16", "gltf", "scene_description", "rpk"):
+    for t in ("obj", "ray_file", "asc", "geotiff", "png16", "gltf", "scene_description", "rpk",
+              "ply", "stl"):
         (CORPUS / t).mkdir(parents=True, exist_ok=True)
     obj_seeds()
     ray_seeds()
@@ -467,5 +514,7 @@ if __name__ == "__main__":
     gltf_seeds()
     scene_description_seeds()
     rpk_seeds()
+    ply_seeds()
+    stl_seeds()
     for t in sorted(CORPUS.iterdir()):
         print(t.name, len(list(t.iterdir())), "files")
