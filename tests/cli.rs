@@ -763,3 +763,32 @@ fn huge_pages_off_changes_no_answer() {
     assert_eq!(run(Some("0")), default);
     std::fs::remove_file(&obj).ok();
 }
+
+/// `--out -` is standard output, as the help says, and never a file named `-`.
+#[test]
+fn out_dash_is_standard_output() {
+    let dir = std::env::temp_dir().join(format!("raypick-cli-dash-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let run = |args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
+            .args(args)
+            .current_dir(&dir)
+            .output()
+            .expect("run raypick");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        out.stdout
+    };
+    let plain = run(&["pick"]);
+    assert!(
+        plain.starts_with(b"ray,hit,"),
+        "{}",
+        String::from_utf8_lossy(&plain)
+    );
+    assert_eq!(run(&["pick", "--out", "-"]), plain);
+    assert!(!dir.join("-").exists(), "a file named - was written");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -56,7 +56,7 @@ pub struct SightArgs {
     /// Which path answers.
     #[arg(long, value_parser = crate::cli::choice::choice::<Backend>(), default_value_t = Backend::Auto)]
     pub backend: Backend,
-    /// Output file for the CSV rows (default: standard output).
+    /// Output file for the CSV rows (default, or `-`: standard output).
     #[arg(long)]
     pub out: Option<PathBuf>,
 }

@@ -121,12 +121,13 @@ pub fn csv_only(command: &str, out: Option<&Path>) -> Result<(), Error> {
     }
 }
 
-/// Runs `write` against `out` (a file) or standard output, turning I/O failures into errors
-/// that name the destination.
+/// Runs `write` against `out` (a file) or standard output (no `out`, or `-`), turning I/O
+/// failures into errors that name the destination.
 pub fn write_output(
     out: Option<&Path>,
     write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
 ) -> Result<(), Error> {
+    let out = out.filter(|p| p.as_os_str() != "-");
     let name = out.map_or("<stdout>".to_string(), |p| p.display().to_string());
     let io_error = |source| Error::Io {
         path: name.clone(),

@@ -38,7 +38,7 @@ pub struct PickArgs {
     /// Output format [default: json when --out ends in .json, else csv].
     #[arg(long, value_parser = crate::cli::choice::choice::<Format>())]
     pub format: Option<Format>,
-    /// Output file (default: standard output).
+    /// Output file (default, or `-`: standard output).
     #[arg(long)]
     pub out: Option<PathBuf>,
 }

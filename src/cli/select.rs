@@ -28,7 +28,7 @@ pub struct SelectArgs {
     pub step: u32,
     #[command(flatten)]
     pub rays: RayArgs,
-    /// Output file for the CSV rows `object,name,pixels` (default: standard output).
+    /// Output file for the CSV rows `object,name,pixels` (default, or `-`: standard output).
     #[arg(long)]
     pub out: Option<PathBuf>,
 }
@@ -41,7 +41,7 @@ pub struct IdBufferArgs {
     pub view: CameraArgs,
     #[command(flatten)]
     pub rays: RayArgs,
-    /// Output file (default: standard output). A `.png` file gets a colour picture, one colour
+    /// Output file (default, or `-`: standard output). A `.png` file gets a colour picture, one colour
     /// per object (those of `render --shade object`) and the sky where nothing is hit; anything
     /// else gets CSV rows of ids, one row per image row (empty = nothing).
     #[arg(long)]
