@@ -89,6 +89,14 @@ fn allocator_advises() -> bool {
     }
 }
 
+/// [`Allocator`]'s advice for the `bytes`-long block it just got from the system (null when
+/// the system had none), when the block is large enough and the advice is on.
+fn advise_block(block: *mut u8, bytes: usize) {
+    if !block.is_null() && bytes >= MIN_BYTES && allocator_advises() {
+        advise_range(block as usize, bytes);
+    }
+}
+
 /// The system allocator, with every allocation of at least 4 MiB advised onto huge pages before
 /// the caller first writes it (a grown reallocation too). Install it with
 /// `#[global_allocator] static ALLOCATOR: raypick::huge_pages::Allocator = raypick::huge_pages::Allocator;`.
@@ -101,9 +109,7 @@ unsafe impl GlobalAlloc for Allocator {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         // SAFETY: forwarded with the caller's layout.
         let block = unsafe { System.alloc(layout) };
-        if !block.is_null() && layout.size() >= MIN_BYTES && allocator_advises() {
-            advise_range(block as usize, layout.size());
-        }
+        advise_block(block, layout.size());
         block
     }
 
@@ -112,9 +118,7 @@ unsafe impl GlobalAlloc for Allocator {
         // system allocator, so the advice still lands before the first write.
         // SAFETY: forwarded with the caller's layout.
         let block = unsafe { System.alloc_zeroed(layout) };
-        if !block.is_null() && layout.size() >= MIN_BYTES && allocator_advises() {
-            advise_range(block as usize, layout.size());
-        }
+        advise_block(block, layout.size());
         block
     }
 
@@ -126,12 +130,8 @@ unsafe impl GlobalAlloc for Allocator {
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
         // SAFETY: forwarded with the caller's arguments.
         let block = unsafe { System.realloc(ptr, layout, new_size) };
-        if !block.is_null()
-            && new_size > layout.size()
-            && new_size >= MIN_BYTES
-            && allocator_advises()
-        {
-            advise_range(block as usize, new_size);
+        if new_size > layout.size() {
+            advise_block(block, new_size);
         }
         block
     }

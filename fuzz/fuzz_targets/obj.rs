@@ -1,27 +1,12 @@
 //! Fuzzes the Wavefront OBJ loader, `raypick::io::obj::load_obj`.
 //!
 //! `load_obj` only takes a path, so each input is written to a per-process
-//! scratch file (on /dev/shm when available) and loaded from there.
+//! scratch file (on /dev/shm when available) and loaded from there
+//! (`raypick_fuzz::load_mesh_file`).
 #![no_main]
 
-use std::sync::OnceLock;
-
 use libfuzzer_sys::fuzz_target;
-use raypick::io::obj::load_obj;
 
 fuzz_target!(|data: &[u8]| {
-    static PATH: OnceLock<std::path::PathBuf> = OnceLock::new();
-    let path = PATH.get_or_init(|| raypick_fuzz::scratch_path("obj"));
-    std::fs::write(path, data).expect("write scratch file");
-    let result = load_obj(path);
-    raypick_fuzz::debug(&result, |m: &raypick::Mesh| {
-        format!(
-            "{} vertices, {} triangles",
-            m.positions.len(),
-            m.triangles.len()
-        )
-    });
-    if let Ok(mesh) = result {
-        raypick_fuzz::check_mesh(&mesh);
-    }
+    raypick_fuzz::load_mesh_file("obj", data, raypick::io::obj::load_obj);
 });

@@ -58,6 +58,30 @@ pub fn check_mesh(mesh: &Mesh) {
     );
 }
 
+/// The body of the mesh-file targets (`obj`, `ply`, `stl`): writes `data` to this process's
+/// scratch file with `extension`, loads it with `load`, and checks a mesh that loads.
+pub fn load_mesh_file(
+    extension: &str,
+    data: &[u8],
+    load: fn(&std::path::Path) -> Result<Mesh, raypick::Error>,
+) {
+    // One target per process, so one scratch file.
+    static PATH: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    let path = PATH.get_or_init(|| scratch_path(extension));
+    std::fs::write(path, data).expect("write scratch file");
+    let result = load(path);
+    debug(&result, |m: &Mesh| {
+        format!(
+            "{} vertices, {} triangles",
+            m.positions.len(),
+            m.triangles.len()
+        )
+    });
+    if let Ok(mesh) = result {
+        check_mesh(&mesh);
+    }
+}
+
 /// When `RAYPICK_FUZZ_DEBUG` is set, prints what the loader returned (the
 /// error message, or the size of the result) to stderr; useful with
 /// `cargo fuzz run <target> <file>` to see why an input is rejected.
