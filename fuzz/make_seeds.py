@@ -374,7 +374,7 @@ def rpk_tree(local, shape):
 
 
 def rpk_file(positions, triangles, objects, leaf_ids=(), shape=None, blocks=()):
-    """A version 1 .rpk. objects: (name, first triangle, count, first vertex,
+    """A version 2 .rpk. objects: (name, first triangle, count, first vertex,
     mask, (columns, rows) or None); leaf_ids: scene triangles in leaf order;
     blocks: (rows, cols, node, triangles, min, max) with (start, end) ranges."""
     if positions:
@@ -421,9 +421,15 @@ def rpk_file(positions, triangles, objects, leaf_ids=(), shape=None, blocks=()):
                         sum(1 << lane for lane in range(4) if kind[lane]))
             for lo, hi, child, kind in wide)),
     ]
-    body = b"".join(tag + struct.pack("<IQ", zlib.crc32(p), len(p)) + p + b"\0" * (-len(p) % 16)
-                    for tag, p in payloads)
-    head = RPK_MAGIC + struct.pack("<IIQI", 1, len(payloads), 32 + len(body), 0)
+    # Each payload starts on a 64-byte boundary, its 16-byte section header right
+    # before it and zero bytes before that; zero bytes pad it to the next boundary.
+    body = b""
+    for tag, p in payloads:
+        at = 32 + len(body)
+        start = -(-(at + 16) // 64) * 64
+        body += b"\0" * (start - 16 - at) + tag + struct.pack("<IQ", zlib.crc32(p), len(p))
+        body += p + b"\0" * (-len(p) % 64)
+    head = RPK_MAGIC + struct.pack("<IIQI", 2, len(payloads), 32 + len(body), 0)
     return head + struct.pack("<I", zlib.crc32(head)) + body
 
 

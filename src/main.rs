@@ -82,6 +82,7 @@ fn main() -> ExitCode {
         Err(e) => cli::exit_with_clap_error(e),
     };
     cli::progress::set_quiet(cli.quiet);
+    cli::mapped_file_guard::install();
     if let Some(bytes) = cli.max_memory {
         raypick::budget::set_limit(bytes);
     }

@@ -13,6 +13,7 @@ use crate::query::{Answers, Intersector, Mode, Query};
 use crate::ray::{Hit, Ray};
 use crate::ray_order::{DEFAULT_REORDER_FROM, RayOrder, trace_in_order};
 use crate::scene::Scene;
+use crate::store::Store;
 use rayon::prelude::*;
 use std::sync::{Arc, OnceLock};
 
@@ -24,7 +25,7 @@ pub struct BuiltScene {
     /// The flattened tree over the scene's triangles.
     pub bvh: Bvh,
     /// Layer mask per leaf-order triangle, from the objects' masks; empty when all are all-ones.
-    pub triangle_masks: Vec<u32>,
+    pub triangle_masks: Store<u32>,
     /// The CPU engine's wide tree, collapsed from `bvh` the first time the engine runs (or why
     /// it could not be: a corrupted tree).
     wide: OnceLock<std::result::Result<WideBvh, String>>,
@@ -34,7 +35,7 @@ impl BuiltScene {
     /// Builds the tree over `scene`.
     pub fn new(scene: Scene, options: &BuildOptions) -> Result<Self> {
         let bvh = Bvh::build(&scene, options)?;
-        let triangle_masks = if scene.objects().iter().all(|o| o.mask == u32::MAX) {
+        let triangle_masks: Vec<u32> = if scene.objects().iter().all(|o| o.mask == u32::MAX) {
             Vec::new()
         } else {
             bvh.triangle_ids
@@ -45,28 +46,33 @@ impl BuiltScene {
         Ok(Self {
             scene,
             bvh,
-            triangle_masks,
+            triangle_masks: triangle_masks.into(),
             wide: OnceLock::new(),
         })
     }
 
     /// A built scene from a tree made elsewhere (`bvh` must be built over `scene`).
-    pub fn from_parts(scene: Scene, bvh: Bvh, triangle_masks: Vec<u32>) -> Self {
+    pub fn from_parts(scene: Scene, bvh: Bvh, triangle_masks: impl Into<Store<u32>>) -> Self {
         Self {
             scene,
             bvh,
-            triangle_masks,
+            triangle_masks: triangle_masks.into(),
             wide: OnceLock::new(),
         }
     }
 
     /// A built scene whose CPU engine tree was collapsed elsewhere (a saved scene,
     /// [`crate::rpk`]); `wide` must be what `WideBvh::collapse(&bvh)` makes.
-    pub fn with_wide(scene: Scene, bvh: Bvh, triangle_masks: Vec<u32>, wide: WideBvh) -> Self {
+    pub fn with_wide(
+        scene: Scene,
+        bvh: Bvh,
+        triangle_masks: impl Into<Store<u32>>,
+        wide: WideBvh,
+    ) -> Self {
         Self {
             scene,
             bvh,
-            triangle_masks,
+            triangle_masks: triangle_masks.into(),
             wide: OnceLock::from(Ok(wide)),
         }
     }

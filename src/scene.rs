@@ -2,6 +2,7 @@
 //! that the f32 traversal geometry is measured from.
 
 use crate::error::{Error, Result};
+use crate::store::Store;
 use glam::DVec3;
 
 /// A triangle mesh as loaded from a file: world positions in f64 and triangles indexing them.
@@ -59,8 +60,8 @@ impl GridShape {
 /// offsets from [`Scene::origin`], the centre of the scene's bounds.
 #[derive(Clone, Debug, Default)]
 pub struct Scene {
-    positions: Vec<DVec3>,
-    triangles: Vec<[u32; 3]>,
+    positions: Store<DVec3>,
+    triangles: Store<[u32; 3]>,
     objects: Vec<Object>,
     bounds_min: DVec3,
     bounds_max: DVec3,
@@ -127,11 +128,12 @@ impl Scene {
         let triangle_count = mesh.triangles.len() as u32;
         if self.positions.is_empty() && self.triangles.is_empty() {
             // The first mesh is moved in, not copied: a loaded scene is never held twice.
-            self.positions = mesh.positions;
-            self.triangles = mesh.triangles;
+            self.positions = mesh.positions.into();
+            self.triangles = mesh.triangles.into();
         } else {
-            self.positions.extend_from_slice(&mesh.positions);
+            self.positions.to_mut().extend_from_slice(&mesh.positions);
             self.triangles
+                .to_mut()
                 .extend(mesh.triangles.iter().map(|t| t.map(|i| i + base)));
         }
         self.objects.push(Object {
@@ -260,12 +262,12 @@ impl Scene {
     /// what `add_mesh` guarantees (finite positions; objects numbered in order, covering the
     /// triangles contiguously; vertex indices in range): [`crate::rpk::validate`] does.
     pub(crate) fn from_checked_parts(
-        positions: Vec<DVec3>,
-        triangles: Vec<[u32; 3]>,
+        positions: Store<DVec3>,
+        triangles: Store<[u32; 3]>,
         objects: Vec<Object>,
     ) -> Self {
         let mut scene = Self::new();
-        for p in &positions {
+        for p in positions.iter() {
             scene.bounds_min = scene.bounds_min.min(*p);
             scene.bounds_max = scene.bounds_max.max(*p);
         }

@@ -792,3 +792,51 @@ fn out_dash_is_standard_output() {
     assert!(!dir.join("-").exists(), "a file named - was written");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A saved scene is picked from in place (`rpk::load_in_place`); a file shortened underneath a
+/// running command raises SIGBUS, which the tool turns into exit code 2 and one sentence. The
+/// signal is sent by hand here, once the command is surely running: it has opened the FIFO its
+/// rays come from (the writer's open returns only then) and waits for rays.
+#[cfg(unix)]
+#[test]
+fn sigbus_from_a_shortened_mapped_file_is_exit_2_and_a_sentence() {
+    use std::ffi::CString;
+    let rpk = std::env::temp_dir().join(format!("raypick-cli-{}-bus.rpk", std::process::id()));
+    let (code, _, err) = raypick(&["build", "--out", &rpk.display().to_string()]);
+    assert_eq!(code, 0, "{err}");
+    let fifo = std::env::temp_dir().join(format!("raypick-cli-{}-rays.fifo", std::process::id()));
+    let name = CString::new(fifo.display().to_string()).unwrap();
+    // SAFETY: a valid C string; mkfifo only creates the FIFO.
+    assert_eq!(unsafe { libc::mkfifo(name.as_ptr(), 0o600) }, 0, "mkfifo");
+    let child = Command::new(env!("CARGO_BIN_EXE_raypick"))
+        .args([
+            "pick",
+            "--scene",
+            &rpk.display().to_string(),
+            "--backend",
+            "cpu",
+        ])
+        .args(["--rays", &fifo.display().to_string(), "--out", "-"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run raypick");
+    // Blocks until the command opens the FIFO to read: the scene is loaded by then.
+    let writer = std::fs::OpenOptions::new()
+        .write(true)
+        .open(&fifo)
+        .expect("open the FIFO");
+    // SAFETY: signalling our own child, which is alive (it holds the FIFO open).
+    assert_eq!(
+        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGBUS) },
+        0
+    );
+    let out = child.wait_with_output().expect("wait");
+    drop(writer);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("was shortened by another program"), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    std::fs::remove_file(&fifo).ok();
+    std::fs::remove_file(&rpk).ok();
+}

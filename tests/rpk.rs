@@ -210,9 +210,38 @@ fn round_trip(name: &str, built: BuiltScene, rays: &[Ray]) -> Arc<BuiltScene> {
     rpk::save(&built, &path).expect("save");
     assert!(rpk::is_rpk(&path), "{name}: is_rpk");
     let loaded = rpk::load(&path).expect("load");
+    // SAFETY: the test's own file, never written again; removing it (below) leaves the map
+    // whole, as replacing a saved scene does.
+    let in_place = unsafe { rpk::load_in_place(&path) }.expect("load in place");
     std::fs::remove_file(&path).expect("remove the file");
     assert_same_scene(name, &built, &loaded);
-    let (saved, loaded) = (Arc::new(built), Arc::new(loaded));
+    assert_same_scene(&format!("{name} (in place)"), &built, &in_place);
+    // The copy owns its arrays; the in-place load views the file for every array it holds.
+    let wide = |b: &BuiltScene| b.wide().expect("wide").nodes.clone();
+    let arrays = |b: &BuiltScene| {
+        [
+            (b.bvh.nodes.is_empty(), b.bvh.nodes.is_mapped()),
+            (b.bvh.triangles.is_empty(), b.bvh.triangles.is_mapped()),
+            (
+                b.bvh.triangle_ids.is_empty(),
+                b.bvh.triangle_ids.is_mapped(),
+            ),
+            (b.triangle_masks.is_empty(), b.triangle_masks.is_mapped()),
+            (wide(b).is_empty(), wide(b).is_mapped()),
+        ]
+    };
+    for (k, ((_, copied), (empty, mapped))) in arrays(&loaded)
+        .into_iter()
+        .zip(arrays(&in_place))
+        .enumerate()
+    {
+        assert!(!copied, "{name}: array {k} of the copied load is a view");
+        assert!(
+            mapped || empty,
+            "{name}: array {k} of the in-place load is a copy"
+        );
+    }
+    let (saved, loaded, in_place) = (Arc::new(built), Arc::new(loaded), Arc::new(in_place));
     type Make = fn(Arc<BuiltScene>) -> Box<dyn Picker>;
     let backends: [(&str, Make); 3] = [
         ("cpu", |b| Box::new(CpuPicker::new(b))),
@@ -223,6 +252,7 @@ fn round_trip(name: &str, built: BuiltScene, rays: &[Ray]) -> Arc<BuiltScene> {
     ];
     for (backend, make) in backends {
         let (mut a, mut b) = (make(saved.clone()), make(loaded.clone()));
+        let mut c = make(in_place.clone());
         for query in queries() {
             let what = format!("{name}, {backend}, {query:?}");
             let before = a.query(rays, &query).expect("query the saved scene");
@@ -232,6 +262,8 @@ fn round_trip(name: &str, built: BuiltScene, rays: &[Ray]) -> Arc<BuiltScene> {
                 "{what}: the rays hit nothing"
             );
             assert_same_answers(&what, &before, &after);
+            let viewed = c.query(rays, &query).expect("query the scene in place");
+            assert_same_answers(&format!("{what} (in place)"), &before, &viewed);
         }
     }
     loaded
@@ -402,6 +434,9 @@ fn flipped_files_on_disk_are_refused_by_load() {
             std::fs::write(&path, &changed).expect("write");
             let e = rpk::load(&path).expect_err("a flipped byte is refused");
             assert_clean_error(&path, &e, &format!("{name}: byte {i}"));
+            // SAFETY: the test's own file, not written while loaded.
+            let e = unsafe { rpk::load_in_place(&path) }.expect_err("refused in place too");
+            assert_clean_error(&path, &e, &format!("{name}: byte {i}, in place"));
         }
         std::fs::remove_file(&path).expect("remove");
     }
@@ -430,6 +465,9 @@ fn every_truncation_is_a_clean_error() {
                     "{name} cut to {length}: {e}"
                 );
                 assert_clean_error(&file, &e, &format!("{name} cut to {length} bytes"));
+                // SAFETY: the test's own file, not written while loaded.
+                let e = unsafe { rpk::load_in_place(&file) }.expect_err("a cut file in place");
+                assert!(e.to_string().contains("truncated"), "{name} in place: {e}");
             }
             // Bytes past the end are refused as well.
             let mut longer = bytes.clone();
@@ -444,18 +482,21 @@ fn every_truncation_is_a_clean_error() {
 #[test]
 fn another_format_version_is_named_in_the_error() {
     let (_, _, bytes, _) = small_files("version").swap_remove(1);
-    let path = scratch("v2.rpk");
-    let mut v2 = bytes.clone();
-    v2[8..12].copy_from_slice(&2u32.to_le_bytes());
-    rpk::write::reseal(&mut v2);
-    std::fs::write(&path, &v2).expect("write");
-    let e = rpk::load(&path).expect_err("version 2");
-    assert_clean_error(&path, &e, "version 2");
-    let text = e.to_string();
-    assert!(
-        text.contains("format version 2") && text.contains("reads version 1"),
-        "{text}"
-    );
+    let path = scratch("other-version.rpk");
+    for version in [1, rpk::VERSION + 1] {
+        let mut other = bytes.clone();
+        other[8..12].copy_from_slice(&version.to_le_bytes());
+        rpk::write::reseal(&mut other);
+        std::fs::write(&path, &other).expect("write");
+        let e = rpk::load(&path).expect_err("another version");
+        assert_clean_error(&path, &e, "another version");
+        let text = e.to_string();
+        assert!(
+            text.contains(&format!("format version {version}"))
+                && text.contains(&format!("reads version {}", rpk::VERSION)),
+            "{text}"
+        );
+    }
     // A version changed by corruption (its header checksum not matching) is corruption.
     let mut flipped = bytes.clone();
     flipped[8] ^= 2;
@@ -475,11 +516,13 @@ fn another_format_version_is_named_in_the_error() {
 fn section(bytes: &[u8], tag: &[u8; 4]) -> std::ops::Range<usize> {
     let mut at = 32;
     loop {
-        let length = u64::from_le_bytes(bytes[at + 8..at + 16].try_into().unwrap()) as usize;
-        if &bytes[at..at + 4] == tag {
-            return at + 16..at + 16 + length;
+        let start = rpk::payload_start(at);
+        let header = start - 16;
+        let length = u64::from_le_bytes(bytes[header + 8..start].try_into().unwrap()) as usize;
+        if &bytes[header..header + 4] == tag {
+            return start..start + length;
         }
-        at += 16 + length.next_multiple_of(16);
+        at = start + length.next_multiple_of(rpk::ALIGN);
     }
 }
 
@@ -508,10 +551,16 @@ fn a_grid_too_large_for_any_triangle_count_is_refused() {
 fn a_summary_of_the_wrong_length_is_refused() {
     let (_, _, bytes, _) = small_files("short-summary").swap_remove(1);
     let summary = section(&bytes, b"SUMM");
+    assert_eq!(
+        summary.len() % rpk::ALIGN,
+        0,
+        "the summary needs no padding"
+    );
     for keep in [0, 16, 112] {
         let mut changed = bytes[..summary.start].to_vec();
         changed[summary.start - 8..summary.start].copy_from_slice(&(keep as u64).to_le_bytes());
         changed.extend_from_slice(&bytes[summary.start..summary.start + keep]);
+        changed.resize(summary.start + keep.next_multiple_of(rpk::ALIGN), 0);
         changed.extend_from_slice(&bytes[summary.end..]);
         let length = changed.len() as u64;
         changed[16..24].copy_from_slice(&length.to_le_bytes());

@@ -278,7 +278,7 @@ fn sah_cost_of_hand_made_trees() {
     };
     // One leaf of 3 triangles: reached by every ray.
     let single = Bvh {
-        nodes: vec![node([0.0; 3], [1.0; 3], 3, 0)],
+        nodes: vec![node([0.0; 3], [1.0; 3], 3, 0)].into(),
         ..Bvh::default()
     };
     assert_eq!(sah_cost(&single), 3.0 * TRIANGLE_COST);
@@ -289,7 +289,8 @@ fn sah_cost_of_hand_made_trees() {
             node([0.0; 3], [2.0, 1.0, 1.0], KIND_INNER, 2),
             node([0.0; 3], [1.0; 3], 1, 0),
             node([1.0, 0.0, 0.0], [2.0, 1.0, 1.0], 2, 1),
-        ],
+        ]
+        .into(),
         ..Bvh::default()
     };
     let expected = TRAVERSAL_COST + (3.0 / 5.0) * (1.0 + 2.0) * TRIANGLE_COST;

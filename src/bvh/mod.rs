@@ -19,6 +19,7 @@ pub use terrain_blocks::Block;
 use crate::error::{Error, Result};
 use crate::layout::{GpuNode, GpuTriangle, KIND_BITS, KIND_INNER, MAX_LEAF_SIZE, MAX_NODES};
 use crate::scene::Scene;
+use crate::store::Store;
 use glam::{DVec3, Vec3};
 
 /// A built, flattened bounding-volume hierarchy over a scene's triangles.
@@ -27,11 +28,11 @@ pub struct Bvh {
     /// The f64 world point all f32 coordinates are offsets from.
     pub origin: DVec3,
     /// Nodes in depth-first order; node 0 is the root. Empty for a scene with no hittable triangle.
-    pub nodes: Vec<GpuNode>,
+    pub nodes: Store<GpuNode>,
     /// Triangles in leaf order.
-    pub triangles: Vec<GpuTriangle>,
+    pub triangles: Store<GpuTriangle>,
     /// For each leaf-ordered triangle, its index in the scene's triangle list.
-    pub triangle_ids: Vec<u32>,
+    pub triangle_ids: Store<u32>,
     /// The terrain blocks the top of the tree is built over (grid builder only; empty otherwise).
     pub blocks: Vec<Block>,
 }

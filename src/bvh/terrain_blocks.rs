@@ -105,9 +105,9 @@ pub fn build(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
     });
     Ok(Bvh {
         origin: grid.origin,
-        nodes,
-        triangles,
-        triangle_ids,
+        nodes: nodes.into(),
+        triangles: triangles.into(),
+        triangle_ids: triangle_ids.into(),
         blocks,
     })
 }

@@ -95,8 +95,8 @@ pub(super) fn build_with(
     let triangle_ids = prims.iter().map(|p| p.scene_index).collect();
     Ok(Bvh {
         origin,
-        nodes,
-        triangles,
+        nodes: nodes.into(),
+        triangles: triangles.into(),
         triangle_ids,
         blocks: Vec::new(),
     })

@@ -2,7 +2,9 @@
 
 use super::query_args::QueryArgs;
 use super::scene_args::SceneArgs;
-use super::{make_picker, output_format, progress, show_notes, stream_chunk_rays, write_output};
+use super::{
+    make_picker, output_format, progress, read_rays, show_notes, stream_chunk_rays, write_output,
+};
 use clap::{ArgMatches, Args};
 use glam::DVec3;
 use raypick::apps::camera::Camera;
@@ -49,11 +51,18 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let query = q.query();
     query.validate()?;
     let built = Arc::new(args.scene.build(matches)?);
-    // A ray file is read in chunks while answers are written (memory bounded whatever its
+    // A large ray file is read in chunks while answers are written (memory bounded whatever its
     // length); it is first checked whole, line by line in constant memory, so that a bad line is
-    // reported before any output. Camera pixels and the default camera grid are small.
+    // reported before any output. A small one is read whole and parsed once, before any output
+    // too. Camera pixels and the default camera grid are small.
+    let small_file = args.rays.as_ref().filter(|path| {
+        std::fs::metadata(path).is_ok_and(|m| m.is_file() && m.len() <= SMALL_RAY_FILE)
+    });
     let rays: Vec<Ray> = match (&args.rays, &args.camera, &args.pixels) {
-        (Some(_), _, _) => Vec::new(),
+        (Some(_), _, _) => match small_file {
+            Some(path) => read_rays(path, q.tmin, q.tmax, q.ray_mask)?,
+            None => Vec::new(),
+        },
         (None, Some(camera), Some(pixels)) => {
             let camera = Camera::from_json_file(camera)?;
             load_pixel_indices_as_centers(pixels)?
@@ -75,7 +84,7 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         }
     };
     let mut reader = match &args.rays {
-        Some(path) => {
+        Some(path) if small_file.is_none() => {
             let total = if std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
                 Some(count_rays(path)?)
             } else {
@@ -83,7 +92,7 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             };
             Some((RayReader::open(path)?, total))
         }
-        None => None,
+        _ => None,
     };
     let options = OutputOptions {
         format: output_format(args.format, args.out.as_deref()),
@@ -162,6 +171,10 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     }
     Ok(ExitCode::SUCCESS)
 }
+
+/// Ray files of at most this many bytes are read whole (at most 87,382 rays: a ray line takes
+/// at least 12 bytes); larger ones are checked line by line, then streamed in chunks.
+const SMALL_RAY_FILE: u64 = 1 << 20;
 
 /// Rays per side of the default camera grid.
 const GRID_SIDE: u32 = 8;

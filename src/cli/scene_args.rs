@@ -104,7 +104,11 @@ impl SceneArgs {
 
     /// The built scene of a `.rpk` file given as the only `--scene` (`None` when no `.rpk` is
     /// given); an error when a `.rpk` comes with other scene files, masks or builder options.
-    fn saved(&self, matches: &ArgMatches) -> Result<Option<BuiltScene>, Error> {
+    fn saved(
+        &self,
+        matches: &ArgMatches,
+        placement: Placement,
+    ) -> Result<Option<BuiltScene>, Error> {
         let Some(rpk) = self
             .scene
             .iter()
@@ -127,18 +131,43 @@ impl SceneArgs {
                 rpk.display()
             )));
         }
-        super::progress::phase("loading the built scene", || raypick::rpk::load(rpk)).map(Some)
+        super::progress::phase("loading the built scene", || match placement {
+            // SAFETY: a one-shot command picks and exits; raypick itself never writes into a
+            // saved scene in place (`build --out` renames a new file over it), and a file
+            // shortened by another program meanwhile stops the process with exit 2
+            // (`crate::cli::mapped_file_guard`).
+            Placement::InPlace => unsafe { raypick::rpk::load_in_place(rpk) },
+            Placement::Owned => raypick::rpk::load(rpk),
+        })
+        .map(Some)
     }
 
-    /// Loads the scene (or the example) and builds the tree.
+    /// Loads the scene (or the example) and builds the tree, for a command that picks and
+    /// exits: a saved scene is used in place ([`raypick::rpk::load_in_place`]).
     pub fn build(&self, matches: &ArgMatches) -> Result<BuiltScene, Error> {
         self.build_timed(matches).map(|(built, _, _)| built)
     }
 
+    /// [`SceneArgs::build`] for a process that lives on (the server, a soak): a saved scene is
+    /// copied into memory of its own ([`raypick::rpk::load`]), so a file replaced or rewritten
+    /// meanwhile changes nothing.
+    pub fn build_owned(&self, matches: &ArgMatches) -> Result<BuiltScene, Error> {
+        self.build_placed(matches, Placement::Owned)
+            .map(|(built, _, _)| built)
+    }
+
     /// Like [`SceneArgs::build`], also returning the seconds spent loading and building.
     pub fn build_timed(&self, matches: &ArgMatches) -> Result<(BuiltScene, f64, f64), Error> {
+        self.build_placed(matches, Placement::InPlace)
+    }
+
+    fn build_placed(
+        &self,
+        matches: &ArgMatches,
+        placement: Placement,
+    ) -> Result<(BuiltScene, f64, f64), Error> {
         let start = std::time::Instant::now();
-        if let Some(built) = self.saved(matches)? {
+        if let Some(built) = self.saved(matches, placement)? {
             return Ok((built, start.elapsed().as_secs_f64(), 0.0));
         }
         let files = self.files(matches)?;
@@ -153,4 +182,11 @@ impl SceneArgs {
             super::progress::phase("building the tree", || BuiltScene::new(scene, &options))?;
         Ok((built, loaded, start.elapsed().as_secs_f64() - loaded))
     }
+}
+
+/// How a saved scene's arrays are held: in the file's mapped pages, or copied.
+#[derive(Clone, Copy)]
+enum Placement {
+    InPlace,
+    Owned,
 }

@@ -67,7 +67,7 @@ pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             .unwrap_or_else(ServerConfig::default_memory_budget),
         ..ServerConfig::default()
     };
-    let built = Arc::new(args.scene.build(matches)?);
+    let built = Arc::new(args.scene.build_owned(matches)?);
     let triangles = built.scene.triangle_count();
     let server = Server::new(built, args.backend, config)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()

@@ -73,7 +73,7 @@ pub fn run(args: SoakArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         .min(usize::try_from(args.rays).unwrap_or(usize::MAX));
     // One batch of rays is generated, traced and compared at a time.
     super::check_rays(&format!("--batch {batch}"), batch as u64, &Query::default())?;
-    let built = Arc::new(args.scene.build(matches)?);
+    let built = Arc::new(args.scene.build_owned(matches)?);
     let context = GpuContext::new()?;
     let mut gpu = GpuPicker::new(&context, built.clone())?;
     let mut cpu = CpuPicker::new(built.clone());

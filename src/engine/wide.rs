@@ -8,6 +8,7 @@
 use crate::bvh::Bvh;
 use crate::error::{Error, Result};
 use crate::layout::{GpuNode, KIND_INNER, MAX_LEAF_SIZE};
+use crate::store::Store;
 
 /// Children per node.
 pub const WIDTH: usize = 4;
@@ -17,8 +18,11 @@ pub const EMPTY: u8 = 0;
 pub const INNER: u8 = KIND_INNER as u8;
 
 /// Four children: their boxes (structure of arrays), what each is, and where it points.
+///
+/// The layout is plain bytes (no implicit padding), so a saved scene's `WIDE` section is an
+/// array of nodes read in place ([`crate::rpk`]).
 #[repr(C, align(64))]
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct WideNode {
     /// Box minimum x, y, z of each child.
     pub min: [[f32; WIDTH]; 3],
@@ -30,6 +34,8 @@ pub struct WideNode {
     pub kind: [u8; WIDTH],
     /// Bit `i` set when child slot `i` holds a child.
     pub occupied: u8,
+    /// Zero: the padding to 128 bytes, explicit.
+    pub reserved: [u8; 11],
 }
 
 const _: () = assert!(std::mem::size_of::<WideNode>() == 128);
@@ -41,6 +47,7 @@ impl WideNode {
         child: [0; WIDTH],
         kind: [EMPTY; WIDTH],
         occupied: 0,
+        reserved: [0; 11],
     };
 }
 
@@ -48,7 +55,7 @@ impl WideNode {
 #[derive(Clone, Debug, Default)]
 pub struct WideBvh {
     /// Nodes, depth-first.
-    pub nodes: Vec<WideNode>,
+    pub nodes: Store<WideNode>,
     /// Levels of wide nodes on the longest root-to-leaf path.
     pub depth: usize,
 }
@@ -82,12 +89,12 @@ impl WideBvh {
             ))
         };
         let mut out = WideBvh {
-            nodes: Vec::with_capacity(binary.len() / 2 + 1),
+            nodes: Vec::with_capacity(binary.len() / 2 + 1).into(),
             depth: 0,
         };
         // (binary node whose children fill the wide node, wide slot to fill, depth)
         let mut pending: Vec<(u32, u32, usize)> = Vec::new();
-        out.nodes.push(WideNode::EMPTY_NODE);
+        out.nodes.to_mut().push(WideNode::EMPTY_NODE);
         if binary[0].is_leaf() {
             // A one-leaf tree: the root holds that leaf alone.
             let root = &mut out.nodes[0];
@@ -146,7 +153,7 @@ impl WideBvh {
                     );
                 } else {
                     let child = out.nodes.len() as u32;
-                    out.nodes.push(WideNode::EMPTY_NODE);
+                    out.nodes.to_mut().push(WideNode::EMPTY_NODE);
                     set_child(&mut out.nodes[slot as usize], lane, node, child, INNER);
                     pending.push((n, child, depth + 1));
                 }

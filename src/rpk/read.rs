@@ -1,8 +1,13 @@
 //! Reading a `.rpk` file: map it, check the header (magic, version, length), walk the section
-//! headers (kinds, order, lengths against the summary's counts, padding), and copy each
-//! section out of the map while checking its CRC-32, on all cores. The result is the sections
-//! as typed arrays ([`Parts`]), each one exactly the bytes its checksum covers;
-//! [`super::validate`] checks them against each other.
+//! headers (kinds, order, lengths against the summary's counts, padding), and take each
+//! section while checking its CRC-32, on all cores. The result is the sections as typed arrays
+//! ([`Parts`]), each one exactly the bytes its checksum covers; [`super::validate`] checks them
+//! against each other.
+//!
+//! An array section is taken in one of two ways ([`Placement`]): copied out of the map, the
+//! checksum computed over the copy ([`read`]: nothing that happens to the file later reaches
+//! the scene), or viewed in place in the map ([`read_in_place`]: no fresh memory, the file's
+//! pages shared with the page cache; the file must then not change while the scene lives).
 
 use super::records::{self, Header, ObjectRecord, SectionHeader, Summary};
 use super::{
@@ -14,11 +19,13 @@ use crate::engine::wide::WideNode;
 use crate::error::{Error, Result};
 use crate::io::mapped::Pages;
 use crate::layout::{GpuNode, GpuTriangle};
+use crate::store::Store;
 use bytemuck::Pod;
 use glam::DVec3;
 use rayon::prelude::*;
 use std::ops::Range;
 use std::path::Path;
+use std::sync::Arc;
 
 /// The sections of a file whose header, lengths and checksums are right.
 #[derive(Debug, Default)]
@@ -26,25 +33,33 @@ pub struct Parts {
     /// The summary.
     pub summary: Summary,
     /// Scene vertices.
-    pub positions: Vec<DVec3>,
+    pub positions: Store<DVec3>,
     /// Scene triangles.
-    pub triangles: Vec<[u32; 3]>,
+    pub triangles: Store<[u32; 3]>,
     /// Objects, as stored.
     pub objects: Vec<ObjectRecord>,
     /// The objects' names, one after another.
     pub names: Vec<u8>,
     /// The kernel's nodes.
-    pub nodes: Vec<GpuNode>,
+    pub nodes: Store<GpuNode>,
     /// Leaf-order triangles.
-    pub leaf_triangles: Vec<GpuTriangle>,
+    pub leaf_triangles: Store<GpuTriangle>,
     /// Scene triangle of each leaf-order triangle.
-    pub triangle_ids: Vec<u32>,
+    pub triangle_ids: Store<u32>,
     /// Per-triangle masks.
-    pub masks: Vec<u32>,
+    pub masks: Store<u32>,
     /// Terrain blocks.
     pub blocks: Vec<Block>,
     /// Wide nodes.
-    pub wide: Vec<WideNode>,
+    pub wide: Store<WideNode>,
+}
+
+/// How the arrays of a mapped file are taken (see the module docs).
+enum Placement<'a> {
+    /// Copied out of the bytes, checksummed over the copy; the map's pages follow the hints.
+    Copied(Pages<'a>),
+    /// Viewed in place in this map, checksummed there.
+    InPlace(&'a Arc<memmap2::Mmap>),
 }
 
 /// An [`Error::Parse`] naming `path`: "the file is corrupted: …" and the like.
@@ -56,8 +71,9 @@ pub(crate) fn problem(path: &Path, message: impl Into<String>) -> Error {
     }
 }
 
-/// Maps and reads the file at `path` (see the module docs).
-pub fn read(path: &Path) -> Result<Parts> {
+/// The file at `path`, mapped after the checks every map needs: the platform, a regular file,
+/// the memory budget, a length that holds a header (a shorter file is read and refused here).
+fn map_file(path: &Path) -> Result<memmap2::Mmap> {
     super::write::refuse_big_endian()?;
     let (file, length) = crate::io::open_regular(path)?;
     crate::budget::check(&format!("loading {}", path.display()), length, 1)?;
@@ -70,11 +86,33 @@ pub fn read(path: &Path) -> Result<Parts> {
         let bytes = std::fs::read(path).map_err(io)?;
         return Err(short_file(path, &bytes));
     }
-    // SAFETY: the map is read only while this function runs and every section is copied out
-    // (and checksummed) before use, so nothing acts on bytes that change underneath. A file
+    // SAFETY: mapping a file is sound; what the callers do with the bytes is theirs to justify
+    // (`read` copies every section before use; `read_in_place` passes the duty to its caller).
+    unsafe { memmap2::Mmap::map(&file) }.map_err(io)
+}
+
+/// Maps and reads the file at `path`, copying every section (see the module docs).
+pub fn read(path: &Path) -> Result<Parts> {
+    // The map is read only while this function runs and every section is copied out (and
+    // checksummed) before use, so nothing acts on bytes that change underneath. A file
     // truncated by another process while it is mapped raises SIGBUS, as for any mapped file.
-    let map = unsafe { memmap2::Mmap::map(&file) }.map_err(io)?;
-    parse_from(path, &map, &Pages(Some(&map)))
+    let map = map_file(path)?;
+    parse_from(path, &map, Placement::Copied(Pages(Some(&map))))
+}
+
+/// Maps and reads the file at `path`, viewing the arrays that need no conversion in place in
+/// the map (see the module docs).
+///
+/// # Safety
+/// Nothing may write into the file, or shorten it, while the returned parts or anything made of
+/// them exist: their arrays are checked once, on load, and then trusted (see
+/// [`super::load_in_place`]).
+pub unsafe fn read_in_place(path: &Path) -> Result<Parts> {
+    let map = Arc::new(map_file(path)?);
+    // The whole file is read at least once (the checksums): fault every page in at once.
+    #[cfg(target_os = "linux")]
+    let _ = map.advise(memmap2::Advice::PopulateRead);
+    parse_from(path, &map, Placement::InPlace(&map))
 }
 
 /// The error for a file shorter than the header.
@@ -102,10 +140,10 @@ fn not_rpk(path: &Path) -> Error {
 
 /// Reads a whole file's bytes (see the module docs).
 pub fn parse(path: &Path, bytes: &[u8]) -> Result<Parts> {
-    parse_from(path, bytes, &Pages(None))
+    parse_from(path, bytes, Placement::Copied(Pages(None)))
 }
 
-fn parse_from(path: &Path, bytes: &[u8], pages: &Pages<'_>) -> Result<Parts> {
+fn parse_from(path: &Path, bytes: &[u8], placement: Placement<'_>) -> Result<Parts> {
     if bytes.len() < HEADER_BYTES {
         return Err(short_file(path, bytes));
     }
@@ -178,7 +216,7 @@ fn parse_from(path: &Path, bytes: &[u8], pages: &Pages<'_>) -> Result<Parts> {
     }
     let summary = Summary::decode(summary_bytes);
     check_lengths(path, &summary, &table)?;
-    copy_sections(path, bytes, &table, summary, pages)
+    take_sections(path, bytes, &table, summary, &placement)
 }
 
 /// The CRC-32 stored in section `k`'s header.
@@ -195,12 +233,23 @@ fn section_table(path: &Path, bytes: &[u8]) -> Result<Vec<Range<usize>>> {
     let mut at = HEADER_BYTES;
     for kind in SECTIONS {
         let corrupted = |why: String| problem(path, format!("the file is corrupted: {why}"));
-        let Some(header) = bytes.get(at..at + SECTION_HEADER_BYTES) else {
+        let start = super::payload_start(at);
+        let Some(header) = bytes.get(start - SECTION_HEADER_BYTES..start) else {
             return Err(corrupted(format!(
-                "section {} would start at byte {at}, past its end",
-                name(kind)
+                "section {} would start at byte {}, past its end",
+                name(kind),
+                start - SECTION_HEADER_BYTES
             )));
         };
+        if bytes[at..start - SECTION_HEADER_BYTES]
+            .iter()
+            .any(|&b| b != 0)
+        {
+            return Err(corrupted(format!(
+                "the padding before section {} is not zero",
+                name(kind)
+            )));
+        }
         let header = SectionHeader::decode(header.try_into().expect("16 bytes"));
         if header.tag != kind.tag {
             return Err(corrupted(format!(
@@ -210,7 +259,6 @@ fn section_table(path: &Path, bytes: &[u8]) -> Result<Vec<Range<usize>>> {
                 name(kind)
             )));
         }
-        let start = at + SECTION_HEADER_BYTES;
         let room = (bytes.len() - start) as u64;
         let padded = header.length.checked_next_multiple_of(ALIGN as u64);
         let Some(padded) = padded.filter(|&p| p <= room) else {
@@ -296,20 +344,20 @@ fn check_lengths(path: &Path, s: &Summary, table: &[Range<usize>]) -> Result<()>
     Ok(())
 }
 
-/// Copies every section out of `bytes` into its typed array, checking its CRC-32 over the
-/// copy; large sections are copied and checksummed in parallel pieces.
-fn copy_sections(
+/// Takes every section of `bytes` as its typed array, checking its CRC-32 (see the module docs
+/// and [`Placement`]); large sections are copied and checksummed in parallel pieces.
+fn take_sections(
     path: &Path,
     bytes: &[u8],
     table: &[Range<usize>],
     summary: Summary,
-    pages: &Pages<'_>,
+    placement: &Placement<'_>,
 ) -> Result<Parts> {
     let range = |kind: Kind| {
         let k = SECTIONS
             .iter()
             .position(|&s| s == kind)
-            .expect("a version 1 section");
+            .expect("a version 2 section");
         (table[k].clone(), table_crc(bytes, table, k))
     };
     let record_bytes = |kind: Kind| {
@@ -317,21 +365,14 @@ fn copy_sections(
         checked(path, kind, &bytes[r], crc)
     };
     macro_rules! array {
-        ($kind:expr) => {{
-            let (r, crc) = range($kind);
-            pages.need(&bytes[r.clone()]);
-            let copy = copy_checked(path, $kind, &bytes[r.clone()], crc);
-            pages.done(&bytes[r]);
-            copy
-        }};
+        ($kind:expr) => {
+            take_checked(path, $kind, bytes, range($kind), placement)
+        };
     }
-    let wide: Vec<records::WideRecord> = array!(WIDE)?;
-    if wide.par_iter().any(|r| r.padding != [0; 11]) {
+    let wide: Store<WideNode> = array!(WIDE)?;
+    if wide.par_iter().any(|node| node.reserved != [0; 11]) {
         return Err(reserved_error(path, WIDE));
     }
-    let mut wide_nodes = crate::huge_pages::vec_with_capacity(wide.len());
-    wide_nodes.par_extend(wide.par_iter().map(records::WideRecord::node_unchecked));
-    drop(wide);
     Ok(Parts {
         summary,
         positions: array!(VERT)?,
@@ -350,8 +391,39 @@ fn copy_sections(
             .map(records::decode_block)
             .collect::<Option<_>>()
             .ok_or_else(|| reserved_error(path, BLKS))?,
-        wide: wide_nodes,
+        wide,
     })
+}
+
+/// Section `range` of `bytes` as an array, copied or in place as `placement` says.
+fn take_checked<T: Pod + Send + Sync>(
+    path: &Path,
+    kind: Kind,
+    bytes: &[u8],
+    (range, crc): (Range<usize>, u32),
+    placement: &Placement<'_>,
+) -> Result<Store<T>> {
+    let payload = &bytes[range.clone()];
+    match placement {
+        Placement::InPlace(map) => {
+            if crc_of(payload) != crc {
+                return Err(checksum_error(path, kind));
+            }
+            // SAFETY: `read_in_place`'s caller promises that nothing changes the file while
+            // the view lives.
+            match unsafe { Store::mapped(map, range) } {
+                Some(view) => Ok(view),
+                // Not aligned (never on the platforms raypick runs on): a checked copy.
+                None => copy_checked(path, kind, payload, crc).map(Store::from),
+            }
+        }
+        Placement::Copied(pages) => {
+            pages.need(payload);
+            let copy = copy_checked(path, kind, payload, crc);
+            pages.done(payload);
+            copy.map(Store::from)
+        }
+    }
 }
 
 fn reserved_error(path: &Path, kind: Kind) -> Error {
@@ -392,7 +464,15 @@ fn copy_checked<T: Pod + Send + Sync>(
                 .map(bytemuck::pod_read_unaligned::<T>),
         ),
     }
-    let hash = bytemuck::cast_slice::<T, u8>(&out)
+    if crc_of(bytemuck::cast_slice::<T, u8>(&out)) != crc {
+        return Err(checksum_error(path, kind));
+    }
+    Ok(out)
+}
+
+/// The CRC-32 of `bytes`, computed in parallel pieces combined in order.
+fn crc_of(bytes: &[u8]) -> u32 {
+    bytes
         .par_chunks(PIECE)
         .map(|piece| {
             let mut h = crc32fast::Hasher::new();
@@ -402,9 +482,6 @@ fn copy_checked<T: Pod + Send + Sync>(
         .reduce(crc32fast::Hasher::new, |mut a, b| {
             a.combine(&b);
             a
-        });
-    if hash.finalize() != crc {
-        return Err(checksum_error(path, kind));
-    }
-    Ok(out)
+        })
+        .finalize()
 }

@@ -1,13 +1,12 @@
 //! The byte encodings of the format's fixed-size records, little-endian field by field: the
-//! file header, the section header, the summary, an object, a terrain block and a wide node.
+//! file header, the section header, the summary, an object and a terrain block.
 //! [`super::write`] and [`super::read`] both go through these, so the two sides cannot drift.
-//! (Arrays of Pod elements — vertices, triangles, nodes, ids, masks, and wide nodes as
-//! [`WideRecord`]s — are copied as they lie.)
+//! (Arrays of Pod elements — vertices, triangles, nodes, ids, masks and wide nodes — are
+//! stored as they lie in memory.)
 
 use super::{HEADER_BYTES, MAGIC, SECTION_HEADER_BYTES};
 use crate::bvh::Block;
-use crate::engine::wide::{WIDTH, WideNode};
-use bytemuck::{Pod, Zeroable};
+use crate::engine::wide::WideNode;
 use glam::DVec3;
 
 /// Bytes of the summary record.
@@ -16,7 +15,7 @@ pub const SUMMARY_BYTES: usize = 128;
 pub const OBJECT_BYTES: usize = 40;
 /// Bytes of a block record.
 pub const BLOCK_BYTES: usize = 104;
-/// Bytes of a wide node record.
+/// Bytes of a wide node ([`WideNode`], stored as it lies in memory).
 pub const WIDE_NODE_BYTES: usize = 128;
 
 /// Appends little-endian fields to a byte vector.
@@ -318,57 +317,7 @@ pub fn decode_block(bytes: &[u8]) -> Option<Block> {
     (reserved == 0).then_some(block)
 }
 
-/// A wide node as stored: [`WideNode`]'s fields in its order, its padding explicit, so the
-/// records of a section are one Pod array (and the record is the in-memory layout of a
-/// [`WideNode`] on a little-endian machine, padding zeroed).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
-pub struct WideRecord {
-    /// Child box minimum x, y, z.
-    pub min: [[f32; WIDTH]; 3],
-    /// Child box maximum x, y, z.
-    pub max: [[f32; WIDTH]; 3],
-    /// Child index or first triangle.
-    pub child: [u32; WIDTH],
-    /// Child kinds.
-    pub kind: [u8; WIDTH],
-    /// Occupied bits.
-    pub occupied: u8,
-    /// Zero.
-    pub padding: [u8; 11],
-}
-
-const _: () = assert!(size_of::<WideRecord>() == WIDE_NODE_BYTES);
-
-impl WideRecord {
-    /// The record of `node`.
-    pub fn of(node: &WideNode) -> WideRecord {
-        WideRecord {
-            min: node.min,
-            max: node.max,
-            child: node.child,
-            kind: node.kind,
-            occupied: node.occupied,
-            padding: [0; 11],
-        }
-    }
-
-    /// The node, or `None` when the padding is not zero.
-    pub fn node(&self) -> Option<WideNode> {
-        (self.padding == [0; 11]).then(|| self.node_unchecked())
-    }
-
-    /// The node, whatever the padding holds.
-    pub fn node_unchecked(&self) -> WideNode {
-        WideNode {
-            min: self.min,
-            max: self.max,
-            child: self.child,
-            kind: self.kind,
-            occupied: self.occupied,
-        }
-    }
-}
+const _: () = assert!(size_of::<WideNode>() == WIDE_NODE_BYTES);
 
 #[cfg(test)]
 mod tests {
@@ -424,27 +373,6 @@ mod tests {
         encode_block(&block, &mut out);
         assert_eq!(out.0.len(), BLOCK_BYTES);
         assert_eq!(decode_block(&out.0), Some(block));
-
-        let node = WideNode {
-            min: [[1.0, 2.0, 3.0, 4.0], [5.0; 4], [6.0; 4]],
-            max: [[7.0; 4], [8.0; 4], [9.0, 10.0, 11.0, 12.0]],
-            child: [1, 2, 3, 4],
-            kind: [16, 3, 0, 15],
-            occupied: 0b1011,
-        };
-        let record = WideRecord::of(&node);
-        assert_eq!(record.node(), Some(node));
-        #[cfg(target_endian = "little")]
-        {
-            // The record is the in-memory layout, padding aside.
-            // SAFETY: reading the initialised bytes before the padding of a live WideNode.
-            let raw =
-                unsafe { std::slice::from_raw_parts((&node as *const WideNode).cast::<u8>(), 117) };
-            assert_eq!(raw, &bytemuck::bytes_of(&record)[..117]);
-        }
-        let mut padded = record;
-        padded.padding[3] = 1;
-        assert_eq!(padded.node(), None);
 
         let header = Header {
             version: 1,

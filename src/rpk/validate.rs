@@ -20,6 +20,7 @@ use crate::layout::MAX_NODES;
 use crate::layout::{KIND_INNER, MAX_LEAF_SIZE};
 use crate::picker::BuiltScene;
 use crate::scene::{GridShape, Object, Scene};
+use crate::store::Store;
 use rayon::prelude::*;
 use std::path::Path;
 
@@ -87,7 +88,7 @@ pub fn assemble(path: &Path, parts: Parts) -> Result<BuiltScene> {
     }
     let wrong_mask = masks
         .par_iter()
-        .zip(&bvh.triangle_ids)
+        .zip(bvh.triangle_ids.as_slice())
         .position_any(|(&m, &id)| m != scene.triangle_mask(id));
     if let Some(k) = wrong_mask {
         return Err(corrupted(format!(
@@ -100,8 +101,8 @@ pub fn assemble(path: &Path, parts: Parts) -> Result<BuiltScene> {
 /// The scene, after checking its parts: counts that fit u32 indices, finite vertices, the
 /// objects ([`objects_of`]) and the origin the summary gives.
 fn scene_of(
-    positions: Vec<glam::DVec3>,
-    triangles: Vec<[u32; 3]>,
+    positions: Store<glam::DVec3>,
+    triangles: Store<[u32; 3]>,
     objects: &[ObjectRecord],
     names: &[u8],
     summary: &Summary,
@@ -136,17 +137,7 @@ fn tree_of(bvh: &Bvh, scene_triangles: usize) -> std::result::Result<(), String>
             bvh.nodes.len()
         ));
     }
-    let mut used = vec![false; scene_triangles];
-    for (k, &id) in bvh.triangle_ids.iter().enumerate() {
-        let Some(u) = used.get_mut(id as usize) else {
-            return Err(format!(
-                "leaf-order triangle {k} is scene triangle {id}, but the scene has {scene_triangles}"
-            ));
-        };
-        if std::mem::replace(u, true) {
-            return Err(format!("scene triangle {id} is in the tree twice"));
-        }
-    }
+    distinct_ids(&bvh.triangle_ids, scene_triangles)?;
     tree_links(bvh).map_err(|e| format!("its tree is invalid: {e}"))?;
     let leaf_count = bvh.triangles.len() as u64;
     for (k, b) in bvh.blocks.iter().enumerate() {
@@ -160,6 +151,39 @@ fn tree_of(bvh: &Bvh, scene_triangles: usize) -> std::result::Result<(), String>
         }
     }
     Ok(())
+}
+
+/// Checks that `ids` are distinct scene triangle ids below `scene_triangles`: one pass that
+/// marks a bit per id and only notes whether anything was wrong, then, when something was, a
+/// second pass that finds the first wrong id for the message.
+fn distinct_ids(ids: &[u32], scene_triangles: usize) -> std::result::Result<(), String> {
+    let mut seen = vec![0u64; scene_triangles.div_ceil(64)];
+    let mut wrong = false;
+    for &id in ids {
+        let (word, bit) = (id as usize / 64, 1u64 << (id % 64));
+        match seen.get_mut(word) {
+            Some(w) if (id as usize) < scene_triangles => {
+                wrong |= *w & bit != 0;
+                *w |= bit;
+            }
+            _ => wrong = true,
+        }
+    }
+    if !wrong {
+        return Ok(());
+    }
+    let mut used = vec![false; scene_triangles];
+    for (k, &id) in ids.iter().enumerate() {
+        let Some(u) = used.get_mut(id as usize) else {
+            return Err(format!(
+                "leaf-order triangle {k} is scene triangle {id}, but the scene has {scene_triangles}"
+            ));
+        };
+        if std::mem::replace(u, true) {
+            return Err(format!("scene triangle {id} is in the tree twice"));
+        }
+    }
+    unreachable!("the first pass found a wrong id")
 }
 
 /// The objects of the records and names, after checking what [`Scene::add_mesh`] guarantees:
@@ -307,11 +331,18 @@ pub fn tree_links(bvh: &Bvh) -> std::result::Result<(), String> {
                         "leaf {i} names triangles {first}..{end} past the end"
                     ));
                 }
-                for t in first..end {
-                    let bit = 1u64 << (t % 64);
-                    if covered[t / 64].fetch_or(bit, Ordering::Relaxed) & bit != 0 {
+                // The leaf's bits, one word at a time (a leaf spans at most two words).
+                let mut t = first;
+                while t < end {
+                    let (word, low) = (t / 64, t % 64);
+                    let high = (end - word * 64).min(64);
+                    let bits = (u64::MAX >> (64 - (high - low))) << low;
+                    let before = covered[word].fetch_or(bits, Ordering::Relaxed);
+                    if before & bits != 0 {
+                        let t = word * 64 + (before & bits).trailing_zeros() as usize;
                         return Err(format!("triangle {t} is in two leaves"));
                     }
+                    t = word * 64 + high;
                 }
                 Ok(0)
             } else if (KIND_INNER..KIND_INNER + 3).contains(&kind) {

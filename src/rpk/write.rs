@@ -2,7 +2,9 @@
 //! to a file beside the target and renamed into place.
 
 use super::records::{ObjectRecord, Out, SectionHeader, Summary, encode_block};
-use super::{ALIGN, HEADER_BYTES, Kind, SECTION_HEADER_BYTES, SECTIONS, VERSION, records};
+use super::{
+    ALIGN, HEADER_BYTES, Kind, SECTION_HEADER_BYTES, SECTIONS, VERSION, payload_start, records,
+};
 use crate::error::{Error, Result};
 use crate::picker::BuiltScene;
 use rayon::prelude::*;
@@ -42,8 +44,6 @@ pub fn save(built: &BuiltScene, path: &Path) -> Result<()> {
     for b in &bvh.blocks {
         encode_block(b, &mut blocks);
     }
-    let wide_nodes: Vec<records::WideRecord> =
-        wide.nodes.iter().map(records::WideRecord::of).collect();
     let summary = Summary {
         vertices: scene.vertex_count() as u64,
         triangles: scene.triangle_count() as u64,
@@ -71,14 +71,14 @@ pub fn save(built: &BuiltScene, path: &Path) -> Result<()> {
         Cow::Borrowed(bytemuck::cast_slice(&bvh.triangle_ids)),
         Cow::Borrowed(bytemuck::cast_slice(&built.triangle_masks)),
         Cow::Owned(blocks.0),
-        Cow::Borrowed(bytemuck::cast_slice(&wide_nodes)),
+        Cow::Borrowed(bytemuck::cast_slice(wide.nodes.as_slice())),
     ];
     let crcs: Vec<u32> = payloads.par_iter().map(|p| crc32fast::hash(p)).collect();
     let file_length = HEADER_BYTES as u64
-        + payloads
-            .iter()
-            .map(|p| (SECTION_HEADER_BYTES + p.len().next_multiple_of(ALIGN)) as u64)
-            .sum::<u64>();
+        + payloads.iter().fold(HEADER_BYTES, |at, p| {
+            payload_start(at) + p.len().next_multiple_of(ALIGN)
+        }) as u64
+        - HEADER_BYTES as u64;
     let header = records::Header {
         version: VERSION,
         sections: SECTIONS.len() as u32,
@@ -129,16 +129,20 @@ fn write_file(
     let file = std::fs::File::create(path)?;
     let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
     out.write_all(&header.encode())?;
+    let mut at = HEADER_BYTES;
     for ((kind, payload), &crc) in kinds.iter().zip(payloads).zip(crcs) {
         let section = SectionHeader {
             tag: kind.tag,
             crc,
             length: payload.len() as u64,
         };
+        let start = payload_start(at);
+        out.write_all(&[0; ALIGN][..start - SECTION_HEADER_BYTES - at])?;
         out.write_all(&section.encode())?;
         out.write_all(payload)?;
         let padding = payload.len().next_multiple_of(ALIGN) - payload.len();
         out.write_all(&[0; ALIGN][..padding])?;
+        at = start + payload.len() + padding;
     }
     out.into_inner().map_err(|e| e.into_error())?.sync_all()
 }
@@ -152,9 +156,13 @@ pub fn reseal(bytes: &mut [u8]) {
         bytes[HEADER_BYTES - 4..HEADER_BYTES].copy_from_slice(&crc.to_le_bytes());
     }
     let mut at = HEADER_BYTES;
-    while let Some(header) = bytes.get(at..at + SECTION_HEADER_BYTES) {
+    loop {
+        let start = payload_start(at);
+        let header_at = start - SECTION_HEADER_BYTES;
+        let Some(header) = bytes.get(header_at..start) else {
+            return;
+        };
         let header = SectionHeader::decode(header.try_into().expect("16 bytes"));
-        let start = at + SECTION_HEADER_BYTES;
         let Some(end) = usize::try_from(header.length)
             .ok()
             .and_then(|n| start.checked_add(n))
@@ -163,7 +171,7 @@ pub fn reseal(bytes: &mut [u8]) {
             return;
         };
         let crc = crc32fast::hash(&bytes[start..end]);
-        bytes[at + 4..at + 8].copy_from_slice(&crc.to_le_bytes());
+        bytes[header_at + 4..header_at + 8].copy_from_slice(&crc.to_le_bytes());
         let Some(next) = end.checked_next_multiple_of(ALIGN) else {
             return;
         };
