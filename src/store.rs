@@ -27,10 +27,10 @@ enum Repr<T> {
 }
 
 // SAFETY: a mapped view only reads a read-only mapping, which it keeps alive through an `Arc`;
-// sharing or sending it is sharing or sending a `&[T]` (T: Pod is Send and Sync).
-unsafe impl<T: Pod> Send for Store<T> {}
-// SAFETY: as for Send.
-unsafe impl<T: Pod> Sync for Store<T> {}
+// sending it is sending a `&[T]`, which needs `T: Sync`, as an owned vector needs `T: Send`.
+unsafe impl<T: Pod + Send + Sync> Send for Store<T> {}
+// SAFETY: sharing it is sharing a `&[T]`.
+unsafe impl<T: Pod + Sync> Sync for Store<T> {}
 
 impl<T: Pod> Store<T> {
     /// The bytes `range` of `map` viewed as an array of `T`, in place; `None` when they are not
