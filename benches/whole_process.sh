@@ -25,8 +25,15 @@ for pair in "target/dragon_x4.obj dragon_res2" "$data/dragon_res2.obj dragon_res
         -- target/release/raypick pick --scene "$mesh" --rays "target/$2-4096.txt" \
         --backend cpu --out /dev/null
 done
+# The same scene saved (`raypick build`) and picked from the .rpk, loaded in place.
+target/release/raypick --quiet build --scene target/dragon_x4.obj --out target/dragon_x4.rpk
+echo "== target/dragon_x4.rpk, 4096 incoherent rays: raypick (A) vs Embree C pipeline on the OBJ (B)"
+farm-bench -n "$runs" --timeout 600 \
+    --vs "target/embree_pipeline target/dragon_x4.obj target/dragon_res2-4096.txt" \
+    -- target/release/raypick pick --scene target/dragon_x4.rpk --rays target/dragon_res2-4096.txt \
+    --backend cpu --out /dev/null
 echo "== load rates (raypick bench's load time; file size / time)"
-for file in target/dragon_x4.obj $data/dragon_res2.obj $data/bunny.obj $data/jacksboro_fault_dem_utm.asc \
+for file in target/dragon_x4.obj target/dragon_x4.rpk $data/dragon_res2.obj $data/bunny.obj $data/jacksboro_fault_dem_utm.asc \
     $data/jacksboro_fault_dem_utm_f32_deflate.tif $data/jacksboro_fault_dem_utm_int16.tif; do
     bytes=$(stat -c %s "$file")
     best=
