@@ -9,6 +9,7 @@ use crate::bvh::Bvh;
 use crate::error::{Error, Result};
 use crate::layout::{GpuNode, KIND_INNER, MAX_LEAF_SIZE};
 use crate::store::Store;
+use rayon::prelude::*;
 
 /// Children per node.
 pub const WIDTH: usize = 4;
@@ -75,91 +76,94 @@ impl WideBvh {
     /// keeps opening the inner child with the largest surface area until it has four. O(nodes).
     /// A corrupted tree (a link out of range, or a cycle: more nodes opened than exist) is an
     /// error, never a hang.
+    ///
+    /// A large tree is collapsed on all cores: the root's wide node and its children's serially,
+    /// then the subtrees below them (up to 16) each into a piece of its own, in parallel; the
+    /// pieces are appended in order, so the result does not depend on the threads.
     pub fn collapse(bvh: &Bvh) -> Result<WideBvh> {
         let binary = &bvh.nodes;
         if binary.is_empty() {
             return Ok(WideBvh::default());
         }
-        let cap = binary.len();
-        let mut opened = 0usize;
-        let corrupted = |why: String| {
-            Error::Invalid(format!(
-                "the tree's links are corrupted ({why}): collapsing it for the CPU engine \
-                 passed its iteration cap of {cap} nodes"
-            ))
-        };
-        let mut out = WideBvh {
-            nodes: Vec::with_capacity(binary.len() / 2 + 1).into(),
-            depth: 0,
-        };
-        // (binary node whose children fill the wide node, wide slot to fill, depth)
-        let mut pending: Vec<(u32, u32, usize)> = Vec::new();
-        out.nodes.to_mut().push(WideNode::EMPTY_NODE);
         if binary[0].is_leaf() {
             // A one-leaf tree: the root holds that leaf alone.
-            let root = &mut out.nodes[0];
-            set_child(root, 0, &binary[0], binary[0].first, binary[0].kind() as u8);
-            out.depth = 1;
-            return Ok(out);
+            let mut root = WideNode::EMPTY_NODE;
+            set_child(
+                &mut root,
+                0,
+                &binary[0],
+                binary[0].first,
+                binary[0].kind() as u8,
+            );
+            return Ok(WideBvh {
+                nodes: vec![root].into(),
+                depth: 1,
+            });
         }
-        // Opens a binary inner node: its two children, after checking the links. A node opened
-        // more often than there are nodes means a cycle.
-        let mut open = |n: u32| -> Result<[u32; 2]> {
-            opened += 1;
-            if opened > cap {
-                return Err(corrupted("a cycle".into()));
+        if binary.len() < PARALLEL_FROM {
+            let mut nodes = Vec::new();
+            let depth = collapse_from(binary, 0, &mut nodes)?;
+            return Ok(WideBvh {
+                nodes: nodes.into(),
+                depth,
+            });
+        }
+        // The top: the root's wide node, then its inner children's, serially; the inner
+        // children below them are the pieces' roots (binary node, wide parent, lane).
+        let mut opener = Opener::new(binary);
+        let mut nodes = vec![WideNode::EMPTY_NODE];
+        let mut depth = 1;
+        let mut second = Vec::new();
+        let (slots, len) = opener.widest_children(0)?;
+        for (lane, &n) in slots[..len].iter().enumerate() {
+            let node = &binary[n as usize];
+            if node.is_leaf() {
+                set_child(&mut nodes[0], lane, node, node.first, node.kind() as u8);
+            } else {
+                let child = nodes.len() as u32;
+                nodes.push(WideNode::EMPTY_NODE);
+                set_child(&mut nodes[0], lane, node, child, INNER);
+                second.push((n, child as usize));
+                depth = 2;
             }
-            let pair = children(n, &binary[n as usize]);
-            match pair.iter().find(|&&c| c as usize >= cap) {
-                Some(&bad) => Err(corrupted(format!("a child {bad} past the end"))),
-                None => Ok(pair),
-            }
-        };
-        pending.push((0, 0, 1));
-        while let Some((source, slot, depth)) = pending.pop() {
-            out.depth = out.depth.max(depth);
-            // The children so far, in a fixed array (no allocation per node).
-            let [left, right] = open(source)?;
-            let mut slots = [left, right, 0, 0];
-            let mut len = 2;
-            while len < WIDTH {
-                let widest = slots[..len]
-                    .iter()
-                    .enumerate()
-                    .filter(|&(_, &n)| !binary[n as usize].is_leaf())
-                    .max_by(|a, b| {
-                        surface_area(&binary[*a.1 as usize])
-                            .total_cmp(&surface_area(&binary[*b.1 as usize]))
-                    })
-                    .map(|(i, _)| i);
-                let Some(i) = widest else { break };
-                let pair = open(slots[i])?;
-                // Replace child i by its pair, keeping the order.
-                slots.copy_within(i + 1..len, i + 2);
-                slots[i] = pair[0];
-                slots[i + 1] = pair[1];
-                len += 1;
-            }
+        }
+        let mut roots = Vec::new();
+        for (source, slot) in second {
+            let (slots, len) = opener.widest_children(source)?;
             for (lane, &n) in slots[..len].iter().enumerate() {
                 let node = &binary[n as usize];
                 if node.is_leaf() {
-                    let node_copy = *node;
-                    set_child(
-                        &mut out.nodes[slot as usize],
-                        lane,
-                        &node_copy,
-                        node.first,
-                        node.kind() as u8,
-                    );
+                    set_child(&mut nodes[slot], lane, node, node.first, node.kind() as u8);
                 } else {
-                    let child = out.nodes.len() as u32;
-                    out.nodes.to_mut().push(WideNode::EMPTY_NODE);
-                    set_child(&mut out.nodes[slot as usize], lane, node, child, INNER);
-                    pending.push((n, child, depth + 1));
+                    roots.push((n, slot, lane));
                 }
             }
         }
-        Ok(out)
+        let pieces = roots
+            .par_iter()
+            .map(|&(n, _, _)| {
+                let mut piece = Vec::new();
+                collapse_from(binary, n, &mut piece).map(|d| (piece, d))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        nodes.reserve_exact(pieces.iter().map(|(p, _)| p.len()).sum());
+        for ((n, slot, lane), (piece, piece_depth)) in roots.into_iter().zip(pieces) {
+            let offset = nodes.len() as u32;
+            set_child(&mut nodes[slot], lane, &binary[n as usize], offset, INNER);
+            nodes.extend(piece.into_iter().map(|mut w| {
+                for lane in 0..WIDTH {
+                    if w.kind[lane] == INNER {
+                        w.child[lane] += offset;
+                    }
+                }
+                w
+            }));
+            depth = depth.max(2 + piece_depth);
+        }
+        Ok(WideBvh {
+            nodes: nodes.into(),
+            depth,
+        })
     }
 
     /// The largest side of the root's box (0 for an empty tree).
@@ -261,6 +265,104 @@ impl WideBvh {
     }
 }
 
+/// Binary trees of at least this many nodes are collapsed in parallel pieces.
+const PARALLEL_FROM: usize = 1 << 14;
+
+/// Opens binary inner nodes for the collapse, checking links and counting: a node opened more
+/// often than there are nodes means a cycle.
+struct Opener<'a> {
+    binary: &'a [GpuNode],
+    opened: usize,
+}
+
+impl<'a> Opener<'a> {
+    fn new(binary: &'a [GpuNode]) -> Self {
+        Opener { binary, opened: 0 }
+    }
+
+    fn corrupted(&self, why: String) -> Error {
+        Error::Invalid(format!(
+            "the tree's links are corrupted ({why}): collapsing it for the CPU engine passed \
+             its iteration cap of {} nodes",
+            self.binary.len()
+        ))
+    }
+
+    /// Binary inner node `n`'s two children, after checking the links.
+    fn open(&mut self, n: u32) -> Result<[u32; 2]> {
+        let cap = self.binary.len();
+        self.opened += 1;
+        if self.opened > cap {
+            return Err(self.corrupted("a cycle".into()));
+        }
+        let pair = children(n, &self.binary[n as usize]);
+        match pair.iter().find(|&&c| c as usize >= cap) {
+            Some(&bad) => Err(self.corrupted(format!("a child {bad} past the end"))),
+            None => Ok(pair),
+        }
+    }
+
+    /// The children of the wide node made from binary inner node `source`: its two children,
+    /// then, while there are fewer than four, the inner one with the largest surface area
+    /// opened in its place (the order kept). In a fixed array: no allocation per node.
+    fn widest_children(&mut self, source: u32) -> Result<([u32; WIDTH], usize)> {
+        let binary = self.binary;
+        let [left, right] = self.open(source)?;
+        let mut slots = [left, right, 0, 0];
+        let mut len = 2;
+        while len < WIDTH {
+            let widest = slots[..len]
+                .iter()
+                .enumerate()
+                .filter(|&(_, &n)| !binary[n as usize].is_leaf())
+                .max_by(|a, b| {
+                    surface_area(&binary[*a.1 as usize])
+                        .total_cmp(&surface_area(&binary[*b.1 as usize]))
+                })
+                .map(|(i, _)| i);
+            let Some(i) = widest else { break };
+            let pair = self.open(slots[i])?;
+            slots.copy_within(i + 1..len, i + 2);
+            slots[i] = pair[0];
+            slots[i + 1] = pair[1];
+            len += 1;
+        }
+        Ok((slots, len))
+    }
+}
+
+/// Collapses the subtree under binary inner node `root` into `nodes` (empty), its wide root
+/// first, then depth-first; returns its depth. Children's indices are within `nodes`.
+fn collapse_from(binary: &[GpuNode], root: u32, nodes: &mut Vec<WideNode>) -> Result<usize> {
+    let mut opener = Opener::new(binary);
+    // (binary node whose children fill the wide node, wide slot to fill, depth)
+    let mut pending: Vec<(u32, u32, usize)> = vec![(root, 0, 1)];
+    nodes.push(WideNode::EMPTY_NODE);
+    let mut depth = 0;
+    while let Some((source, slot, d)) = pending.pop() {
+        depth = depth.max(d);
+        let (slots, len) = opener.widest_children(source)?;
+        for (lane, &n) in slots[..len].iter().enumerate() {
+            let node = &binary[n as usize];
+            if node.is_leaf() {
+                set_child(
+                    &mut nodes[slot as usize],
+                    lane,
+                    node,
+                    node.first,
+                    node.kind() as u8,
+                );
+            } else {
+                let child = nodes.len() as u32;
+                nodes.push(WideNode::EMPTY_NODE);
+                set_child(&mut nodes[slot as usize], lane, node, child, INNER);
+                pending.push((n, child, d + 1));
+            }
+        }
+    }
+    Ok(depth)
+}
+
 fn set_child(wide: &mut WideNode, lane: usize, node: &GpuNode, child: u32, kind: u8) {
     for a in 0..3 {
         wide.min[a][lane] = node.min[a];
@@ -272,5 +374,70 @@ fn set_child(wide: &mut WideNode, lane: usize, node: &GpuNode, child: u32, kind:
         wide.occupied |= 1 << lane;
     } else {
         wide.occupied &= !(1 << lane);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bvh::BuildOptions;
+
+    /// The tree below wide node `i`, lane by lane, with inner children's indices replaced by
+    /// their own subtrees: equal for two collapses that differ only in node order.
+    fn canonical(nodes: &[WideNode], i: usize, out: &mut Vec<(usize, u8, u32, [u32; 6])>) {
+        let node = &nodes[i];
+        for lane in 0..WIDTH {
+            let bounds = [0, 1, 2]
+                .map(|a| node.min[a][lane].to_bits())
+                .into_iter()
+                .chain([0, 1, 2].map(|a| node.max[a][lane].to_bits()))
+                .collect::<Vec<_>>();
+            let leaf_first = if node.kind[lane] == INNER {
+                0
+            } else {
+                node.child[lane]
+            };
+            out.push((
+                lane,
+                node.kind[lane],
+                leaf_first,
+                bounds.try_into().unwrap(),
+            ));
+            if node.kind[lane] == INNER {
+                canonical(nodes, node.child[lane] as usize, out);
+            }
+        }
+    }
+
+    #[test]
+    fn the_parallel_collapse_is_the_serial_one_in_another_order() {
+        use crate::check::synthetic::{hills, terrain};
+        let mesh = terrain(200, 200, 0.0, 0.0, 1.0, hills);
+        let scene = crate::Scene::from_meshes([("hills".to_string(), mesh)]).unwrap();
+        let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
+        assert!(
+            bvh.nodes.len() >= PARALLEL_FROM,
+            "{} nodes",
+            bvh.nodes.len()
+        );
+        let parallel = WideBvh::collapse(&bvh).unwrap();
+        let mut serial = Vec::new();
+        let depth = collapse_from(&bvh.nodes, 0, &mut serial).unwrap();
+        assert_eq!(
+            (parallel.nodes.len(), parallel.depth),
+            (serial.len(), depth)
+        );
+        assert_ne!(
+            &parallel.nodes[..],
+            &serial[..],
+            "the pieces change the order"
+        );
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        canonical(&parallel.nodes, 0, &mut a);
+        canonical(&serial, 0, &mut b);
+        assert_eq!(a, b);
+        parallel.validate(bvh.triangles.len()).unwrap();
+        // And it does not depend on the threads.
+        assert_eq!(WideBvh::collapse(&bvh).unwrap().nodes, parallel.nodes);
     }
 }
