@@ -101,7 +101,7 @@ impl WideBvh {
             });
         }
         if binary.len() < PARALLEL_FROM {
-            let mut nodes = Vec::new();
+            let mut nodes = Vec::with_capacity(wide_bound(binary, 0));
             let depth = collapse_from(binary, 0, &mut nodes)?;
             return Ok(WideBvh {
                 nodes: nodes.into(),
@@ -142,7 +142,7 @@ impl WideBvh {
         let pieces = roots
             .par_iter()
             .map(|&(n, _, _)| {
-                let mut piece = Vec::new();
+                let mut piece = Vec::with_capacity(wide_bound(binary, n));
                 collapse_from(binary, n, &mut piece).map(|d| (piece, d))
             })
             .collect::<Result<Vec<_>>>()?;
@@ -329,6 +329,23 @@ impl<'a> Opener<'a> {
         }
         Ok((slots, len))
     }
+}
+
+/// At most how many wide nodes the subtree under binary node `n` collapses into: each takes at
+/// least one binary inner node, and a subtree of `k` nodes laid out depth-first (`n .. n + k`,
+/// its last node found down the right children) has `(k - 1) / 2` inner ones. Only a capacity:
+/// a corrupted tree gets a smaller or larger one, never a wrong answer.
+fn wide_bound(binary: &[GpuNode], n: u32) -> usize {
+    let mut last = n as usize;
+    for _ in 0..binary.len() {
+        match binary.get(last) {
+            Some(node) if !node.is_leaf() && node.first as usize > last => {
+                last = node.first as usize
+            }
+            _ => break,
+        }
+    }
+    (last + 1 - n as usize) / 2 + 1
 }
 
 /// Collapses the subtree under binary inner node `root` into `nodes` (empty), its wide root
