@@ -12,7 +12,7 @@
 //! subtrees are stitched in a fixed order, so the tree is identical on any thread count.
 
 use super::sah_cost::{TRAVERSAL_COST, TRIANGLE_COST, half_area};
-use super::top_down::{PARALLEL_MIN, PrimRef, build_with, median_split, partition};
+use super::top_down::{PARALLEL_MIN, PrimRef, Split, build_with, median_split, partition};
 use super::{BuildOptions, Bvh};
 use crate::error::Result;
 use crate::scene::Scene;
@@ -44,7 +44,7 @@ fn split(
     max: Vec3,
     depth: u32,
     options: &BuildOptions,
-) -> Option<(usize, usize)> {
+) -> Option<Split> {
     let count = prims.len();
     let plane = if depth < SAH_DEPTH_LIMIT {
         cheapest_plane(prims, min, max)
@@ -59,13 +59,21 @@ fn split(
     }
     Some(match plane {
         Some(p) => {
-            let left = partition(prims, |prim| p.binning.bin(prim, p.axis) < p.bin);
+            let (left, boxes) = partition(prims, |prim| p.binning.bin(prim, p.axis) < p.bin);
             debug_assert_eq!(left, p.left_count);
-            (p.axis, left)
+            Split {
+                axis: p.axis,
+                left,
+                boxes: Some(boxes),
+            }
         }
         None => {
             let axis = (max - min).max_position();
-            (axis, median_split(prims, axis))
+            Split {
+                axis,
+                left: median_split(prims, axis),
+                boxes: None,
+            }
         }
     })
 }

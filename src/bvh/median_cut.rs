@@ -3,7 +3,7 @@
 //! falling back to the centroid median when one side would be empty. The recursion it runs in is
 //! `top_down`'s, shared with binned SAH.
 
-use super::top_down::{PrimRef, build_with, median_split, partition};
+use super::top_down::{PrimRef, Split, build_with, median_split, partition};
 use super::{BuildOptions, Bvh, SplitAxis};
 use crate::error::Result;
 use crate::scene::Scene;
@@ -17,24 +17,32 @@ pub fn build(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
     })
 }
 
-/// Chooses the axis, partitions `prims` at the midplane of the box, and returns the axis and
-/// the size of the left part (never 0 or `prims.len()`).
+/// Chooses the axis, partitions `prims` at the midplane of the box, and returns the split (the
+/// left part never empty nor everything).
 fn midplane(
     prims: &mut [PrimRef],
     min: Vec3,
     max: Vec3,
     depth: u32,
     options: &BuildOptions,
-) -> (usize, usize) {
+) -> Split {
     let axis = match options.split_axis {
         SplitAxis::Cycle => (depth % 3) as usize,
         SplitAxis::Longest => (max - min).max_position(),
     };
     let mid = 0.5 * (min[axis] + max[axis]);
-    let left = partition(prims, |p| p.centroid[axis] < mid);
+    let (left, boxes) = partition(prims, |p| p.centroid[axis] < mid);
     if left != 0 && left != prims.len() {
-        return (axis, left);
+        return Split {
+            axis,
+            left,
+            boxes: Some(boxes),
+        };
     }
     // One side is empty: split at the centroid median.
-    (axis, median_split(prims, axis))
+    Split {
+        axis,
+        left: median_split(prims, axis),
+        boxes: None,
+    }
 }
