@@ -100,8 +100,8 @@ pub fn read(path: &Path) -> Result<Parts> {
     parse_from(path, &map, Placement::Copied(Pages(Some(&map))))
 }
 
-/// Maps and reads the file at `path`, viewing the arrays that need no conversion in place in
-/// the map (see the module docs).
+/// Maps and reads the file at `path`, viewing every array section in place in the map (see the
+/// module docs).
 ///
 /// # Safety
 /// Nothing may write into the file, or shorten it, while the returned parts or anything made of
