@@ -4,7 +4,7 @@
 //! ([`Parts`]), each one exactly the bytes its checksum covers; [`super::validate`] checks them
 //! against each other.
 //!
-//! An array section is taken in one of two ways ([`Placement`]): copied out of the map, the
+//! An array section is taken in one of two ways: copied out of the map, the
 //! checksum computed over the copy ([`read`]: nothing that happens to the file later reaches
 //! the scene), or viewed in place in the map ([`read_in_place`]: no fresh memory, the file's
 //! pages shared with the page cache; the file must then not change while the scene lives).
