@@ -69,14 +69,6 @@ impl<T: Pod> Store<T> {
             Repr::Mapped { .. } => unreachable!("made owned above"),
         }
     }
-
-    /// The array as an owned vector (a copy when it is a view).
-    pub fn into_vec(self) -> Vec<T> {
-        match self.0 {
-            Repr::Owned(v) => v,
-            Repr::Mapped { .. } => self.deref().to_vec(),
-        }
-    }
 }
 
 impl<T: Pod> Deref for Store<T> {

@@ -1,13 +1,14 @@
 //! What the tool does when a file it has mapped is shortened underneath it: this module owns the
 //! SIGBUS handler that turns that into exit code 2 and one sentence, instead of a crash.
 //!
-//! One-shot commands use a saved scene (`.rpk`) in place, in the file's mapped pages
-//! ([`raypick::rpk::load_in_place`]). Should another program shorten the file while a command
-//! runs, the next read of a lost page raises SIGBUS; the handler says so and exits. (Reads only
-//! ever fault on mapped files: the tool maps nothing else.)
+//! The tool maps its input files: one-shot commands use a saved scene (`.rpk`) in place, in the
+//! file's mapped pages ([`raypick::rpk::load_in_place`]), and the OBJ reader cuts a mapped file
+//! into chunks. Should another program shorten such a file while it is read, the next read of a
+//! lost page raises SIGBUS; the handler says so and exits. (Nothing else the tool does raises
+//! SIGBUS.)
 
 /// The sentence written on SIGBUS.
-const MESSAGE: &[u8] = b"error: a mapped input file (a saved .rpk scene) was shortened by \
+const MESSAGE: &[u8] = b"error: an input file raypick had mapped (a scene file) was shortened by \
 another program while raypick was reading it; run the command again once the file is whole\n";
 
 /// Installs the handler (Unix; elsewhere nothing).

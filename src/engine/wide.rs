@@ -100,50 +100,19 @@ impl WideBvh {
                 depth: 1,
             });
         }
-        if binary.len() < PARALLEL_FROM {
-            let mut nodes = Vec::with_capacity(wide_bound(binary, 0));
-            let depth = collapse_from(binary, 0, &mut nodes)?;
-            return Ok(WideBvh {
-                nodes: nodes.into(),
-                depth,
-            });
-        }
-        // The top: the root's wide node, then its inner children's, serially; the inner
-        // children below them are the pieces' roots (binary node, wide parent, lane).
-        let mut opener = Opener::new(binary);
-        let mut nodes = vec![WideNode::EMPTY_NODE];
-        let mut depth = 1;
-        let mut second = Vec::new();
-        let (slots, len) = opener.widest_children(0)?;
-        for (lane, &n) in slots[..len].iter().enumerate() {
-            let node = &binary[n as usize];
-            if node.is_leaf() {
-                set_child(&mut nodes[0], lane, node, node.first, node.kind() as u8);
-            } else {
-                let child = nodes.len() as u32;
-                nodes.push(WideNode::EMPTY_NODE);
-                set_child(&mut nodes[0], lane, node, child, INNER);
-                second.push((n, child as usize));
-                depth = 2;
-            }
-        }
-        let mut roots = Vec::new();
-        for (source, slot) in second {
-            let (slots, len) = opener.widest_children(source)?;
-            for (lane, &n) in slots[..len].iter().enumerate() {
-                let node = &binary[n as usize];
-                if node.is_leaf() {
-                    set_child(&mut nodes[slot], lane, node, node.first, node.kind() as u8);
-                } else {
-                    roots.push((n, slot, lane));
-                }
-            }
-        }
+        // Serially: the whole tree, or a large one's top two levels, the subtrees below them
+        // left as the pieces' roots (binary node, wide parent, lane).
+        let (mut nodes, cut) = if binary.len() >= PARALLEL_FROM {
+            (Vec::new(), TOP_LEVELS)
+        } else {
+            (Vec::with_capacity(wide_bound(binary, 0)), usize::MAX)
+        };
+        let (mut depth, roots) = collapse_from(binary, 0, &mut nodes, cut)?;
         let pieces = roots
             .par_iter()
             .map(|&(n, _, _)| {
                 let mut piece = Vec::with_capacity(wide_bound(binary, n));
-                collapse_from(binary, n, &mut piece).map(|d| (piece, d))
+                collapse_from(binary, n, &mut piece, usize::MAX).map(|(d, _)| (piece, d))
             })
             .collect::<Result<Vec<_>>>()?;
         nodes.reserve_exact(pieces.iter().map(|(p, _)| p.len()).sum());
@@ -158,7 +127,7 @@ impl WideBvh {
                 }
                 w
             }));
-            depth = depth.max(2 + piece_depth);
+            depth = depth.max(TOP_LEVELS + piece_depth);
         }
         Ok(WideBvh {
             nodes: nodes.into(),
@@ -267,6 +236,8 @@ impl WideBvh {
 
 /// Binary trees of at least this many nodes are collapsed in parallel pieces.
 const PARALLEL_FROM: usize = 1 << 14;
+/// Levels of wide nodes collapsed serially above the parallel pieces (up to 4² pieces).
+const TOP_LEVELS: usize = 2;
 
 /// Opens binary inner nodes for the collapse, checking links and counting: a node opened more
 /// often than there are nodes means a cycle.
@@ -348,12 +319,24 @@ fn wide_bound(binary: &[GpuNode], n: u32) -> usize {
     (last + 1 - n as usize) / 2 + 1
 }
 
+/// An inner child that [`collapse_from`] leaves unopened: its binary node, the wide node and the
+/// lane it belongs in.
+type LeftOut = (u32, usize, usize);
+
 /// Collapses the subtree under binary inner node `root` into `nodes` (empty), its wide root
-/// first, then depth-first; returns its depth. Children's indices are within `nodes`.
-fn collapse_from(binary: &[GpuNode], root: u32, nodes: &mut Vec<WideNode>) -> Result<usize> {
+/// first, then depth-first; returns its depth and the inner children of its wide nodes at depth
+/// `cut`, which it leaves unopened (binary node, wide node, lane; their lanes stay empty for the
+/// caller to fill). Children's indices are within `nodes`.
+fn collapse_from(
+    binary: &[GpuNode],
+    root: u32,
+    nodes: &mut Vec<WideNode>,
+    cut: usize,
+) -> Result<(usize, Vec<LeftOut>)> {
     let mut opener = Opener::new(binary);
     // (binary node whose children fill the wide node, wide slot to fill, depth)
     let mut pending: Vec<(u32, u32, usize)> = vec![(root, 0, 1)];
+    let mut left_out = Vec::new();
     nodes.push(WideNode::EMPTY_NODE);
     let mut depth = 0;
     while let Some((source, slot, d)) = pending.pop() {
@@ -369,6 +352,8 @@ fn collapse_from(binary: &[GpuNode], root: u32, nodes: &mut Vec<WideNode>) -> Re
                     node.first,
                     node.kind() as u8,
                 );
+            } else if d == cut {
+                left_out.push((n, slot as usize, lane));
             } else {
                 let child = nodes.len() as u32;
                 nodes.push(WideNode::EMPTY_NODE);
@@ -377,7 +362,7 @@ fn collapse_from(binary: &[GpuNode], root: u32, nodes: &mut Vec<WideNode>) -> Re
             }
         }
     }
-    Ok(depth)
+    Ok((depth, left_out))
 }
 
 fn set_child(wide: &mut WideNode, lane: usize, node: &GpuNode, child: u32, kind: u8) {
@@ -439,7 +424,8 @@ mod tests {
         );
         let parallel = WideBvh::collapse(&bvh).unwrap();
         let mut serial = Vec::new();
-        let depth = collapse_from(&bvh.nodes, 0, &mut serial).unwrap();
+        let (depth, left_out) = collapse_from(&bvh.nodes, 0, &mut serial, usize::MAX).unwrap();
+        assert!(left_out.is_empty());
         assert_eq!(
             (parallel.nodes.len(), parallel.depth),
             (serial.len(), depth)

@@ -296,7 +296,7 @@ fn name(kind: Kind) -> String {
 
 /// Checks `payload` against `crc`.
 fn checked<'a>(path: &Path, kind: Kind, payload: &'a [u8], crc: u32) -> Result<&'a [u8]> {
-    if crc32fast::hash(payload) != crc {
+    if crc_of(payload) != crc {
         return Err(checksum_error(path, kind));
     }
     Ok(payload)
