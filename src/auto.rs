@@ -84,10 +84,16 @@ impl AutoPicker {
 
 impl Picker for AutoPicker {
     fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers> {
+        let mut answers = Answers::default();
+        self.query_into(rays, query, &mut answers)?;
+        Ok(answers)
+    }
+
+    fn query_into(&mut self, rays: &[Ray], query: &Query, answers: &mut Answers) -> Result<()> {
         if rays.len() >= self.crossover {
             if let Some(gpu) = self.gpu() {
-                match gpu.query(rays, query) {
-                    Ok(answers) => return Ok(answers),
+                match gpu.query_into(rays, query, answers) {
+                    Ok(()) => return Ok(()),
                     Err(e) => {
                         self.notes.push(format!(
                             "the GPU failed ({e}); falling back to the CPU path"
@@ -97,7 +103,7 @@ impl Picker for AutoPicker {
                 }
             }
         }
-        self.cpu.query(rays, query)
+        self.cpu.query_into(rays, query, answers)
     }
 
     fn take_notes(&mut self) -> Vec<String> {

@@ -215,6 +215,17 @@ pub trait Picker {
     /// Answers `rays` as `query` asks; `nearest[i]` answers `rays[i]`.
     fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers>;
 
+    /// [`Picker::query`] into `answers`, reusing its buffers' memory where the backend can (the
+    /// CPU pickers' closest and any modes do): for a caller that picks batch after batch. Each
+    /// new buffer of a batch of 32k answers is 3.6 MB of fresh memory, and where the C
+    /// allocator hands such blocks back to the OS on every free (a Dask worker's
+    /// `MALLOC_TRIM_THRESHOLD_`), writing them faulted in every page anew: 23% of a 1M-ray
+    /// pick's time in one thread (BENCHMARKS.md, Dask).
+    fn query_into(&mut self, rays: &[Ray], query: &Query, answers: &mut Answers) -> Result<()> {
+        *answers = self.query(rays, query)?;
+        Ok(())
+    }
+
     /// The nearest hit for each ray; `out[i]` answers `rays[i]`.
     fn pick(&mut self, rays: &[Ray]) -> Result<Vec<Hit>> {
         Ok(self.query(rays, &Query::default())?.nearest)
@@ -294,8 +305,14 @@ pub type ChunkTrace<'a> = Box<dyn Fn(&[GpuRay], &mut [GpuHit]) + Sync + 'a>;
 /// Every tracer is a picker through the one pipeline.
 impl<T: Tracer> Picker for T {
     fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers> {
+        let mut answers = Answers::default();
+        self.query_into(rays, query, &mut answers)?;
+        Ok(answers)
+    }
+
+    fn query_into(&mut self, rays: &[Ray], query: &Query, answers: &mut Answers) -> Result<()> {
         let from = self.reorder_from();
-        pick_through(self, from, rays, query)
+        pick_through(self, from, rays, query, answers)
     }
 
     fn describe(&self) -> String {
@@ -304,36 +321,51 @@ impl<T: Tracer> Picker for T {
 }
 
 /// The one pick pipeline: validates `query`, takes `rays` into the scene frame, traces them
-/// through `tracer` (in ray order from `reorder_from` rays), and refines every hit in f64.
+/// through `tracer` (in ray order from `reorder_from` rays), and refines every hit in f64,
+/// into `answers` (whose old contents are replaced; the fused path reuses its memory).
 pub fn pick_through<T: Tracer + ?Sized>(
     tracer: &mut T,
     reorder_from: usize,
     rays: &[Ray],
     query: &Query,
-) -> Result<Answers> {
+    answers: &mut Answers,
+) -> Result<()> {
     query.validate()?;
     let built = tracer.built().clone();
     let settings = built.settings(query);
     if query.mode != Mode::All
         && let Some(chunk) = tracer.chunk_trace(&settings)?
     {
-        return pick_fused(&built, &chunk, reorder_from, rays, query);
+        return pick_fused(&built, &chunk, reorder_from, rays, query, answers);
     }
+    *answers = trace_whole(tracer, &built, &settings, reorder_from, rays, query)?;
+    Ok(())
+}
+
+/// [`pick_through`] for whole batches: all-hits mode, and tracers without a [`ChunkTrace`].
+fn trace_whole<T: Tracer + ?Sized>(
+    tracer: &mut T,
+    built: &BuiltScene,
+    settings: &TraceSettings<'_>,
+    reorder_from: usize,
+    rays: &[Ray],
+    query: &Query,
+) -> Result<Answers> {
     let (local, dir_lengths) = scene_rays(built.bvh.origin, rays, query);
     let reorder = local.len() >= reorder_from;
     if query.mode == Mode::All {
         let (found, lists) = trace_in_order(&local, settings.max_hits, reorder, |rays| {
-            tracer.trace(rays, &settings)
+            tracer.trace(rays, settings)
         })?;
         return built.answers(rays, &dir_lengths, query, &found, &lists);
     }
     match reorder.then(|| RayOrder::new(&local)).flatten() {
         None => {
-            let (found, lists) = tracer.trace(&local, &settings)?;
+            let (found, lists) = tracer.trace(&local, settings)?;
             built.answers(rays, &dir_lengths, query, &found, &lists)
         }
         Some(order) => {
-            let (found, lists) = tracer.trace(&order.gather(&local), &settings)?;
+            let (found, lists) = tracer.trace(&order.gather(&local), settings)?;
             built.answers_in(Some(&order), rays, &dir_lengths, query, &found, &lists)
         }
     }
@@ -348,14 +380,16 @@ const FUSED_CHUNK: usize = 256;
 /// their answer slots. The answers are those of the batch path, bit for bit: the same
 /// conversion, trace, check and refinement per ray, only without the batch-sized buffers
 /// between them. Batches from `reorder_from` rays are traced in [`RayOrder`] (the sort needs
-/// their scene-frame rays, so those are made first).
+/// their scene-frame rays, so those are made first). The hits go into `answers.nearest`, whose
+/// memory is reused when it has room.
 fn pick_fused(
     built: &BuiltScene,
     chunk: &ChunkTrace<'_>,
     reorder_from: usize,
     rays: &[Ray],
     query: &Query,
-) -> Result<Answers> {
+    answers: &mut Answers,
+) -> Result<()> {
     let n = rays.len();
     let origin = built.bvh.origin;
     let ordered = (n >= reorder_from)
@@ -364,7 +398,12 @@ fn pick_fused(
             RayOrder::new(&local).map(|order| (local, lengths, order))
         })
         .flatten();
-    let mut nearest: Vec<Hit> = crate::huge_pages::vec_with_capacity(n);
+    let mut nearest = std::mem::take(&mut answers.nearest);
+    *answers = Answers::default();
+    nearest.clear();
+    if nearest.capacity() < n {
+        nearest = crate::huge_pages::vec_with_capacity(n);
+    }
     let out = SlotWriter(nearest.as_mut_ptr());
     (0..n.div_ceil(FUSED_CHUNK))
         .into_par_iter()
@@ -405,10 +444,8 @@ fn pick_fused(
     // SAFETY: every slot below n was written above (on an error we return before this, and Hit
     // is Copy, so the vector is dropped empty).
     unsafe { nearest.set_len(n) };
-    Ok(Answers {
-        nearest,
-        ..Answers::default()
-    })
+    answers.nearest = nearest;
+    Ok(())
 }
 
 /// The CPU engine (`--backend cpu`): the wide SIMD walk of [`crate::engine`], on all cores.

@@ -146,3 +146,50 @@ fn layer_masks_select_objects() {
         }
     }
 }
+
+/// `query_into` reusing one `Answers` batch after batch (larger and smaller batches, every
+/// mode in turn) answers exactly what a fresh `query` does, on every CPU picker.
+#[test]
+fn query_into_reuses_answers_across_batches_and_modes() {
+    use raypick::Backend;
+    let scene = scenes().swap_remove(2).1;
+    let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
+    let rays: Vec<_> = mixed_rays(&built.scene, 3000, 5)
+        .into_iter()
+        .map(|(_, ray)| ray)
+        .collect();
+    let queries = [
+        Query::default(),
+        Query {
+            mode: Mode::All,
+            max_hits: 3,
+            ..Query::default()
+        },
+        Query {
+            mode: Mode::Any,
+            ..Query::default()
+        },
+        Query {
+            cull: Cull::Back,
+            intersector: Intersector::MollerTrumbore,
+            ..Query::default()
+        },
+    ];
+    let batches = [0..3000, 10..700, 700..701, 1000..2900, 5..5];
+    for backend in [Backend::Cpu, Backend::Reference] {
+        let mut picker = raypick::make_picker(backend, built.clone()).unwrap();
+        let mut fresh = raypick::make_picker(backend, built.clone()).unwrap();
+        let mut reused = raypick::Answers::default();
+        for (k, batch) in batches.iter().cycle().take(12).enumerate() {
+            let query = &queries[k % queries.len()];
+            let rays = &rays[batch.clone()];
+            picker.query_into(rays, query, &mut reused).unwrap();
+            let expected = fresh.query(rays, query).unwrap();
+            assert_eq!(
+                format!("{reused:?}"),
+                format!("{expected:?}"),
+                "{backend:?}, batch {batch:?}, {query:?}"
+            );
+        }
+    }
+}
