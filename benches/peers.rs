@@ -2,7 +2,7 @@
 //!
 //! - `raypick-reference`: `cpu::trace_all`, the kernel's twin (`--backend reference`), at 2
 //!   threads; its answers are the reference the others are checked against;
-//! - `raypick-cpu`: the CPU engine (`--backend cpu`: the tree collapsed 4-wide, SIMD walk,
+//! - `raypick-cpu`: the CPU engine (`--backend cpu`: the tree collapsed 8-wide, SIMD walk,
 //!   packets for coherent groups) at 1 and 2 threads (dedicated rayon pools);
 //! - `raypick-gpu`: the WGSL kernel through `GpuPicker::trace` (lavapipe on a machine without a
 //!   GPU; skipped, saying why, without an adapter);

@@ -323,6 +323,8 @@ def scene_description_seeds() -> None:
 # `RAYPICK_FUZZ_DEBUG=1 cargo fuzz run rpk corpus/rpk/<seed>` shows they load).
 
 RPK_MAGIC = b"\x89RPK\r\n\x1a\n"
+# Children per wide node (the WIDE section's nodes).
+WIDTH = 8
 
 
 def f32(x: float) -> float:
@@ -355,14 +357,15 @@ def rpk_tree(local, shape):
         return index
 
     build(shape, 0)
-    # The collapse of a tree of at most four leaves: one wide node whose slots
+    # The collapse of a tree of at most eight leaves: one wide node whose slots
     # are the leaves in order (inner children opened in place).
     slots = [0] if nodes[0][2] < 16 else [1, nodes[0][4]]
     while any(nodes[n][2] >= 16 for n in slots):
         i = next(k for k, n in enumerate(slots) if nodes[n][2] >= 16)
         slots[i:i + 1] = [slots[i] + 1, nodes[slots[i]][4]]
-    assert len(slots) <= 4
-    wide = ([[0.0] * 4 for _ in range(3)], [[0.0] * 4 for _ in range(3)], [0] * 4, [0] * 4)
+    assert len(slots) <= WIDTH
+    wide = ([[0.0] * WIDTH for _ in range(3)], [[0.0] * WIDTH for _ in range(3)],
+            [0] * WIDTH, [0] * WIDTH)
     for lane, n in enumerate(slots):
         lo, _, kind, hi, first = nodes[n]
         for a in range(3):
@@ -374,7 +377,7 @@ def rpk_tree(local, shape):
 
 
 def rpk_file(positions, triangles, objects, leaf_ids=(), shape=None, blocks=()):
-    """A version 2 .rpk. objects: (name, first triangle, count, first vertex,
+    """A version 3 .rpk. objects: (name, first triangle, count, first vertex,
     mask, (columns, rows) or None); leaf_ids: scene triangles in leaf order;
     blocks: (rows, cols, node, triangles, min, max) with (start, end) ranges."""
     if positions:
@@ -416,9 +419,9 @@ def rpk_file(positions, triangles, objects, leaf_ids=(), shape=None, blocks=()):
                         *[bmin[a] + (bmax[a] - bmin[a]) * 0.5 for a in range(3)])
             for rows, cols, node, tris, bmin, bmax in blocks)),
         (b"WIDE", b"".join(
-            struct.pack("<12f12f4I4BB11x", *(v for axis in lo for v in axis),
+            struct.pack("<24f24f8I8BB23x", *(v for axis in lo for v in axis),
                         *(v for axis in hi for v in axis), *child, *kind,
-                        sum(1 << lane for lane in range(4) if kind[lane]))
+                        sum(1 << lane for lane in range(WIDTH) if kind[lane]))
             for lo, hi, child, kind in wide)),
     ]
     # Each payload starts on a 64-byte boundary, its 16-byte section header right
@@ -429,7 +432,7 @@ def rpk_file(positions, triangles, objects, leaf_ids=(), shape=None, blocks=()):
         start = -(-(at + 16) // 64) * 64
         body += b"\0" * (start - 16 - at) + tag + struct.pack("<IQ", zlib.crc32(p), len(p))
         body += p + b"\0" * (-len(p) % 64)
-    head = RPK_MAGIC + struct.pack("<IIQI", 2, len(payloads), 32 + len(body), 0)
+    head = RPK_MAGIC + struct.pack("<IIQI", 3, len(payloads), 32 + len(body), 0)
     return head + struct.pack("<I", zlib.crc32(head)) + body
 
 

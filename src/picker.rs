@@ -480,7 +480,7 @@ impl CpuPicker {
         self.simd = simd;
     }
 
-    /// Traces coherent groups of four rays as packets (the default) or every ray alone. Answers
+    /// Traces coherent groups of eight rays as packets (the default) or every ray alone. Answers
     /// are the same either way.
     pub fn set_packets(&mut self, on: bool) {
         self.packets = on;

@@ -7,7 +7,7 @@ mod common;
 
 use raypick::check::compare::differences;
 use raypick::check::synthetic::{RayKind, hills, mixed_rays, rays, terrain, triangle_soup};
-use raypick::engine::wide::{EMPTY, INNER, WideNode};
+use raypick::engine::wide::{EMPTY, INNER, WIDTH, WideNode};
 use raypick::engine::{Simd, WideBvh};
 use raypick::io::scene_files::{SceneFile, load_scene};
 use raypick::{
@@ -45,7 +45,7 @@ fn with(builder: Builder, leaf_size: u32) -> BuildOptions {
 fn walk(wide: &WideBvh, node: u32, leaves: &mut Vec<(u32, u32)>, depth: usize) -> usize {
     let n: &WideNode = &wide.nodes[node as usize];
     let mut deepest = depth;
-    for lane in 0..4 {
+    for lane in 0..WIDTH {
         match n.kind[lane] {
             EMPTY => {}
             INNER => deepest = deepest.max(walk(wide, n.child[lane], leaves, depth + 1)),
@@ -77,7 +77,7 @@ fn the_wide_tree_holds_every_leaf_of_the_binary_tree_once() {
         leaves.sort_unstable();
         binary.sort_unstable();
         assert_eq!(leaves, binary, "{name}: the same leaves");
-        // Each wide node stands for a distinct binary inner node (and opens up to three).
+        // Each wide node stands for a distinct binary inner node (and opens up to seven).
         let inner = built.bvh.nodes.len() - binary.len();
         assert!(
             wide.nodes.len() <= inner,
@@ -198,7 +198,7 @@ fn every_builder_and_backend_gives_the_same_bits() {
 }
 
 /// Larger batches than the equivalence suites use (the engine's per-task chunks, the ray
-/// reordering from 65,536 rays, camera rays traced as packets of four), on every lane kind, with
+/// reordering from 65,536 rays, camera rays traced as packets of eight), on every lane kind, with
 /// and without packets, in every mode.
 #[test]
 fn large_batches_on_every_lane_kind_and_walk_match_the_twin() {

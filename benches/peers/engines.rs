@@ -165,7 +165,7 @@ struct RaypickReference {
     built: Arc<BuiltScene>,
 }
 
-/// raypick's CPU engine (`--backend cpu`): the 4-wide SIMD walk of `raypick::engine` over the
+/// raypick's CPU engine (`--backend cpu`): the 8-wide SIMD walk of `raypick::engine` over the
 /// same tree collapsed (built with the tree, so its collapse is in the build figure),
 /// Möller–Trumbore, packets for coherent groups.
 struct RaypickCpu {

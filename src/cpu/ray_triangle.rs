@@ -80,6 +80,7 @@ pub struct Shear {
 
 impl Shear {
     /// The three rows (x, y, z), for the engine's lanes.
+    #[inline]
     pub fn rows(&self) -> [Vec3; 3] {
         [self.x, self.y, self.z]
     }
@@ -94,6 +95,7 @@ fn unit_axis(k: usize) -> Vec3 {
 }
 
 /// The twin of `shear_for` in the WGSL.
+#[inline]
 pub fn shear_for(dir: Vec3) -> Shear {
     let a = dir.abs();
     let mut kz = 2;

@@ -1,4 +1,5 @@
-//! Four f32 lanes: the one SIMD vocabulary the engine is written in.
+//! Four f32 lanes: the SIMD vocabulary of the engine's triangle tests (the box tests of its
+//! 8-wide nodes use eight lanes, [`super::box_lanes`]).
 //!
 //! [`Lanes`] has two implementations: [`Sse`] (x86-64 SSE2, always present there; compiled a
 //! second time with AVX2 enabled when the CPU has it, see `engine::trace_batch`) and
@@ -58,7 +59,13 @@ pub trait Lanes: Copy {
     /// The values are copies, bit for bit.
     #[inline(always)]
     fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Self; 3]; 3] {
-        let t: [&GpuTriangle; 4] = std::array::from_fn(|i| &triangles[first + i.min(count - 1)]);
+        let last = count - 1;
+        let t: [&GpuTriangle; 4] = [
+            &triangles[first],
+            &triangles[first + last.min(1)],
+            &triangles[first + last.min(2)],
+            &triangles[first + last.min(3)],
+        ];
         let lane = |v: fn(&GpuTriangle) -> [f32; 3], a: usize| {
             Self::from_array([v(t[0])[a], v(t[1])[a], v(t[2])[a], v(t[3])[a]])
         };
@@ -282,8 +289,13 @@ mod sse {
         /// set directly.
         #[inline(always)]
         fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Sse; 3]; 3] {
-            let t: [&GpuTriangle; 4] =
-                std::array::from_fn(|i| &triangles[first + i.min(count - 1)]);
+            let last = count - 1;
+            let t: [&GpuTriangle; 4] = [
+                &triangles[first],
+                &triangles[first + last.min(1)],
+                &triangles[first + last.min(2)],
+                &triangles[first + last.min(3)],
+            ];
             // SAFETY: each pointer is a whole `GpuTriangle` (nine f32, 36 bytes); the loads
             // read floats 0..4 and 4..8 of it.
             unsafe {

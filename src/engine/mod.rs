@@ -1,10 +1,12 @@
-//! The CPU engine behind `--backend cpu`: the binary tree collapsed 4-wide ([`wide`]), walked
-//! nearest child first with SIMD box and triangle tests ([`walk`]) in f32 lanes ([`lanes`]).
+//! The CPU engine behind `--backend cpu`: the binary tree collapsed 8-wide ([`wide`]), walked
+//! nearest child first with SIMD box tests in eight f32 lanes ([`box_lanes`]) and triangle
+//! tests in four ([`lanes`]) ([`walk`]).
 //!
 //! It answers exactly what the kernel and its twin (`cpu::traverse`, `--backend reference`)
 //! answer, bit for bit, in every mode; `tests/engine.rs` holds it to that on every scene, ray
 //! kind and mode, with SIMD and with the portable lanes.
 
+pub mod box_lanes;
 pub mod lanes;
 pub mod walk;
 pub mod wide;
@@ -12,6 +14,7 @@ pub mod wide;
 use crate::bvh::Bvh;
 use crate::cpu::TraceSettings;
 use crate::layout::{GpuHit, GpuHitEntry, GpuRay};
+use box_lanes::{BoxLanes, Pair};
 use lanes::{Lanes, Portable};
 use rayon::prelude::*;
 use std::sync::OnceLock;
@@ -90,7 +93,7 @@ pub struct Engine<'a> {
 
 impl<'a> Engine<'a> {
     /// The engine over `wide` (collapsed from `bvh`) for `settings`, on `simd` lanes (the
-    /// portable lanes where the CPU lacks them), with coherent groups of four rays as packets
+    /// portable lanes where the CPU lacks them), with coherent groups of [`walk::PACKET`] rays as packets
     /// when `packets` holds.
     pub fn new(
         wide: &'a WideBvh,
@@ -131,14 +134,16 @@ impl<'a> Engine<'a> {
             // SAFETY: `Engine::new` checked that this CPU has AVX2.
             Simd::Avx2 => unsafe { trace_chunk_avx2(scene, rays, hits, lists, &mut stacks) },
             #[cfg(target_arch = "x86_64")]
-            Simd::Sse => trace_chunk::<lanes::Sse>(scene, rays, hits, lists, &mut stacks),
-            _ => trace_chunk::<Portable>(scene, rays, hits, lists, &mut stacks),
+            Simd::Sse => {
+                trace_chunk::<lanes::Sse, Pair<lanes::Sse>>(scene, rays, hits, lists, &mut stacks)
+            }
+            _ => trace_chunk::<Portable, Pair<Portable>>(scene, rays, hits, lists, &mut stacks),
         }
     }
 }
 
 /// Traces each ray as its flags say, in parallel, on `simd` lanes (falling back to the portable
-/// lanes where the CPU lacks them), with coherent groups of four rays as packets when `packets`
+/// lanes where the CPU lacks them), with coherent groups of [`walk::PACKET`] rays as packets when `packets`
 /// holds. Returns the per-ray records and the all-hits lists
 /// (`max_hits` entries per ray), as `cpu::trace_batch` does.
 pub fn trace_batch(
@@ -175,7 +180,7 @@ struct Stacks {
 /// Traces a task's rays: each group of four coherent rays (camera rays, pixel picks) as one
 /// packet, any other ray alone. Either way each ray gets its single-ray answer.
 #[inline(always)]
-fn trace_chunk<L: Lanes>(
+fn trace_chunk<L: Lanes, B: BoxLanes>(
     scene: &walk::Scene<'_>,
     rays: &[GpuRay],
     hits: &mut [GpuHit],
@@ -192,7 +197,7 @@ fn trace_chunk<L: Lanes>(
     while i < rays.len() {
         let group = &rays[i..(i + p).min(rays.len())];
         if scene.packets && walk::coherent(group, scene.size) {
-            walk::trace_packet::<L>(
+            walk::trace_packet::<L, B>(
                 scene,
                 group,
                 &mut lists[i * k..(i + p) * k],
@@ -202,14 +207,14 @@ fn trace_chunk<L: Lanes>(
         } else {
             for (j, ray) in group.iter().enumerate() {
                 let list = &mut lists[(i + j) * k..(i + j + 1) * k];
-                hits[i + j] = walk::trace::<L>(scene, ray, list, &mut stacks.single);
+                hits[i + j] = walk::trace::<L, B>(scene, ray, list, &mut stacks.single);
             }
         }
         i += group.len();
     }
 }
 
-/// [`trace_chunk`] on SSE lanes, compiled with AVX2 enabled.
+/// [`trace_chunk`] on SSE triangle lanes and AVX box lanes, compiled with AVX2 enabled.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn trace_chunk_avx2(
@@ -219,5 +224,5 @@ unsafe fn trace_chunk_avx2(
     lists: &mut [GpuHitEntry],
     stacks: &mut Stacks,
 ) {
-    trace_chunk::<lanes::Sse>(scene, rays, hits, lists, stacks);
+    trace_chunk::<lanes::Sse, box_lanes::Avx>(scene, rays, hits, lists, stacks);
 }

@@ -1,5 +1,5 @@
-//! One ray through the wide tree: four child boxes per SIMD test, children visited nearest first
-//! from a small stack, leaves tested four triangles at a time.
+//! One ray through the wide tree: eight child boxes per SIMD test, children visited nearest
+//! first from a small stack, leaves tested four triangles at a time.
 //!
 //! The answers are the twin's (`cpu::traverse`) bit for bit: each box test is `ray_box`'s
 //! arithmetic in lanes, each triangle test is `ray_triangle` / `ray_triangle_watertight`'s, and
@@ -11,6 +11,7 @@
     reason = "as in the twin: `!(a <= b)` also rejects NaN"
 )]
 
+use super::box_lanes::BoxLanes;
 use super::lanes::Lanes;
 use super::wide::{EMPTY, INNER, WIDTH, WideNode};
 use crate::cpu::ray_box::{BOX_PAD, HUGE, MIN_DIR, safe_inverse};
@@ -51,41 +52,41 @@ pub fn stack_size(depth: usize) -> usize {
     (WIDTH - 1) * depth + 1
 }
 
-/// The ray in lanes, set up once.
-struct RayLanes<L: Lanes> {
-    origin: [L; 3],
-    inv: [L; 3],
+/// The ray in box lanes, set up once for the box tests.
+struct RayLanes<B: BoxLanes> {
+    origin: [B; 3],
+    inv: [B; 3],
     /// Per axis: the direction is below `MIN_DIR`, so the slab may leave the ray free.
     parallel: [bool; 3],
-    tmin: L,
+    tmin: B,
 }
 
-/// The twin's `ray_box` for four boxes: which children the ray meets within `[tmin, limit]`, and
-/// each one's padded near distance.
+/// The twin's `ray_box` for a node's eight boxes: which children the ray meets within
+/// `[tmin, limit]`, and each one's padded near distance.
 #[inline(always)]
-fn boxes4<L: Lanes>(node: &WideNode, r: &RayLanes<L>, limit: f32) -> (u32, L) {
-    let mut near = [L::splat(0.0); 3];
-    let mut far = [L::splat(0.0); 3];
+fn boxes<B: BoxLanes>(node: &WideNode, r: &RayLanes<B>, limit: f32) -> (u32, B) {
+    let mut near = [B::splat(0.0); 3];
+    let mut far = [B::splat(0.0); 3];
     for a in 0..3 {
-        let min = L::from_array(node.min[a]);
-        let max = L::from_array(node.max[a]);
+        let min = B::load(&node.min[a]);
+        let max = B::load(&node.max[a]);
         let t0 = min.sub(r.origin[a]).mul(r.inv[a]);
         let t1 = max.sub(r.origin[a]).mul(r.inv[a]);
         near[a] = t0.min(t1);
         far[a] = t0.max(t1);
         if r.parallel[a] {
             let o = r.origin[a];
-            let free = L::and(o.ge(min), o.le(max));
-            near[a] = L::select(free, L::splat(-HUGE), near[a]);
-            far[a] = L::select(free, L::splat(HUGE), far[a]);
+            let free = B::and(o.ge(min), o.le(max));
+            near[a] = B::select(free, B::splat(-HUGE), near[a]);
+            far[a] = B::select(free, B::splat(HUGE), far[a]);
         }
     }
     let t_near = near[0].max(near[1]).max(near[2]);
     let t_far = far[0].min(far[1]).min(far[2]);
-    let pad = L::splat(BOX_PAD);
+    let pad = B::splat(BOX_PAD);
     let lo = t_near.sub(t_near.abs().mul(pad)).max(r.tmin);
-    let hi = t_far.add(t_far.abs().mul(pad)).min(L::splat(limit));
-    (L::bits(lo.le(hi)), lo)
+    let hi = t_far.add(t_far.abs().mul(pad)).min(B::splat(limit));
+    (B::bits(lo.le(hi)), lo)
 }
 
 #[inline(always)]
@@ -172,10 +173,13 @@ fn moller_trumbore4<L: Lanes>(v: [[L; 3]; 3], origin: [L; 3], dir: [L; 3]) -> Hi
     }
 }
 
-/// One ray's walk state: the ray in lanes, its best hit so far and its current limit.
-pub struct RayState<'r, L: Lanes> {
+/// One ray's walk state: the ray in lanes (box lanes `B` for the node tests, triangle lanes `L`
+/// for the leaves), its best hit so far and its current limit.
+pub struct RayState<'r, L: Lanes, B: BoxLanes> {
     ray: &'r GpuRay,
-    r: RayLanes<L>,
+    r: RayLanes<B>,
+    origin: [L; 3],
+    tmin: L,
     dir_lanes: [L; 3],
     shear: [[L; 3]; 3],
     mode: u32,
@@ -189,7 +193,7 @@ pub struct RayState<'r, L: Lanes> {
     pub done: bool,
 }
 
-impl<'r, L: Lanes> RayState<'r, L> {
+impl<'r, L: Lanes, B: BoxLanes> RayState<'r, L, B> {
     /// Sets `ray` up; `None` when it is never traced (an empty scene, an empty range).
     #[inline(always)]
     #[allow(
@@ -208,21 +212,29 @@ impl<'r, L: Lanes> RayState<'r, L> {
         let origin = Vec3::from(ray.origin);
         let dir = Vec3::from(ray.dir);
         let inv = safe_inverse(dir);
+        // Written out lane by lane (not `array::map`, which is not always inlined here).
+        let splat3 = |v: Vec3| [L::splat(v.x), L::splat(v.y), L::splat(v.z)];
         let shear = if scene.watertight {
-            let s = shear_for(dir);
-            s.rows().map(|row| [0, 1, 2].map(|a| L::splat(row[a])))
+            let [x, y, z] = shear_for(dir).rows();
+            [splat3(x), splat3(y), splat3(z)]
         } else {
             [[L::splat(0.0); 3]; 3]
         };
         let state = Self {
             ray,
             r: RayLanes {
-                origin: [0, 1, 2].map(|a| L::splat(origin[a])),
-                inv: [0, 1, 2].map(|a| L::splat(inv[a])),
-                parallel: [0, 1, 2].map(|a| dir[a].abs() < MIN_DIR),
-                tmin: L::splat(ray.tmin),
+                origin: [B::splat(origin.x), B::splat(origin.y), B::splat(origin.z)],
+                inv: [B::splat(inv.x), B::splat(inv.y), B::splat(inv.z)],
+                parallel: [
+                    dir.x.abs() < MIN_DIR,
+                    dir.y.abs() < MIN_DIR,
+                    dir.z.abs() < MIN_DIR,
+                ],
+                tmin: B::splat(ray.tmin),
             },
-            dir_lanes: [0, 1, 2].map(|a| L::splat(dir[a])),
+            origin: splat3(origin),
+            tmin: L::splat(ray.tmin),
+            dir_lanes: splat3(dir),
             shear,
             mode: ray.flags & 3,
             cull: (ray.flags >> crate::layout::CULL_SHIFT) & 3,
@@ -247,7 +259,7 @@ impl<'r, L: Lanes> RayState<'r, L> {
         let ray = self.ray;
         let mut k = 0;
         while k < count {
-            let group = (count - k).min(WIDTH);
+            let group = (count - k).min(4);
             let mut lanes = (1u32 << group) - 1;
             if !masks.is_empty() {
                 for i in 0..group {
@@ -263,11 +275,11 @@ impl<'r, L: Lanes> RayState<'r, L> {
             self.best.triangle_tests += lanes.count_ones();
             let v = L::gather(scene.triangles, first + k, group);
             let h = if scene.watertight {
-                watertight4(v, self.r.origin, &self.shear)
+                watertight4(v, self.origin, &self.shear)
             } else {
-                moller_trumbore4(v, self.r.origin, self.dir_lanes)
+                moller_trumbore4(v, self.origin, self.dir_lanes)
             };
-            let in_range = L::and(h.t.gt(self.r.tmin), h.t.le(L::splat(self.limit)));
+            let in_range = L::and(h.t.gt(self.tmin), h.t.le(L::splat(self.limit)));
             let mut hits = L::bits(L::and(h.hit, in_range)) & lanes;
             if hits != 0 {
                 let (t, u, v, det) = (
@@ -329,13 +341,13 @@ impl<'r, L: Lanes> RayState<'r, L> {
 /// Traces one kernel-frame ray: the twin's answer (and, in all-hits mode, its list), with this
 /// walk's own b and i. `stack` holds at least [`stack_size`] entries.
 #[inline(always)]
-pub fn trace<L: Lanes>(
+pub fn trace<L: Lanes, B: BoxLanes>(
     scene: &Scene<'_>,
     ray: &GpuRay,
     hit_list: &mut [GpuHitEntry],
     stack: &mut [Entry],
 ) -> GpuHit {
-    let (miss, state) = RayState::<L>::new(scene, ray);
+    let (miss, state) = RayState::<L, B>::new(scene, ray);
     let Some(mut st) = state else {
         return miss;
     };
@@ -356,7 +368,7 @@ pub fn trace<L: Lanes>(
             let node = &scene.nodes[entry.child as usize];
             let occupied = u32::from(node.occupied);
             st.best.box_tests += occupied.count_ones();
-            let (bits, near) = boxes4(node, &st.r, st.limit);
+            let (bits, near) = boxes(node, &st.r, st.limit);
             let mut bits = bits & occupied;
             if bits == 0 {
                 continue;
@@ -400,59 +412,19 @@ pub fn trace<L: Lanes>(
     st.finish(hit_list)
 }
 
-/// Rays per packet: one per lane.
-pub const PACKET: usize = 4;
+/// Rays per packet.
+pub const PACKET: usize = 8;
 
 /// A pushed child of the packet walk: which rays still need it and each one's near distance.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PacketEntry {
     child: u32,
     kind: u8,
-    rays: u8,
+    rays: u32,
     near: [f32; PACKET],
 }
 
-/// Four rays in lanes, for one box at a time.
-struct PacketLanes<L: Lanes> {
-    origin: [L; 3],
-    inv: [L; 3],
-    /// Per axis: the lanes whose direction component is below `MIN_DIR` (`any_parallel` says
-    /// whether any lane is).
-    parallel: [L::Mask; 3],
-    any_parallel: [bool; 3],
-    tmin: L,
-}
-
-/// The twin's `ray_box` for one child box and four rays: which rays meet it within their
-/// `[tmin, limit]`, and each one's padded near distance. Lane for lane the arithmetic of
-/// [`boxes4`].
-#[inline(always)]
-fn box_for_rays<L: Lanes>(node: &WideNode, c: usize, p: &PacketLanes<L>, limit: L) -> (u32, L) {
-    let mut near = [L::splat(0.0); 3];
-    let mut far = [L::splat(0.0); 3];
-    for a in 0..3 {
-        let min = L::splat(node.min[a][c]);
-        let max = L::splat(node.max[a][c]);
-        let t0 = min.sub(p.origin[a]).mul(p.inv[a]);
-        let t1 = max.sub(p.origin[a]).mul(p.inv[a]);
-        near[a] = t0.min(t1);
-        far[a] = t0.max(t1);
-        if p.any_parallel[a] {
-            let inside = L::and(p.origin[a].ge(min), p.origin[a].le(max));
-            let free = L::and(p.parallel[a], inside);
-            near[a] = L::select(free, L::splat(-HUGE), near[a]);
-            far[a] = L::select(free, L::splat(HUGE), far[a]);
-        }
-    }
-    let t_near = near[0].max(near[1]).max(near[2]);
-    let t_far = far[0].min(far[1]).min(far[2]);
-    let pad = L::splat(BOX_PAD);
-    let lo = t_near.sub(t_near.abs().mul(pad)).max(p.tmin);
-    let hi = t_far.add(t_far.abs().mul(pad)).min(limit);
-    (L::bits(lo.le(hi)), lo)
-}
-
-/// Whether four rays are worth one packet walk: the same flags and mask, directions within
+/// Whether [`PACKET`] rays are worth one packet walk: the same flags and mask, directions within
 /// about 6° of the first's, origins within 1% of the scene's size of the first's.
 #[inline(always)]
 pub fn coherent(rays: &[GpuRay], scene_size: f32) -> bool {
@@ -469,13 +441,15 @@ pub fn coherent(rays: &[GpuRay], scene_size: f32) -> bool {
         })
 }
 
-/// Traces four coherent rays down the tree together: each child box is tested against the four
-/// rays at once, children are visited nearest first (by the nearest ray), and a leaf is tested
-/// for each ray that still needs it by that ray's own leaf test. Answers are each ray's
-/// single-ray answer, bit for bit. `lists` holds each ray's all-hits list in turn; `stack`
-/// holds at least [`stack_size`] entries.
+/// Traces [`PACKET`] coherent rays down the tree together, on one stack: at each node every ray
+/// still in the packet tests the node's boxes in its own lanes (the single-ray test, bit for
+/// bit), the children met by any ray are visited nearest first (by the nearest ray), and a leaf
+/// is tested for each ray that still needs it by that ray's own leaf test. Answers are each
+/// ray's single-ray answer, bit for bit; what the rays share is the walk's bookkeeping (one
+/// stack, one order). `lists` holds each ray's all-hits list in turn; `stack` holds at least
+/// [`stack_size`] entries.
 #[inline(always)]
-pub fn trace_packet<L: Lanes>(
+pub fn trace_packet<L: Lanes, B: BoxLanes>(
     scene: &Scene<'_>,
     rays: &[GpuRay],
     lists: &mut [GpuHitEntry],
@@ -485,13 +459,13 @@ pub fn trace_packet<L: Lanes>(
     let k = lists.len() / PACKET;
     let mut list_parts = lists.chunks_mut(k.max(1));
     let mut empty: [&mut [GpuHitEntry]; PACKET] = Default::default();
-    let mut states: [Option<RayState<'_, L>>; PACKET] = Default::default();
+    let mut states: [Option<RayState<'_, L, B>>; PACKET] = Default::default();
     let mut alive = 0u32;
     for i in 0..PACKET {
         if k > 0 {
             empty[i] = list_parts.next().expect("a list per ray");
         }
-        let (miss, state) = RayState::<L>::new(scene, &rays[i]);
+        let (miss, state) = RayState::<L, B>::new(scene, &rays[i]);
         out[i] = miss;
         if state.is_some() {
             alive |= 1 << i;
@@ -501,80 +475,89 @@ pub fn trace_packet<L: Lanes>(
     if alive == 0 {
         return;
     }
-    let lane = |f: &dyn Fn(&GpuRay) -> f32| {
-        L::from_array([f(&rays[0]), f(&rays[1]), f(&rays[2]), f(&rays[3])])
-    };
-    let inv: [Vec3; PACKET] = std::array::from_fn(|i| safe_inverse(Vec3::from(rays[i].dir)));
-    let p = PacketLanes::<L> {
-        origin: [0, 1, 2].map(|a| lane(&|r| r.origin[a])),
-        inv: [0, 1, 2].map(|a| L::from_array([inv[0][a], inv[1][a], inv[2][a], inv[3][a]])),
-        parallel: [0, 1, 2].map(|a| lane(&|r| r.dir[a]).abs().lt(L::splat(MIN_DIR))),
-        any_parallel: [0, 1, 2].map(|a| rays.iter().any(|r| r.dir[a].abs() < MIN_DIR)),
-        tmin: lane(&|r| r.tmin),
-    };
-    let limits = |states: &[Option<RayState<'_, L>>; PACKET]| {
-        L::from_array(std::array::from_fn(|i| {
-            states[i].as_ref().map_or(f32::NEG_INFINITY, |s| s.limit)
-        }))
-    };
     let mut top = 1usize;
     stack[0] = PacketEntry {
         child: 0,
         kind: INNER,
-        rays: alive as u8,
-        near: std::array::from_fn(|i| rays[i].tmin),
+        rays: alive,
+        near: {
+            let mut near = [0.0; PACKET];
+            for (n, r) in near.iter_mut().zip(rays) {
+                *n = r.tmin;
+            }
+            near
+        },
     };
     while top > 0 {
         top -= 1;
         let entry = stack[top];
-        let limit = limits(&states);
-        let still = L::bits(L::from_array(entry.near).le(limit));
-        let active = u32::from(entry.rays) & alive & still;
+        // The rays that still need this entry: alive, and not past it.
+        let mut active = 0u32;
+        let mut candidates = entry.rays & alive;
+        while candidates != 0 {
+            let i = candidates.trailing_zeros() as usize;
+            candidates &= candidates - 1;
+            if let Some(s) = &states[i]
+                && entry.near[i] <= s.limit
+            {
+                active |= 1 << i;
+            }
+        }
         if active == 0 {
             continue;
         }
         if entry.kind == INNER {
             let node = &scene.nodes[entry.child as usize];
-            let mut occupied = u32::from(node.occupied);
+            let occupied = u32::from(node.occupied);
             let tested = occupied.count_ones();
-            let mut children: [(u32, f32, L); WIDTH] = [(0, 0.0, L::splat(0.0)); WIDTH];
-            let mut n = 0;
-            while occupied != 0 {
-                let c = occupied.trailing_zeros() as usize;
-                occupied &= occupied - 1;
-                let (bits, lo) = box_for_rays(node, c, &p, limit);
-                let bits = bits & active;
-                if bits == 0 {
-                    continue;
+            let mut met = [0u32; PACKET];
+            let mut near = [[0.0f32; WIDTH]; PACKET];
+            let mut union = 0u32;
+            let mut rays_left = active;
+            while rays_left != 0 {
+                let i = rays_left.trailing_zeros() as usize;
+                rays_left &= rays_left - 1;
+                if let Some(s) = states[i].as_mut() {
+                    s.best.box_tests += tested;
+                    let (bits, lo) = boxes(node, &s.r, s.limit);
+                    met[i] = bits & occupied;
+                    near[i] = lo.to_array();
+                    union |= met[i];
                 }
-                let lo_a = lo.to_array();
-                let key = (0..PACKET)
-                    .filter(|&i| bits >> i & 1 != 0)
-                    .map(|i| lo_a[i])
-                    .fold(f32::INFINITY, f32::min);
-                // Insert by key, farthest first.
+            }
+            // The children met by any ray, pushed farthest (by their nearest ray) first.
+            let mut children = [(0u32, 0u32, 0.0f32); WIDTH];
+            let mut n = 0;
+            while union != 0 {
+                let c = union.trailing_zeros() as usize;
+                union &= union - 1;
+                let mut rays = 0u32;
+                let mut key = f32::INFINITY;
+                for i in 0..PACKET {
+                    if met[i] >> c & 1 != 0 {
+                        rays |= 1 << i;
+                        key = key.min(near[i][c]);
+                    }
+                }
                 let mut j = n;
-                while j > 0 && children[j - 1].1 < key {
+                while j > 0 && children[j - 1].2 < key {
                     children[j] = children[j - 1];
                     j -= 1;
                 }
-                children[j] = (c as u32 | bits << 8, key, lo);
+                children[j] = (c as u32, rays, key);
                 n += 1;
             }
-            for (i, state) in states.iter_mut().enumerate() {
-                if active >> i & 1 != 0 {
-                    if let Some(s) = state.as_mut() {
-                        s.best.box_tests += tested;
-                    }
+            for &(c, rays, _) in &children[..n] {
+                let c = c as usize;
+                let mut child_near = [0.0; PACKET];
+                for (to, from) in child_near.iter_mut().zip(&near) {
+                    *to = from[c];
                 }
-            }
-            for &(packed, _, lo) in &children[..n] {
-                let c = (packed & 0xff) as usize;
                 stack[top] = PacketEntry {
                     child: node.child[c],
                     kind: node.kind[c],
-                    rays: (packed >> 8) as u8,
-                    near: lo.to_array(),
+                    rays,
+                    near: child_near,
                 };
                 top += 1;
             }

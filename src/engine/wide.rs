@@ -1,5 +1,5 @@
-//! The engine's tree: the binary tree any builder made, collapsed into 4-wide nodes whose child
-//! boxes are stored structure-of-arrays, so one SIMD box test covers all four children.
+//! The engine's tree: the binary tree any builder made, collapsed into 8-wide nodes whose child
+//! boxes are stored structure-of-arrays, so one SIMD box test covers all eight children.
 //!
 //! Leaves stay what the binary tree made them: a range of the leaf-order triangle array the
 //! kernel and the twin read (`Bvh::triangles`), so the engine adds only its nodes to memory and
@@ -12,13 +12,13 @@ use crate::store::Store;
 use rayon::prelude::*;
 
 /// Children per node.
-pub const WIDTH: usize = 4;
+pub const WIDTH: usize = 8;
 /// `WideNode::kind` of an empty child slot.
 pub const EMPTY: u8 = 0;
 /// `WideNode::kind` of an inner child (leaves hold their triangle count, 1–15).
 pub const INNER: u8 = KIND_INNER as u8;
 
-/// Four children: their boxes (structure of arrays), what each is, and where it points.
+/// Eight children: their boxes (structure of arrays), what each is, and where it points.
 ///
 /// The layout is plain bytes (no implicit padding), so a saved scene's `WIDE` section is an
 /// array of nodes read in place ([`crate::rpk`]).
@@ -35,11 +35,14 @@ pub struct WideNode {
     pub kind: [u8; WIDTH],
     /// Bit `i` set when child slot `i` holds a child.
     pub occupied: u8,
-    /// Zero: the padding to 128 bytes, explicit.
-    pub reserved: [u8; 11],
+    /// Zero: the padding to 256 bytes (four cache lines), explicit.
+    pub reserved: [u8; RESERVED],
 }
 
-const _: () = assert!(std::mem::size_of::<WideNode>() == 128);
+/// Padding bytes at the end of a [`WideNode`].
+const RESERVED: usize = 256 - (24 + 4 + 1) * WIDTH - 1;
+
+const _: () = assert!(std::mem::size_of::<WideNode>() == 256);
 
 impl WideNode {
     const EMPTY_NODE: WideNode = WideNode {
@@ -48,7 +51,7 @@ impl WideNode {
         child: [0; WIDTH],
         kind: [EMPTY; WIDTH],
         occupied: 0,
-        reserved: [0; 11],
+        reserved: [0; RESERVED],
     };
 }
 
@@ -73,12 +76,12 @@ fn children(index: u32, node: &GpuNode) -> [u32; 2] {
 
 impl WideBvh {
     /// Collapses `bvh`'s binary tree: each wide node takes a binary inner node's children and
-    /// keeps opening the inner child with the largest surface area until it has four. O(nodes).
+    /// keeps opening the inner child with the largest surface area until it has eight. O(nodes).
     /// A corrupted tree (a link out of range, or a cycle: more nodes opened than exist) is an
     /// error, never a hang.
     ///
-    /// A large tree is collapsed on all cores: the root's wide node and its children's serially,
-    /// then the subtrees below them (up to 16) each into a piece of its own, in parallel; the
+    /// A large tree is collapsed on all cores: the root's wide node serially, then the subtrees
+    /// below it (up to eight) each into a piece of its own, in parallel; the
     /// pieces are appended in order, so the result does not depend on the threads.
     pub fn collapse(bvh: &Bvh) -> Result<WideBvh> {
         let binary = &bvh.nodes;
@@ -236,8 +239,8 @@ impl WideBvh {
 
 /// Binary trees of at least this many nodes are collapsed in parallel pieces.
 const PARALLEL_FROM: usize = 1 << 14;
-/// Levels of wide nodes collapsed serially above the parallel pieces (up to 4² pieces).
-const TOP_LEVELS: usize = 2;
+/// Levels of wide nodes collapsed serially above the parallel pieces (up to 8 pieces).
+const TOP_LEVELS: usize = 1;
 
 /// Opens binary inner nodes for the collapse, checking links and counting: a node opened more
 /// often than there are nodes means a cycle.
@@ -274,12 +277,13 @@ impl<'a> Opener<'a> {
     }
 
     /// The children of the wide node made from binary inner node `source`: its two children,
-    /// then, while there are fewer than four, the inner one with the largest surface area
+    /// then, while there are fewer than [`WIDTH`], the inner one with the largest surface area
     /// opened in its place (the order kept). In a fixed array: no allocation per node.
     fn widest_children(&mut self, source: u32) -> Result<([u32; WIDTH], usize)> {
         let binary = self.binary;
         let [left, right] = self.open(source)?;
-        let mut slots = [left, right, 0, 0];
+        let mut slots = [0; WIDTH];
+        (slots[0], slots[1]) = (left, right);
         let mut len = 2;
         while len < WIDTH {
             let widest = slots[..len]

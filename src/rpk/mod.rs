@@ -22,7 +22,7 @@
 //! checksums, and [`validate`] checks what the sections say against each other before a
 //! [`BuiltScene`] is made of them.
 //!
-//! # Format, version 2
+//! # Format, version 3
 //!
 //! Everything is little-endian. A file is a 32-byte header followed by sections. Each section
 //! is zero bytes up to 16 bytes before the next 64-byte boundary of the file, a 16-byte section
@@ -32,7 +32,8 @@
 //! the Pod [`GpuNode`](crate::layout::GpuNode), [`GpuTriangle`](crate::layout::GpuTriangle) and
 //! the cache-line aligned [`WideNode`](crate::engine::wide::WideNode)), which [`load_in_place`]
 //! does. (Version 1 padded to 16 bytes, so wide nodes had to be copied to be aligned; it is
-//! refused with a message to save the scene again.)
+//! refused with a message to save the scene again; so is version 2, whose wide nodes were
+//! 4-wide.)
 //!
 //! **Header** (its layout is the same in every version, so any version's file is told apart
 //! from a corrupted one):
@@ -41,7 +42,7 @@
 //! |---|---|
 //! | 0 | magic, the 8 bytes `89 52 50 4B 0D 0A 1A 0A` (`\x89RPK\r\n\x1a\n`, as PNG's) |
 //! | 8 | format version, u32 ([`VERSION`]) |
-//! | 12 | number of sections, u32 (11 in version 2) |
+//! | 12 | number of sections, u32 (11 in version 3) |
 //! | 16 | length of the whole file in bytes, u64 |
 //! | 24 | reserved, u32, zero |
 //! | 28 | CRC-32 (IEEE, as zlib and `crc32fast`) of bytes 0..28 |
@@ -62,7 +63,7 @@
 //! | `TIDS` | for each leaf-order triangle, its scene triangle (u32) | 4 |
 //! | `MASK` | layer mask of each leaf-order triangle (u32); empty when every object's mask is all ones | 4 |
 //! | `BLKS` | terrain blocks (grid builder only): cell rows (start, end), cell columns (start, end), root node, leaf-order triangles (start, end), a zero (u32 each), then the world min, max and origin (f64 x, y, z each) | 104 |
-//! | `WIDE` | the CPU engine's 4-wide tree, depth-first ([`WideNode`](crate::engine::wide::WideNode)): per node the children's min x, y, z and max x, y, z (f32 × 4 each), child index (u32 × 4), kind (u8 × 4), occupied bits (u8), 11 zero bytes | 128 |
+//! | `WIDE` | the CPU engine's 8-wide tree, depth-first ([`WideNode`](crate::engine::wide::WideNode)): per node the children's min x, y, z and max x, y, z (f32 × 8 each), child index (u32 × 8), kind (u8 × 8), occupied bits (u8), 23 zero bytes | 256 |
 //!
 //! `SUMM` holds, as u64: the numbers of vertices, scene triangles, objects, name bytes, nodes,
 //! leaf-order triangles, blocks and wide nodes, the wide tree's depth, the number of masks;
@@ -108,7 +109,7 @@ use std::path::Path;
 /// The 8 bytes every `.rpk` file starts with.
 pub const MAGIC: [u8; 8] = *b"\x89RPK\r\n\x1a\n";
 /// The format version this build writes and reads.
-pub const VERSION: u32 = 2;
+pub const VERSION: u32 = 3;
 /// Bytes of the file header.
 pub const HEADER_BYTES: usize = 32;
 /// Bytes of a section header.

@@ -370,7 +370,10 @@ fn take_sections(
         };
     }
     let wide: Store<WideNode> = array!(WIDE)?;
-    if wide.par_iter().any(|node| node.reserved != [0; 11]) {
+    if wide
+        .par_iter()
+        .any(|node| node.reserved.iter().any(|&b| b != 0))
+    {
         return Err(reserved_error(path, WIDE));
     }
     Ok(Parts {

@@ -16,7 +16,7 @@ pub const OBJECT_BYTES: usize = 40;
 /// Bytes of a block record.
 pub const BLOCK_BYTES: usize = 104;
 /// Bytes of a wide node ([`WideNode`], stored as it lies in memory).
-pub const WIDE_NODE_BYTES: usize = 128;
+pub const WIDE_NODE_BYTES: usize = 256;
 
 /// Appends little-endian fields to a byte vector.
 #[derive(Debug, Default)]

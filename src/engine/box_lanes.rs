@@ -1,0 +1,191 @@
+//! Eight f32 lanes for the box test of an 8-wide node: one lane per child box.
+//!
+//! [`BoxLanes`] has two implementations: [`Avx`] (one 256-bit AVX register, used where the CPU
+//! has AVX2, see `engine::Engine`) and [`Pair`] (two sets of four [`Lanes`], for the SSE and
+//! portable paths). Each operation is one IEEE-754 operation per lane, the same as the scalar
+//! twin's `ray_box`: no fused multiply-add, no reassociation, so every path computes the same
+//! bits for the same box.
+
+use super::lanes::Lanes;
+
+/// Eight f32 lanes and their masks: what the 8-wide box test needs.
+pub trait BoxLanes: Copy {
+    /// A lane mask (all ones or all zeros per lane).
+    type Mask: Copy;
+    /// `x` in every lane.
+    fn splat(x: f32) -> Self;
+    /// The eight values, lane 0 first.
+    fn load(a: &[f32; 8]) -> Self;
+    /// The eight values, lane 0 first.
+    fn to_array(self) -> [f32; 8];
+    /// Lane-wise `self + o`.
+    fn add(self, o: Self) -> Self;
+    /// Lane-wise `self - o`.
+    fn sub(self, o: Self) -> Self;
+    /// Lane-wise `self * o`.
+    fn mul(self, o: Self) -> Self;
+    /// Lane-wise minimum (the operands are never NaN where it is used).
+    fn min(self, o: Self) -> Self;
+    /// Lane-wise maximum (the operands are never NaN where it is used).
+    fn max(self, o: Self) -> Self;
+    /// Lane-wise absolute value.
+    fn abs(self) -> Self;
+    /// Lane-wise `self <= o`.
+    fn le(self, o: Self) -> Self::Mask;
+    /// Lane-wise `self >= o`.
+    fn ge(self, o: Self) -> Self::Mask;
+    /// Lane-wise `m ? a : b`.
+    fn select(m: Self::Mask, a: Self, b: Self) -> Self;
+    /// Lane-wise and.
+    fn and(a: Self::Mask, b: Self::Mask) -> Self::Mask;
+    /// Bit `i` set when lane `i` is set.
+    fn bits(m: Self::Mask) -> u32;
+}
+
+/// Eight lanes as two sets of four: lanes 0–3 in the first, 4–7 in the second.
+#[derive(Clone, Copy, Debug)]
+pub struct Pair<L>(L, L);
+
+impl<L: Lanes> BoxLanes for Pair<L> {
+    type Mask = (L::Mask, L::Mask);
+    #[inline(always)]
+    fn splat(x: f32) -> Self {
+        Pair(L::splat(x), L::splat(x))
+    }
+    #[inline(always)]
+    fn load(a: &[f32; 8]) -> Self {
+        Pair(
+            L::from_array([a[0], a[1], a[2], a[3]]),
+            L::from_array([a[4], a[5], a[6], a[7]]),
+        )
+    }
+    #[inline(always)]
+    fn to_array(self) -> [f32; 8] {
+        let (a, b) = (self.0.to_array(), self.1.to_array());
+        [a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]]
+    }
+    #[inline(always)]
+    fn add(self, o: Self) -> Self {
+        Pair(self.0.add(o.0), self.1.add(o.1))
+    }
+    #[inline(always)]
+    fn sub(self, o: Self) -> Self {
+        Pair(self.0.sub(o.0), self.1.sub(o.1))
+    }
+    #[inline(always)]
+    fn mul(self, o: Self) -> Self {
+        Pair(self.0.mul(o.0), self.1.mul(o.1))
+    }
+    #[inline(always)]
+    fn min(self, o: Self) -> Self {
+        Pair(self.0.min(o.0), self.1.min(o.1))
+    }
+    #[inline(always)]
+    fn max(self, o: Self) -> Self {
+        Pair(self.0.max(o.0), self.1.max(o.1))
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        Pair(self.0.abs(), self.1.abs())
+    }
+    #[inline(always)]
+    fn le(self, o: Self) -> Self::Mask {
+        (self.0.le(o.0), self.1.le(o.1))
+    }
+    #[inline(always)]
+    fn ge(self, o: Self) -> Self::Mask {
+        (self.0.ge(o.0), self.1.ge(o.1))
+    }
+    #[inline(always)]
+    fn select(m: Self::Mask, a: Self, b: Self) -> Self {
+        Pair(L::select(m.0, a.0, b.0), L::select(m.1, a.1, b.1))
+    }
+    #[inline(always)]
+    fn and(a: Self::Mask, b: Self::Mask) -> Self::Mask {
+        (L::and(a.0, b.0), L::and(a.1, b.1))
+    }
+    #[inline(always)]
+    fn bits(m: Self::Mask) -> u32 {
+        L::bits(m.0) | L::bits(m.1) << 4
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+pub use avx::Avx;
+
+#[cfg(target_arch = "x86_64")]
+mod avx {
+    use super::BoxLanes;
+    use std::arch::x86_64::*;
+
+    /// One 256-bit AVX register. Only for code compiled with AVX enabled and run where the CPU
+    /// has it (the engine's AVX2 path, `engine::trace_chunk_avx2`): the methods are inlined
+    /// into that code.
+    #[derive(Clone, Copy, Debug)]
+    pub struct Avx(__m256);
+
+    // SAFETY (every block below): these lanes are only used inside functions compiled with AVX2
+    // enabled, which run only after `Simd::Avx2` was detected (AVX2 implies AVX); the
+    // intrinsics read and write their register operands, and `load` / `to_array` whole arrays.
+    impl BoxLanes for Avx {
+        type Mask = __m256;
+        #[inline(always)]
+        fn splat(x: f32) -> Self {
+            unsafe { Self(_mm256_set1_ps(x)) }
+        }
+        #[inline(always)]
+        fn load(a: &[f32; 8]) -> Self {
+            unsafe { Self(_mm256_loadu_ps(a.as_ptr())) }
+        }
+        #[inline(always)]
+        fn to_array(self) -> [f32; 8] {
+            let mut out = [0.0; 8];
+            unsafe { _mm256_storeu_ps(out.as_mut_ptr(), self.0) };
+            out
+        }
+        #[inline(always)]
+        fn add(self, o: Self) -> Self {
+            unsafe { Self(_mm256_add_ps(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn sub(self, o: Self) -> Self {
+            unsafe { Self(_mm256_sub_ps(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn mul(self, o: Self) -> Self {
+            unsafe { Self(_mm256_mul_ps(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn min(self, o: Self) -> Self {
+            unsafe { Self(_mm256_min_ps(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn max(self, o: Self) -> Self {
+            unsafe { Self(_mm256_max_ps(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn abs(self) -> Self {
+            unsafe { Self(_mm256_andnot_ps(_mm256_set1_ps(-0.0), self.0)) }
+        }
+        #[inline(always)]
+        fn le(self, o: Self) -> __m256 {
+            unsafe { _mm256_cmp_ps::<_CMP_LE_OQ>(self.0, o.0) }
+        }
+        #[inline(always)]
+        fn ge(self, o: Self) -> __m256 {
+            unsafe { _mm256_cmp_ps::<_CMP_GE_OQ>(self.0, o.0) }
+        }
+        #[inline(always)]
+        fn select(m: __m256, a: Self, b: Self) -> Self {
+            unsafe { Self(_mm256_blendv_ps(b.0, a.0, m)) }
+        }
+        #[inline(always)]
+        fn and(a: __m256, b: __m256) -> __m256 {
+            unsafe { _mm256_and_ps(a, b) }
+        }
+        #[inline(always)]
+        fn bits(m: __m256) -> u32 {
+            unsafe { _mm256_movemask_ps(m) as u32 }
+        }
+    }
+}
