@@ -1,9 +1,8 @@
-//! Four f32 lanes: the SIMD vocabulary of the engine's triangle tests (the box tests of its
-//! 8-wide nodes use eight lanes, [`super::box_lanes`]).
+//! Four f32 lanes: the building block of the engine's eight lanes ([`super::lanes8`]), two
+//! sets of four where the CPU has no AVX2.
 //!
-//! [`Lanes`] has two implementations: [`Sse`] (x86-64 SSE2, always present there; compiled a
-//! second time with AVX2 enabled when the CPU has it, see `engine::trace_batch`) and
-//! [`Portable`] (plain arrays, every target). Each operation is one IEEE-754 operation per lane,
+//! [`Lanes`] has two implementations: [`Sse`] (x86-64 SSE2, always present there; its gather
+//! also fills the halves of the AVX lanes) and [`Portable`] (plain arrays, every target). Each operation is one IEEE-754 operation per lane,
 //! the same as the scalar twin's: no fused multiply-add, no reassociation, so a lane computes the
 //! bits the scalar code computes.
 
@@ -51,8 +50,6 @@ pub trait Lanes: Copy {
     fn andnot(a: Self::Mask, b: Self::Mask) -> Self::Mask;
     /// Bit `i` set when lane `i` is set.
     fn bits(m: Self::Mask) -> u32;
-    /// The mask with lane `i` set when bit `i` of `bits` is.
-    fn mask_from_bits(bits: u32) -> Self::Mask;
 
     /// Four triangles' vertices as `[vertex][axis]` lanes, lane `i` from triangle
     /// `first + min(i, count - 1)` (the last one repeated past `count`, `1 <= count <= 4`).
@@ -173,10 +170,6 @@ impl Lanes for Portable {
     fn bits(m: [bool; 4]) -> u32 {
         u32::from(m[0]) | u32::from(m[1]) << 1 | u32::from(m[2]) << 2 | u32::from(m[3]) << 3
     }
-    #[inline(always)]
-    fn mask_from_bits(bits: u32) -> [bool; 4] {
-        std::array::from_fn(|i| bits >> i & 1 != 0)
-    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -191,6 +184,14 @@ mod sse {
     /// x86-64 SSE2 lanes (SSE2 is part of the x86-64 baseline, so no detection is needed).
     #[derive(Clone, Copy, Debug)]
     pub struct Sse(__m128);
+
+    impl Sse {
+        /// The register (for joining two into one AVX register, `engine::lanes8`).
+        #[inline(always)]
+        pub fn register(self) -> __m128 {
+            self.0
+        }
+    }
 
     // SAFETY (every block below): SSE2 is enabled on every x86-64 target, and the intrinsics
     // only read and write their register operands.
@@ -277,11 +278,6 @@ mod sse {
         #[inline(always)]
         fn bits(m: __m128) -> u32 {
             unsafe { _mm_movemask_ps(m) as u32 }
-        }
-        #[inline(always)]
-        fn mask_from_bits(bits: u32) -> __m128 {
-            let lane = |i: u32| if bits >> i & 1 != 0 { -1 } else { 0 };
-            unsafe { _mm_castsi128_ps(_mm_setr_epi32(lane(0), lane(1), lane(2), lane(3))) }
         }
 
         /// Two unaligned 4-float loads and one scalar per triangle, then two 4 × 4 transposes:

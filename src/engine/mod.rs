@@ -1,21 +1,17 @@
 //! The CPU engine behind `--backend cpu`: the binary tree collapsed 8-wide ([`wide`]), walked
-//! nearest child first with SIMD box tests in eight f32 lanes ([`box_lanes`]) and triangle
-//! tests in four ([`lanes`]) ([`walk`]).
-//!
-//! It answers exactly what the kernel and its twin (`cpu::traverse`, `--backend reference`)
-//! answer, bit for bit, in every mode; `tests/engine.rs` holds it to that on every scene, ray
-//! kind and mode, with SIMD and with the portable lanes.
+//! nearest child first ([`walk`]) with SIMD tests of eight child boxes or eight triangles at a
+//! time in eight f32 lanes ([`lanes8`]: one AVX register, or two sets of four [`lanes`]).
 
-pub mod box_lanes;
 pub mod lanes;
+pub mod lanes8;
 pub mod walk;
 pub mod wide;
 
 use crate::bvh::Bvh;
 use crate::cpu::TraceSettings;
 use crate::layout::{GpuHit, GpuHitEntry, GpuRay};
-use box_lanes::{BoxLanes, Pair};
-use lanes::{Lanes, Portable};
+use lanes::Portable;
+use lanes8::{Lanes8, Pair};
 use rayon::prelude::*;
 use std::sync::OnceLock;
 pub use wide::WideBvh;
@@ -134,10 +130,8 @@ impl<'a> Engine<'a> {
             // SAFETY: `Engine::new` checked that this CPU has AVX2.
             Simd::Avx2 => unsafe { trace_chunk_avx2(scene, rays, hits, lists, &mut stacks) },
             #[cfg(target_arch = "x86_64")]
-            Simd::Sse => {
-                trace_chunk::<lanes::Sse, Pair<lanes::Sse>>(scene, rays, hits, lists, &mut stacks)
-            }
-            _ => trace_chunk::<Portable, Pair<Portable>>(scene, rays, hits, lists, &mut stacks),
+            Simd::Sse => trace_chunk::<Pair<lanes::Sse>>(scene, rays, hits, lists, &mut stacks),
+            _ => trace_chunk::<Pair<Portable>>(scene, rays, hits, lists, &mut stacks),
         }
     }
 }
@@ -180,7 +174,7 @@ struct Stacks {
 /// Traces a task's rays: each group of four coherent rays (camera rays, pixel picks) as one
 /// packet, any other ray alone. Either way each ray gets its single-ray answer.
 #[inline(always)]
-fn trace_chunk<L: Lanes, B: BoxLanes>(
+fn trace_chunk<L: Lanes8>(
     scene: &walk::Scene<'_>,
     rays: &[GpuRay],
     hits: &mut [GpuHit],
@@ -197,7 +191,7 @@ fn trace_chunk<L: Lanes, B: BoxLanes>(
     while i < rays.len() {
         let group = &rays[i..(i + p).min(rays.len())];
         if scene.packets && walk::coherent(group, scene.size) {
-            walk::trace_packet::<L, B>(
+            walk::trace_packet::<L>(
                 scene,
                 group,
                 &mut lists[i * k..(i + p) * k],
@@ -207,14 +201,14 @@ fn trace_chunk<L: Lanes, B: BoxLanes>(
         } else {
             for (j, ray) in group.iter().enumerate() {
                 let list = &mut lists[(i + j) * k..(i + j + 1) * k];
-                hits[i + j] = walk::trace::<L, B>(scene, ray, list, &mut stacks.single);
+                hits[i + j] = walk::trace::<L>(scene, ray, list, &mut stacks.single);
             }
         }
         i += group.len();
     }
 }
 
-/// [`trace_chunk`] on SSE triangle lanes and AVX box lanes, compiled with AVX2 enabled.
+/// [`trace_chunk`] on AVX lanes, compiled with AVX2 enabled.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn trace_chunk_avx2(
@@ -224,5 +218,5 @@ unsafe fn trace_chunk_avx2(
     lists: &mut [GpuHitEntry],
     stacks: &mut Stacks,
 ) {
-    trace_chunk::<lanes::Sse, box_lanes::Avx>(scene, rays, hits, lists, stacks);
+    trace_chunk::<lanes8::Avx>(scene, rays, hits, lists, stacks);
 }

@@ -1,5 +1,5 @@
 //! One ray through the wide tree: eight child boxes per SIMD test, children visited nearest
-//! first from a small stack, leaves tested four triangles at a time.
+//! first from a small stack, leaves tested eight triangles at a time.
 //!
 //! The answers are the twin's (`cpu::traverse`) bit for bit: each box test is `ray_box`'s
 //! arithmetic in lanes, each triangle test is `ray_triangle` / `ray_triangle_watertight`'s, and
@@ -11,8 +11,7 @@
     reason = "as in the twin: `!(a <= b)` also rejects NaN"
 )]
 
-use super::box_lanes::BoxLanes;
-use super::lanes::Lanes;
+use super::lanes8::Lanes8;
 use super::wide::{EMPTY, INNER, WIDTH, WideNode};
 use crate::cpu::ray_box::{BOX_PAD, HUGE, MIN_DIR, safe_inverse};
 use crate::cpu::ray_triangle::shear_for;
@@ -53,49 +52,49 @@ pub fn stack_size(depth: usize) -> usize {
 }
 
 /// The ray in box lanes, set up once for the box tests.
-struct RayLanes<B: BoxLanes> {
-    origin: [B; 3],
-    inv: [B; 3],
+struct RayLanes<L: Lanes8> {
+    origin: [L; 3],
+    inv: [L; 3],
     /// Per axis: the direction is below `MIN_DIR`, so the slab may leave the ray free.
     parallel: [bool; 3],
-    tmin: B,
+    tmin: L,
 }
 
 /// The twin's `ray_box` for a node's eight boxes: which children the ray meets within
 /// `[tmin, limit]`, and each one's padded near distance.
 #[inline(always)]
-fn boxes<B: BoxLanes>(node: &WideNode, r: &RayLanes<B>, limit: f32) -> (u32, B) {
-    let mut near = [B::splat(0.0); 3];
-    let mut far = [B::splat(0.0); 3];
+fn boxes<L: Lanes8>(node: &WideNode, r: &RayLanes<L>, limit: f32) -> (u32, L) {
+    let mut near = [L::splat(0.0); 3];
+    let mut far = [L::splat(0.0); 3];
     for a in 0..3 {
-        let min = B::load(&node.min[a]);
-        let max = B::load(&node.max[a]);
+        let min = L::load(&node.min[a]);
+        let max = L::load(&node.max[a]);
         let t0 = min.sub(r.origin[a]).mul(r.inv[a]);
         let t1 = max.sub(r.origin[a]).mul(r.inv[a]);
         near[a] = t0.min(t1);
         far[a] = t0.max(t1);
         if r.parallel[a] {
             let o = r.origin[a];
-            let free = B::and(o.ge(min), o.le(max));
-            near[a] = B::select(free, B::splat(-HUGE), near[a]);
-            far[a] = B::select(free, B::splat(HUGE), far[a]);
+            let free = L::and(o.ge(min), o.le(max));
+            near[a] = L::select(free, L::splat(-HUGE), near[a]);
+            far[a] = L::select(free, L::splat(HUGE), far[a]);
         }
     }
     let t_near = near[0].max(near[1]).max(near[2]);
     let t_far = far[0].min(far[1]).min(far[2]);
-    let pad = B::splat(BOX_PAD);
+    let pad = L::splat(BOX_PAD);
     let lo = t_near.sub(t_near.abs().mul(pad)).max(r.tmin);
-    let hi = t_far.add(t_far.abs().mul(pad)).min(B::splat(limit));
-    (B::bits(lo.le(hi)), lo)
+    let hi = t_far.add(t_far.abs().mul(pad)).min(L::splat(limit));
+    (L::bits(lo.le(hi)), lo)
 }
 
 #[inline(always)]
-fn dot<L: Lanes>(a: [L; 3], b: [L; 3]) -> L {
+fn dot<L: Lanes8>(a: [L; 3], b: [L; 3]) -> L {
     a[0].mul(b[0]).add(a[1].mul(b[1])).add(a[2].mul(b[2]))
 }
 
 #[inline(always)]
-fn cross<L: Lanes>(a: [L; 3], b: [L; 3]) -> [L; 3] {
+fn cross<L: Lanes8>(a: [L; 3], b: [L; 3]) -> [L; 3] {
     [
         a[1].mul(b[2]).sub(b[1].mul(a[2])),
         a[2].mul(b[0]).sub(b[2].mul(a[0])),
@@ -104,13 +103,14 @@ fn cross<L: Lanes>(a: [L; 3], b: [L; 3]) -> [L; 3] {
 }
 
 #[inline(always)]
-fn sub3<L: Lanes>(a: [L; 3], b: [L; 3]) -> [L; 3] {
+fn sub3<L: Lanes8>(a: [L; 3], b: [L; 3]) -> [L; 3] {
     [a[0].sub(b[0]), a[1].sub(b[1]), a[2].sub(b[2])]
 }
 
 /// Four triangle tests' results: lanes that hit, and t, u, v, det per lane.
-struct Hits4<L: Lanes> {
-    hit: L::Mask,
+struct Hits<L: Lanes8> {
+    /// Bit `i` set when lane `i` hit.
+    hit: u32,
     t: L,
     u: L,
     v: L,
@@ -119,7 +119,7 @@ struct Hits4<L: Lanes> {
 
 /// The twin's `ray_triangle_watertight` in lanes.
 #[inline(always)]
-fn watertight4<L: Lanes>(v: [[L; 3]; 3], origin: [L; 3], shear: &[[L; 3]; 3]) -> Hits4<L> {
+fn watertight<L: Lanes8>(v: [[L; 3]; 3], origin: [L; 3], shear: &[[L; 3]; 3]) -> Hits<L> {
     let a = sub3(v[0], origin);
     let b = sub3(v[1], origin);
     let c = sub3(v[2], origin);
@@ -140,8 +140,8 @@ fn watertight4<L: Lanes>(v: [[L; 3]; 3], origin: [L; 3], shear: &[[L; 3]; 3]) ->
         .add(v_edge.mul(dot(b, *sz)))
         .add(w_edge.mul(dot(c, *sz)));
     let inv_det = L::splat(1.0).div(det);
-    Hits4 {
-        hit: L::andnot(L::mask_from_bits(0xF), miss),
+    Hits {
+        hit: !L::bits(miss) & 0xFF,
         t: t_scaled.mul(inv_det),
         u: v_edge.mul(inv_det),
         v: w_edge.mul(inv_det),
@@ -151,7 +151,7 @@ fn watertight4<L: Lanes>(v: [[L; 3]; 3], origin: [L; 3], shear: &[[L; 3]; 3]) ->
 
 /// The twin's `ray_triangle` (Möller–Trumbore) in lanes.
 #[inline(always)]
-fn moller_trumbore4<L: Lanes>(v: [[L; 3]; 3], origin: [L; 3], dir: [L; 3]) -> Hits4<L> {
+fn moller_trumbore<L: Lanes8>(v: [[L; 3]; 3], origin: [L; 3], dir: [L; 3]) -> Hits<L> {
     let e1 = sub3(v[1], v[0]);
     let e2 = sub3(v[2], v[0]);
     let p = cross(dir, e2);
@@ -164,8 +164,8 @@ fn moller_trumbore4<L: Lanes>(v: [[L; 3]; 3], origin: [L; 3], dir: [L; 3]) -> Hi
     let v_ = dot(q, dir).mul(inv_det);
     let t = dot(q, e2).mul(inv_det);
     let inside = L::and(L::and(u.ge(zero), v_.ge(zero)), u.add(v_).le(L::splat(1.0)));
-    Hits4 {
-        hit: L::andnot(inside, det.eq(zero)),
+    Hits {
+        hit: L::bits(L::andnot(inside, det.eq(zero))),
         t,
         u,
         v: v_,
@@ -175,11 +175,9 @@ fn moller_trumbore4<L: Lanes>(v: [[L; 3]; 3], origin: [L; 3], dir: [L; 3]) -> Hi
 
 /// One ray's walk state: the ray in lanes (box lanes `B` for the node tests, triangle lanes `L`
 /// for the leaves), its best hit so far and its current limit.
-pub struct RayState<'r, L: Lanes, B: BoxLanes> {
+pub struct RayState<'r, L: Lanes8> {
     ray: &'r GpuRay,
-    r: RayLanes<B>,
-    origin: [L; 3],
-    tmin: L,
+    r: RayLanes<L>,
     dir_lanes: [L; 3],
     shear: [[L; 3]; 3],
     mode: u32,
@@ -193,7 +191,7 @@ pub struct RayState<'r, L: Lanes, B: BoxLanes> {
     pub done: bool,
 }
 
-impl<'r, L: Lanes, B: BoxLanes> RayState<'r, L, B> {
+impl<'r, L: Lanes8> RayState<'r, L> {
     /// Sets `ray` up; `None` when it is never traced (an empty scene, an empty range).
     #[inline(always)]
     #[allow(
@@ -223,17 +221,15 @@ impl<'r, L: Lanes, B: BoxLanes> RayState<'r, L, B> {
         let state = Self {
             ray,
             r: RayLanes {
-                origin: [B::splat(origin.x), B::splat(origin.y), B::splat(origin.z)],
-                inv: [B::splat(inv.x), B::splat(inv.y), B::splat(inv.z)],
+                origin: splat3(origin),
+                inv: splat3(inv),
                 parallel: [
                     dir.x.abs() < MIN_DIR,
                     dir.y.abs() < MIN_DIR,
                     dir.z.abs() < MIN_DIR,
                 ],
-                tmin: B::splat(ray.tmin),
+                tmin: L::splat(ray.tmin),
             },
-            origin: splat3(origin),
-            tmin: L::splat(ray.tmin),
             dir_lanes: splat3(dir),
             shear,
             mode: ray.flags & 3,
@@ -245,7 +241,7 @@ impl<'r, L: Lanes, B: BoxLanes> RayState<'r, L, B> {
         (best, Some(state))
     }
 
-    /// Tests the leaf's `count` triangles from leaf-order `first`, four at a time, accepting
+    /// Tests the leaf's `count` triangles from leaf-order `first`, eight at a time, accepting
     /// hits by the twin's rules (ties included).
     #[inline(always)]
     pub fn leaf(
@@ -259,7 +255,7 @@ impl<'r, L: Lanes, B: BoxLanes> RayState<'r, L, B> {
         let ray = self.ray;
         let mut k = 0;
         while k < count {
-            let group = (count - k).min(4);
+            let group = (count - k).min(8);
             let mut lanes = (1u32 << group) - 1;
             if !masks.is_empty() {
                 for i in 0..group {
@@ -275,12 +271,12 @@ impl<'r, L: Lanes, B: BoxLanes> RayState<'r, L, B> {
             self.best.triangle_tests += lanes.count_ones();
             let v = L::gather(scene.triangles, first + k, group);
             let h = if scene.watertight {
-                watertight4(v, self.origin, &self.shear)
+                watertight(v, self.r.origin, &self.shear)
             } else {
-                moller_trumbore4(v, self.origin, self.dir_lanes)
+                moller_trumbore(v, self.r.origin, self.dir_lanes)
             };
-            let in_range = L::and(h.t.gt(self.tmin), h.t.le(L::splat(self.limit)));
-            let mut hits = L::bits(L::and(h.hit, in_range)) & lanes;
+            let in_range = L::and(h.t.gt(self.r.tmin), h.t.le(L::splat(self.limit)));
+            let mut hits = h.hit & L::bits(in_range) & lanes;
             if hits != 0 {
                 let (t, u, v, det) = (
                     h.t.to_array(),
@@ -341,13 +337,13 @@ impl<'r, L: Lanes, B: BoxLanes> RayState<'r, L, B> {
 /// Traces one kernel-frame ray: the twin's answer (and, in all-hits mode, its list), with this
 /// walk's own b and i. `stack` holds at least [`stack_size`] entries.
 #[inline(always)]
-pub fn trace<L: Lanes, B: BoxLanes>(
+pub fn trace<L: Lanes8>(
     scene: &Scene<'_>,
     ray: &GpuRay,
     hit_list: &mut [GpuHitEntry],
     stack: &mut [Entry],
 ) -> GpuHit {
-    let (miss, state) = RayState::<L, B>::new(scene, ray);
+    let (miss, state) = RayState::<L>::new(scene, ray);
     let Some(mut st) = state else {
         return miss;
     };
@@ -449,7 +445,7 @@ pub fn coherent(rays: &[GpuRay], scene_size: f32) -> bool {
 /// stack, one order). `lists` holds each ray's all-hits list in turn; `stack` holds at least
 /// [`stack_size`] entries.
 #[inline(always)]
-pub fn trace_packet<L: Lanes, B: BoxLanes>(
+pub fn trace_packet<L: Lanes8>(
     scene: &Scene<'_>,
     rays: &[GpuRay],
     lists: &mut [GpuHitEntry],
@@ -459,13 +455,13 @@ pub fn trace_packet<L: Lanes, B: BoxLanes>(
     let k = lists.len() / PACKET;
     let mut list_parts = lists.chunks_mut(k.max(1));
     let mut empty: [&mut [GpuHitEntry]; PACKET] = Default::default();
-    let mut states: [Option<RayState<'_, L, B>>; PACKET] = Default::default();
+    let mut states: [Option<RayState<'_, L>>; PACKET] = Default::default();
     let mut alive = 0u32;
     for i in 0..PACKET {
         if k > 0 {
             empty[i] = list_parts.next().expect("a list per ray");
         }
-        let (miss, state) = RayState::<L, B>::new(scene, &rays[i]);
+        let (miss, state) = RayState::<L>::new(scene, &rays[i]);
         out[i] = miss;
         if state.is_some() {
             alive |= 1 << i;

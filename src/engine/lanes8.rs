@@ -1,15 +1,17 @@
-//! Eight f32 lanes for the box test of an 8-wide node: one lane per child box.
+//! Eight f32 lanes: the SIMD vocabulary the engine's walk is written in. One lane per child box
+//! of an 8-wide node, and one per triangle of a leaf (up to eight at a time).
 //!
-//! [`BoxLanes`] has two implementations: [`Avx`] (one 256-bit AVX register, used where the CPU
-//! has AVX2, see `engine::Engine`) and [`Pair`] (two sets of four [`Lanes`], for the SSE and
-//! portable paths). Each operation is one IEEE-754 operation per lane, the same as the scalar
-//! twin's `ray_box`: no fused multiply-add, no reassociation, so every path computes the same
-//! bits for the same box.
+//! [`Lanes8`] has two implementations: [`Avx`] (one 256-bit AVX register, used where the CPU
+//! has AVX2, see `engine::Engine`) and [`Pair`] (two sets of four [`Lanes`]: SSE2 on x86-64,
+//! plain arrays everywhere). Each operation is one IEEE-754 operation per lane, the same as the
+//! scalar twin's: no fused multiply-add, no reassociation, so every path computes the bits the
+//! scalar code computes.
 
 use super::lanes::Lanes;
+use crate::layout::GpuTriangle;
 
-/// Eight f32 lanes and their masks: what the 8-wide box test needs.
-pub trait BoxLanes: Copy {
+/// Eight f32 lanes and their masks.
+pub trait Lanes8: Copy {
     /// A lane mask (all ones or all zeros per lane).
     type Mask: Copy;
     /// `x` in every lane.
@@ -24,29 +26,45 @@ pub trait BoxLanes: Copy {
     fn sub(self, o: Self) -> Self;
     /// Lane-wise `self * o`.
     fn mul(self, o: Self) -> Self;
+    /// Lane-wise `self / o`.
+    fn div(self, o: Self) -> Self;
     /// Lane-wise minimum (the operands are never NaN where it is used).
     fn min(self, o: Self) -> Self;
     /// Lane-wise maximum (the operands are never NaN where it is used).
     fn max(self, o: Self) -> Self;
     /// Lane-wise absolute value.
     fn abs(self) -> Self;
+    /// Lane-wise `self < o`.
+    fn lt(self, o: Self) -> Self::Mask;
     /// Lane-wise `self <= o`.
     fn le(self, o: Self) -> Self::Mask;
+    /// Lane-wise `self > o`.
+    fn gt(self, o: Self) -> Self::Mask;
     /// Lane-wise `self >= o`.
     fn ge(self, o: Self) -> Self::Mask;
+    /// Lane-wise `self == o`.
+    fn eq(self, o: Self) -> Self::Mask;
     /// Lane-wise `m ? a : b`.
     fn select(m: Self::Mask, a: Self, b: Self) -> Self;
     /// Lane-wise and.
     fn and(a: Self::Mask, b: Self::Mask) -> Self::Mask;
+    /// Lane-wise or.
+    fn or(a: Self::Mask, b: Self::Mask) -> Self::Mask;
+    /// Lane-wise `a & !b`.
+    fn andnot(a: Self::Mask, b: Self::Mask) -> Self::Mask;
     /// Bit `i` set when lane `i` is set.
     fn bits(m: Self::Mask) -> u32;
+    /// Eight triangles' vertices as `[vertex][axis]` lanes, lane `i` from triangle
+    /// `first + min(i, count - 1)` (the last one repeated past `count`, `1 <= count <= 8`).
+    /// The values are copies, bit for bit.
+    fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Self; 3]; 3];
 }
 
 /// Eight lanes as two sets of four: lanes 0–3 in the first, 4–7 in the second.
 #[derive(Clone, Copy, Debug)]
 pub struct Pair<L>(L, L);
 
-impl<L: Lanes> BoxLanes for Pair<L> {
+impl<L: Lanes> Lanes8 for Pair<L> {
     type Mask = (L::Mask, L::Mask);
     #[inline(always)]
     fn splat(x: f32) -> Self {
@@ -77,6 +95,10 @@ impl<L: Lanes> BoxLanes for Pair<L> {
         Pair(self.0.mul(o.0), self.1.mul(o.1))
     }
     #[inline(always)]
+    fn div(self, o: Self) -> Self {
+        Pair(self.0.div(o.0), self.1.div(o.1))
+    }
+    #[inline(always)]
     fn min(self, o: Self) -> Self {
         Pair(self.0.min(o.0), self.1.min(o.1))
     }
@@ -89,12 +111,24 @@ impl<L: Lanes> BoxLanes for Pair<L> {
         Pair(self.0.abs(), self.1.abs())
     }
     #[inline(always)]
+    fn lt(self, o: Self) -> Self::Mask {
+        (self.0.lt(o.0), self.1.lt(o.1))
+    }
+    #[inline(always)]
     fn le(self, o: Self) -> Self::Mask {
         (self.0.le(o.0), self.1.le(o.1))
     }
     #[inline(always)]
+    fn gt(self, o: Self) -> Self::Mask {
+        (self.0.gt(o.0), self.1.gt(o.1))
+    }
+    #[inline(always)]
     fn ge(self, o: Self) -> Self::Mask {
         (self.0.ge(o.0), self.1.ge(o.1))
+    }
+    #[inline(always)]
+    fn eq(self, o: Self) -> Self::Mask {
+        (self.0.eq(o.0), self.1.eq(o.1))
     }
     #[inline(always)]
     fn select(m: Self::Mask, a: Self, b: Self) -> Self {
@@ -105,8 +139,33 @@ impl<L: Lanes> BoxLanes for Pair<L> {
         (L::and(a.0, b.0), L::and(a.1, b.1))
     }
     #[inline(always)]
+    fn or(a: Self::Mask, b: Self::Mask) -> Self::Mask {
+        (L::or(a.0, b.0), L::or(a.1, b.1))
+    }
+    #[inline(always)]
+    fn andnot(a: Self::Mask, b: Self::Mask) -> Self::Mask {
+        (L::andnot(a.0, b.0), L::andnot(a.1, b.1))
+    }
+    #[inline(always)]
     fn bits(m: Self::Mask) -> u32 {
         L::bits(m.0) | L::bits(m.1) << 4
+    }
+    #[inline(always)]
+    fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Self; 3]; 3] {
+        let lo = L::gather(triangles, first, count.min(4));
+        // Past `count` the lanes repeat the last triangle: a whole second half of it when
+        // there are four or fewer.
+        let hi = if count > 4 {
+            L::gather(triangles, first + 4, count - 4)
+        } else {
+            L::gather(triangles, first + count - 1, 1)
+        };
+        let pair = |v: usize, a: usize| Pair(lo[v][a], hi[v][a]);
+        [
+            [pair(0, 0), pair(0, 1), pair(0, 2)],
+            [pair(1, 0), pair(1, 1), pair(1, 2)],
+            [pair(2, 0), pair(2, 1), pair(2, 2)],
+        ]
     }
 }
 
@@ -115,7 +174,9 @@ pub use avx::Avx;
 
 #[cfg(target_arch = "x86_64")]
 mod avx {
-    use super::BoxLanes;
+    use super::Lanes8;
+    use crate::engine::lanes::{Lanes, Sse};
+    use crate::layout::GpuTriangle;
     use std::arch::x86_64::*;
 
     /// One 256-bit AVX register. Only for code compiled with AVX enabled and run where the CPU
@@ -127,7 +188,7 @@ mod avx {
     // SAFETY (every block below): these lanes are only used inside functions compiled with AVX2
     // enabled, which run only after `Simd::Avx2` was detected (AVX2 implies AVX); the
     // intrinsics read and write their register operands, and `load` / `to_array` whole arrays.
-    impl BoxLanes for Avx {
+    impl Lanes8 for Avx {
         type Mask = __m256;
         #[inline(always)]
         fn splat(x: f32) -> Self {
@@ -156,6 +217,10 @@ mod avx {
             unsafe { Self(_mm256_mul_ps(self.0, o.0)) }
         }
         #[inline(always)]
+        fn div(self, o: Self) -> Self {
+            unsafe { Self(_mm256_div_ps(self.0, o.0)) }
+        }
+        #[inline(always)]
         fn min(self, o: Self) -> Self {
             unsafe { Self(_mm256_min_ps(self.0, o.0)) }
         }
@@ -168,12 +233,24 @@ mod avx {
             unsafe { Self(_mm256_andnot_ps(_mm256_set1_ps(-0.0), self.0)) }
         }
         #[inline(always)]
+        fn lt(self, o: Self) -> __m256 {
+            unsafe { _mm256_cmp_ps::<_CMP_LT_OQ>(self.0, o.0) }
+        }
+        #[inline(always)]
         fn le(self, o: Self) -> __m256 {
             unsafe { _mm256_cmp_ps::<_CMP_LE_OQ>(self.0, o.0) }
         }
         #[inline(always)]
+        fn gt(self, o: Self) -> __m256 {
+            unsafe { _mm256_cmp_ps::<_CMP_GT_OQ>(self.0, o.0) }
+        }
+        #[inline(always)]
         fn ge(self, o: Self) -> __m256 {
             unsafe { _mm256_cmp_ps::<_CMP_GE_OQ>(self.0, o.0) }
+        }
+        #[inline(always)]
+        fn eq(self, o: Self) -> __m256 {
+            unsafe { _mm256_cmp_ps::<_CMP_EQ_OQ>(self.0, o.0) }
         }
         #[inline(always)]
         fn select(m: __m256, a: Self, b: Self) -> Self {
@@ -184,8 +261,34 @@ mod avx {
             unsafe { _mm256_and_ps(a, b) }
         }
         #[inline(always)]
+        fn or(a: __m256, b: __m256) -> __m256 {
+            unsafe { _mm256_or_ps(a, b) }
+        }
+        #[inline(always)]
+        fn andnot(a: __m256, b: __m256) -> __m256 {
+            unsafe { _mm256_andnot_ps(b, a) }
+        }
+        #[inline(always)]
         fn bits(m: __m256) -> u32 {
             unsafe { _mm256_movemask_ps(m) as u32 }
+        }
+        /// The SSE gather of each half, joined.
+        #[inline(always)]
+        fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Self; 3]; 3] {
+            let lo = Sse::gather(triangles, first, count.min(4));
+            let hi = if count > 4 {
+                Sse::gather(triangles, first + 4, count - 4)
+            } else {
+                Sse::gather(triangles, first + count - 1, 1)
+            };
+            let join = |v: usize, a: usize| unsafe {
+                Avx(_mm256_set_m128(hi[v][a].register(), lo[v][a].register()))
+            };
+            [
+                [join(0, 0), join(0, 1), join(0, 2)],
+                [join(1, 0), join(1, 1), join(1, 2)],
+                [join(2, 0), join(2, 1), join(2, 2)],
+            ]
         }
     }
 }
