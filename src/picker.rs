@@ -457,12 +457,19 @@ pub struct CpuPicker {
     packets: bool,
 }
 
+/// The engine traces batches in the order given, however large ([`CpuPicker::set_reorder_from`]
+/// turns [`RayOrder`] on): on the 1M incoherent sets of the bunny, the dragon and the DEM its
+/// pick ran 1.1–1.45× faster unsorted (BENCHMARKS.md, "Engine width"); the 8-wide walk gains
+/// less from sorted rays than the sort costs. The twin and the GPU keep sorting from
+/// [`DEFAULT_REORDER_FROM`].
+pub const ENGINE_REORDER_FROM: usize = usize::MAX;
+
 impl CpuPicker {
     /// A CPU engine picker over `built`, on the best lanes this CPU has (see [`Simd::detect`]).
     pub fn new(built: Arc<BuiltScene>) -> Self {
         Self {
             built,
-            reorder_from: DEFAULT_REORDER_FROM,
+            reorder_from: ENGINE_REORDER_FROM,
             simd: Simd::detect(),
             packets: true,
         }

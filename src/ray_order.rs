@@ -14,9 +14,10 @@ use crate::layout::{GpuHit, GpuHitEntry, GpuRay};
 use glam::Vec3;
 use rayon::prelude::*;
 
-/// Batches from this many rays are reordered by default; smaller ones are traced as given
-/// (`usize::MAX` turns reordering off). From here on it won on both scenes and both paths, sort
-/// included; below it the gain is within noise (BENCHMARKS.md, "Ray reordering").
+/// Batches from this many rays are reordered by default on the twin and the GPU; smaller ones
+/// are traced as given (`usize::MAX` turns reordering off). From here on it won on both scenes
+/// and both paths, sort included; below it the gain is within noise (BENCHMARKS.md, "Ray
+/// reordering"). The CPU engine does not sort (`picker::ENGINE_REORDER_FROM`).
 pub const DEFAULT_REORDER_FROM: usize = 65_536;
 
 /// Bits per axis of the origin's Morton code.
