@@ -56,13 +56,7 @@ pub trait Lanes: Copy {
     /// The values are copies, bit for bit.
     #[inline(always)]
     fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Self; 3]; 3] {
-        let last = count - 1;
-        let t: [&GpuTriangle; 4] = [
-            &triangles[first],
-            &triangles[first + last.min(1)],
-            &triangles[first + last.min(2)],
-            &triangles[first + last.min(3)],
-        ];
+        let t = four_triangles(triangles, first, count);
         let lane = |v: fn(&GpuTriangle) -> [f32; 3], a: usize| {
             Self::from_array([v(t[0])[a], v(t[1])[a], v(t[2])[a], v(t[3])[a]])
         };
@@ -72,6 +66,19 @@ pub trait Lanes: Copy {
 }
 
 use crate::layout::GpuTriangle;
+
+/// The four triangles a gather reads: `first + min(i, count - 1)` for lane `i` (written out, not
+/// `array::from_fn`, which was left as an out-of-line call in the walk).
+#[inline(always)]
+fn four_triangles(triangles: &[GpuTriangle], first: usize, count: usize) -> [&GpuTriangle; 4] {
+    let last = count - 1;
+    [
+        &triangles[first],
+        &triangles[first + last.min(1)],
+        &triangles[first + last.min(2)],
+        &triangles[first + last.min(3)],
+    ]
+}
 
 /// Plain arrays: the fallback for targets without SSE, and the reference the SIMD lanes must
 /// match (the equivalence tests run both).
@@ -285,13 +292,7 @@ mod sse {
         /// set directly.
         #[inline(always)]
         fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Sse; 3]; 3] {
-            let last = count - 1;
-            let t: [&GpuTriangle; 4] = [
-                &triangles[first],
-                &triangles[first + last.min(1)],
-                &triangles[first + last.min(2)],
-                &triangles[first + last.min(3)],
-            ];
+            let t = super::four_triangles(triangles, first, count);
             // SAFETY: each pointer is a whole `GpuTriangle` (nine f32, 36 bytes); the loads
             // read floats 0..4 and 4..8 of it.
             unsafe {
