@@ -10,6 +10,9 @@
 use super::lanes::Lanes;
 use crate::layout::GpuTriangle;
 
+/// Lanes per [`Lanes8`] value.
+pub const LANES: usize = 8;
+
 /// Eight f32 lanes and their masks.
 pub trait Lanes8: Copy {
     /// A lane mask (all ones or all zeros per lane).

@@ -11,7 +11,7 @@
     reason = "as in the twin: `!(a <= b)` also rejects NaN"
 )]
 
-use super::lanes8::Lanes8;
+use super::lanes8::{LANES, Lanes8};
 use super::wide::{EMPTY, INNER, WIDTH, WideNode};
 use crate::cpu::ray_box::{BOX_PAD, HUGE, MIN_DIR, safe_inverse};
 use crate::cpu::ray_triangle::shear_for;
@@ -51,7 +51,7 @@ pub fn stack_size(depth: usize) -> usize {
     (WIDTH - 1) * depth + 1
 }
 
-/// The ray in box lanes, set up once for the box tests.
+/// The ray in lanes, set up once.
 struct RayLanes<L: Lanes8> {
     origin: [L; 3],
     inv: [L; 3],
@@ -107,7 +107,7 @@ fn sub3<L: Lanes8>(a: [L; 3], b: [L; 3]) -> [L; 3] {
     [a[0].sub(b[0]), a[1].sub(b[1]), a[2].sub(b[2])]
 }
 
-/// Four triangle tests' results: lanes that hit, and t, u, v, det per lane.
+/// Eight triangle tests' results: lanes that hit, and t, u, v, det per lane.
 struct Hits<L: Lanes8> {
     /// Bit `i` set when lane `i` hit.
     hit: u32,
@@ -141,7 +141,7 @@ fn watertight<L: Lanes8>(v: [[L; 3]; 3], origin: [L; 3], shear: &[[L; 3]; 3]) ->
         .add(w_edge.mul(dot(c, *sz)));
     let inv_det = L::splat(1.0).div(det);
     Hits {
-        hit: !L::bits(miss) & 0xFF,
+        hit: !L::bits(miss) & ((1 << LANES) - 1),
         t: t_scaled.mul(inv_det),
         u: v_edge.mul(inv_det),
         v: w_edge.mul(inv_det),
@@ -173,8 +173,7 @@ fn moller_trumbore<L: Lanes8>(v: [[L; 3]; 3], origin: [L; 3], dir: [L; 3]) -> Hi
     }
 }
 
-/// One ray's walk state: the ray in lanes (box lanes `B` for the node tests, triangle lanes `L`
-/// for the leaves), its best hit so far and its current limit.
+/// One ray's walk state: the ray in lanes, its best hit so far and its current limit.
 pub struct RayState<'r, L: Lanes8> {
     ray: &'r GpuRay,
     r: RayLanes<L>,
@@ -255,7 +254,7 @@ impl<'r, L: Lanes8> RayState<'r, L> {
         let ray = self.ray;
         let mut k = 0;
         while k < count {
-            let group = (count - k).min(8);
+            let group = (count - k).min(LANES);
             let mut lanes = (1u32 << group) - 1;
             if !masks.is_empty() {
                 for i in 0..group {
