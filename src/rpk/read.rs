@@ -357,7 +357,7 @@ fn take_sections(
         let k = SECTIONS
             .iter()
             .position(|&s| s == kind)
-            .expect("a version 2 section");
+            .expect("a section of this version");
         (table[k].clone(), table_crc(bytes, table, k))
     };
     let record_bytes = |kind: Kind| {
