@@ -459,9 +459,9 @@ pub struct CpuPicker {
 
 /// The engine traces batches in the order given, however large ([`CpuPicker::set_reorder_from`]
 /// turns [`RayOrder`] on): on the 1M incoherent sets of the bunny, the dragon and the DEM its
-/// pick ran 1.1–1.45× faster unsorted (BENCHMARKS.md, "Engine width"); the 8-wide walk gains
-/// less from sorted rays than the sort costs. The twin and the GPU keep sorting from
-/// [`DEFAULT_REORDER_FROM`].
+/// pick ran 1.1–1.45× faster unsorted (BENCHMARKS.md, "What changed, each step measured A/B");
+/// the 8-wide walk gains less from sorted rays than the sort costs. The twin and the GPU keep
+/// sorting from [`DEFAULT_REORDER_FROM`].
 pub const ENGINE_REORDER_FROM: usize = usize::MAX;
 
 impl CpuPicker {
