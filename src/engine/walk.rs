@@ -64,6 +64,13 @@ struct RayLanes<L: Lanes8> {
 /// `[tmin, limit]`, and each one's padded near distance.
 #[inline(always)]
 fn boxes<L: Lanes8>(node: &WideNode, r: &RayLanes<L>, limit: f32) -> (u32, L) {
+    let (met, lo) = boxes_met(node, r, limit);
+    (L::bits(met), lo)
+}
+
+/// [`boxes`] with the children met as a lane mask.
+#[inline(always)]
+fn boxes_met<L: Lanes8>(node: &WideNode, r: &RayLanes<L>, limit: f32) -> (L::Mask, L) {
     let mut near = [L::splat(0.0); 3];
     let mut far = [L::splat(0.0); 3];
     for a in 0..3 {
@@ -85,7 +92,7 @@ fn boxes<L: Lanes8>(node: &WideNode, r: &RayLanes<L>, limit: f32) -> (u32, L) {
     let pad = L::splat(BOX_PAD);
     let lo = t_near.sub(t_near.abs().mul(pad)).max(r.tmin);
     let hi = t_far.add(t_far.abs().mul(pad)).min(L::splat(limit));
-    (L::bits(lo.le(hi)), lo)
+    (lo.le(hi), lo)
 }
 
 #[inline(always)]
@@ -410,6 +417,22 @@ pub fn trace<L: Lanes8>(
 /// Rays per packet.
 pub const PACKET: usize = 8;
 
+const _: () = assert!(
+    PACKET == 8 && WIDTH == 8,
+    "transpose_bits works on 8 x 8 bits"
+);
+
+/// Transposes an 8 × 8 bit matrix held row by row in bytes: bit `8 i + j` moves to `8 j + i`.
+#[inline(always)]
+fn transpose_bits(mut x: u64) -> u64 {
+    let t = (x ^ (x >> 7)) & 0x00AA_00AA_00AA_00AA;
+    x ^= t ^ (t << 7);
+    let t = (x ^ (x >> 14)) & 0x0000_CCCC_0000_CCCC;
+    x ^= t ^ (t << 14);
+    let t = (x ^ (x >> 28)) & 0x0000_0000_F0F0_F0F0;
+    x ^ t ^ (t << 28)
+}
+
 /// A pushed child of the packet walk: which rays still need it and each one's near distance.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PacketEntry {
@@ -505,35 +528,36 @@ pub fn trace_packet<L: Lanes8>(
             let node = &scene.nodes[entry.child as usize];
             let occupied = u32::from(node.occupied);
             let tested = occupied.count_ones();
-            let mut met = [0u32; PACKET];
+            // Byte i of `met`: the children ray i meets; `key`: per child, the nearest near
+            // distance among the rays that meet it.
+            let mut met = 0u64;
+            let mut key = L::splat(f32::INFINITY);
             let mut near = [[0.0f32; WIDTH]; PACKET];
-            let mut union = 0u32;
             let mut rays_left = active;
             while rays_left != 0 {
                 let i = rays_left.trailing_zeros() as usize;
                 rays_left &= rays_left - 1;
                 if let Some(s) = states[i].as_mut() {
                     s.best.box_tests += tested;
-                    let (bits, lo) = boxes(node, &s.r, s.limit);
-                    met[i] = bits & occupied;
+                    let (hit, lo) = boxes_met(node, &s.r, s.limit);
+                    met |= u64::from(L::bits(hit) & occupied) << (8 * i);
+                    key = key.min(L::select(hit, lo, L::splat(f32::INFINITY)));
                     near[i] = lo.to_array();
-                    union |= met[i];
                 }
             }
+            // Byte c: the rays that meet child c.
+            let rays_of = transpose_bits(met);
+            let keys = key.to_array();
             // The children met by any ray, pushed farthest (by their nearest ray) first.
+            let mut union =
+                occupied & (0..PACKET).fold(0, |u, i| u | (met >> (8 * i)) as u32 & 0xFF);
             let mut children = [(0u32, 0u32, 0.0f32); WIDTH];
             let mut n = 0;
             while union != 0 {
                 let c = union.trailing_zeros() as usize;
                 union &= union - 1;
-                let mut rays = 0u32;
-                let mut key = f32::INFINITY;
-                for i in 0..PACKET {
-                    if met[i] >> c & 1 != 0 {
-                        rays |= 1 << i;
-                        key = key.min(near[i][c]);
-                    }
-                }
+                let rays = (rays_of >> (8 * c)) as u32 & 0xFF;
+                let key = keys[c];
                 let mut j = n;
                 while j > 0 && children[j - 1].2 < key {
                     children[j] = children[j - 1];
@@ -581,6 +605,25 @@ pub fn trace_packet<L: Lanes8>(
     for i in 0..PACKET {
         if let Some(s) = states[i].take() {
             out[i] = s.finish(empty[i]);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::transpose_bits;
+
+    #[test]
+    fn transpose_bits_moves_bit_8i_plus_j_to_8j_plus_i() {
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        for _ in 0..64 {
+            let t = transpose_bits(x);
+            for i in 0..8 {
+                for j in 0..8 {
+                    assert_eq!(x >> (8 * i + j) & 1, t >> (8 * j + i) & 1, "{x:#x} {i} {j}");
+                }
+            }
+            x = x.rotate_left(13).wrapping_mul(0x2545_F491_4F6C_DD1D);
         }
     }
 }
