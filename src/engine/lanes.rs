@@ -2,9 +2,9 @@
 //! sets of four where the CPU has no AVX2.
 //!
 //! [`Lanes`] has two implementations: [`Sse`] (x86-64 SSE2, always present there; its gather
-//! also fills the halves of the AVX lanes) and [`Portable`] (plain arrays, every target). Each operation is one IEEE-754 operation per lane,
-//! the same as the scalar twin's: no fused multiply-add, no reassociation, so a lane computes the
-//! bits the scalar code computes.
+//! also fills the halves of the AVX lanes) and [`Portable`] (plain arrays, every target). Each
+//! operation is one IEEE-754 operation per lane, the same as the scalar twin's: no fused
+//! multiply-add, no reassociation, so a lane computes the bits the scalar code computes.
 
 /// Four f32 lanes and four lane masks.
 pub trait Lanes: Copy {

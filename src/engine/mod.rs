@@ -1,6 +1,10 @@
 //! The CPU engine behind `--backend cpu`: the binary tree collapsed 8-wide ([`wide`]), walked
 //! nearest child first ([`walk`]) with SIMD tests of eight child boxes or eight triangles at a
 //! time in eight f32 lanes ([`lanes8`]: one AVX register, or two sets of four [`lanes`]).
+//!
+//! It answers exactly what the kernel and its twin (`cpu::traverse`, `--backend reference`)
+//! answer, bit for bit, in every mode; `tests/engine.rs` holds it to that on every scene, ray
+//! kind and mode, with SIMD and with the portable lanes.
 
 pub mod lanes;
 pub mod lanes8;
@@ -89,8 +93,8 @@ pub struct Engine<'a> {
 
 impl<'a> Engine<'a> {
     /// The engine over `wide` (collapsed from `bvh`) for `settings`, on `simd` lanes (the
-    /// portable lanes where the CPU lacks them), with coherent groups of [`walk::PACKET`] rays as packets
-    /// when `packets` holds.
+    /// portable lanes where the CPU lacks them), with coherent groups of [`walk::PACKET`] rays
+    /// as packets when `packets` holds.
     pub fn new(
         wide: &'a WideBvh,
         bvh: &'a Bvh,
@@ -137,9 +141,9 @@ impl<'a> Engine<'a> {
 }
 
 /// Traces each ray as its flags say, in parallel, on `simd` lanes (falling back to the portable
-/// lanes where the CPU lacks them), with coherent groups of [`walk::PACKET`] rays as packets when `packets`
-/// holds. Returns the per-ray records and the all-hits lists
-/// (`max_hits` entries per ray), as `cpu::trace_batch` does.
+/// lanes where the CPU lacks them), with coherent groups of [`walk::PACKET`] rays as packets
+/// when `packets` holds. Returns the per-ray records and the all-hits lists (`max_hits` entries
+/// per ray), as `cpu::trace_batch` does.
 pub fn trace_batch(
     wide: &WideBvh,
     bvh: &Bvh,
@@ -171,8 +175,8 @@ struct Stacks {
     packet: Vec<walk::PacketEntry>,
 }
 
-/// Traces a task's rays: each group of four coherent rays (camera rays, pixel picks) as one
-/// packet, any other ray alone. Either way each ray gets its single-ray answer.
+/// Traces a task's rays: each group of [`walk::PACKET`] coherent rays (camera rays, pixel
+/// picks) as one packet, any other ray alone. Either way each ray gets its single-ray answer.
 #[inline(always)]
 fn trace_chunk<L: Lanes8>(
     scene: &walk::Scene<'_>,
