@@ -57,10 +57,28 @@ pub trait Lanes8: Copy {
     fn andnot(a: Self::Mask, b: Self::Mask) -> Self::Mask;
     /// Bit `i` set when lane `i` is set.
     fn bits(m: Self::Mask) -> u32;
-    /// Eight triangles' vertices as `[vertex][axis]` lanes, lane `i` from triangle
-    /// `first + min(i, count - 1)` (the last one repeated past `count`, `1 <= count <= 8`).
-    /// The values are copies, bit for bit.
+    /// Up to eight triangles' vertices as `[vertex][axis]` lanes, lane `i < count` from triangle
+    /// `first + i` (`1 <= count <= 8`); the lanes past `count` hold copies of triangles of the
+    /// range, for the caller to mask. The values are copies, bit for bit.
     fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Self; 3]; 3];
+}
+
+/// The two sets of four lanes a gather of up to eight triangles joins (lanes 0–3, 4–7). With
+/// four triangles or fewer the second is the first again: its lanes are all past `count`, so
+/// no triangle is read twice.
+#[inline(always)]
+fn halves<L: Lanes>(
+    triangles: &[GpuTriangle],
+    first: usize,
+    count: usize,
+) -> ([[L; 3]; 3], [[L; 3]; 3]) {
+    let lo = L::gather(triangles, first, count.min(4));
+    let hi = if count > 4 {
+        L::gather(triangles, first + 4, count - 4)
+    } else {
+        lo
+    };
+    (lo, hi)
 }
 
 /// Eight lanes as two sets of four: lanes 0–3 in the first, 4–7 in the second.
@@ -155,14 +173,7 @@ impl<L: Lanes> Lanes8 for Pair<L> {
     }
     #[inline(always)]
     fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Self; 3]; 3] {
-        let lo = L::gather(triangles, first, count.min(4));
-        // Past `count` the lanes repeat the last triangle: a whole second half of it when
-        // there are four or fewer.
-        let hi = if count > 4 {
-            L::gather(triangles, first + 4, count - 4)
-        } else {
-            L::gather(triangles, first + count - 1, 1)
-        };
+        let (lo, hi) = halves::<L>(triangles, first, count);
         let pair = |v: usize, a: usize| Pair(lo[v][a], hi[v][a]);
         [
             [pair(0, 0), pair(0, 1), pair(0, 2)],
@@ -178,7 +189,7 @@ pub use avx::Avx;
 #[cfg(target_arch = "x86_64")]
 mod avx {
     use super::Lanes8;
-    use crate::engine::lanes::{Lanes, Sse};
+    use crate::engine::lanes::Sse;
     use crate::layout::GpuTriangle;
     use std::arch::x86_64::*;
 
@@ -278,12 +289,7 @@ mod avx {
         /// The SSE gather of each half, joined.
         #[inline(always)]
         fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Self; 3]; 3] {
-            let lo = Sse::gather(triangles, first, count.min(4));
-            let hi = if count > 4 {
-                Sse::gather(triangles, first + 4, count - 4)
-            } else {
-                Sse::gather(triangles, first + count - 1, 1)
-            };
+            let (lo, hi) = super::halves::<Sse>(triangles, first, count);
             let join = |v: usize, a: usize| unsafe {
                 Avx(_mm256_set_m128(hi[v][a].register(), lo[v][a].register()))
             };

@@ -531,6 +531,7 @@ pub fn trace_packet<L: Lanes8>(
             // Byte i of `met`: the children ray i meets; `key`: per child, the nearest near
             // distance among the rays that meet it.
             let mut met = 0u64;
+            let mut union = 0u32;
             let mut key = L::splat(f32::INFINITY);
             let mut near = [[0.0f32; WIDTH]; PACKET];
             let mut rays_left = active;
@@ -540,7 +541,9 @@ pub fn trace_packet<L: Lanes8>(
                 if let Some(s) = states[i].as_mut() {
                     s.best.box_tests += tested;
                     let (hit, lo) = boxes_met(node, &s.r, s.limit);
-                    met |= u64::from(L::bits(hit) & occupied) << (8 * i);
+                    let bits = L::bits(hit) & occupied;
+                    met |= u64::from(bits) << (8 * i);
+                    union |= bits;
                     key = key.min(L::select(hit, lo, L::splat(f32::INFINITY)));
                     near[i] = lo.to_array();
                 }
@@ -548,9 +551,7 @@ pub fn trace_packet<L: Lanes8>(
             // Byte c: the rays that meet child c.
             let rays_of = transpose_bits(met);
             let keys = key.to_array();
-            // The children met by any ray, pushed farthest (by their nearest ray) first.
-            let mut union =
-                occupied & (0..PACKET).fold(0, |u, i| u | (met >> (8 * i)) as u32 & 0xFF);
+            // The children met by any ray (`union`), pushed farthest (by their nearest ray) first.
             let mut children = [(0u32, 0u32, 0.0f32); WIDTH];
             let mut n = 0;
             while union != 0 {
