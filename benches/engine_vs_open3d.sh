@@ -24,7 +24,8 @@ printf '%-28s %-11s %12s %12s %12s %12s %9s %9s\n' scene rays "cpu 1t" "cpu 2t" 
 echo '(M rays/s: raypick pick = bench --ray-file, best of passes; Open3D cast_rays, best of passes)'
 scenes="${SCENES:-$data/bunny.obj $data/dragon_res2.obj $data/jacksboro_fault_dem_utm.asc}"
 for scene in $scenes; do
-    stem="$(basename "${scene%%.*}")"
+    stem="$(basename "$scene")"
+    stem="${stem%%.*}"
     if [ ! -f "$dir/$stem-camera.txt" ]; then
         "$python" benches/make_ray_sets.py --scene "$scene" --count "$count" --out-prefix "$dir/$stem"
     fi
