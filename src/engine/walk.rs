@@ -124,9 +124,15 @@ struct Hits<L: Lanes8> {
     det: L,
 }
 
-/// The twin's `ray_triangle_watertight` in lanes.
+/// The twin's `ray_triangle_watertight` in lanes; `None` when none of the `lanes` passes the
+/// edge tests (then no division is made: most leaf tests of a ray miss every triangle).
 #[inline(always)]
-fn watertight<L: Lanes8>(v: [[L; 3]; 3], origin: [L; 3], shear: &[[L; 3]; 3]) -> Hits<L> {
+fn watertight<L: Lanes8>(
+    v: [[L; 3]; 3],
+    origin: [L; 3],
+    shear: &[[L; 3]; 3],
+    lanes: u32,
+) -> Option<Hits<L>> {
     let a = sub3(v[0], origin);
     let b = sub3(v[1], origin);
     let c = sub3(v[2], origin);
@@ -142,18 +148,22 @@ fn watertight<L: Lanes8>(v: [[L; 3]; 3], origin: [L; 3], shear: &[[L; 3]; 3]) ->
     let positive = L::or(L::or(u_edge.gt(zero), v_edge.gt(zero)), w_edge.gt(zero));
     let det = u_edge.add(v_edge).add(w_edge);
     let miss = L::or(L::and(negative, positive), det.eq(zero));
+    let hit = !L::bits(miss) & lanes;
+    if hit == 0 {
+        return None;
+    }
     let t_scaled = u_edge
         .mul(dot(a, *sz))
         .add(v_edge.mul(dot(b, *sz)))
         .add(w_edge.mul(dot(c, *sz)));
     let inv_det = L::splat(1.0).div(det);
-    Hits {
-        hit: !L::bits(miss) & ((1 << LANES) - 1),
+    Some(Hits {
+        hit,
         t: t_scaled.mul(inv_det),
         u: v_edge.mul(inv_det),
         v: w_edge.mul(inv_det),
         det,
-    }
+    })
 }
 
 /// The twin's `ray_triangle` (Möller–Trumbore) in lanes.
@@ -277,9 +287,13 @@ impl<'r, L: Lanes8> RayState<'r, L> {
             self.best.triangle_tests += lanes.count_ones();
             let v = L::gather(scene.triangles, first + k, group);
             let h = if scene.watertight {
-                watertight(v, self.r.origin, &self.shear)
+                watertight(v, self.r.origin, &self.shear, lanes)
             } else {
-                moller_trumbore(v, self.r.origin, self.dir_lanes)
+                Some(moller_trumbore(v, self.r.origin, self.dir_lanes))
+            };
+            let Some(h) = h else {
+                k += group;
+                continue;
             };
             let in_range = L::and(h.t.gt(self.r.tmin), h.t.le(L::splat(self.limit)));
             let mut hits = h.hit & L::bits(in_range) & lanes;
@@ -353,62 +367,71 @@ pub fn trace<L: Lanes8>(
     let Some(mut st) = state else {
         return miss;
     };
+    // The node being visited: the root, then the nearest child met (kept out of the stack, so
+    // a descent costs no push and pop), then the nearest pushed entry still in range.
+    let (mut child, mut kind) = (0u32, INNER);
     let mut top = 0usize;
-    stack[0] = Entry {
-        child: 0,
-        kind: INNER,
-        near: ray.tmin,
-    };
-    top += 1;
-    while top > 0 {
-        top -= 1;
-        let entry = stack[top];
-        if !(entry.near <= st.limit) {
-            continue;
-        }
-        if entry.kind == INNER {
-            let node = &scene.nodes[entry.child as usize];
+    loop {
+        if kind == INNER {
+            let node = &scene.nodes[child as usize];
             let occupied = u32::from(node.occupied);
             st.best.box_tests += occupied.count_ones();
             let (bits, near) = boxes(node, &st.r, st.limit);
             let mut bits = bits & occupied;
-            if bits == 0 {
+            if bits != 0 {
+                let first = bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                if bits == 0 {
+                    // One child met: go straight down.
+                    (child, kind) = (node.child[first], node.kind[first]);
+                    continue;
+                }
+                let near = near.to_array();
+                // Push the children met farthest first, but for the nearest, visited next.
+                let mut order = [0usize; WIDTH];
+                order[0] = first;
+                let mut n = 1;
+                while bits != 0 {
+                    let lane = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    let mut j = n;
+                    while j > 0 && near[order[j - 1]] < near[lane] {
+                        order[j] = order[j - 1];
+                        j -= 1;
+                    }
+                    order[j] = lane;
+                    n += 1;
+                }
+                for &lane in &order[..n - 1] {
+                    stack[top] = Entry {
+                        child: node.child[lane],
+                        kind: node.kind[lane],
+                        near: near[lane],
+                    };
+                    top += 1;
+                }
+                let nearest = order[n - 1];
+                (child, kind) = (node.child[nearest], node.kind[nearest]);
                 continue;
             }
-            let near = near.to_array();
-            // Push the hit children farthest first, so the nearest is popped next.
-            let mut order = [0usize; WIDTH];
-            let mut n = 0;
-            while bits != 0 {
-                let lane = bits.trailing_zeros() as usize;
-                bits &= bits - 1;
-                let mut j = n;
-                while j > 0 && near[order[j - 1]] < near[lane] {
-                    order[j] = order[j - 1];
-                    j -= 1;
-                }
-                order[j] = lane;
-                n += 1;
+        } else {
+            debug_assert!(kind != EMPTY);
+            st.leaf(scene, child as usize, usize::from(kind), hit_list);
+            if st.done {
+                break;
             }
-            for &lane in &order[..n] {
-                stack[top] = Entry {
-                    child: node.child[lane],
-                    kind: node.kind[lane],
-                    near: near[lane],
-                };
-                top += 1;
-            }
-            continue;
         }
-        debug_assert!(entry.kind != EMPTY);
-        st.leaf(
-            scene,
-            entry.child as usize,
-            usize::from(entry.kind),
-            hit_list,
-        );
-        if st.done {
-            break;
+        // Pop the nearest pushed entry the ray can still reach.
+        loop {
+            if top == 0 {
+                return st.finish(hit_list);
+            }
+            top -= 1;
+            let entry = stack[top];
+            if entry.near <= st.limit {
+                (child, kind) = (entry.child, entry.kind);
+                break;
+            }
         }
     }
     st.finish(hit_list)
@@ -493,37 +516,18 @@ pub fn trace_packet<L: Lanes8>(
     if alive == 0 {
         return;
     }
-    let mut top = 1usize;
-    stack[0] = PacketEntry {
+    // The entry being visited: the root, then the nearest child met (kept out of the stack, so
+    // a descent costs no push and pop; every ray it lists met its box within its limit), then
+    // the nearest pushed entry some ray can still reach.
+    let mut entry = PacketEntry {
         child: 0,
         kind: INNER,
         rays: alive,
-        near: {
-            let mut near = [0.0; PACKET];
-            for (n, r) in near.iter_mut().zip(rays) {
-                *n = r.tmin;
-            }
-            near
-        },
+        near: [0.0; PACKET],
     };
-    while top > 0 {
-        top -= 1;
-        let entry = stack[top];
-        // The rays that still need this entry: alive, and not past it.
-        let mut active = 0u32;
-        let mut candidates = entry.rays & alive;
-        while candidates != 0 {
-            let i = candidates.trailing_zeros() as usize;
-            candidates &= candidates - 1;
-            if let Some(s) = &states[i]
-                && entry.near[i] <= s.limit
-            {
-                active |= 1 << i;
-            }
-        }
-        if active == 0 {
-            continue;
-        }
+    let mut active = alive;
+    let mut top = 0usize;
+    loop {
         if entry.kind == INNER {
             let node = &scene.nodes[entry.child as usize];
             let occupied = u32::from(node.occupied);
@@ -548,58 +552,89 @@ pub fn trace_packet<L: Lanes8>(
                     near[i] = lo.to_array();
                 }
             }
-            // Byte c: the rays that meet child c.
-            let rays_of = transpose_bits(met);
-            let keys = key.to_array();
-            // The children met by any ray (`union`), pushed farthest (by their nearest ray) first.
-            let mut children = [(0u32, 0u32, 0.0f32); WIDTH];
-            let mut n = 0;
-            while union != 0 {
-                let c = union.trailing_zeros() as usize;
-                union &= union - 1;
-                let rays = (rays_of >> (8 * c)) as u32 & 0xFF;
-                let key = keys[c];
-                let mut j = n;
-                while j > 0 && children[j - 1].2 < key {
-                    children[j] = children[j - 1];
-                    j -= 1;
+            if union != 0 {
+                // Byte c: the rays that meet child c.
+                let rays_of = transpose_bits(met);
+                let keys = key.to_array();
+                // The children met by any ray (`union`), farthest (by their nearest ray) first.
+                let mut children = [(0u32, 0u32, 0.0f32); WIDTH];
+                let mut n = 0;
+                while union != 0 {
+                    let c = union.trailing_zeros() as usize;
+                    union &= union - 1;
+                    let rays = (rays_of >> (8 * c)) as u32 & 0xFF;
+                    let key = keys[c];
+                    let mut j = n;
+                    while j > 0 && children[j - 1].2 < key {
+                        children[j] = children[j - 1];
+                        j -= 1;
+                    }
+                    children[j] = (c as u32, rays, key);
+                    n += 1;
                 }
-                children[j] = (c as u32, rays, key);
-                n += 1;
-            }
-            for &(c, rays, _) in &children[..n] {
-                let c = c as usize;
-                let mut child_near = [0.0; PACKET];
-                for (to, from) in child_near.iter_mut().zip(&near) {
-                    *to = from[c];
-                }
-                stack[top] = PacketEntry {
-                    child: node.child[c],
-                    kind: node.kind[c],
-                    rays,
-                    near: child_near,
+                let child_entry = |c: u32, rays: u32| {
+                    let c = c as usize;
+                    let mut child_near = [0.0; PACKET];
+                    for (to, from) in child_near.iter_mut().zip(&near) {
+                        *to = from[c];
+                    }
+                    PacketEntry {
+                        child: node.child[c],
+                        kind: node.kind[c],
+                        rays,
+                        near: child_near,
+                    }
                 };
-                top += 1;
+                for &(c, rays, _) in &children[..n - 1] {
+                    stack[top] = child_entry(c, rays);
+                    top += 1;
+                }
+                let (c, rays, _) = children[n - 1];
+                entry = child_entry(c, rays);
+                active = rays;
+                continue;
             }
-            continue;
+        } else {
+            let mut rays_left = active;
+            while rays_left != 0 {
+                let i = rays_left.trailing_zeros() as usize;
+                rays_left &= rays_left - 1;
+                if let Some(s) = states[i].as_mut() {
+                    s.leaf(
+                        scene,
+                        entry.child as usize,
+                        usize::from(entry.kind),
+                        empty[i],
+                    );
+                    if s.done {
+                        alive &= !(1 << i);
+                    }
+                }
+            }
+            if alive == 0 {
+                break;
+            }
         }
-        let mut rays_left = active;
-        while rays_left != 0 {
-            let i = rays_left.trailing_zeros() as usize;
-            rays_left &= rays_left - 1;
-            if let Some(s) = states[i].as_mut() {
-                s.leaf(
-                    scene,
-                    entry.child as usize,
-                    usize::from(entry.kind),
-                    empty[i],
-                );
-                if s.done {
-                    alive &= !(1 << i);
+        // Pop the nearest pushed entry that some ray still needs: alive, and not past it.
+        active = 0;
+        while active == 0 {
+            if top == 0 {
+                break;
+            }
+            top -= 1;
+            entry = stack[top];
+            let mut candidates = entry.rays & alive;
+            while candidates != 0 {
+                let i = candidates.trailing_zeros() as usize;
+                candidates &= candidates - 1;
+                if let Some(s) = &states[i]
+                    && entry.near[i] <= s.limit
+                {
+                    active |= 1 << i;
                 }
             }
         }
-        if alive == 0 {
+        if active == 0 {
             break;
         }
     }
