@@ -43,6 +43,7 @@ pub mod io;
 pub mod layout;
 pub mod names;
 pub mod picker;
+pub mod prefetch;
 pub mod query;
 pub mod ray;
 pub mod ray_order;

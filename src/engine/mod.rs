@@ -17,6 +17,7 @@ use crate::layout::{GpuHit, GpuHitEntry, GpuRay};
 use lanes::Portable;
 use lanes8::{Lanes8, Pair};
 use rayon::prelude::*;
+use std::cell::RefCell;
 use std::sync::OnceLock;
 pub use wide::WideBvh;
 
@@ -124,19 +125,28 @@ impl<'a> Engine<'a> {
     /// Traces `rays` into `hits` (one per ray) and `lists` (`lists.len() / rays.len()` entries
     /// per ray; empty outside all-hits mode), on the calling thread.
     pub fn trace_chunk(&self, rays: &[GpuRay], hits: &mut [GpuHit], lists: &mut [GpuHitEntry]) {
-        let mut stacks = Stacks {
-            single: vec![walk::Entry::default(); self.stack],
-            packet: vec![walk::PacketEntry::default(); self.stack],
-        };
-        let scene = &self.scene;
-        match self.simd {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: `Engine::new` checked that this CPU has AVX2.
-            Simd::Avx2 => unsafe { trace_chunk_avx2(scene, rays, hits, lists, &mut stacks) },
-            #[cfg(target_arch = "x86_64")]
-            Simd::Sse => trace_chunk::<Pair<lanes::Sse>>(scene, rays, hits, lists, &mut stacks),
-            _ => trace_chunk::<Pair<Portable>>(scene, rays, hits, lists, &mut stacks),
+        thread_local! {
+            /// This thread's stacks, kept between chunks (the interleaved walks' are a few
+            /// tens of KiB).
+            static STACKS: RefCell<Stacks> = const {
+                RefCell::new(Stacks { single: Vec::new(), packet: Vec::new() })
+            };
         }
+        STACKS.with_borrow_mut(|stacks| {
+            if stacks.packet.len() < self.stack {
+                stacks.single = vec![walk::Entry::default(); self.stack * walk::INTERLEAVED];
+                stacks.packet = vec![walk::PacketEntry::default(); self.stack];
+            }
+            let scene = &self.scene;
+            match self.simd {
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: `Engine::new` checked that this CPU has AVX2.
+                Simd::Avx2 => unsafe { trace_chunk_avx2(scene, rays, hits, lists, stacks) },
+                #[cfg(target_arch = "x86_64")]
+                Simd::Sse => trace_chunk::<Pair<lanes::Sse>>(scene, rays, hits, lists, stacks),
+                _ => trace_chunk::<Pair<Portable>>(scene, rays, hits, lists, stacks),
+            }
+        })
     }
 }
 
@@ -169,14 +179,16 @@ pub fn trace_batch(
     (hits, lists)
 }
 
-/// One task's stacks, for the single-ray and the packet walk.
+/// One task's stacks, for the interleaved single-ray walks and the packet walk.
 struct Stacks {
+    /// [`walk::INTERLEAVED`] stacks, one after another.
     single: Vec<walk::Entry>,
     packet: Vec<walk::PacketEntry>,
 }
 
 /// Traces a task's rays: each group of [`walk::PACKET`] coherent rays (camera rays, pixel
-/// picks) as one packet, any other ray alone. Either way each ray gets its single-ray answer.
+/// picks) as one packet, runs of other rays [`walk::INTERLEAVED`] at a time, interleaved. Either
+/// way each ray gets its single-ray answer.
 #[inline(always)]
 fn trace_chunk<L: Lanes8>(
     scene: &walk::Scene<'_>,
@@ -191,24 +203,35 @@ fn trace_chunk<L: Lanes8>(
         lists.len() / rays.len()
     };
     let p = walk::PACKET;
+    let packet_at = |i: usize| {
+        scene.packets && i + p <= rays.len() && walk::coherent(&rays[i..i + p], scene.size)
+    };
     let mut i = 0;
     while i < rays.len() {
-        let group = &rays[i..(i + p).min(rays.len())];
-        if scene.packets && walk::coherent(group, scene.size) {
+        if packet_at(i) {
             walk::trace_packet::<L>(
                 scene,
-                group,
+                &rays[i..i + p],
                 &mut lists[i * k..(i + p) * k],
                 &mut stacks.packet,
                 &mut hits[i..i + p],
             );
-        } else {
-            for (j, ray) in group.iter().enumerate() {
-                let list = &mut lists[(i + j) * k..(i + j + 1) * k];
-                hits[i + j] = walk::trace::<L>(scene, ray, list, &mut stacks.single);
-            }
+            i += p;
+            continue;
         }
-        i += group.len();
+        // A run of groups that are not packets, up to `INTERLEAVED` rays.
+        let mut end = (i + p).min(rays.len());
+        while end < rays.len() && end - i < walk::INTERLEAVED && !packet_at(end) {
+            end = (end + p).min(rays.len()).min(i + walk::INTERLEAVED);
+        }
+        walk::trace_interleaved::<L>(
+            scene,
+            &rays[i..end],
+            &mut lists[i * k..end * k],
+            &mut stacks.single,
+            &mut hits[i..end],
+        );
+        i = end;
     }
 }
 

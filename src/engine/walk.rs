@@ -1,5 +1,7 @@
-//! One ray through the wide tree: eight child boxes per SIMD test, children visited nearest
-//! first from a small stack, leaves tested eight triangles at a time.
+//! Rays through the wide tree: eight child boxes per SIMD test, children visited nearest
+//! first from a small stack, leaves tested eight triangles at a time. Incoherent rays walk
+//! [`INTERLEAVED`] at a time, a node each in turn, each ray's next node prefetched, so one thread
+//! waits on several cache misses at once; coherent groups of [`PACKET`] rays share one walk.
 //!
 //! The answers are the twin's (`cpu::traverse`) bit for bit: each box test is `ray_box`'s
 //! arithmetic in lanes, each triangle test is `ray_triangle` / `ray_triangle_watertight`'s, and
@@ -354,26 +356,45 @@ impl<'r, L: Lanes8> RayState<'r, L> {
     }
 }
 
-/// Traces one kernel-frame ray: the twin's answer (and, in all-hits mode, its list), with this
-/// walk's own b and i. `stack` holds at least [`stack_size`] entries.
+/// One ray's walk, resumable a node at a time ([`Walk::step`]), which [`trace_interleaved`] runs
+/// for several rays in turn.
+struct Walk<'r, L: Lanes8> {
+    st: RayState<'r, L>,
+    /// The node or leaf visited next: the root, then the nearest child met (kept out of the
+    /// stack, so a descent costs no push and pop), then the nearest pushed entry still in range.
+    child: u32,
+    kind: u8,
+    /// Entries on this ray's stack.
+    top: usize,
+}
+
+/// Asks the cache for what visiting `child` will read: a node's four lines, or a leaf's
+/// triangles.
 #[inline(always)]
-pub fn trace<L: Lanes8>(
-    scene: &Scene<'_>,
-    ray: &GpuRay,
-    hit_list: &mut [GpuHitEntry],
-    stack: &mut [Entry],
-) -> GpuHit {
-    let (miss, state) = RayState::<L>::new(scene, ray);
-    let Some(mut st) = state else {
-        return miss;
-    };
-    // The node being visited: the root, then the nearest child met (kept out of the stack, so
-    // a descent costs no push and pop), then the nearest pushed entry still in range.
-    let (mut child, mut kind) = (0u32, INNER);
-    let mut top = 0usize;
-    loop {
-        if kind == INNER {
-            let node = &scene.nodes[child as usize];
+fn prefetch(scene: &Scene<'_>, child: u32, kind: u8) {
+    if kind == INNER {
+        crate::prefetch::item(scene.nodes, child as usize);
+    } else if (child as usize) < scene.triangles.len() {
+        crate::prefetch::bytes(
+            scene.triangles[child as usize..].as_ptr() as *const u8,
+            usize::from(kind) * size_of::<GpuTriangle>(),
+        );
+    }
+}
+
+impl<'r, L: Lanes8> Walk<'r, L> {
+    /// Visits the next node or leaf and chooses (and prefetches) the one after it;
+    /// `false` when the walk is over.
+    #[inline(always)]
+    fn step(
+        &mut self,
+        scene: &Scene<'_>,
+        stack: &mut [Entry],
+        hit_list: &mut [GpuHitEntry],
+    ) -> bool {
+        let st = &mut self.st;
+        if self.kind == INNER {
+            let node = &scene.nodes[self.child as usize];
             let occupied = u32::from(node.occupied);
             st.best.box_tests += occupied.count_ones();
             let (bits, near) = boxes(node, &st.r, st.limit);
@@ -381,60 +402,114 @@ pub fn trace<L: Lanes8>(
             if bits != 0 {
                 let first = bits.trailing_zeros() as usize;
                 bits &= bits - 1;
-                if bits == 0 {
+                let next = if bits == 0 {
                     // One child met: go straight down.
-                    (child, kind) = (node.child[first], node.kind[first]);
-                    continue;
-                }
-                let near = near.to_array();
-                // Push the children met farthest first, but for the nearest, visited next.
-                let mut order = [0usize; WIDTH];
-                order[0] = first;
-                let mut n = 1;
-                while bits != 0 {
-                    let lane = bits.trailing_zeros() as usize;
-                    bits &= bits - 1;
-                    let mut j = n;
-                    while j > 0 && near[order[j - 1]] < near[lane] {
-                        order[j] = order[j - 1];
-                        j -= 1;
+                    first
+                } else {
+                    let near = near.to_array();
+                    // Push the children met farthest first, but for the nearest, visited next.
+                    let mut order = [0usize; WIDTH];
+                    order[0] = first;
+                    let mut n = 1;
+                    while bits != 0 {
+                        let lane = bits.trailing_zeros() as usize;
+                        bits &= bits - 1;
+                        let mut j = n;
+                        while j > 0 && near[order[j - 1]] < near[lane] {
+                            order[j] = order[j - 1];
+                            j -= 1;
+                        }
+                        order[j] = lane;
+                        n += 1;
                     }
-                    order[j] = lane;
-                    n += 1;
-                }
-                for &lane in &order[..n - 1] {
-                    stack[top] = Entry {
-                        child: node.child[lane],
-                        kind: node.kind[lane],
-                        near: near[lane],
-                    };
-                    top += 1;
-                }
-                let nearest = order[n - 1];
-                (child, kind) = (node.child[nearest], node.kind[nearest]);
-                continue;
+                    for &lane in &order[..n - 1] {
+                        stack[self.top] = Entry {
+                            child: node.child[lane],
+                            kind: node.kind[lane],
+                            near: near[lane],
+                        };
+                        self.top += 1;
+                    }
+                    order[n - 1]
+                };
+                (self.child, self.kind) = (node.child[next], node.kind[next]);
+                prefetch(scene, self.child, self.kind);
+                return true;
             }
         } else {
-            debug_assert!(kind != EMPTY);
-            st.leaf(scene, child as usize, usize::from(kind), hit_list);
+            debug_assert!(self.kind != EMPTY);
+            st.leaf(scene, self.child as usize, usize::from(self.kind), hit_list);
             if st.done {
-                break;
+                return false;
             }
         }
         // Pop the nearest pushed entry the ray can still reach.
-        loop {
-            if top == 0 {
-                return st.finish(hit_list);
-            }
-            top -= 1;
-            let entry = stack[top];
+        while self.top > 0 {
+            self.top -= 1;
+            let entry = stack[self.top];
             if entry.near <= st.limit {
-                (child, kind) = (entry.child, entry.kind);
-                break;
+                (self.child, self.kind) = (entry.child, entry.kind);
+                prefetch(scene, self.child, self.kind);
+                return true;
+            }
+        }
+        false
+    }
+}
+
+/// Rays walked in turn by [`trace_interleaved`].
+pub const INTERLEAVED: usize = 32;
+
+/// Traces up to [`INTERLEAVED`] kernel-frame rays, each by its own walk (the twin's answer and,
+/// in all-hits mode, its list, with this walk's own b and i), a node at a time in turn, each
+/// ray's next node or leaf
+/// prefetched when it is chosen: while one ray waits for memory the others compute, so a
+/// thread keeps several cache misses in flight instead of one. `lists` holds each ray's
+/// all-hits list in turn; `stacks` holds [`INTERLEAVED`] stacks of [`stack_size`] entries.
+#[inline(always)]
+pub fn trace_interleaved<L: Lanes8>(
+    scene: &Scene<'_>,
+    rays: &[GpuRay],
+    lists: &mut [GpuHitEntry],
+    stacks: &mut [Entry],
+    out: &mut [GpuHit],
+) {
+    let k = lists.len() / rays.len().max(1);
+    let depth = stacks.len() / INTERLEAVED;
+    let mut walks: [Option<Walk<'_, L>>; INTERLEAVED] = Default::default();
+    let mut going = 0u32;
+    for (i, ray) in rays.iter().enumerate().take(INTERLEAVED) {
+        let (miss, state) = RayState::<L>::new(scene, ray);
+        out[i] = miss;
+        if let Some(st) = state {
+            walks[i] = Some(Walk {
+                st,
+                child: 0,
+                kind: INNER,
+                top: 0,
+            });
+            going |= 1 << i;
+        }
+    }
+    while going != 0 {
+        let mut left = going;
+        while left != 0 {
+            let i = left.trailing_zeros() as usize;
+            left &= left - 1;
+            let stack = &mut stacks[i * depth..(i + 1) * depth];
+            let list = &mut lists[i * k..(i + 1) * k];
+            if let Some(walk) = walks[i].as_mut()
+                && !walk.step(scene, stack, list)
+            {
+                going &= !(1 << i);
             }
         }
     }
-    st.finish(hit_list)
+    for (i, walk) in walks.iter_mut().enumerate() {
+        if let Some(w) = walk.take() {
+            out[i] = w.st.finish(&lists[i * k..(i + 1) * k]);
+        }
+    }
 }
 
 /// Rays per packet.
