@@ -192,6 +192,21 @@ fn moller_trumbore<L: Lanes8>(v: [[L; 3]; 3], origin: [L; 3], dir: [L; 3]) -> Hi
     }
 }
 
+/// The lanes of a group of `group` leaf-order triangles from `first` that a ray with layer
+/// `mask` may hit (bit `i`: triangle `first + i`).
+#[inline(always)]
+fn lanes_for(scene: &Scene<'_>, mask: u32, first: usize, group: usize) -> u32 {
+    let mut lanes = (1u32 << group) - 1;
+    if !scene.triangle_masks.is_empty() {
+        for i in 0..group {
+            if scene.triangle_masks[first + i] & mask == 0 {
+                lanes &= !(1 << i);
+            }
+        }
+    }
+    lanes
+}
+
 /// One ray's walk state: the ray in lanes, its best hit so far and its current limit.
 pub struct RayState<'r, L: Lanes8> {
     ray: &'r GpuRay,
@@ -269,76 +284,82 @@ impl<'r, L: Lanes8> RayState<'r, L> {
         count: usize,
         hit_list: &mut [GpuHitEntry],
     ) {
-        let masks = scene.triangle_masks;
-        let ray = self.ray;
         let mut k = 0;
         while k < count {
             let group = (count - k).min(LANES);
-            let mut lanes = (1u32 << group) - 1;
-            if !masks.is_empty() {
-                for i in 0..group {
-                    if masks[first + k + i] & ray.mask == 0 {
-                        lanes &= !(1 << i);
-                    }
-                }
-                if lanes == 0 {
-                    k += group;
-                    continue;
-                }
-            }
-            self.best.triangle_tests += lanes.count_ones();
-            let v = L::gather(scene.triangles, first + k, group);
-            let h = if scene.watertight {
-                watertight(v, self.r.origin, &self.shear, lanes)
-            } else {
-                Some(moller_trumbore(v, self.r.origin, self.dir_lanes))
-            };
-            let Some(h) = h else {
-                k += group;
-                continue;
-            };
-            let in_range = L::and(h.t.gt(self.r.tmin), h.t.le(L::splat(self.limit)));
-            let mut hits = h.hit & L::bits(in_range) & lanes;
-            if hits != 0 {
-                let (t, u, v, det) = (
-                    h.t.to_array(),
-                    h.u.to_array(),
-                    h.v.to_array(),
-                    h.det.to_array(),
-                );
-                while hits != 0 {
-                    let lane = hits.trailing_zeros() as usize;
-                    hits &= hits - 1;
-                    let prim = (first + k + lane) as u32;
-                    if !facing_allowed(det[lane], self.cull) || !(t[lane] <= self.limit) {
-                        continue;
-                    }
-                    if self.mode == MODE_ALL {
-                        let e = GpuHitEntry {
-                            t: t[lane],
-                            prim,
-                            u: u[lane],
-                            v: v[lane],
-                        };
-                        self.limit =
-                            insert_hit(&mut self.best, hit_list, e, ray.tmax, scene.triangle_ids);
-                    } else {
-                        if !closest_accepts(&self.best, t[lane], prim, scene.triangle_ids) {
-                            continue;
-                        }
-                        self.best.t = t[lane];
-                        self.best.prim = prim;
-                        self.best.u = u[lane];
-                        self.best.v = v[lane];
-                        self.limit = t[lane];
-                        if self.mode == MODE_ANY {
-                            self.done = true;
-                            return;
-                        }
-                    }
+            let lanes = lanes_for(scene, self.ray.mask, first + k, group);
+            if lanes != 0 {
+                let v = L::gather(scene.triangles, first + k, group);
+                self.group(scene, &v, first + k, lanes, hit_list);
+                if self.done {
+                    return;
                 }
             }
             k += group;
+        }
+    }
+
+    /// Tests one gathered group of up to eight triangles (lane `i` is leaf-order triangle
+    /// `first + i`; only `lanes` count), accepting hits by the twin's rules (ties included).
+    #[inline(always)]
+    fn group(
+        &mut self,
+        scene: &Scene<'_>,
+        v: &[[L; 3]; 3],
+        first: usize,
+        lanes: u32,
+        hit_list: &mut [GpuHitEntry],
+    ) {
+        let ray = self.ray;
+        self.best.triangle_tests += lanes.count_ones();
+        let h = if scene.watertight {
+            watertight(*v, self.r.origin, &self.shear, lanes)
+        } else {
+            Some(moller_trumbore(*v, self.r.origin, self.dir_lanes))
+        };
+        let Some(h) = h else {
+            return;
+        };
+        let in_range = L::and(h.t.gt(self.r.tmin), h.t.le(L::splat(self.limit)));
+        let mut hits = h.hit & L::bits(in_range) & lanes;
+        if hits == 0 {
+            return;
+        }
+        let (t, u, v, det) = (
+            h.t.to_array(),
+            h.u.to_array(),
+            h.v.to_array(),
+            h.det.to_array(),
+        );
+        while hits != 0 {
+            let lane = hits.trailing_zeros() as usize;
+            hits &= hits - 1;
+            let prim = (first + lane) as u32;
+            if !facing_allowed(det[lane], self.cull) || !(t[lane] <= self.limit) {
+                continue;
+            }
+            if self.mode == MODE_ALL {
+                let e = GpuHitEntry {
+                    t: t[lane],
+                    prim,
+                    u: u[lane],
+                    v: v[lane],
+                };
+                self.limit = insert_hit(&mut self.best, hit_list, e, ray.tmax, scene.triangle_ids);
+            } else {
+                if !closest_accepts(&self.best, t[lane], prim, scene.triangle_ids) {
+                    continue;
+                }
+                self.best.t = t[lane];
+                self.best.prim = prim;
+                self.best.u = u[lane];
+                self.best.v = v[lane];
+                self.limit = t[lane];
+                if self.mode == MODE_ANY {
+                    self.done = true;
+                    return;
+                }
+            }
         }
     }
 
@@ -670,21 +691,30 @@ pub fn trace_packet<L: Lanes8>(
                 continue;
             }
         } else {
-            let mut rays_left = active;
-            while rays_left != 0 {
-                let i = rays_left.trailing_zeros() as usize;
-                rays_left &= rays_left - 1;
-                if let Some(s) = states[i].as_mut() {
-                    s.leaf(
-                        scene,
-                        entry.child as usize,
-                        usize::from(entry.kind),
-                        empty[i],
-                    );
-                    if s.done {
-                        alive &= !(1 << i);
+            // Each group of the leaf's triangles is gathered once and tested by every ray that
+            // still needs it, in the order a ray alone would test them.
+            let (first, count) = (entry.child as usize, usize::from(entry.kind));
+            let mask = rays[active.trailing_zeros() as usize].mask;
+            let mut k = 0;
+            while k < count && active != 0 {
+                let group = (count - k).min(LANES);
+                let lanes = lanes_for(scene, mask, first + k, group);
+                if lanes != 0 {
+                    let v = L::gather(scene.triangles, first + k, group);
+                    let mut rays_left = active;
+                    while rays_left != 0 {
+                        let i = rays_left.trailing_zeros() as usize;
+                        rays_left &= rays_left - 1;
+                        if let Some(s) = states[i].as_mut() {
+                            s.group(scene, &v, first + k, lanes, empty[i]);
+                            if s.done {
+                                alive &= !(1 << i);
+                                active &= !(1 << i);
+                            }
+                        }
                     }
                 }
+                k += group;
             }
             if alive == 0 {
                 break;
