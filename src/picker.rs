@@ -476,6 +476,7 @@ pub struct CpuPicker {
     reorder_from: usize,
     simd: Simd,
     packets: bool,
+    interleave: Option<bool>,
 }
 
 /// The engine traces batches in the order given, however large ([`CpuPicker::set_reorder_from`]
@@ -493,6 +494,7 @@ impl CpuPicker {
             reorder_from: ENGINE_REORDER_FROM,
             simd: Simd::detect(),
             packets: true,
+            interleave: None,
         }
     }
 
@@ -513,6 +515,29 @@ impl CpuPicker {
     pub fn set_packets(&mut self, on: bool) {
         self.packets = on;
     }
+
+    /// Walks incoherent rays interleaved (`Some(true)`), one by one (`Some(false)`), or as the
+    /// tree's size decides (`None`, the default: [`crate::engine::walk::interleave_for`]).
+    /// Answers are the same either way.
+    pub fn set_interleave(&mut self, on: Option<bool>) {
+        self.interleave = on;
+    }
+
+    /// The engine over this picker's scene for `settings`, as this picker is set.
+    fn engine<'a>(&'a self, settings: &TraceSettings<'a>) -> Result<crate::engine::Engine<'a>> {
+        let built = &self.built;
+        let mut engine = crate::engine::Engine::new(
+            built.wide()?,
+            &built.bvh,
+            settings,
+            self.simd,
+            self.packets,
+        );
+        if let Some(on) = self.interleave {
+            engine.set_interleave(on);
+        }
+        Ok(engine)
+    }
 }
 
 impl Tracer for CpuPicker {
@@ -525,26 +550,13 @@ impl Tracer for CpuPicker {
         rays: &[GpuRay],
         settings: &TraceSettings<'_>,
     ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
-        let built = &self.built;
-        Ok(crate::engine::trace_batch(
-            built.wide()?,
-            &built.bvh,
-            rays,
-            settings,
-            self.simd,
-            self.packets,
-        ))
+        Ok(self
+            .engine(settings)?
+            .trace_batch(rays, settings.max_hits as usize))
     }
 
     fn chunk_trace<'a>(&'a self, settings: &TraceSettings<'a>) -> Result<Option<ChunkTrace<'a>>> {
-        let built = &self.built;
-        let engine = crate::engine::Engine::new(
-            built.wide()?,
-            &built.bvh,
-            settings,
-            self.simd,
-            self.packets,
-        );
+        let engine = self.engine(settings)?;
         Ok(Some(Box::new(move |rays, hits| {
             engine.trace_chunk(rays, hits, &mut [])
         })))

@@ -199,7 +199,7 @@ fn every_builder_and_backend_gives_the_same_bits() {
 
 /// Larger batches than the equivalence suites use (the engine's per-task chunks, the ray
 /// reordering from 65,536 rays, camera rays traced as packets of eight), on every lane kind, with
-/// and without packets, in every mode.
+/// and without packets, incoherent rays interleaved and one by one, in every mode.
 #[test]
 fn large_batches_on_every_lane_kind_and_walk_match_the_twin() {
     let scene = Scene::from_meshes([("soup".to_string(), triangle_soup(20_000, 50.0, 3))]).unwrap();
@@ -230,12 +230,16 @@ fn large_batches_on_every_lane_kind_and_walk_match_the_twin() {
             if !simd.is_available() {
                 continue;
             }
-            for packets in [true, false] {
+            for (packets, interleave) in [(true, true), (true, false), (false, true)] {
                 let mut engine = CpuPicker::new(built.clone());
                 engine.set_simd(simd);
                 engine.set_packets(packets);
+                engine.set_interleave(Some(interleave));
                 let got = answers(&mut engine, &batch, &query);
-                let what = format!("{} packets {packets} {query:?}", simd.name());
+                let what = format!(
+                    "{} packets {packets} interleave {interleave} {query:?}",
+                    simd.name()
+                );
                 assert_same(&what, query.mode, &got, &twin, &batch);
             }
         }

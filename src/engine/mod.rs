@@ -112,6 +112,7 @@ impl<'a> Engine<'a> {
                 watertight: settings.watertight,
                 packets,
                 size: wide.size(),
+                interleave: walk::interleave_for(wide.nodes.len(), bvh.triangles.len()),
             },
             simd: if simd.is_available() {
                 simd
@@ -120,6 +121,31 @@ impl<'a> Engine<'a> {
             },
             stack: walk::stack_size(wide.depth),
         }
+    }
+
+    /// Walks incoherent rays interleaved (`true`) or one by one (`false`), instead of as the
+    /// tree's size decides ([`walk::interleave_for`]). Answers are the same either way.
+    pub fn set_interleave(&mut self, on: bool) {
+        self.scene.interleave = on;
+    }
+
+    /// Traces `rays` in parallel: the per-ray records and the all-hits lists (`max_hits`
+    /// entries per ray; `max_hits` is 0 outside all-hits mode).
+    pub fn trace_batch(&self, rays: &[GpuRay], max_hits: usize) -> (Vec<GpuHit>, Vec<GpuHitEntry>) {
+        let k = max_hits;
+        let mut hits = vec![GpuHit::default(); rays.len()];
+        let mut lists = vec![GpuHitEntry::default(); rays.len() * k];
+        if k == 0 {
+            rays.par_chunks(RAYS_PER_TASK)
+                .zip(hits.par_chunks_mut(RAYS_PER_TASK))
+                .for_each(|(r, h)| self.trace_chunk(r, h, &mut []));
+        } else {
+            rays.par_chunks(RAYS_PER_TASK)
+                .zip(hits.par_chunks_mut(RAYS_PER_TASK))
+                .zip(lists.par_chunks_mut(RAYS_PER_TASK * k))
+                .for_each(|((r, h), l)| self.trace_chunk(r, h, l));
+        }
+        (hits, lists)
     }
 
     /// Traces `rays` into `hits` (one per ray) and `lists` (`lists.len() / rays.len()` entries
@@ -162,21 +188,7 @@ pub fn trace_batch(
     simd: Simd,
     packets: bool,
 ) -> (Vec<GpuHit>, Vec<GpuHitEntry>) {
-    let engine = Engine::new(wide, bvh, settings, simd, packets);
-    let k = settings.max_hits as usize;
-    let mut hits = vec![GpuHit::default(); rays.len()];
-    let mut lists = vec![GpuHitEntry::default(); rays.len() * k];
-    if k == 0 {
-        rays.par_chunks(RAYS_PER_TASK)
-            .zip(hits.par_chunks_mut(RAYS_PER_TASK))
-            .for_each(|(r, h)| engine.trace_chunk(r, h, &mut []));
-    } else {
-        rays.par_chunks(RAYS_PER_TASK)
-            .zip(hits.par_chunks_mut(RAYS_PER_TASK))
-            .zip(lists.par_chunks_mut(RAYS_PER_TASK * k))
-            .for_each(|((r, h), l)| engine.trace_chunk(r, h, l));
-    }
-    (hits, lists)
+    Engine::new(wide, bvh, settings, simd, packets).trace_batch(rays, settings.max_hits as usize)
 }
 
 /// One task's stacks, for the interleaved single-ray walks and the packet walk.
@@ -187,8 +199,9 @@ struct Stacks {
 }
 
 /// Traces a task's rays: each group of [`walk::PACKET`] coherent rays (camera rays, pixel
-/// picks) as one packet, runs of other rays [`walk::INTERLEAVED`] at a time, interleaved. Either
-/// way each ray gets its single-ray answer.
+/// picks) as one packet, runs of other rays [`walk::INTERLEAVED`] at a time, interleaved (on a
+/// large tree, `Scene::interleave`) or one by one. Either way each ray gets its single-ray
+/// answer.
 #[inline(always)]
 fn trace_chunk<L: Lanes8>(
     scene: &walk::Scene<'_>,
@@ -217,6 +230,15 @@ fn trace_chunk<L: Lanes8>(
                 &mut hits[i..i + p],
             );
             i += p;
+            continue;
+        }
+        if !scene.interleave {
+            let end = (i + p).min(rays.len());
+            for j in i..end {
+                let list = &mut lists[j * k..(j + 1) * k];
+                hits[j] = walk::trace::<L>(scene, &rays[j], list, &mut stacks.single);
+            }
+            i = end;
             continue;
         }
         // A run of groups that are not packets, up to `INTERLEAVED` rays.

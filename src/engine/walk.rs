@@ -20,6 +20,7 @@ use crate::cpu::ray_triangle::shear_for;
 use crate::cpu::traverse::{closest_accepts, facing_allowed, insert_hit};
 use crate::layout::{GpuHit, GpuHitEntry, GpuRay, GpuTriangle, MODE_ALL, MODE_ANY, NO_HIT};
 use glam::Vec3;
+use std::marker::PhantomData;
 
 /// What the walk reads: the wide nodes and the shared leaf-order triangle arrays.
 #[derive(Clone, Copy, Debug)]
@@ -38,6 +39,20 @@ pub struct Scene<'a> {
     pub packets: bool,
     /// The largest side of the root's box, for the packet test [`coherent`].
     pub size: f32,
+    /// Whether incoherent rays walk interleaved ([`trace_interleaved`]) rather than one by one
+    /// ([`trace`]): see [`interleave_for`].
+    pub interleave: bool,
+}
+
+/// Nodes and triangles (bytes) from which incoherent rays walk interleaved. On this project's
+/// machine (1 MiB of L2 per core, 32 MiB of L3) interleaving was 20–46% faster on the dragon
+/// (10 MB) and the Jacksboro DEM (25 MB), whose walks wait on the L3 and memory, and 10% slower
+/// on the bunny (3 MB), whose walks mostly hit the L2 (BENCHMARKS.md, "What changed").
+pub const INTERLEAVE_FROM_BYTES: usize = 6 << 20;
+
+/// Whether a tree of `nodes` wide nodes over `triangles` triangles is walked interleaved.
+pub fn interleave_for(nodes: usize, triangles: usize) -> bool {
+    nodes * size_of::<WideNode>() + triangles * size_of::<GpuTriangle>() >= INTERLEAVE_FROM_BYTES
 }
 
 /// A pushed child: what it is and the near end of its box interval (padded, at least tmin).
@@ -53,13 +68,16 @@ pub fn stack_size(depth: usize) -> usize {
     (WIDTH - 1) * depth + 1
 }
 
-/// The ray in lanes, set up once.
+/// What the box test needs of a ray, set up once; kept as scalars, broadcast into lanes where
+/// used (as cheap as loading lanes, and a walk's state stays small: [`trace_interleaved`] keeps
+/// many in the first-level cache).
 struct RayLanes<L: Lanes8> {
-    origin: [L; 3],
-    inv: [L; 3],
+    origin: [f32; 3],
+    inv: [f32; 3],
     /// Per axis: the direction is below `MIN_DIR`, so the slab may leave the ray free.
     parallel: [bool; 3],
-    tmin: L,
+    tmin: f32,
+    lanes: PhantomData<L>,
 }
 
 /// The twin's `ray_box` for a node's eight boxes: which children the ray meets within
@@ -78,12 +96,12 @@ fn boxes_met<L: Lanes8>(node: &WideNode, r: &RayLanes<L>, limit: f32) -> (L::Mas
     for a in 0..3 {
         let min = L::load(&node.min[a]);
         let max = L::load(&node.max[a]);
-        let t0 = min.sub(r.origin[a]).mul(r.inv[a]);
-        let t1 = max.sub(r.origin[a]).mul(r.inv[a]);
+        let (o, inv) = (L::splat(r.origin[a]), L::splat(r.inv[a]));
+        let t0 = min.sub(o).mul(inv);
+        let t1 = max.sub(o).mul(inv);
         near[a] = t0.min(t1);
         far[a] = t0.max(t1);
         if r.parallel[a] {
-            let o = r.origin[a];
             let free = L::and(o.ge(min), o.le(max));
             near[a] = L::select(free, L::splat(-HUGE), near[a]);
             far[a] = L::select(free, L::splat(HUGE), far[a]);
@@ -92,7 +110,7 @@ fn boxes_met<L: Lanes8>(node: &WideNode, r: &RayLanes<L>, limit: f32) -> (L::Mas
     let t_near = near[0].max(near[1]).max(near[2]);
     let t_far = far[0].min(far[1]).min(far[2]);
     let pad = L::splat(BOX_PAD);
-    let lo = t_near.sub(t_near.abs().mul(pad)).max(r.tmin);
+    let lo = t_near.sub(t_near.abs().mul(pad)).max(L::splat(r.tmin));
     let hi = t_far.add(t_far.abs().mul(pad)).min(L::splat(limit));
     (lo.le(hi), lo)
 }
@@ -211,8 +229,9 @@ fn lanes_for(scene: &Scene<'_>, mask: u32, first: usize, group: usize) -> u32 {
 pub struct RayState<'r, L: Lanes8> {
     ray: &'r GpuRay,
     r: RayLanes<L>,
-    dir_lanes: [L; 3],
-    shear: [[L; 3]; 3],
+    dir: [f32; 3],
+    /// The watertight test's shear rows (zero for Möller–Trumbore).
+    shear: [[f32; 3]; 3],
     mode: u32,
     cull: u32,
     /// The answer so far (and this walk's b and i).
@@ -243,27 +262,26 @@ impl<'r, L: Lanes8> RayState<'r, L> {
         let origin = Vec3::from(ray.origin);
         let dir = Vec3::from(ray.dir);
         let inv = safe_inverse(dir);
-        // Written out lane by lane (not `array::map`, which is not always inlined here).
-        let splat3 = |v: Vec3| [L::splat(v.x), L::splat(v.y), L::splat(v.z)];
         let shear = if scene.watertight {
             let [x, y, z] = shear_for(dir).rows();
-            [splat3(x), splat3(y), splat3(z)]
+            [x.to_array(), y.to_array(), z.to_array()]
         } else {
-            [[L::splat(0.0); 3]; 3]
+            [[0.0; 3]; 3]
         };
         let state = Self {
             ray,
             r: RayLanes {
-                origin: splat3(origin),
-                inv: splat3(inv),
+                origin: origin.to_array(),
+                inv: inv.to_array(),
                 parallel: [
                     dir.x.abs() < MIN_DIR,
                     dir.y.abs() < MIN_DIR,
                     dir.z.abs() < MIN_DIR,
                 ],
-                tmin: L::splat(ray.tmin),
+                tmin: ray.tmin,
+                lanes: PhantomData,
             },
-            dir_lanes: splat3(dir),
+            dir: dir.to_array(),
             shear,
             mode: ray.flags & 3,
             cull: (ray.flags >> crate::layout::CULL_SHIFT) & 3,
@@ -312,15 +330,19 @@ impl<'r, L: Lanes8> RayState<'r, L> {
     ) {
         let ray = self.ray;
         self.best.triangle_tests += lanes.count_ones();
+        // Written out lane by lane (not `array::map`, which is not always inlined here).
+        let splat3 = |v: &[f32; 3]| [L::splat(v[0]), L::splat(v[1]), L::splat(v[2])];
+        let origin = splat3(&self.r.origin);
         let h = if scene.watertight {
-            watertight(*v, self.r.origin, &self.shear, lanes)
+            let [x, y, z] = &self.shear;
+            watertight(*v, origin, &[splat3(x), splat3(y), splat3(z)], lanes)
         } else {
-            Some(moller_trumbore(*v, self.r.origin, self.dir_lanes))
+            Some(moller_trumbore(*v, origin, splat3(&self.dir)))
         };
         let Some(h) = h else {
             return;
         };
-        let in_range = L::and(h.t.gt(self.r.tmin), h.t.le(L::splat(self.limit)));
+        let in_range = L::and(h.t.gt(L::splat(self.r.tmin)), h.t.le(L::splat(self.limit)));
         let mut hits = h.hit & L::bits(in_range) & lanes;
         if hits == 0 {
             return;
@@ -389,25 +411,24 @@ struct Walk<'r, L: Lanes8> {
     top: usize,
 }
 
-/// Asks the cache for what visiting `child` will read: a node's four lines, or a leaf's
-/// triangles.
+/// Asks the cache for the start of what visiting `child` will read: a node's first three
+/// lines (its boxes), or a leaf's first three lines of triangles. Three measured faster than the
+/// whole node or leaf, and than one or two lines (BENCHMARKS.md, "What changed").
 #[inline(always)]
 fn prefetch(scene: &Scene<'_>, child: u32, kind: u8) {
-    if kind == INNER {
-        crate::prefetch::item(scene.nodes, child as usize);
-    } else if (child as usize) < scene.triangles.len() {
-        crate::prefetch::bytes(
-            scene.triangles[child as usize..].as_ptr() as *const u8,
-            usize::from(kind) * size_of::<GpuTriangle>(),
-        );
-    }
+    let start = if kind == INNER {
+        scene.nodes.as_ptr().wrapping_add(child as usize) as *const u8
+    } else {
+        scene.triangles.as_ptr().wrapping_add(child as usize) as *const u8
+    };
+    crate::prefetch::bytes(start, 129);
 }
 
 impl<'r, L: Lanes8> Walk<'r, L> {
-    /// Visits the next node or leaf and chooses (and prefetches) the one after it;
-    /// `false` when the walk is over.
+    /// Visits the next node or leaf and chooses the one after it (prefetched when `AHEAD`: the
+    /// interleaved walks visit it a while later); `false` when the walk is over.
     #[inline(always)]
-    fn step(
+    fn step<const AHEAD: bool>(
         &mut self,
         scene: &Scene<'_>,
         stack: &mut [Entry],
@@ -454,7 +475,9 @@ impl<'r, L: Lanes8> Walk<'r, L> {
                     order[n - 1]
                 };
                 (self.child, self.kind) = (node.child[next], node.kind[next]);
-                prefetch(scene, self.child, self.kind);
+                if AHEAD {
+                    prefetch(scene, self.child, self.kind);
+                }
                 return true;
             }
         } else {
@@ -470,7 +493,9 @@ impl<'r, L: Lanes8> Walk<'r, L> {
             let entry = stack[self.top];
             if entry.near <= st.limit {
                 (self.child, self.kind) = (entry.child, entry.kind);
-                prefetch(scene, self.child, self.kind);
+                if AHEAD {
+                    prefetch(scene, self.child, self.kind);
+                }
                 return true;
             }
         }
@@ -478,12 +503,34 @@ impl<'r, L: Lanes8> Walk<'r, L> {
     }
 }
 
+/// Traces one kernel-frame ray: the twin's answer (and, in all-hits mode, its list), with this
+/// walk's own b and i. `stack` holds at least [`stack_size`] entries.
+#[inline(always)]
+pub fn trace<L: Lanes8>(
+    scene: &Scene<'_>,
+    ray: &GpuRay,
+    hit_list: &mut [GpuHitEntry],
+    stack: &mut [Entry],
+) -> GpuHit {
+    let (miss, state) = RayState::<L>::new(scene, ray);
+    let Some(st) = state else {
+        return miss;
+    };
+    let mut walk = Walk {
+        st,
+        child: 0,
+        kind: INNER,
+        top: 0,
+    };
+    while walk.step::<false>(scene, stack, hit_list) {}
+    walk.st.finish(hit_list)
+}
+
 /// Rays walked in turn by [`trace_interleaved`].
 pub const INTERLEAVED: usize = 32;
 
-/// Traces up to [`INTERLEAVED`] kernel-frame rays, each by its own walk (the twin's answer and,
-/// in all-hits mode, its list, with this walk's own b and i), a node at a time in turn, each
-/// ray's next node or leaf
+/// Traces up to [`INTERLEAVED`] kernel-frame rays, each by [`trace`]'s walk (the same answers
+/// and statistics), but a node at a time in turn, each ray's next node or leaf
 /// prefetched when it is chosen: while one ray waits for memory the others compute, so a
 /// thread keeps several cache misses in flight instead of one. `lists` holds each ray's
 /// all-hits list in turn; `stacks` holds [`INTERLEAVED`] stacks of [`stack_size`] entries.
@@ -520,7 +567,7 @@ pub fn trace_interleaved<L: Lanes8>(
             let stack = &mut stacks[i * depth..(i + 1) * depth];
             let list = &mut lists[i * k..(i + 1) * k];
             if let Some(walk) = walks[i].as_mut()
-                && !walk.step(scene, stack, list)
+                && !walk.step::<true>(scene, stack, list)
             {
                 going &= !(1 << i);
             }

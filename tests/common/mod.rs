@@ -77,17 +77,27 @@ pub fn assert_query_equivalent(
     let reference = ReferencePicker::new(built.clone())
         .query(&plain, query)
         .expect("reference query");
-    for simd in [Simd::Avx2, Simd::Sse, Simd::Portable] {
+    // Each lane kind with the walk the tree's size chooses, and AVX2 (or the best there is)
+    // with the other walk too.
+    let walks = [
+        (Simd::Avx2, None),
+        (Simd::Sse, None),
+        (Simd::Portable, None),
+        (Simd::best_available(), Some(true)),
+        (Simd::best_available(), Some(false)),
+    ];
+    for (simd, interleave) in walks {
         if !simd.is_available() {
             continue;
         }
         let mut engine = CpuPicker::new(built.clone());
         engine.set_simd(simd);
+        engine.set_interleave(interleave);
         let answers = engine.query(&plain, query).expect("engine query");
         let differ = differences(query.mode, &answers, &reference);
         assert!(
             differ.is_empty(),
-            "{name} {query:?}: the engine on {} lanes differs from the reference on {} rays, first {:?}:\n  engine:    {:?}\n  reference: {:?}",
+            "{name} {query:?}: the engine on {} lanes (interleave {interleave:?}) differs from the reference on {} rays, first {:?}:\n  engine:    {:?}\n  reference: {:?}",
             simd.name(),
             differ.len(),
             plain[differ[0]],
