@@ -375,9 +375,6 @@ fn trace_whole<T: Tracer + ?Sized>(
 /// results stay in the core's cache (and on its stack), large enough to amortise a task.
 const FUSED_CHUNK: usize = 256;
 
-/// Rays per step inside a [`FUSED_CHUNK`]: one step is refined while the next is traced.
-const FUSED_STEP: usize = 64;
-
 /// [`pick_through`] for a [`ChunkTrace`] in closest or any mode: each parallel step takes
 /// [`FUSED_CHUNK`] rays into the scene frame, traces them and refines their hits straight into
 /// their answer slots. The answers are those of the batch path, bit for bit: the same
@@ -431,30 +428,17 @@ fn pick_fused(
                 };
                 input[k] = i;
             }
-            // In steps of `FUSED_STEP` rays: trace a step and prefetch its hit triangles, then
-            // refine the step before it, whose triangles had the trace's time to arrive.
             let mut found = [GpuHit::default(); FUSED_CHUNK];
-            let step = |s: usize| s * FUSED_STEP..((s + 1) * FUSED_STEP).min(m);
-            let steps = m.div_ceil(FUSED_STEP);
-            for s in 0..=steps {
-                if s < steps {
-                    let traced = step(s);
-                    chunk(&local[traced.clone()], &mut found[traced.clone()]);
-                    check_found(&built.bvh, &found[traced.clone()], |f| f.prim)?;
-                    prefetch_hit_triangles(&built.scene, &built.bvh, &found[traced]);
-                }
-                if s > 0 {
-                    for k in step(s - 1) {
-                        let i = input[k];
-                        let hit =
-                            resolve_with(&built.scene, &built.bvh, &rays[i], lengths[k], &found[k]);
-                        // SAFETY: `input` holds each chunk's slots of a permutation of 0..n (the
-                        // identity, or `RayOrder`), and chunks cover disjoint spans of it, so
-                        // each slot of the reserved capacity is written exactly once, by one
-                        // task.
-                        unsafe { out.write(i, hit) };
-                    }
-                }
+            chunk(&local[..m], &mut found[..m]);
+            check_found(&built.bvh, &found[..m], |f| f.prim)?;
+            prefetch_hit_triangles(&built.scene, &built.bvh, &found[..m]);
+            for k in 0..m {
+                let i = input[k];
+                let hit = resolve_with(&built.scene, &built.bvh, &rays[i], lengths[k], &found[k]);
+                // SAFETY: `input` holds each step's slots of a permutation of 0..n (the
+                // identity, or `RayOrder`), and steps cover disjoint spans of it, so each slot
+                // of the reserved capacity is written exactly once, by one task.
+                unsafe { out.write(i, hit) };
             }
             Ok(())
         })?;
