@@ -6,6 +6,7 @@ use glam::DVec3;
 
 /// f64 Möller–Trumbore on world-space vertices. `hit` is false when the ray is parallel to the
 /// triangle's plane (or the triangle has zero area).
+#[inline]
 pub fn ray_triangle_f64([v0, v1, v2]: [DVec3; 3], origin: DVec3, dir: DVec3) -> TriangleHit<f64> {
     let e1 = v1 - v0;
     let e2 = v2 - v0;

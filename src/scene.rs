@@ -225,8 +225,15 @@ impl Scene {
     }
 
     /// The three world-space vertices of scene triangle `index`.
+    #[inline]
     pub fn world_triangle(&self, index: usize) -> [DVec3; 3] {
-        self.triangles[index].map(|i| self.positions[i as usize])
+        // Written out (not `array::map`, which was left as a call in the pick's refinement).
+        let [a, b, c] = self.triangles[index];
+        [
+            self.positions[a as usize],
+            self.positions[b as usize],
+            self.positions[c as usize],
+        ]
     }
 
     /// Maps a scene triangle index to `(object id, triangle id within the object)`.
