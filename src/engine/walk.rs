@@ -528,6 +528,11 @@ pub fn trace<L: Lanes8>(
 /// Rays walked in turn by [`trace_interleaved`].
 pub const INTERLEAVED: usize = 32;
 
+const _: () = assert!(
+    PACKET <= INTERLEAVED && INTERLEAVED <= 32,
+    "a run holds at least a group of PACKET rays, and its walks fit a u32 mask"
+);
+
 /// Traces up to [`INTERLEAVED`] kernel-frame rays, each by [`trace`]'s walk (the same answers
 /// and statistics), but a node at a time in turn, each ray's next node or leaf
 /// prefetched when it is chosen: while one ray waits for memory the others compute, so a
