@@ -5,7 +5,8 @@
 //! and with its checksums recomputed (`raypick::rpk::write::reseal`), so that mutations reach
 //! the structural checks instead of stopping at a checksum (as the `png16` target fixes PNG
 //! CRCs). An error must be one line naming the file. A scene that loads is picked by the CPU
-//! engine and the reference twin in every query mode, and both must answer without error: the
+//! engine (its walk for the tree's size, and the interleaved walk) and the reference twin in
+//! every query mode, and all must answer without error: the
 //! checks promise trees the walks can take (no read out of range, no hang, no iteration cap).
 #![no_main]
 
@@ -85,9 +86,13 @@ fn pick(built: Arc<BuiltScene>) {
         },
     ];
     for query in &queries {
-        CpuPicker::new(built.clone())
-            .query(&rays, query)
-            .expect("the CPU engine picks a scene that loaded");
+        for interleave in [None, Some(true)] {
+            let mut engine = CpuPicker::new(built.clone());
+            engine.set_interleave(interleave);
+            engine
+                .query(&rays, query)
+                .expect("the CPU engine picks a scene that loaded");
+        }
         ReferencePicker::new(built.clone())
             .query(&rays, query)
             .expect("the reference twin picks a scene that loaded");
