@@ -26,6 +26,9 @@ pub fn bytes(start: *const u8, bytes: usize) {
 #[inline(always)]
 pub fn item<T>(items: &[T], index: usize) {
     if index < items.len() {
-        bytes(items.as_ptr().wrapping_add(index) as *const u8, size_of::<T>());
+        bytes(
+            items.as_ptr().wrapping_add(index) as *const u8,
+            size_of::<T>(),
+        );
     }
 }
