@@ -62,7 +62,8 @@ pub struct Entry {
     near: f32,
 }
 
-/// Stack entries needed for a tree `depth` wide levels deep (three pushed per level, plus one).
+/// Stack entries needed for a tree `depth` wide levels deep (at most `WIDTH - 1` children pushed
+/// per level, the nearest being visited next, plus one).
 pub fn stack_size(depth: usize) -> usize {
     (WIDTH - 1) * depth + 1
 }
@@ -223,7 +224,8 @@ fn lanes_for(scene: &Scene<'_>, mask: u32, first: usize, group: usize) -> u32 {
     lanes
 }
 
-/// One ray's walk state: the ray in lanes, its best hit so far and its current limit.
+/// One ray's walk state: the ray set up for the box and triangle tests, its best hit so far and
+/// its current limit.
 pub struct RayState<'r, L: Lanes8> {
     ray: &'r GpuRay,
     r: RayLanes<L>,
