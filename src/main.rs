@@ -7,7 +7,8 @@
 
 mod cli;
 
-/// Large buffers (files, scenes, trees, answers) on transparent huge pages: fewer page faults.
+/// Large buffers (files, scenes, trees, answers) on transparent huge pages, and freed large
+/// blocks kept for the next: fewer page faults.
 #[global_allocator]
 static ALLOCATOR: raypick::huge_pages::Allocator = raypick::huge_pages::Allocator;
 
