@@ -7,7 +7,9 @@ use crate::bvh::{BuildOptions, Bvh};
 use crate::cpu::{TraceSettings, trace_batch};
 use crate::engine::{Simd, WideBvh};
 use crate::error::Result;
-use crate::frame::{NEVER_TRACED, check_found, local_ray, resolve_with, scene_rays};
+use crate::frame::{
+    NEVER_TRACED, check_found, local_rays_into, resolve_chunk, resolve_with, scene_rays,
+};
 use crate::layout::{GpuHit, GpuHitEntry, GpuRay, NO_HIT};
 use crate::query::{Answers, Intersector, Mode, Query};
 use crate::ray::{Hit, Ray};
@@ -413,33 +415,47 @@ fn pick_fused(
             let mut local = [NEVER_TRACED; FUSED_CHUNK];
             let mut lengths = [0.0f64; FUSED_CHUNK];
             let mut input = [0usize; FUSED_CHUNK];
-            for (k, j) in span.enumerate() {
-                let i = match &ordered {
-                    Some((all, all_lengths, order)) => {
+            match &ordered {
+                Some((all, all_lengths, order)) => {
+                    for (k, j) in span.enumerate() {
                         let i = order.order()[j] as usize;
                         (local[k], lengths[k]) = (all[i], all_lengths[i]);
-                        i
+                        input[k] = i;
                     }
-                    None => {
-                        (local[k], lengths[k]) =
-                            local_ray(origin, &rays[j], query).unwrap_or((NEVER_TRACED, f64::NAN));
-                        j
+                }
+                None => {
+                    let start = span.start;
+                    local_rays_into(
+                        origin,
+                        &rays[span],
+                        query,
+                        &mut local[..m],
+                        &mut lengths[..m],
+                    );
+                    for (k, slot) in input[..m].iter_mut().enumerate() {
+                        *slot = start + k;
                     }
-                };
-                input[k] = i;
+                }
             }
             let mut found = [GpuHit::default(); FUSED_CHUNK];
             chunk(&local[..m], &mut found[..m]);
             check_found(&built.bvh, &found[..m], |f| f.prim)?;
             prefetch_hit_triangles(&built.scene, &built.bvh, &found[..m]);
-            for k in 0..m {
-                let i = input[k];
-                let hit = resolve_with(&built.scene, &built.bvh, &rays[i], lengths[k], &found[k]);
-                // SAFETY: `input` holds each step's slots of a permutation of 0..n (the
-                // identity, or `RayOrder`), and steps cover disjoint spans of it, so each slot
-                // of the reserved capacity is written exactly once, by one task.
-                unsafe { out.write(i, hit) };
-            }
+            let input = &input[..m];
+            resolve_chunk(
+                &built.scene,
+                &built.bvh,
+                rays,
+                input,
+                &lengths[..m],
+                &found[..m],
+                |k, hit| {
+                    // SAFETY: `input` holds each step's slots of a permutation of 0..n (the
+                    // identity, or `RayOrder`), and steps cover disjoint spans of it, so each
+                    // slot of the reserved capacity is written exactly once, by one task.
+                    unsafe { out.write(input[k], hit) };
+                },
+            );
             Ok(())
         })?;
     // SAFETY: every slot below n was written above (on an error we return before this, and Hit

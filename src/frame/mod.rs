@@ -12,6 +12,9 @@ use crate::scene::Scene;
 use glam::DVec3;
 use rayon::prelude::*;
 
+mod four;
+pub use four::local_rays_into;
+
 /// The kernel input for an invalid ray: `tmax < tmin`, so traversal returns at once.
 pub const NEVER_TRACED: GpuRay = GpuRay {
     origin: [0.0; 3],
@@ -106,11 +109,13 @@ pub fn local_rays_for(scene_origin: DVec3, rays: &[Ray], query: &Query) -> Vec<G
 /// length (`t_world = t_local / length`; NaN for an invalid ray), computed once for
 /// [`resolve_with`].
 pub fn scene_rays(scene_origin: DVec3, rays: &[Ray], query: &Query) -> (Vec<GpuRay>, Vec<f64>) {
-    let (mut local, mut lengths) = (Vec::new(), Vec::new());
-    rays.par_iter()
-        .with_min_len(4096)
-        .map(|r| local_ray(scene_origin, r, query).unwrap_or((NEVER_TRACED, f64::NAN)))
-        .unzip_into_vecs(&mut local, &mut lengths);
+    let (mut local, mut lengths) = (vec![NEVER_TRACED; rays.len()], vec![0.0; rays.len()]);
+    rays.par_chunks(4096)
+        .zip(local.par_chunks_mut(4096))
+        .zip(lengths.par_chunks_mut(4096))
+        .for_each(|((rays, local), lengths)| {
+            local_rays_into(scene_origin, rays, query, local, lengths)
+        });
     (local, lengths)
 }
 
@@ -161,24 +166,112 @@ pub fn resolve_with(scene: &Scene, bvh: &Bvh, ray: &Ray, dir_length: f64, found:
     if dir_length.is_nan() {
         return Hit::INVALID;
     }
-    let stats = Hit {
-        box_tests: found.box_tests,
-        triangle_tests: found.triangle_tests,
-        ..Hit::MISS
-    };
     if found.prim == NO_HIT {
-        return stats;
+        return stats_of(found);
     }
     let scene_index = bvh.triangle_ids[found.prim as usize];
     let vertices = scene.world_triangle(scene_index as usize);
-    let exact = ray_triangle_f64(vertices, ray.origin, ray.dir);
-    let (t, u, v) =
+    let refined = refine(vertices, ray, traced(found, dir_length));
+    hit_of(scene, scene_index, refined, found)
+}
+
+/// [`resolve_with`] for a chunk of results: `emit(k, hit)` for each `k`, with the hit
+/// `resolve_with(scene, bvh, &rays[input[k]], lengths[k], &found[k])`, bit for bit; the hits
+/// are refined four at a time ([`four::refine_four`]). `found` was checked ([`check_found`]).
+pub fn resolve_chunk(
+    scene: &Scene,
+    bvh: &Bvh,
+    rays: &[Ray],
+    input: &[usize],
+    lengths: &[f64],
+    found: &[GpuHit],
+    mut emit: impl FnMut(usize, Hit),
+) {
+    let mut pending = [0usize; 4];
+    let mut n = 0;
+    for k in 0..found.len() {
+        if lengths[k].is_nan() || found[k].prim == NO_HIT {
+            emit(
+                k,
+                resolve_with(scene, bvh, &rays[input[k]], lengths[k], &found[k]),
+            );
+            continue;
+        }
+        pending[n] = k;
+        n += 1;
+        if n == 4 {
+            let index = pending.map(|k| bvh.triangle_ids[found[k].prim as usize]);
+            let refined = four::refine_four(
+                index.map(|i| scene.world_triangle(i as usize)),
+                pending.map(|k| &rays[input[k]]),
+                pending.map(|k| traced(&found[k], lengths[k])),
+            );
+            for ((k, i), refined) in pending.into_iter().zip(index).zip(refined) {
+                emit(k, hit_of(scene, i, refined, &found[k]));
+            }
+            n = 0;
+        }
+    }
+    for &k in &pending[..n] {
+        emit(
+            k,
+            resolve_with(scene, bvh, &rays[input[k]], lengths[k], &found[k]),
+        );
+    }
+}
+
+/// A miss carrying the traversal's b and i.
+fn stats_of(found: &GpuHit) -> Hit {
+    Hit {
+        box_tests: found.box_tests,
+        triangle_tests: found.triangle_tests,
+        ..Hit::MISS
+    }
+}
+
+/// The traversal's own t (in the world ray's units), u and v: what the refinement falls back on.
+fn traced(found: &GpuHit, dir_length: f64) -> [f64; 3] {
+    [found.t as f64 / dir_length, found.u as f64, found.v as f64]
+}
+
+/// What the f64 refinement makes of a hit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Refined {
+    /// Ray parameter, in the world ray's units.
+    pub t: f64,
+    /// Barycentric weight of the second vertex.
+    pub u: f64,
+    /// Barycentric weight of the third vertex.
+    pub v: f64,
+    /// World position (`origin + dir * t`).
+    pub position: DVec3,
+    /// Unit geometric normal (zero for a triangle too small to normalize it).
+    pub normal: DVec3,
+}
+
+/// The f64 refinement of a hit on the world triangle `[a, b, c]`: the exact test's t, u and v
+/// where they are finite (and t is not 0), else `traced` (the traversal's).
+#[inline]
+pub fn refine([a, b, c]: [DVec3; 3], ray: &Ray, traced: [f64; 3]) -> Refined {
+    let exact = ray_triangle_f64([a, b, c], ray.origin, ray.dir);
+    let [t, u, v] =
         if exact.t.is_finite() && exact.u.is_finite() && exact.v.is_finite() && exact.t != 0.0 {
-            (exact.t, exact.u, exact.v)
+            [exact.t, exact.u, exact.v]
         } else {
-            (found.t as f64 / dir_length, found.u as f64, found.v as f64)
+            traced
         };
-    let [a, b, c] = vertices;
+    Refined {
+        t,
+        u,
+        v,
+        position: ray.at(t),
+        normal: (b - a).cross(c - a).normalize_or_zero(),
+    }
+}
+
+/// The public hit on scene triangle `scene_index`, refined.
+#[inline]
+fn hit_of(scene: &Scene, scene_index: u32, refined: Refined, found: &GpuHit) -> Hit {
     let (object, triangle) = scene.locate(scene_index);
     let cell = scene.objects()[object as usize]
         .grid
@@ -186,14 +279,14 @@ pub fn resolve_with(scene: &Scene, bvh: &Bvh, ray: &Ray, dir_length: f64, found:
         .map(|(r, c)| [r, c]);
     Hit {
         hit: true,
-        t,
+        t: refined.t,
         object,
         triangle,
-        u,
-        v,
-        position: ray.at(t),
-        normal: (b - a).cross(c - a).normalize_or_zero(),
+        u: refined.u,
+        v: refined.v,
+        position: refined.position,
+        normal: refined.normal,
         cell,
-        ..stats
+        ..stats_of(found)
     }
 }

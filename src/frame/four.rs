@@ -1,0 +1,524 @@
+//! The frame's f64 arithmetic four rays at a time: world rays into the scene frame
+//! ([`local_rays_into`]) and hits refined ([`refine_four`]), each giving the very bits of the
+//! one-ray functions, with the divisions and square roots in f64 lanes where the CPU has AVX.
+//!
+//! Converting a ray costs six divisions and a square root in f64, which was about a tenth of
+//! the whole pick of 1M camera rays (BENCHMARKS.md). The lanes do the same IEEE operations in
+//! the same order as the scalar function (no fused multiply-add, the same comparisons for the
+//! clamps), so each is rounded the same. A ray off the common path (not finite, a zero
+//! direction or one too short to invert, `tmin >= tmax` once in f32, a range cap that needs
+//! stepping down, an origin beyond f32, layer mask 0) is handed to the scalar function.
+//!
+//! The hits' f64 refinement goes four at a time too ([`refine_four`], bit for bit
+//! [`super::refine`] on each hit): three divisions, a square root and one more division each.
+
+use super::{NEVER_TRACED, Refined, local_ray, refine};
+use crate::layout::GpuRay;
+use crate::query::Query;
+use crate::ray::Ray;
+use glam::DVec3;
+
+/// Fills `local[i]` and `lengths[i]` as `local_ray(scene_origin, &rays[i], query)` would:
+/// the scene-frame ray and the world direction's length, or [`NEVER_TRACED`] and NaN for an
+/// invalid ray. The three slices have the same length.
+pub fn local_rays_into(
+    scene_origin: DVec3,
+    rays: &[Ray],
+    query: &Query,
+    local: &mut [GpuRay],
+    lengths: &mut [f64],
+) {
+    assert!(
+        rays.len() == local.len() && rays.len() == lengths.len(),
+        "one output per ray"
+    );
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the CPU has AVX (checked just above).
+        unsafe { avx::local_rays_into(scene_origin, rays, query, local, lengths) };
+        return;
+    }
+    scalar(scene_origin, rays, query, local, lengths);
+}
+
+/// `refine(triangles[i], rays[i], traced[i])` for the four hits, bit for bit.
+#[inline]
+pub fn refine_four(
+    triangles: [[DVec3; 3]; 4],
+    rays: [&Ray; 4],
+    traced: [[f64; 3]; 4],
+) -> [Refined; 4] {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the CPU has AVX (checked just above).
+        return unsafe { avx::refine_four(triangles, rays, traced) };
+    }
+    [0, 1, 2, 3].map(|i| refine(triangles[i], rays[i], traced[i]))
+}
+
+/// [`local_rays_into`] one ray at a time.
+fn scalar(
+    scene_origin: DVec3,
+    rays: &[Ray],
+    query: &Query,
+    local: &mut [GpuRay],
+    lengths: &mut [f64],
+) {
+    for ((ray, local), length) in rays.iter().zip(local).zip(lengths) {
+        (*local, *length) = local_ray(scene_origin, ray, query).unwrap_or((NEVER_TRACED, f64::NAN));
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx {
+    use super::{GpuRay, Query, Ray, Refined, scalar};
+    use glam::DVec3;
+    use std::arch::x86_64::*;
+
+    /// [`super::local_rays_into`] on AVX lanes, four rays at a time.
+    ///
+    /// # Safety
+    /// The CPU has AVX.
+    #[target_feature(enable = "avx")]
+    pub unsafe fn local_rays_into(
+        scene_origin: DVec3,
+        rays: &[Ray],
+        query: &Query,
+        local: &mut [GpuRay],
+        lengths: &mut [f64],
+    ) {
+        let flags = query.flags();
+        let whole = rays.len() / 4 * 4;
+        for g in (0..whole).step_by(4) {
+            let r = &rays[g..g + 4];
+            let (out, len) = (&mut local[g..g + 4], &mut lengths[g..g + 4]);
+            four(scene_origin, r, flags, out, len);
+            for i in 0..4 {
+                if out[i].pad[0] != 0 {
+                    // Off the common path: the scalar function decides.
+                    scalar(
+                        scene_origin,
+                        &r[i..i + 1],
+                        query,
+                        &mut out[i..i + 1],
+                        &mut len[i..i + 1],
+                    );
+                }
+            }
+        }
+        scalar(
+            scene_origin,
+            &rays[whole..],
+            query,
+            &mut local[whole..],
+            &mut lengths[whole..],
+        );
+    }
+
+    /// Four f64 lanes from four values.
+    #[inline(always)]
+    fn lanes(v: [f64; 4]) -> __m256d {
+        // SAFETY: the CPU has AVX (callers are AVX functions); loadu reads the four values.
+        unsafe { _mm256_loadu_pd(v.as_ptr()) }
+    }
+
+    #[inline(always)]
+    fn values(v: __m256d) -> [f64; 4] {
+        let mut out = [0.0; 4];
+        // SAFETY: as in `lanes`; storeu writes the four values.
+        unsafe { _mm256_storeu_pd(out.as_mut_ptr(), v) };
+        out
+    }
+
+    /// Three f64 lanes sets: x, y and z of four vectors.
+    type V3 = [__m256d; 3];
+
+    #[inline(always)]
+    fn v3(v: [DVec3; 4]) -> V3 {
+        [
+            lanes(v.map(|v| v.x)),
+            lanes(v.map(|v| v.y)),
+            lanes(v.map(|v| v.z)),
+        ]
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx")]
+    fn sub(a: V3, b: V3) -> V3 {
+        [
+            _mm256_sub_pd(a[0], b[0]),
+            _mm256_sub_pd(a[1], b[1]),
+            _mm256_sub_pd(a[2], b[2]),
+        ]
+    }
+
+    /// glam's `cross`: `(a.y * b.z - b.y * a.z, a.z * b.x - b.z * a.x, a.x * b.y - b.x * a.y)`.
+    #[inline]
+    #[target_feature(enable = "avx")]
+    fn cross(a: V3, b: V3) -> V3 {
+        let m = _mm256_mul_pd;
+        [
+            _mm256_sub_pd(m(a[1], b[2]), m(b[1], a[2])),
+            _mm256_sub_pd(m(a[2], b[0]), m(b[2], a[0])),
+            _mm256_sub_pd(m(a[0], b[1]), m(b[0], a[1])),
+        ]
+    }
+
+    /// glam's `dot`: `(a.x * b.x + a.y * b.y) + a.z * b.z`.
+    #[inline]
+    #[target_feature(enable = "avx")]
+    fn dot(a: V3, b: V3) -> __m256d {
+        let m = _mm256_mul_pd;
+        _mm256_add_pd(_mm256_add_pd(m(a[0], b[0]), m(a[1], b[1])), m(a[2], b[2]))
+    }
+
+    /// [`super::refine_four`] on AVX lanes: `exact::ray_triangle_f64`, the fallback, `Ray::at`
+    /// and `normalize_or_zero`, operation for operation.
+    ///
+    /// # Safety
+    /// The CPU has AVX.
+    #[target_feature(enable = "avx")]
+    pub unsafe fn refine_four(
+        triangles: [[DVec3; 3]; 4],
+        rays: [&Ray; 4],
+        traced: [[f64; 3]; 4],
+    ) -> [Refined; 4] {
+        let v0 = v3(triangles.map(|t| t[0]));
+        let v1 = v3(triangles.map(|t| t[1]));
+        let v2 = v3(triangles.map(|t| t[2]));
+        let origin = v3(rays.map(|r| r.origin));
+        let dir = v3(rays.map(|r| r.dir));
+        // ray_triangle_f64.
+        let e1 = sub(v1, v0);
+        let e2 = sub(v2, v0);
+        let p = cross(dir, e2);
+        let det = dot(p, e1);
+        let to_origin = sub(origin, v0);
+        let u = _mm256_div_pd(dot(p, to_origin), det);
+        let q = cross(to_origin, e1);
+        let v = _mm256_div_pd(dot(q, dir), det);
+        let t = _mm256_div_pd(dot(q, e2), det);
+        // The exact values where det != 0, t, u and v are finite and t != 0.
+        let splat = _mm256_set1_pd;
+        let abs = |x: __m256d| _mm256_andnot_pd(splat(-0.0), x);
+        let finite = |x: __m256d| _mm256_cmp_pd::<_CMP_LT_OQ>(abs(x), splat(f64::INFINITY));
+        let exact = _mm256_and_pd(
+            _mm256_and_pd(
+                _mm256_cmp_pd::<_CMP_NEQ_OQ>(det, splat(0.0)),
+                _mm256_cmp_pd::<_CMP_NEQ_OQ>(t, splat(0.0)),
+            ),
+            _mm256_and_pd(_mm256_and_pd(finite(t), finite(u)), finite(v)),
+        );
+        let pick = |x: __m256d, k: usize| _mm256_blendv_pd(lanes(traced.map(|f| f[k])), x, exact);
+        let (t, u, v) = (pick(t, 0), pick(u, 1), pick(v, 2));
+        // Ray::at: origin + dir * t.
+        let position = [0, 1, 2].map(|a| _mm256_add_pd(origin[a], _mm256_mul_pd(dir[a], t)));
+        // normalize_or_zero of (b - a) x (c - a): times 1 / sqrt(n . n) when that is finite
+        // and positive, else zero.
+        let n = cross(e1, e2);
+        let rcp = _mm256_div_pd(splat(1.0), _mm256_sqrt_pd(dot(n, n)));
+        let keep = _mm256_and_pd(finite(rcp), _mm256_cmp_pd::<_CMP_GT_OQ>(rcp, splat(0.0)));
+        let normal = [0, 1, 2].map(|a| _mm256_and_pd(_mm256_mul_pd(n[a], rcp), keep));
+        let (t, u, v) = (values(t), values(u), values(v));
+        let position = position.map(values);
+        let normal = normal.map(values);
+        [0, 1, 2, 3].map(|i| Refined {
+            t: t[i],
+            u: u[i],
+            v: v[i],
+            position: DVec3::new(position[0][i], position[1][i], position[2][i]),
+            normal: DVec3::new(normal[0][i], normal[1][i], normal[2][i]),
+        })
+    }
+
+    /// Converts four rays on the common path of [`super::super::local_ray`]; a ray off it is
+    /// marked by a nonzero `pad[0]` (the scalar function then overwrites it).
+    #[target_feature(enable = "avx")]
+    pub(super) fn four(
+        scene_origin: DVec3,
+        r: &[Ray],
+        flags: u32,
+        out: &mut [GpuRay],
+        len: &mut [f64],
+    ) {
+        let column =
+            |f: &dyn Fn(&Ray) -> f64| _mm256_set_pd(f(&r[3]), f(&r[2]), f(&r[1]), f(&r[0]));
+        let (ox, oy, oz) = (
+            column(&|r| r.origin.x),
+            column(&|r| r.origin.y),
+            column(&|r| r.origin.z),
+        );
+        let (dx, dy, dz) = (
+            column(&|r| r.dir.x),
+            column(&|r| r.dir.y),
+            column(&|r| r.dir.z),
+        );
+        let (tmin, tmax) = (column(&|r| r.tmin), column(&|r| r.tmax));
+        let splat = _mm256_set1_pd;
+        let abs = |v: __m256d| _mm256_andnot_pd(splat(-0.0), v);
+        let finite = |v: __m256d| _mm256_cmp_pd::<_CMP_LT_OQ>(abs(v), splat(f64::INFINITY));
+        let and = _mm256_and_pd;
+        // `Ray::is_valid`'s first checks: finite origin and direction, tmin <= tmax (no NaN).
+        let mut ok = and(
+            and(and(finite(ox), finite(oy)), and(finite(oz), finite(dx))),
+            and(
+                and(finite(dy), finite(dz)),
+                _mm256_cmp_pd::<_CMP_LE_OQ>(tmin, tmax),
+            ),
+        );
+        // `dir.abs().max_element()`: glam's max is `if a > b { a } else { b }`, as maxpd is.
+        let scale = _mm256_max_pd(abs(dx), _mm256_max_pd(abs(dy), abs(dz)));
+        ok = and(ok, _mm256_cmp_pd::<_CMP_GT_OQ>(scale, splat(0.0)));
+        let (sx, sy, sz) = (
+            _mm256_div_pd(dx, scale),
+            _mm256_div_pd(dy, scale),
+            _mm256_div_pd(dz, scale),
+        );
+        // `scaled.length()`: sqrt((x * x + y * y) + z * z).
+        let squares = _mm256_add_pd(
+            _mm256_add_pd(_mm256_mul_pd(sx, sx), _mm256_mul_pd(sy, sy)),
+            _mm256_mul_pd(sz, sz),
+        );
+        let scaled_length = _mm256_sqrt_pd(squares);
+        let dir_length = _mm256_mul_pd(scaled_length, scale);
+        // A finite length whose inverse is finite too (when it is below 1).
+        let short = _mm256_cmp_pd::<_CMP_LT_OQ>(dir_length, splat(1.0));
+        let inverse = _mm256_div_pd(splat(1.0), dir_length);
+        ok = and(
+            ok,
+            and(
+                finite(dir_length),
+                _mm256_or_pd(
+                    _mm256_andnot_pd(short, splat(f64::from_bits(!0))),
+                    finite(inverse),
+                ),
+            ),
+        );
+        let unit = [
+            _mm256_cvtpd_ps(_mm256_div_pd(sx, scaled_length)),
+            _mm256_cvtpd_ps(_mm256_div_pd(sy, scaled_length)),
+            _mm256_cvtpd_ps(_mm256_div_pd(sz, scaled_length)),
+        ];
+        let origin = [
+            _mm256_cvtpd_ps(_mm256_sub_pd(ox, splat(scene_origin.x))),
+            _mm256_cvtpd_ps(_mm256_sub_pd(oy, splat(scene_origin.y))),
+            _mm256_cvtpd_ps(_mm256_sub_pd(oz, splat(scene_origin.z))),
+        ];
+        // `t.clamp(-f64::MAX, f64::MAX)`, then `(t * dir_length).clamp(f32 range) as f32`:
+        // for values that are not NaN (tmin and tmax are not, on the common path, nor their
+        // products with a finite length), clamp is max then min.
+        let clamp =
+            |v: __m256d, lo: f64, hi: f64| _mm256_min_pd(_mm256_max_pd(v, splat(lo)), splat(hi));
+        let to_f32 = |t: __m256d| {
+            let t = clamp(t, -f64::MAX, f64::MAX);
+            _mm256_cvtpd_ps(clamp(
+                _mm256_mul_pd(t, dir_length),
+                f32::MIN as f64,
+                f32::MAX as f64,
+            ))
+        };
+        let (tmin32, tmax32) = (to_f32(tmin), to_f32(tmax));
+        // A direction shorter than 1 whose range cap would carry a hit's world t past f64::MAX
+        // needs the cap stepped down: the scalar function does that.
+        let steps = and(
+            and(
+                short,
+                _mm256_cmp_pd::<_CMP_GT_OQ>(_mm256_cvtps_pd(tmax32), splat(0.0)),
+            ),
+            _mm256_xor_pd(
+                finite(_mm256_div_pd(_mm256_cvtps_pd(tmax32), dir_length)),
+                splat(f64::from_bits(!0)),
+            ),
+        );
+        ok = _mm256_andnot_pd(steps, ok);
+        let finite32 = |v: __m128| {
+            _mm_cmplt_ps(
+                _mm_andnot_ps(_mm_set1_ps(-0.0), v),
+                _mm_set1_ps(f32::INFINITY),
+            )
+        };
+        // The origin fits f32; tmin < tmax in f32 (so `min(tmax)` keeps tmin, whatever the
+        // zeros' signs).
+        let ok32 = _mm_and_ps(
+            _mm_and_ps(finite32(origin[0]), finite32(origin[1])),
+            _mm_and_ps(finite32(origin[2]), _mm_cmplt_ps(tmin32, tmax32)),
+        );
+        let ok = _mm256_movemask_pd(ok) & _mm_movemask_ps(ok32);
+        let mut lanes = [[0.0f32; 4]; 8];
+        for (k, v) in unit
+            .iter()
+            .chain(&origin)
+            .chain([&tmin32, &tmax32])
+            .enumerate()
+        {
+            // SAFETY: `lanes[k]` is four f32s; storeu has no alignment need.
+            unsafe { _mm_storeu_ps(lanes[k].as_mut_ptr(), *v) };
+        }
+        let mut dl = [0.0f64; 4];
+        // SAFETY: `dl` is four f64s.
+        unsafe { _mm256_storeu_pd(dl.as_mut_ptr(), dir_length) };
+        for i in 0..4 {
+            // The unit direction is never zero here: its largest component is at least 1/√3.
+            let common = ok & (1 << i) != 0 && r[i].mask != 0;
+            out[i] = GpuRay {
+                origin: [lanes[3][i], lanes[4][i], lanes[5][i]],
+                tmin: lanes[6][i],
+                dir: [lanes[0][i], lanes[1][i], lanes[2][i]],
+                tmax: lanes[7][i],
+                mask: r[i].mask,
+                flags,
+                pad: [u32::from(!common), 0],
+            };
+            len[i] = dl[i];
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn same(a: &GpuRay, b: &GpuRay) -> bool {
+        bytemuck::bytes_of(a) == bytemuck::bytes_of(b)
+    }
+
+    /// Special values and ordinary ones, so that every branch of the scalar function is met.
+    fn component() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            Just(0.0),
+            Just(-0.0),
+            Just(f64::INFINITY),
+            Just(f64::NEG_INFINITY),
+            Just(f64::NAN),
+            Just(f64::MAX),
+            Just(f64::MIN_POSITIVE),
+            Just(1e-300),
+            Just(1e300),
+            Just(5e38),
+            -1e7..1e7f64,
+            -1.0..1.0f64,
+            -1e-3..1e-3f64,
+        ]
+    }
+
+    fn ray() -> impl Strategy<Value = Ray> {
+        (
+            [component(), component(), component()],
+            [component(), component(), component()],
+            component(),
+            component(),
+            prop_oneof![Just(0u32), Just(u32::MAX), any::<u32>()],
+        )
+            .prop_map(|(o, d, tmin, tmax, mask)| Ray {
+                origin: DVec3::from(o),
+                dir: DVec3::from(d),
+                tmin,
+                tmax,
+                mask,
+            })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2000))]
+        #[test]
+        fn four_at_a_time_gives_the_scalar_bits(
+            rays in prop::collection::vec(ray(), 0..11),
+            origin in [-1e6..1e6f64, -1e6..1e6f64, -1e6..1e6f64],
+            cull in 0usize..3,
+        ) {
+            let query = Query {
+                cull: [crate::query::Cull::None, crate::query::Cull::Back, crate::query::Cull::Front][cull],
+                ..Query::default()
+            };
+            let origin = DVec3::from(origin);
+            let mut local = vec![NEVER_TRACED; rays.len()];
+            let mut lengths = vec![0.0; rays.len()];
+            local_rays_into(origin, &rays, &query, &mut local, &mut lengths);
+            for (i, ray) in rays.iter().enumerate() {
+                let (want, want_length) =
+                    local_ray(origin, ray, &query).unwrap_or((NEVER_TRACED, f64::NAN));
+                prop_assert!(same(&local[i], &want), "ray {i} {ray:?}: {:?} vs {want:?}", local[i]);
+                prop_assert_eq!(lengths[i].to_bits(), want_length.to_bits(), "ray {}", i);
+            }
+        }
+    }
+
+    fn point() -> impl Strategy<Value = DVec3> {
+        prop_oneof![
+            4 => [-10.0..10.0f64, -10.0..10.0f64, -10.0..10.0f64].prop_map(DVec3::from),
+            1 => [component(), component(), component()].prop_map(DVec3::from),
+            1 => Just(DVec3::ZERO),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2000))]
+        #[test]
+        fn hits_refined_four_at_a_time_give_the_scalar_bits(
+            triangles in prop::array::uniform4([point(), point(), point()]),
+            degenerate in prop::array::uniform4(any::<bool>()),
+            rays in prop::array::uniform4(ray()),
+            traced in prop::array::uniform4([component(), component(), component()]),
+        ) {
+            // Some triangles with a repeated vertex (zero area, det = 0 for every ray).
+            let triangles: [[DVec3; 3]; 4] =
+                std::array::from_fn(|i| {
+                    let [a, b, c] = triangles[i];
+                    if degenerate[i] { [a, b, a] } else { [a, b, c] }
+                });
+            let refined = refine_four(triangles, [&rays[0], &rays[1], &rays[2], &rays[3]], traced);
+            for i in 0..4 {
+                let want = refine(triangles[i], &rays[i], traced[i]);
+                // Every NaN as one (x86 makes a new NaN negative; which NaN a scalar operation
+                // passes on depends on the order the compiler chose for its operands).
+                let bits = |r: &Refined| {
+                    [r.t, r.u, r.v, r.position.x, r.position.y, r.position.z, r.normal.x,
+                     r.normal.y, r.normal.z].map(|x| if x.is_nan() { u64::MAX } else { x.to_bits() })
+                };
+                prop_assert_eq!(bits(&refined[i]), bits(&want), "hit {}", i);
+            }
+        }
+    }
+
+    #[test]
+    fn ordinary_rays_stay_on_the_lanes_and_match() {
+        let origin = DVec3::new(512_345.25, 4_100_000.5, 310.0);
+        let rays: Vec<Ray> = (0..64)
+            .map(|i| {
+                let f = i as f64;
+                Ray {
+                    tmin: 0.0,
+                    tmax: if i % 3 == 0 { f64::INFINITY } else { 50.0 + f },
+                    ..Ray::new(
+                        origin + DVec3::new(f * 1.5, -f, 1000.0),
+                        if i % 2 == 0 {
+                            DVec3::new(0.01 * f - 0.3, 0.2, -1.0 + 0.001 * f)
+                        } else {
+                            // Unit-length in f64, so often a hair under 1.
+                            DVec3::new(0.01 * f - 0.3, 0.2, -1.0 + 0.001 * f).normalize()
+                        },
+                    )
+                }
+            })
+            .collect();
+        let mut local = vec![NEVER_TRACED; rays.len()];
+        let mut lengths = vec![0.0; rays.len()];
+        local_rays_into(origin, &rays, &Query::default(), &mut local, &mut lengths);
+        for (i, ray) in rays.iter().enumerate() {
+            let (want, want_length) = local_ray(origin, ray, &Query::default()).unwrap();
+            assert!(same(&local[i], &want), "ray {i}");
+            assert_eq!(lengths[i].to_bits(), want_length.to_bits());
+        }
+        // The lanes took every one of them (none was left to the scalar function).
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx") {
+            for (r, l) in rays.chunks(4).zip(local.chunks_mut(4)) {
+                let mut lengths = [0.0; 4];
+                // SAFETY: the CPU has AVX (checked above).
+                unsafe { avx::four(origin, r, Query::default().flags(), l, &mut lengths) };
+                assert!(l.iter().all(|l| l.pad[0] == 0), "{r:?}");
+            }
+        }
+    }
+}
