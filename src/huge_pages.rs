@@ -1,7 +1,7 @@
 //! Large answer buffers on transparent huge pages, where the OS offers them (Linux with
 //! `transparent_hugepage` set to `madvise` or `always`; elsewhere this does nothing).
 //!
-//! A pick of 1M rays writes 112 MB of [`crate::Hit`]s into fresh memory. With 4 KiB pages the
+//! A pick of 1M rays writes 104 MB of [`crate::Hit`]s into fresh memory. With 4 KiB pages the
 //! kernel takes one page fault per 4 KiB, and on the project's machine those faults were a
 //! quarter of the whole pick's time on camera rays (BENCHMARKS.md, "Pipeline cost"). Asking for
 //! 2 MiB pages before the buffer is first written cuts the faults 512-fold. Answers are not
@@ -17,7 +17,9 @@
 //! hands one back to the next large allocation it fits, as the C allocator already does for
 //! blocks below 32 MiB. A program that picks again and again (a server, a batch loop) then
 //! writes its answers into memory that is already mapped: on the dragon's 1M camera rays, a
-//! pick into a fresh buffer took 57 ms and one into a reused buffer 46 ms (BENCHMARKS.md).
+//! pick into a fresh buffer took 57 ms and one into a reused buffer 46 ms (BENCHMARKS.md). A
+//! long-running process that must give memory back after a burst turns this off
+//! ([`keep_freed_blocks`]; `raypick serve` does).
 
 use std::alloc::{GlobalAlloc, Layout, System};
 
@@ -120,6 +122,33 @@ static KEPT: std::sync::Mutex<Kept> = std::sync::Mutex::new(Kept {
     bytes: 0,
 });
 
+/// Whether [`Allocator`] keeps freed large blocks (it does unless told not to).
+static KEEPING: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(true);
+
+/// Tells [`Allocator`] whether to keep freed large blocks for reuse (the default) or to give
+/// every one back to the system at once; turning it off gives back the blocks kept so far.
+pub fn keep_freed_blocks(on: bool) {
+    KEEPING.store(on, std::sync::atomic::Ordering::Relaxed);
+    if !on {
+        let blocks = {
+            let mut kept = kept();
+            kept.bytes = 0;
+            std::mem::take(&mut kept.blocks)
+        };
+        for (address, len) in blocks.into_iter().filter(|&(_, len)| len > 0) {
+            // SAFETY: a kept block came from `System` with alignment 16 or less (see
+            // `Allocator`), which frees by pointer alone; it is out of the cache, so no one
+            // else holds it.
+            unsafe {
+                System.dealloc(
+                    address as *mut u8,
+                    Layout::from_size_align_unchecked(len, 16),
+                )
+            };
+        }
+    }
+}
+
 fn kept() -> std::sync::MutexGuard<'static, Kept> {
     // Nothing panics while the lock is held; a poisoned lock still holds consistent slots.
     KEPT.lock().unwrap_or_else(|e| e.into_inner())
@@ -153,6 +182,9 @@ fn take_kept(bytes: usize) -> Option<*mut u8> {
 /// Keeps the freed block at `block`, at least `bytes` long, when a slot and the byte budget
 /// allow; `false` when the caller must free it.
 fn keep(block: *mut u8, bytes: usize) -> bool {
+    if !KEEPING.load(std::sync::atomic::Ordering::Relaxed) {
+        return false;
+    }
     let mut kept = kept();
     if kept.bytes + bytes > KEPT_BYTES {
         return false;
@@ -269,11 +301,24 @@ mod tests {
             assert_eq!(block as usize % 4096, 0);
             allocator.dealloc(block, aligned);
         }
-        let kept = kept();
-        assert!(kept.bytes <= KEPT_BYTES);
-        assert_eq!(
-            kept.bytes,
-            kept.blocks.iter().map(|&(_, len)| len).sum::<usize>()
-        );
+        {
+            let kept = kept();
+            assert!(kept.bytes > 0 && kept.bytes <= KEPT_BYTES);
+            assert_eq!(
+                kept.bytes,
+                kept.blocks.iter().map(|&(_, len)| len).sum::<usize>()
+            );
+        }
+        // Turned off, the kept blocks go back and no freed block is kept.
+        keep_freed_blocks(false);
+        assert_eq!(kept().bytes, 0);
+        // SAFETY: as above.
+        unsafe {
+            let block = allocator.alloc(layout);
+            block.write_bytes(2, layout.size());
+            allocator.dealloc(block, layout);
+        }
+        assert_eq!(kept().bytes, 0);
+        keep_freed_blocks(true);
     }
 }

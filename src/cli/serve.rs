@@ -56,6 +56,8 @@ fn timeout(flag: &str, seconds: f64) -> Result<Duration, Error> {
 }
 
 pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    // A server gives its memory back after a burst of large requests.
+    raypick::huge_pages::keep_freed_blocks(false);
     let config = ServerConfig {
         max_rays: args.max_rays.max(1),
         max_body_bytes: args.max_body_bytes,
