@@ -27,6 +27,8 @@
 //!
 //! Run everything with `cargo bench --bench peers --features embree` (about 30 minutes on 2
 //! cores), or the scenes whose names contain a word with e.g. `cargo bench --bench peers -- bunny`.
+//! Every engine runs under the `raypick` binary's allocator (`huge_pages::Allocator`).
+//!
 //! Without `--bench` (as under `cargo test --benches`) it runs only the bunny, with 16,384 rays
 //! in the "1M" sets and one run each, and writes no summary.
 
@@ -68,6 +70,13 @@ use std::collections::HashMap;
 use std::hint::black_box;
 use std::path::PathBuf;
 use std::time::{Duration, Instant, SystemTime};
+
+/// The `raypick` binary's allocator, for every engine in this process alike: large answer
+/// buffers on huge pages, and freed ones reused by the next run instead of being faulted in
+/// afresh (each engine's run allocates its results, which otherwise pay their page faults at
+/// every run).
+#[global_allocator]
+static ALLOCATOR: raypick::huge_pages::Allocator = raypick::huge_pages::Allocator;
 
 /// Seed of the ray sets.
 const SEED: u64 = 1;
