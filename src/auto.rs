@@ -5,11 +5,14 @@
 //! time a batch reaches the crossover, so a software adapter, where the CPU answers every batch,
 //! costs only opening the device.
 
+use crate::bvh::Bvh;
 use crate::error::Result;
 use crate::gpu::{GpuContext, GpuPicker};
-use crate::picker::{BuiltScene, CpuPicker, Picker};
+use crate::picker::{BuiltScene, CpuPicker, Picker, Refit, Tracer};
 use crate::query::{Answers, Query};
 use crate::ray::Ray;
+use crate::scene::Scene;
+use glam::DVec3;
 use std::sync::Arc;
 
 /// Batches below this many rays run on the CPU path when the GPU is a real one. A software
@@ -108,6 +111,38 @@ impl Picker for AutoPicker {
 
     fn take_notes(&mut self) -> Vec<String> {
         std::mem::take(&mut self.notes)
+    }
+
+    /// Moves the vertices once for both paths: the scene is taken from the pickers while it is
+    /// refitted (so it is not copied unless the caller holds it too), then handed back to both
+    /// (the GPU's buffers brought up to date).
+    fn set_positions(&mut self, object: u32, positions: &[DVec3]) -> Result<Refit> {
+        let placeholder = Arc::new(BuiltScene::from_parts(
+            Scene::new(),
+            Bvh::default(),
+            Vec::new(),
+        ));
+        let mut built = std::mem::replace(&mut self.built, placeholder.clone());
+        *self.cpu.built_mut() = placeholder.clone();
+        if let Some(gpu) = &mut self.gpu {
+            *gpu.built_mut() = placeholder;
+        }
+        let refit = Arc::make_mut(&mut built).set_positions(object, positions);
+        self.built = built.clone();
+        *self.cpu.built_mut() = built.clone();
+        if let Some(gpu) = &mut self.gpu {
+            *gpu.built_mut() = built;
+        }
+        let refit = refit?;
+        if let Some(gpu) = &mut self.gpu
+            && let Err(e) = gpu.scene_changed(refit)
+        {
+            self.notes.push(format!(
+                "the GPU failed ({e}); falling back to the CPU path"
+            ));
+            self.gpu = None;
+        }
+        Ok(refit)
     }
 
     fn describe(&self) -> String {

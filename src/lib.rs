@@ -67,7 +67,7 @@ pub struct ReadmeDoctests;
 pub use bvh::{BuildOptions, Builder, Bvh, SplitAxis};
 pub use error::{Error, Result};
 pub use gpu::{GpuContext, GpuPicker};
-pub use picker::{Backend, BuiltScene, CpuPicker, Picker, ReferencePicker, make_picker};
+pub use picker::{Backend, BuiltScene, CpuPicker, Picker, ReferencePicker, Refit, make_picker};
 pub use query::{Answers, Cull, Intersector, Mode, Query};
 pub use ray::{Hit, Ray};
 pub use scene::{GridShape, Mesh, Scene};

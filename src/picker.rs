@@ -16,6 +16,7 @@ use crate::ray::{Hit, Ray};
 use crate::ray_order::{DEFAULT_REORDER_FROM, RayOrder, trace_in_order};
 use crate::scene::Scene;
 use crate::store::Store;
+use glam::DVec3;
 use rayon::prelude::*;
 use std::sync::{Arc, OnceLock};
 
@@ -31,26 +32,75 @@ pub struct BuiltScene {
     /// The CPU engine's wide tree, collapsed from `bvh` the first time the engine runs (or why
     /// it could not be: a corrupted tree).
     wide: OnceLock<std::result::Result<WideBvh, String>>,
+    /// How the tree was built, for a rebuild ([`BuiltScene::set_positions`]); the defaults for a
+    /// tree made elsewhere.
+    options: BuildOptions,
+}
+
+/// What moving an object's vertices did to the tree ([`BuiltScene::set_positions`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Refit {
+    /// The tree kept its shape; its boxes (and the engine's) were recomputed.
+    Refitted,
+    /// A triangle became degenerate or stopped being so, which changes the set of triangles
+    /// the tree holds: it was built again.
+    Rebuilt,
 }
 
 impl BuiltScene {
     /// Builds the tree over `scene`.
     pub fn new(scene: Scene, options: &BuildOptions) -> Result<Self> {
         let bvh = Bvh::build(&scene, options)?;
-        let triangle_masks: Vec<u32> = if scene.objects().iter().all(|o| o.mask == u32::MAX) {
-            Vec::new()
-        } else {
-            bvh.triangle_ids
-                .iter()
-                .map(|&i| scene.triangle_mask(i))
-                .collect()
-        };
+        let triangle_masks = masks_of(&scene, &bvh);
         Ok(Self {
             scene,
             bvh,
             triangle_masks: triangle_masks.into(),
             wide: OnceLock::new(),
+            options: *options,
         })
+    }
+
+    /// Moves object `object`'s vertices to `positions` (as many as it has, in its own vertex
+    /// order; the same triangles) and refits the tree and the engine's wide tree to them,
+    /// bottom-up, without building again ([`crate::bvh::Bvh::refit`]); the tree's f32 frame
+    /// keeps its origin. Only when a triangle of the object becomes degenerate, or stops being
+    /// so, is the tree built again, with the options it was built with. Answers afterwards are
+    /// those of a scene built from the new positions, on every backend. Fails, naming the
+    /// object, on an unknown object, a wrong count or a non-finite coordinate, with nothing
+    /// changed.
+    pub fn set_positions(&mut self, object: u32, positions: &[DVec3]) -> Result<Refit> {
+        self.scene.check_object_positions(object, positions)?;
+        if self.bvh.refit(&self.scene, object, positions) {
+            self.scene.put_object_positions(object, positions);
+            if let Some(Ok(wide)) = self.wide.get_mut() {
+                wide.refit(&self.bvh.triangles);
+            }
+            return Ok(Refit::Refitted);
+        }
+        // Built again on a copy of the scene, so a failed build leaves it as it was.
+        let mut scene = self.scene.clone();
+        scene.put_object_positions(object, positions);
+        match Bvh::build(&scene, &self.options) {
+            Ok(bvh) => {
+                self.triangle_masks = masks_of(&scene, &bvh).into();
+                self.scene = scene;
+                self.bvh = bvh;
+                self.wide = OnceLock::new();
+                Ok(Refit::Rebuilt)
+            }
+            Err(e) => {
+                // The failed refit may have rewritten some triangles: back to the positions the
+                // tree was built for (which it fits, so this refit succeeds).
+                let old: Vec<DVec3> = self
+                    .scene
+                    .object_vertices(object)
+                    .map(|v| self.scene.position(v))
+                    .collect();
+                self.bvh.refit(&self.scene, object, &old);
+                Err(e)
+            }
+        }
     }
 
     /// A built scene from a tree made elsewhere (`bvh` must be built over `scene`).
@@ -60,6 +110,7 @@ impl BuiltScene {
             bvh,
             triangle_masks: triangle_masks.into(),
             wide: OnceLock::new(),
+            options: BuildOptions::default(),
         }
     }
 
@@ -76,6 +127,7 @@ impl BuiltScene {
             bvh,
             triangle_masks: triangle_masks.into(),
             wide: OnceLock::from(Ok(wide)),
+            options: BuildOptions::default(),
         }
     }
 
@@ -212,6 +264,18 @@ impl BuiltScene {
     }
 }
 
+/// The layer mask of each leaf-order triangle of `bvh`, or none when every object has all bits.
+fn masks_of(scene: &Scene, bvh: &Bvh) -> Vec<u32> {
+    if scene.objects().iter().all(|o| o.mask == u32::MAX) {
+        Vec::new()
+    } else {
+        bvh.triangle_ids
+            .iter()
+            .map(|&i| scene.triangle_mask(i))
+            .collect()
+    }
+}
+
 /// Something that answers pick rays: the CPU or the GPU path.
 pub trait Picker {
     /// Answers `rays` as `query` asks; `nearest[i]` answers `rays[i]`.
@@ -251,6 +315,19 @@ pub trait Picker {
     /// Which path this picker runs on, for messages.
     fn describe(&self) -> String;
 
+    /// Moves object `object`'s vertices and refits the picker's tree to them
+    /// ([`BuiltScene::set_positions`]); later picks see the new positions. A picker whose scene
+    /// is shared (another picker, or the caller, holds its `Arc`) takes its own copy first; the
+    /// GPU picker uploads the new boxes and triangles only. Pickers that cannot move vertices
+    /// say so.
+    fn set_positions(&mut self, object: u32, positions: &[DVec3]) -> Result<Refit> {
+        let _ = (object, positions);
+        Err(crate::error::Error::Invalid(format!(
+            "the {} picker cannot move vertices",
+            self.describe()
+        )))
+    }
+
     /// Messages about fallbacks since the last call (the automatic backend's), for the caller
     /// to show.
     fn take_notes(&mut self) -> Vec<String> {
@@ -279,6 +356,14 @@ impl SlotWriter {
 pub trait Tracer {
     /// The scene this tracer answers for.
     fn built(&self) -> &Arc<BuiltScene>;
+    /// The same, to change (set it, then call [`Tracer::scene_changed`]).
+    fn built_mut(&mut self) -> &mut Arc<BuiltScene>;
+    /// Brings whatever the tracer keeps of the scene (the GPU's buffers) up to date after its
+    /// `BuiltScene` changed as `refit` says.
+    fn scene_changed(&mut self, refit: Refit) -> Result<()> {
+        let _ = refit;
+        Ok(())
+    }
     /// Traces `rays`; `out.0[i]` answers `rays[i]`, and `out.1` holds `settings.max_hits`
     /// entries per ray.
     fn trace(
@@ -319,6 +404,16 @@ impl<T: Tracer> Picker for T {
 
     fn describe(&self) -> String {
         self.path_name()
+    }
+
+    fn set_positions(&mut self, object: u32, positions: &[DVec3]) -> Result<Refit> {
+        // Refused positions copy nothing, even from a shared scene.
+        self.built()
+            .scene
+            .check_object_positions(object, positions)?;
+        let refit = Arc::make_mut(self.built_mut()).set_positions(object, positions)?;
+        self.scene_changed(refit)?;
+        Ok(refit)
     }
 }
 
@@ -561,6 +656,10 @@ impl Tracer for CpuPicker {
         &self.built
     }
 
+    fn built_mut(&mut self) -> &mut Arc<BuiltScene> {
+        &mut self.built
+    }
+
     fn trace(
         &mut self,
         rays: &[GpuRay],
@@ -623,6 +722,10 @@ impl ReferencePicker {
 impl Tracer for ReferencePicker {
     fn built(&self) -> &Arc<BuiltScene> {
         &self.built
+    }
+
+    fn built_mut(&mut self) -> &mut Arc<BuiltScene> {
+        &mut self.built
     }
 
     fn trace(

@@ -182,6 +182,72 @@ impl Scene {
         Ok(())
     }
 
+    /// The scene vertex indices of object `object`'s vertices (empty for an unknown object).
+    pub fn object_vertices(&self, object: u32) -> std::ops::Range<usize> {
+        let Some(o) = self.objects.get(object as usize) else {
+            return 0..0;
+        };
+        let end = self
+            .objects
+            .get(object as usize + 1)
+            .map_or(self.positions.len(), |next| next.first_vertex as usize);
+        o.first_vertex as usize..end
+    }
+
+    /// Moves object `object`'s vertices to `positions` (as many as it has, in its own vertex
+    /// order, finite), keeping its triangles, and updates the scene's bounds. A tree built over
+    /// the scene must then be refitted ([`crate::bvh::Bvh::refit`]). Fails, naming the object,
+    /// on an unknown object, a wrong count or a non-finite coordinate, with nothing changed.
+    pub fn set_object_positions(&mut self, object: u32, positions: &[DVec3]) -> Result<()> {
+        self.check_object_positions(object, positions)?;
+        self.put_object_positions(object, positions);
+        Ok(())
+    }
+
+    /// [`Scene::set_object_positions`] for positions already checked
+    /// ([`Scene::check_object_positions`]).
+    pub(crate) fn put_object_positions(&mut self, object: u32, positions: &[DVec3]) {
+        use rayon::prelude::*;
+        let range = self.object_vertices(object);
+        self.positions.to_mut()[range].copy_from_slice(positions);
+        (self.bounds_min, self.bounds_max) = self
+            .positions
+            .par_iter()
+            .fold(
+                || (DVec3::INFINITY, DVec3::NEG_INFINITY),
+                |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+            )
+            .reduce(
+                || (DVec3::INFINITY, DVec3::NEG_INFINITY),
+                |a, b| (a.0.min(b.0), a.1.max(b.1)),
+            );
+    }
+
+    /// Whether [`Scene::set_object_positions`] would take `positions` for object `object`: the
+    /// error it would give, naming the object, if not.
+    pub fn check_object_positions(&self, object: u32, positions: &[DVec3]) -> Result<()> {
+        let o = self
+            .objects
+            .get(object as usize)
+            .ok_or_else(|| Error::Invalid(format!("there is no object {object}")))?;
+        let range = self.object_vertices(object);
+        if positions.len() != range.len() {
+            return Err(Error::Invalid(format!(
+                "{}: {} positions given for its {} vertices",
+                o.name,
+                positions.len(),
+                range.len()
+            )));
+        }
+        if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
+            return Err(Error::Invalid(format!(
+                "{}: vertex {i} has a non-finite coordinate {p}",
+                o.name
+            )));
+        }
+        Ok(())
+    }
+
     /// The layer mask of the object owning scene triangle `index`.
     pub fn triangle_mask(&self, index: u32) -> u32 {
         let (object, _) = self.locate(index);

@@ -8,6 +8,8 @@
 pub mod binned_sah;
 pub mod median_cut;
 pub mod options;
+mod refit;
+pub(crate) use refit::bounds;
 pub mod sah_cost;
 pub mod terrain_blocks;
 mod top_down;
@@ -118,9 +120,16 @@ pub(crate) fn traceable_triangle(
 /// Whether scene triangle `index`, whose f32 offsets are `local`, can be hit: not zero area in
 /// f64 and not zero area once rounded to f32. Other triangles are left out of every tree and
 /// keep their ids.
-pub(crate) fn is_traceable(scene: &Scene, index: usize, [a, b, c]: [Vec3; 3]) -> bool {
+pub(crate) fn is_traceable(scene: &Scene, index: usize, local: [Vec3; 3]) -> bool {
+    traceable_corners(scene.world_triangle(index), local)
+}
+
+/// [`is_traceable`] for a triangle with world corners `world` and f32 offsets `local`: neither
+/// has zero area (`Scene::is_degenerate`'s test on the world corners).
+#[inline]
+pub(crate) fn traceable_corners([p, q, r]: [DVec3; 3], [a, b, c]: [Vec3; 3]) -> bool {
     let f32_area_zero = (b - a).as_dvec3().cross((c - a).as_dvec3()) == DVec3::ZERO;
-    !f32_area_zero && !scene.is_degenerate(index)
+    !f32_area_zero && (q - p).cross(r - p) != DVec3::ZERO
 }
 
 /// Scene triangle `index` as the kernel stores it: f32 offsets (from [`local_positions`]).

@@ -7,8 +7,9 @@
 
 use crate::bvh::Bvh;
 use crate::error::{Error, Result};
-use crate::layout::{GpuNode, KIND_INNER, MAX_LEAF_SIZE};
+use crate::layout::{GpuNode, GpuTriangle, KIND_INNER, MAX_LEAF_SIZE};
 use crate::store::Store;
+use glam::Vec3;
 use rayon::prelude::*;
 
 /// Children per node.
@@ -37,6 +38,14 @@ pub struct WideNode {
     pub occupied: u8,
     /// Zero: the padding to 256 bytes (four cache lines), explicit.
     pub reserved: [u8; RESERVED],
+}
+
+/// Sets child slot `lane`'s box.
+fn set_box(node: &mut WideNode, lane: usize, min: Vec3, max: Vec3) {
+    for a in 0..3 {
+        node.min[a][lane] = min[a];
+        node.max[a][lane] = max[a];
+    }
 }
 
 /// Padding bytes at the end of a [`WideNode`].
@@ -161,6 +170,47 @@ impl WideBvh {
     /// Bytes the engine adds to a built scene (its nodes; it reads the shared triangles).
     pub fn bytes(&self) -> u64 {
         std::mem::size_of_val(self.nodes.as_slice()) as u64
+    }
+
+    /// Recomputes every child box from the leaf-order `triangles` after they moved (a refit of
+    /// the binary tree, `Bvh::refit`): a leaf child's box is its triangles' min/max, an inner
+    /// child's the union of its node's children, so the result is the collapse of the refitted
+    /// binary tree, box for box, without collapsing again. The tree is one [`WideBvh::collapse`]
+    /// made (or a validated one): children after their parents.
+    pub fn refit(&mut self, triangles: &[GpuTriangle]) {
+        let nodes = self.nodes.to_mut();
+        // Leaf children first, every node in parallel; then the inner children, each from its
+        // node's bounds, children before parents.
+        nodes.par_iter_mut().with_min_len(256).for_each(|node| {
+            for lane in 0..WIDTH {
+                let (kind, first) = (node.kind[lane], node.child[lane] as usize);
+                if kind != EMPTY && kind != INNER {
+                    let (min, max) = crate::bvh::bounds(&triangles[first..first + kind as usize]);
+                    set_box(node, lane, min, max);
+                }
+            }
+        });
+        let mut node_bounds = vec![(Vec3::INFINITY, Vec3::NEG_INFINITY); nodes.len()];
+        for i in (0..nodes.len()).rev() {
+            let node = &mut nodes[i];
+            let mut all = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+            for lane in 0..WIDTH {
+                let (min, max) = match node.kind[lane] {
+                    EMPTY => continue,
+                    INNER => {
+                        let (min, max) = node_bounds[node.child[lane] as usize];
+                        set_box(node, lane, min, max);
+                        (min, max)
+                    }
+                    _ => (
+                        Vec3::new(node.min[0][lane], node.min[1][lane], node.min[2][lane]),
+                        Vec3::new(node.max[0][lane], node.max[1][lane], node.max[2][lane]),
+                    ),
+                };
+                all = (all.0.min(min), all.1.max(max));
+            }
+            node_bounds[i] = all;
+        }
     }
 }
 

@@ -7,7 +7,7 @@ use super::context::GpuContext;
 use crate::cpu::TraceSettings;
 use crate::error::{Error, Result};
 use crate::layout::{GpuHit, GpuHitEntry, GpuNode, GpuParams, GpuRay, GpuTriangle};
-use crate::picker::{BuiltScene, Tracer};
+use crate::picker::{BuiltScene, Refit, Tracer};
 use crate::ray_order::DEFAULT_REORDER_FROM;
 use std::mem::size_of;
 use std::sync::Arc;
@@ -76,24 +76,7 @@ impl GpuPicker {
         let limits = device.limits();
         check_workgroup_size(&limits, workgroup_size)?;
         let max_binding = limits.max_storage_buffer_binding_size;
-        for (what, bytes) in [
-            (
-                "the tree's node buffer",
-                size_of::<GpuNode>() * built.bvh.nodes.len(),
-            ),
-            (
-                "the triangle buffer",
-                size_of::<GpuTriangle>() * built.bvh.triangles.len(),
-            ),
-        ] {
-            if bytes as u64 > max_binding {
-                return Err(Error::TooLargeForGpu {
-                    what,
-                    needed: bytes as u64,
-                    limit: max_binding,
-                });
-            }
-        }
+        check_sizes(&limits, &built)?;
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -424,6 +407,55 @@ impl Tracer for GpuPicker {
         &self.built
     }
 
+    fn built_mut(&mut self) -> &mut Arc<BuiltScene> {
+        &mut self.built
+    }
+
+    /// A refit keeps every buffer's size and the triangles' ids and masks: only the nodes and
+    /// the triangles are written again, into the resident buffers. A rebuilt tree gets buffers
+    /// of its own (the kernel stays compiled).
+    fn scene_changed(&mut self, refit: Refit) -> Result<()> {
+        let built = self.built.clone();
+        match refit {
+            Refit::Refitted => {
+                if !built.bvh.nodes.is_empty() {
+                    let queue = &self.context.queue;
+                    queue.write_buffer(&self.nodes, 0, bytemuck::cast_slice(&built.bvh.nodes));
+                    queue.write_buffer(
+                        &self.triangles,
+                        0,
+                        bytemuck::cast_slice(&built.bvh.triangles),
+                    );
+                }
+            }
+            Refit::Rebuilt => {
+                let device = &self.context.device;
+                check_sizes(&device.limits(), &built)?;
+                let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+                let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+                self.nodes = storage_init(device, "nodes", &built.bvh.nodes, GpuNode::default());
+                self.triangles = storage_init(
+                    device,
+                    "triangles",
+                    &built.bvh.triangles,
+                    GpuTriangle::default(),
+                );
+                self.triangle_masks =
+                    storage_init(device, "triangle masks", &built.triangle_masks, 0u32);
+                self.triangle_ids =
+                    storage_init(device, "triangle ids", &built.bvh.triangle_ids, 0u32);
+                // The batch's bind group names the old buffers.
+                self.batch = None;
+                let oom_error = pollster::block_on(oom.pop());
+                let validation_error = pollster::block_on(scope.pop());
+                if let Some(e) = oom_error.or(validation_error) {
+                    return Err(Error::Gpu(e.to_string()));
+                }
+            }
+        }
+        self.context.take_fault()
+    }
+
     fn trace(
         &mut self,
         rays: &[GpuRay],
@@ -470,6 +502,32 @@ pub fn check_workgroup_size(limits: &wgpu::Limits, size: u32) -> Result<()> {
     }
 }
 
+/// Refuses a tree whose nodes or triangles do not fit one storage binding.
+fn check_sizes(limits: &wgpu::Limits, built: &BuiltScene) -> Result<()> {
+    let max_binding = limits.max_storage_buffer_binding_size;
+    for (what, bytes) in [
+        (
+            "the tree's node buffer",
+            size_of::<GpuNode>() * built.bvh.nodes.len(),
+        ),
+        (
+            "the triangle buffer",
+            size_of::<GpuTriangle>() * built.bvh.triangles.len(),
+        ),
+    ] {
+        if bytes as u64 > max_binding {
+            return Err(Error::TooLargeForGpu {
+                what,
+                needed: bytes as u64,
+                limit: max_binding,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// A storage buffer holding `data` (or one `filler` when it is empty: bindings may not be
+/// empty), which later writes may replace ([`Tracer::scene_changed`]).
 fn storage_init<T: bytemuck::Pod>(
     device: &wgpu::Device,
     label: &str,
@@ -481,6 +539,6 @@ fn storage_init<T: bytemuck::Pod>(
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some(label),
         contents: bytemuck::cast_slice(contents),
-        usage: wgpu::BufferUsages::STORAGE,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
     })
 }

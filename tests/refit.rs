@@ -1,0 +1,289 @@
+//! Moving an object's vertices without rebuilding (`Picker::set_positions`,
+//! `BuiltScene::set_positions`): every backend, refitted in place, answers bit for bit as new
+//! pickers made over the refitted scene, and the refitted trees pass the equivalence suite
+//! (engine, twin, GPU and the f64 oracle: 0 mismatches). A refit keeps the tree's f32 frame, so
+//! at a shared edge it may report the other triangle than a build from scratch (a new origin,
+//! other f32 roundings): both are hits, which the oracle's tie rules accept. A triangle that
+//! becomes degenerate, or stops being so, makes the tree build again; bad positions change
+//! nothing.
+
+mod common;
+
+use glam::{DMat3, DVec3, Vec3};
+use raypick::auto::AutoPicker;
+use raypick::check::compare::differences;
+use raypick::check::synthetic::{hills, icosphere, mixed_rays, terrain};
+use raypick::engine::WideBvh;
+use raypick::engine::wide::{EMPTY, INNER, WIDTH};
+use raypick::layout::GpuTriangle;
+use raypick::picker::Tracer;
+use raypick::{
+    BuildOptions, Builder, BuiltScene, CpuPicker, GpuPicker, Mode, Picker, Query, Ray,
+    ReferencePicker, Refit, Scene,
+};
+use std::sync::Arc;
+
+/// The positions of object `object` of `scene`, rotated, scaled unevenly, moved and wobbled
+/// vertex by vertex (`step` varies the motion).
+fn moved(scene: &Scene, object: u32, step: f64) -> Vec<DVec3> {
+    let turn = DMat3::from_rotation_z(0.3 * step) * DMat3::from_rotation_x(0.1 * step);
+    let stretch = DVec3::new(1.0 + 0.1 * step, 0.9, 1.2);
+    scene
+        .object_vertices(object)
+        .map(|v| {
+            let p = scene.position(v);
+            let wobble = DVec3::new((v as f64 * 0.7).sin(), (v as f64 * 1.3).cos(), 0.0) * 0.01;
+            turn * (p * stretch) + DVec3::new(0.5, -0.25, 0.125) * step + wobble
+        })
+        .collect()
+}
+
+/// A mesh object (a sphere) over a terrain grid object.
+fn two_objects() -> Scene {
+    let mut scene = Scene::new();
+    scene
+        .add_mesh("sphere", icosphere(DVec3::new(5.0, -5.0, 4.0), 2.5, 3))
+        .unwrap();
+    scene
+        .add_mesh(
+            "terrain",
+            terrain(24, 20, 0.0, 0.0, 0.5, hills),
+        )
+        .unwrap();
+    scene
+}
+
+fn plain(rays: &[(raypick::check::synthetic::RayKind, Ray)]) -> Vec<Ray> {
+    rays.iter().map(|(_, r)| *r).collect()
+}
+
+/// Asserts that `picker` answers `rays` as `want` does, bit for bit, in closest and all-hits
+/// modes.
+fn assert_same(name: &str, picker: &mut dyn Picker, want: &mut dyn Picker, rays: &[Ray]) {
+    for query in [
+        Query::default(),
+        Query {
+            mode: Mode::All,
+            max_hits: 8,
+            ..Query::default()
+        },
+    ] {
+        let got = picker.query(rays, &query).unwrap();
+        let expected = want.query(rays, &query).unwrap();
+        let differ = differences(query.mode, &got, &expected);
+        assert!(
+            differ.is_empty(),
+            "{name} {:?}: {} of {} rays differ from a new picker, first {:?}: {:?} vs {:?}",
+            query.mode,
+            differ.len(),
+            rays.len(),
+            rays[differ[0]],
+            got.hits_of(differ[0]),
+            expected.hits_of(differ[0])
+        );
+    }
+}
+
+#[test]
+fn moved_objects_answer_as_new_pickers_and_the_oracle_on_every_backend() {
+    let options = BuildOptions::default();
+    let built = Arc::new(BuiltScene::new(two_objects(), &options).unwrap());
+    let mut cpu = CpuPicker::new(built.clone());
+    let mut reference = ReferencePicker::new(built.clone());
+    let mut gpu = GpuPicker::new(common::gpu(), built.clone()).unwrap();
+    let mut auto = AutoPicker::new(built.clone());
+    let warm = plain(&mixed_rays(&built.scene, 64, 1));
+    for picker in [
+        &mut cpu as &mut dyn Picker,
+        &mut reference,
+        &mut gpu,
+        &mut auto,
+    ] {
+        // The engine's wide tree exists before the move, so it is refitted, not collapsed anew.
+        picker.pick(&warm).unwrap();
+    }
+    drop(built);
+    // Each object in turn, twice, so refits follow refits.
+    for (round, object) in [(1.0, 0u32), (2.0, 1), (3.0, 0)] {
+        let positions = moved(&cpu.built().scene, object, round);
+        let mut refits = Vec::new();
+        for picker in [
+            &mut cpu as &mut dyn Picker,
+            &mut reference,
+            &mut gpu,
+            &mut auto,
+        ] {
+            refits.push(picker.set_positions(object, &positions).unwrap());
+        }
+        assert_eq!(refits, [Refit::Refitted; 4], "round {round}");
+        let refitted = cpu.built().clone();
+        let rays = mixed_rays(&refitted.scene, 1500, round as u64);
+        let rays_plain = plain(&rays);
+        let mut new_reference = ReferencePicker::new(refitted.clone());
+        for (name, picker) in [
+            ("cpu", &mut cpu as &mut dyn Picker),
+            ("reference", &mut reference),
+            ("gpu", &mut gpu),
+            ("auto", &mut auto),
+        ] {
+            assert_same(name, picker, &mut new_reference, &rays_plain);
+        }
+        // The refitted trees themselves: valid, the engine's the collapse of the binary one,
+        // and the whole equivalence suite (GPU, twin, engine, oracle) on them.
+        refitted.bvh.validate().unwrap();
+        let wide = refitted.wide().unwrap();
+        wide.validate(refitted.bvh.triangles.len()).unwrap();
+        if !wide.nodes.is_empty() {
+            wide_bounds(wide, &refitted.bvh.triangles, 0);
+        }
+        common::assert_equivalent(&format!("refit round {round}"), refitted, &rays);
+    }
+}
+
+/// Asserts that every child box of wide node `node` (and below) is exactly the min/max of the
+/// triangles under it, and returns the node's own bounds.
+fn wide_bounds(wide: &WideBvh, triangles: &[GpuTriangle], node: usize) -> (Vec3, Vec3) {
+    let n = &wide.nodes[node];
+    let mut all = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+    for lane in 0..WIDTH {
+        let (kind, child) = (n.kind[lane], n.child[lane] as usize);
+        let (lo, hi) = match kind {
+            EMPTY => continue,
+            INNER => wide_bounds(wide, triangles, child),
+            count => triangles[child..child + count as usize]
+                .iter()
+                .flat_map(|t| [t.v0, t.v1, t.v2])
+                .map(Vec3::from)
+                .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| {
+                    (lo.min(p), hi.max(p))
+                }),
+        };
+        let slot = |b: &[[f32; WIDTH]; 3]| Vec3::new(b[0][lane], b[1][lane], b[2][lane]);
+        assert_eq!(
+            (slot(&n.min), slot(&n.max)),
+            (lo, hi),
+            "wide node {node} slot {lane}"
+        );
+        all = (all.0.min(lo), all.1.max(hi));
+    }
+    all
+}
+
+/// The scene `picker` holds, built afresh with `options`.
+fn fresh_from(picker: &CpuPicker, options: &BuildOptions) -> BuiltScene {
+    BuiltScene::new(picker.built().scene.clone(), options).unwrap()
+}
+
+#[test]
+fn a_refitted_grid_tree_is_the_tree_a_fresh_grid_build_makes() {
+    // The grid builder's shape depends on the grid alone: refitted, the tree (nodes,
+    // triangles, ids, blocks) is the one a fresh build makes, as long as the origin stays.
+    let mut scene = Scene::new();
+    let grid = terrain(33, 29, 0.0, 0.0, 1.0, hills);
+    let shape = raypick::scene::GridShape {
+        columns: 33,
+        rows: 29,
+    };
+    scene.add_grid_mesh("dem", grid, shape).unwrap();
+    let options = BuildOptions {
+        builder: Builder::Grid,
+        ..BuildOptions::default()
+    };
+    let mut built = BuiltScene::new(scene, &options).unwrap();
+    // New heights inside the old height range, so the bounds and the origin stay.
+    let (lo, hi) = built.scene.bounds().unwrap();
+    let positions: Vec<DVec3> = built
+        .scene
+        .object_vertices(0)
+        .map(|v| {
+            let p = built.scene.position(v);
+            let z = lo.z + (hi.z - lo.z) * (0.5 + 0.45 * (p.x * 0.37 + p.y * 0.11).sin());
+            DVec3::new(p.x, p.y, z)
+        })
+        .collect();
+    let mut positions = positions;
+    // Keep the extremes where they were so the bounds (and the origin) do not move.
+    let (first, last) = (0, positions.len() - 1);
+    positions[first].z = lo.z;
+    positions[last].z = hi.z;
+    assert_eq!(built.set_positions(0, &positions).unwrap(), Refit::Refitted);
+    let want = BuiltScene::new(built.scene.clone(), &options).unwrap();
+    assert_eq!(
+        built.bvh.origin, want.bvh.origin,
+        "the test keeps the origin"
+    );
+    assert!(built.bvh.nodes.as_slice() == want.bvh.nodes.as_slice());
+    assert!(built.bvh.triangles.as_slice() == want.bvh.triangles.as_slice());
+    assert!(built.bvh.triangle_ids.as_slice() == want.bvh.triangle_ids.as_slice());
+    assert_eq!(built.bvh.blocks, want.bvh.blocks);
+}
+
+#[test]
+fn a_triangle_becoming_degenerate_or_not_rebuilds_the_tree() {
+    let options = BuildOptions::default();
+    let built = Arc::new(BuiltScene::new(two_objects(), &options).unwrap());
+    let mut cpu = CpuPicker::new(built.clone());
+    let mut gpu = GpuPicker::new(common::gpu(), built).unwrap();
+    // Triangle 0 of the sphere flattened to a point: it leaves the tree.
+    let mut positions = moved(&cpu.built().scene, 0, 0.0);
+    let [a, b, c] = cpu.built().scene.triangle_vertices(0);
+    let first = cpu.built().scene.objects()[0].first_vertex;
+    for v in [b, c] {
+        positions[(v - first) as usize] = positions[(a - first) as usize];
+    }
+    let flattened = positions.clone();
+    for picker in [&mut cpu as &mut dyn Picker, &mut gpu] {
+        assert_eq!(picker.set_positions(0, &flattened).unwrap(), Refit::Rebuilt);
+    }
+    check_rebuilt(&mut cpu, &mut gpu, &options, 9);
+    // And back: the triangle is traceable again, so the tree is built again.
+    let original = two_objects();
+    let restored: Vec<DVec3> = original
+        .object_vertices(0)
+        .map(|v| original.position(v) + DVec3::new(0.0, 0.0, 0.25))
+        .collect();
+    for picker in [&mut cpu as &mut dyn Picker, &mut gpu] {
+        assert_eq!(picker.set_positions(0, &restored).unwrap(), Refit::Rebuilt);
+    }
+    check_rebuilt(&mut cpu, &mut gpu, &options, 10);
+}
+
+/// After a rebuild both pickers hold a tree a fresh build makes, and answer as a new picker
+/// over a fresh build does, bit for bit.
+fn check_rebuilt(cpu: &mut CpuPicker, gpu: &mut GpuPicker, options: &BuildOptions, seed: u64) {
+    let want = Arc::new(fresh_from(cpu, options));
+    assert!(cpu.built().bvh.nodes.as_slice() == want.bvh.nodes.as_slice());
+    assert!(gpu.built().bvh.nodes.as_slice() == want.bvh.nodes.as_slice());
+    let rays = mixed_rays(&want.scene, 1000, seed);
+    let plain = plain(&rays);
+    assert_same("cpu", cpu, &mut ReferencePicker::new(want.clone()), &plain);
+    assert_same("gpu", gpu, &mut ReferencePicker::new(want.clone()), &plain);
+    common::assert_equivalent("rebuilt", want, &rays);
+}
+
+#[test]
+fn bad_positions_are_refused_and_change_nothing() {
+    let built = Arc::new(BuiltScene::new(two_objects(), &BuildOptions::default()).unwrap());
+    let rays = plain(&mixed_rays(&built.scene, 500, 3));
+    let mut cpu = CpuPicker::new(built.clone());
+    let before = cpu.pick(&rays).unwrap();
+    let count = built.scene.object_vertices(0).len();
+    let mut with_nan = moved(&built.scene, 0, 1.0);
+    with_nan[7].y = f64::NAN;
+    for (positions, object, says) in [
+        (vec![DVec3::ZERO; count - 1], 0, "positions given for its"),
+        (with_nan, 0, "non-finite"),
+        (vec![DVec3::ZERO; count], 9, "there is no object 9"),
+    ] {
+        let error = cpu
+            .set_positions(object, &positions)
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains(says), "{error}");
+    }
+    assert_eq!(cpu.pick(&rays).unwrap(), before);
+    assert!(
+        Arc::ptr_eq(cpu.built(), &built),
+        "a refused move copies nothing"
+    );
+}
