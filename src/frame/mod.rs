@@ -177,7 +177,7 @@ pub fn resolve_with(scene: &Scene, bvh: &Bvh, ray: &Ray, dir_length: f64, found:
 
 /// [`resolve_with`] for a chunk of results: `emit(k, hit)` for each `k`, with the hit
 /// `resolve_with(scene, bvh, &rays[input[k]], lengths[k], &found[k])`, bit for bit; the hits
-/// are refined four at a time ([`four::refine_four`]). `found` was checked ([`check_found`]).
+/// are refined four at a time (`four::refine_four`). `found` was checked ([`check_found`]).
 pub fn resolve_chunk(
     scene: &Scene,
     bvh: &Bvh,
