@@ -45,10 +45,7 @@ fn two_objects() -> Scene {
         .add_mesh("sphere", icosphere(DVec3::new(5.0, -5.0, 4.0), 2.5, 3))
         .unwrap();
     scene
-        .add_mesh(
-            "terrain",
-            terrain(24, 20, 0.0, 0.0, 0.5, hills),
-        )
+        .add_mesh("terrain", terrain(24, 20, 0.0, 0.0, 0.5, hills))
         .unwrap();
     scene
 }

@@ -98,27 +98,67 @@ impl Bvh {
     }
 }
 
-/// Recomputes every node's box from its triangles: the leaves' in parallel, then the inner
-/// nodes' children before parents (a child's index is above its parent's in depth-first order).
+/// Subtrees smaller than this are refitted by one task.
+const SERIAL_NODES: usize = 4096;
+
+/// Recomputes every node's box from its triangles, children before parents (links point
+/// forward). The builders lay a subtree out as a contiguous run of nodes (the root, its left
+/// subtree, then its right one from the root's `first`), so the two subtrees of a large one are
+/// refitted as two tasks on disjoint slices. A tree laid out otherwise (a saved one may be:
+/// `Bvh::validate` asks only for forward links) has a link leave its task's slice, which the
+/// task notices; the whole tree is then refitted in one pass.
 fn refit_boxes(nodes: &mut [GpuNode], triangles: &[GpuTriangle]) {
-    nodes
-        .par_iter_mut()
-        .with_min_len(1024)
-        .filter(|node| node.kind() < KIND_INNER)
-        .for_each(|node| {
-            let first = node.first as usize;
-            let (min, max) = bounds(&triangles[first..first + node.kind() as usize]);
-            node.min = min.into();
-            node.max = max.into();
-        });
+    if !refit_subtree(nodes, 0, triangles) {
+        refit_serially(nodes, 0, triangles);
+    }
+}
+
+/// Refits the subtree rooted at `nodes[0]` (node `base` of the tree), which should span
+/// `nodes`; `false` when a link leaves `nodes`.
+fn refit_subtree(nodes: &mut [GpuNode], base: usize, triangles: &[GpuTriangle]) -> bool {
+    let Some(&root) = nodes.first() else {
+        return true;
+    };
+    let right = (root.first as usize).wrapping_sub(base);
+    let split =
+        root.kind() >= KIND_INNER && nodes.len() > SERIAL_NODES && right > 1 && right < nodes.len();
+    if !split {
+        return refit_serially(nodes, base, triangles);
+    }
+    let (top, rest) = nodes.split_at_mut(1);
+    let (left, right_half) = rest.split_at_mut(right - 1);
+    let (l_ok, r_ok) = rayon::join(
+        || refit_subtree(left, base + 1, triangles),
+        || refit_subtree(right_half, base + right, triangles),
+    );
+    let (l, r) = (left[0], right_half[0]);
+    top[0].min = Vec3::from(l.min).min(Vec3::from(r.min)).into();
+    top[0].max = Vec3::from(l.max).max(Vec3::from(r.max)).into();
+    l_ok && r_ok
+}
+
+/// Refits `nodes` (node `base` onwards) in reverse order, children before parents; `false`,
+/// stopping, at a link that leaves `nodes`.
+fn refit_serially(nodes: &mut [GpuNode], base: usize, triangles: &[GpuTriangle]) -> bool {
     for i in (0..nodes.len()).rev() {
         let node = nodes[i];
-        if node.kind() >= KIND_INNER {
-            let (left, right) = (nodes[i + 1], nodes[node.first as usize]);
-            nodes[i].min = Vec3::from(left.min).min(Vec3::from(right.min)).into();
-            nodes[i].max = Vec3::from(left.max).max(Vec3::from(right.max)).into();
-        }
+        let (min, max) = if node.kind() < KIND_INNER {
+            let first = node.first as usize;
+            bounds(&triangles[first..first + node.kind() as usize])
+        } else {
+            let right = (node.first as usize).wrapping_sub(base);
+            let (Some(&left), Some(&right)) = (nodes.get(i + 1), nodes.get(right)) else {
+                return false;
+            };
+            (
+                Vec3::from(left.min).min(Vec3::from(right.min)),
+                Vec3::from(left.max).max(Vec3::from(right.max)),
+            )
+        };
+        nodes[i].min = min.into();
+        nodes[i].max = max.into();
     }
+    true
 }
 
 /// The min/max of `triangles`' corners.
