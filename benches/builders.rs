@@ -84,6 +84,7 @@ fn dem() -> Scene {
     load_scene(&[SceneFile {
         file: data("jacksboro_fault_dem_utm.asc"),
         mask: None,
+        transform: None,
     }])
     .expect("the Jacksboro DEM loads")
 }

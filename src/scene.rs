@@ -33,6 +33,11 @@ pub struct Object {
     pub mask: u32,
     /// For a height-grid terrain: its shape, so hits can report the cell's row and column.
     pub grid: Option<GridShape>,
+    /// The object was mirrored by its transform (a negative determinant,
+    /// [`Scene::transform_object`]): its triangles are stored with their second and third
+    /// vertices swapped, so the faces that were front faces in the file stay front faces in the
+    /// world; hits still report `u` and `v` for the file's vertex order.
+    pub mirrored: bool,
 }
 
 /// The shape of a height-grid terrain object: quad (r, c) holds triangles 2k and 2k + 1 with
@@ -52,6 +57,30 @@ impl GridShape {
         let quads_per_row = self.columns.saturating_sub(1).max(1);
         (k / quads_per_row, k % quads_per_row)
     }
+}
+
+/// `transform` (3 × 4, row-major) applied to `p`: each row `(a·x + b·y) + c·z + t`, in f64.
+pub fn apply_transform(transform: &[[f64; 4]; 3], p: DVec3) -> DVec3 {
+    let row = |r: &[f64; 4]| r[0] * p.x + r[1] * p.y + r[2] * p.z + r[3];
+    DVec3::new(row(&transform[0]), row(&transform[1]), row(&transform[2]))
+}
+
+/// The determinant of `transform`'s 3 × 3 part, or why the transform cannot place an object: a
+/// number that is not finite, or a singular matrix (determinant 0, which flattens the object).
+pub fn check_transform(transform: &[[f64; 4]; 3]) -> std::result::Result<f64, String> {
+    if let Some(x) = transform.iter().flatten().find(|x| !x.is_finite()) {
+        return Err(format!("has a number that is not finite ({x})"));
+    }
+    let m = transform;
+    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    if det == 0.0 || !det.is_finite() {
+        return Err(format!(
+            "is singular (its 3 × 3 part has determinant {det})"
+        ));
+    }
+    Ok(det)
 }
 
 /// A set of objects ready to be built into a tree.
@@ -144,6 +173,7 @@ impl Scene {
             first_vertex: base,
             mask: u32::MAX,
             grid: None,
+            mirrored: false,
         });
         Ok(id)
     }
@@ -179,6 +209,35 @@ impl Scene {
             .get_mut(object as usize)
             .ok_or_else(|| Error::Invalid(format!("there is no object {object}")))?;
         o.mask = mask;
+        Ok(())
+    }
+
+    /// Maps object `object`'s vertices through the affine `transform` (3 × 4, row-major:
+    /// `world = M·[x, y, z, 1]`, each row summed left to right in f64), keeping its triangles.
+    /// A transform with a negative determinant (a mirror) also swaps each triangle's second and
+    /// third vertices, so that front faces stay front faces as seen in the world (the object is
+    /// then [`Object::mirrored`]). Fails, naming the object, on a transform that is not finite
+    /// or is singular, or on a vertex that leaves the finite range, with nothing changed.
+    pub fn transform_object(&mut self, object: u32, transform: &[[f64; 4]; 3]) -> Result<()> {
+        let o = self
+            .objects
+            .get(object as usize)
+            .ok_or_else(|| Error::Invalid(format!("there is no object {object}")))?;
+        let det = check_transform(transform)
+            .map_err(|why| Error::Invalid(format!("{}: the transform {why}", o.name)))?;
+        let moved: Vec<DVec3> = self
+            .object_vertices(object)
+            .map(|v| apply_transform(transform, self.positions[v]))
+            .collect();
+        self.set_object_positions(object, &moved)?;
+        if det < 0.0 {
+            let o = &mut self.objects[object as usize];
+            o.mirrored = !o.mirrored;
+            let range = o.first_triangle as usize..(o.first_triangle + o.triangle_count) as usize;
+            for t in &mut self.triangles.to_mut()[range] {
+                t.swap(1, 2);
+            }
+        }
         Ok(())
     }
 

@@ -22,6 +22,7 @@ fn ray_file(file: &Path, count: usize) -> PathBuf {
     let scene = load_scene(&[SceneFile {
         file: file.to_path_buf(),
         mask: None,
+        transform: None,
     }])
     .expect("the scene loads");
     let mut text = String::new();

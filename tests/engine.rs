@@ -21,6 +21,7 @@ fn dem() -> Scene {
     load_scene(&[SceneFile {
         file: Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/jacksboro_fault_dem_utm.asc"),
         mask: None,
+        transform: None,
     }])
     .expect("the Jacksboro DEM loads")
 }
@@ -29,6 +30,7 @@ fn bunny() -> Scene {
     load_scene(&[SceneFile {
         file: Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/bunny.obj"),
         mask: None,
+        transform: None,
     }])
     .expect("the bunny loads")
 }

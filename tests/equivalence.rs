@@ -112,6 +112,7 @@ fn real_elevation_grid_agrees() {
     let scene = raypick::io::scene_files::load_scene(&[raypick::io::scene_files::SceneFile {
         file: dem,
         mask: None,
+        transform: None,
     }])
     .unwrap();
     let hits = check_scene("jacksboro", scene, BuildOptions::default(), 800);

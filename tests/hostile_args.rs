@@ -550,6 +550,7 @@ fn server_answers_name_objects_by_file_name_only() {
     let scene = load_scene(&[SceneFile {
         file: obj.clone(),
         mask: None,
+        transform: None,
     }])
     .unwrap();
     let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());

@@ -450,7 +450,8 @@ fn scene_descriptions_list_only_files_inside_their_folder() {
         files,
         vec![SceneFile {
             file: dir.0.join("sub/tri.gltf"),
-            mask: Some(2)
+            mask: Some(2),
+            transform: None,
         }]
     );
     assert_eq!(load_scene(&files).unwrap().objects().len(), 1);
@@ -486,6 +487,7 @@ fn fifos_and_devices_are_refused_as_scenes_without_blocking() {
         let e = load_scene(&[SceneFile {
             file: path.clone(),
             mask: None,
+            transform: None,
         }])
         .unwrap_err();
         assert!(matches!(e, Error::Io { .. }), "{e}");

@@ -520,6 +520,7 @@ fn gzipped_ply_loads_like_the_plain_file() {
         let scene = load_scene(&[SceneFile {
             file: file.clone(),
             mask: None,
+            transform: None,
         }])
         .unwrap();
         assert_eq!(scene.objects().len(), 1);
@@ -585,6 +586,7 @@ fn scene_files_dispatch_ply_and_stl_by_extension_in_any_case() {
             .map(|f| SceneFile {
                 file: f.clone(),
                 mask: Some(2),
+                transform: None,
             })
             .collect::<Vec<_>>(),
     )
@@ -600,6 +602,7 @@ fn scene_files_dispatch_ply_and_stl_by_extension_in_any_case() {
     let e = load_scene(&[SceneFile {
         file: gz.clone(),
         mask: None,
+        transform: None,
     }])
     .unwrap_err()
     .to_string();
@@ -1324,7 +1327,12 @@ fn child_loads_one_scene_file() {
     };
     assert!(warm > 0);
     let before = status_kb("VmRSS");
-    let scene = load_scene(&[SceneFile { file, mask: None }]).expect("load");
+    let scene = load_scene(&[SceneFile {
+        file,
+        mask: None,
+        transform: None,
+    }])
+    .expect("load");
     let peak = status_kb("VmHWM");
     let bytes = std::mem::size_of_val(scene.positions()) + std::mem::size_of_val(scene.triangles());
     println!(

@@ -130,6 +130,7 @@ fn rays_at_known_dem_samples_return_them_within_a_millimetre() {
     let scene = load_scene(&[SceneFile {
         file: dem,
         mask: None,
+        transform: None,
     }])
     .unwrap();
     let object = &scene.objects()[0];

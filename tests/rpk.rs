@@ -291,6 +291,7 @@ fn a_dem_keeps_its_blocks_rows_and_columns_after_a_round_trip() {
     let scene = load_scene(&[SceneFile {
         file: data("jacksboro_fault_dem_utm.asc"),
         mask: None,
+        transform: None,
     }])
     .expect("jacksboro");
     let rays = rays(&scene, 2000, false);

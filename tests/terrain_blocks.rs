@@ -60,6 +60,7 @@ fn jacksboro() -> Scene {
     load_scene(&[SceneFile {
         file: Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/jacksboro_fault_dem_utm.asc"),
         mask: None,
+        transform: None,
     }])
     .expect("the Jacksboro DEM loads")
 }

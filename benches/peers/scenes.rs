@@ -57,6 +57,7 @@ fn load(path: PathBuf, what: &str) -> Scene {
     load_scene(&[SceneFile {
         file: path,
         mask: None,
+        transform: None,
     }])
     .unwrap_or_else(|e| panic!("{what} loads: {e}"))
 }

@@ -299,6 +299,7 @@ impl Scene {
                         files.push(SceneFile {
                             file: path.clone(),
                             mask: *mask,
+                            transform: None,
                         });
                     }
                 }

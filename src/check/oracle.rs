@@ -51,18 +51,21 @@ pub fn all_hits(scene: &Scene, all: &OracleTriangles, ray: &Ray, cull: Cull) -> 
             (h.hit && facing && h.t.is_finite() && h.t > ray.tmin && h.t <= ray.tmax).then(|| {
                 let [a, b, c] = vertices;
                 let (object, triangle) = scene.locate(i);
-                let cell = scene.objects()[object as usize].grid.map(|g| {
+                let o = &scene.objects()[object as usize];
+                let cell = o.grid.map(|g| {
                     let (r, c) = g.cell_of(triangle);
                     [r, c]
                 });
+                // A mirrored object's triangles are stored with vertices 2 and 3 swapped.
+                let (u, v) = if o.mirrored { (h.v, h.u) } else { (h.u, h.v) };
                 Hit {
                     hit: true,
                     invalid: false,
                     t: h.t,
                     object,
                     triangle,
-                    u: h.u,
-                    v: h.v,
+                    u,
+                    v,
                     position: ray.at(h.t),
                     normal: (b - a).cross(c - a).normalize_or_zero(),
                     cell,

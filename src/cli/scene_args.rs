@@ -75,6 +75,7 @@ impl SceneArgs {
             .map(|file| SceneFile {
                 file: file.clone(),
                 mask: None,
+                transform: None,
             })
             .collect();
         for (mask, at) in self.mask.iter().zip(mask_at) {

@@ -273,17 +273,21 @@ pub fn refine([a, b, c]: [DVec3; 3], ray: &Ray, traced: [f64; 3]) -> Refined {
 #[inline]
 fn hit_of(scene: &Scene, scene_index: u32, refined: Refined, found: &GpuHit) -> Hit {
     let (object, triangle) = scene.locate(scene_index);
-    let cell = scene.objects()[object as usize]
-        .grid
-        .map(|g| g.cell_of(triangle))
-        .map(|(r, c)| [r, c]);
+    let o = &scene.objects()[object as usize];
+    let cell = o.grid.map(|g| g.cell_of(triangle)).map(|(r, c)| [r, c]);
+    // A mirrored object's triangles are stored with vertices 2 and 3 swapped.
+    let (u, v) = if o.mirrored {
+        (refined.v, refined.u)
+    } else {
+        (refined.u, refined.v)
+    };
     Hit {
         hit: true,
         t: refined.t,
         object,
         triangle,
-        u: refined.u,
-        v: refined.v,
+        u,
+        v,
         position: refined.position,
         normal: refined.normal,
         cell,

@@ -3,7 +3,12 @@
 //! `.asc`, GeoTIFF `.tif`/`.tiff`) one terrain object whose hits report row and column, and each
 //! glTF (`.gltf`, `.glb`) mesh primitive one object, with node transforms applied. Object ids
 //! follow the order of the files, then of the objects inside a file. A scene description file
-//! (JSON) lists files with their layer masks.
+//! (JSON) lists files with their layer masks and affine transforms; a file listed several times
+//! is read once.
+//!
+//! A transform is applied to the file's f64 positions as it is loaded (`Scene::transform_object`):
+//! each listing of a file is its own copy of the mesh in the scene, not yet an instance of one
+//! stored mesh.
 //!
 //! Every scene file must be a regular file (a FIFO or a device is refused before it is opened),
 //! and the files a description lists must stay inside its folder: relative paths without `..`
@@ -17,12 +22,12 @@ use crate::io::obj::load_obj;
 use crate::io::ply::load_ply;
 use crate::io::stl::load_stl;
 use crate::io::{Refusal, read_regular, regular_file, resolve_inside};
-use crate::scene::{GridShape, Scene};
+use crate::scene::{GridShape, Mesh, Scene};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
 /// One scene file and the layer mask its objects get.
-#[derive(Clone, Debug, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
     /// The file; relative paths in a description file are relative to the description.
@@ -30,9 +35,16 @@ pub struct SceneFile {
     /// Layer mask for the file's objects (default: all bits).
     #[serde(default)]
     pub mask: Option<u32>,
+    /// Affine transform from the file's coordinates to the world, 3 × 4 row-major
+    /// (`[[a, b, c, tx], [d, e, f, ty], [g, h, i, tz]]`: world = M·[x, y, z, 1]); none: the
+    /// identity. Finite and not singular; a negative determinant mirrors the file's objects and
+    /// keeps their front faces front ([`Scene::transform_object`]).
+    #[serde(default)]
+    pub transform: Option<[[f64; 4]; 3]>,
 }
 
-/// A scene description file: `{"objects": [{"file": "terrain.asc", "mask": 1}, ...]}`.
+/// A scene description file: `{"objects": [{"file": "terrain.asc", "mask": 1,
+/// "transform": [[1, 0, 0, 500], [0, 1, 0, 0], [0, 0, 1, 0]]}, ...]}`.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct Description {
@@ -79,27 +91,67 @@ pub fn load_description(path: &Path) -> Result<Vec<SceneFile>> {
                     });
                 }
             };
-            Ok(SceneFile { file, mask: f.mask })
+            if let Some(transform) = &f.transform
+                && let Err(why) = crate::scene::check_transform(transform)
+            {
+                return Err(Error::Parse {
+                    path: name.clone(),
+                    line: None,
+                    message: format!(
+                        "object {k} (\"{}\"): the transform {why}",
+                        crate::budget::quote(&f.file.display().to_string())
+                    ),
+                });
+            }
+            Ok(SceneFile {
+                file,
+                mask: f.mask,
+                transform: f.transform,
+            })
         })
         .collect()
 }
 
-/// Loads every file into one scene, in order.
+/// Loads every file into one scene, in order, each with its mask and transform. A file listed
+/// more than once is read once and its objects copied.
 pub fn load_scene(files: &[SceneFile]) -> Result<Scene> {
     let mut scene = Scene::new();
+    let mut loaded: Vec<(&Path, Vec<FileObject>)> = Vec::new();
     for file in files {
         let first = scene.objects().len() as u32;
-        add_file(&mut scene, &file.file)?;
-        if let Some(mask) = file.mask {
-            for id in first..scene.objects().len() as u32 {
+        let objects = match loaded.iter().position(|(path, _)| *path == file.file) {
+            Some(k) => loaded[k].1.clone(),
+            None => {
+                let objects = read_file(&file.file)?;
+                if files.iter().filter(|f| f.file == file.file).count() > 1 {
+                    loaded.push((&file.file, objects.clone()));
+                }
+                objects
+            }
+        };
+        for (name, mesh, grid) in objects {
+            match grid {
+                Some(shape) => scene.add_grid_mesh(name, mesh, shape)?,
+                None => scene.add_mesh(name, mesh)?,
+            };
+        }
+        for id in first..scene.objects().len() as u32 {
+            if let Some(mask) = file.mask {
                 scene.set_object_mask(id, mask)?;
+            }
+            if let Some(transform) = &file.transform {
+                scene.transform_object(id, transform)?;
             }
         }
     }
     Ok(scene)
 }
 
-fn add_file(scene: &mut Scene, path: &Path) -> Result<()> {
+/// One object a file holds: its name, mesh and grid shape (for an elevation grid).
+type FileObject = (String, Mesh, Option<GridShape>);
+
+/// Reads `path`'s objects.
+fn read_file(path: &Path) -> Result<Vec<FileObject>> {
     let name = path.display().to_string();
     // Before any loader opens it: a FIFO would block the open, a device never ends.
     regular_file(path)?;
@@ -113,24 +165,16 @@ fn add_file(scene: &mut Scene, path: &Path) -> Result<()> {
         .and_then(Path::extension)
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
-    match extension.as_deref() {
-        Some("obj") => {
-            scene.add_mesh(name, load_obj(path)?)?;
-        }
-        Some("ply") => {
-            scene.add_mesh(name, load_ply(path)?)?;
-        }
-        Some("gz") if inner_extension.as_deref() == Some("ply") => {
-            scene.add_mesh(name, load_ply(path)?)?;
-        }
-        Some("stl") => {
-            scene.add_mesh(name, load_stl(path)?)?;
-        }
-        Some("gltf" | "glb") => {
-            for (object_name, mesh) in load_gltf(path)? {
-                scene.add_mesh(object_name, mesh)?;
-            }
-        }
+    let one = |mesh: Mesh| vec![(name.clone(), mesh, None)];
+    Ok(match extension.as_deref() {
+        Some("obj") => one(load_obj(path)?),
+        Some("ply") => one(load_ply(path)?),
+        Some("gz") if inner_extension.as_deref() == Some("ply") => one(load_ply(path)?),
+        Some("stl") => one(load_stl(path)?),
+        Some("gltf" | "glb") => load_gltf(path)?
+            .into_iter()
+            .map(|(object_name, mesh)| (object_name, mesh, None))
+            .collect(),
         Some("asc" | "tif" | "tiff") => {
             let grid = load_elevation(path)?;
             // The mesh: a vertex (24 bytes) and two triangles (2 × 12 bytes) per sample.
@@ -146,7 +190,7 @@ fn add_file(scene: &mut Scene, path: &Path) -> Result<()> {
                 columns: grid.ncols as u32,
                 rows: grid.nrows as u32,
             };
-            scene.add_grid_mesh(name, grid_to_mesh(&grid), shape)?;
+            vec![(name.clone(), grid_to_mesh(&grid), Some(shape))]
         }
         _ => {
             return Err(Error::Invalid(format!(
@@ -154,6 +198,5 @@ fn add_file(scene: &mut Scene, path: &Path) -> Result<()> {
                  .tif or .tiff)"
             )));
         }
-    }
-    Ok(())
+    })
 }

@@ -56,7 +56,7 @@
 //! | `SUMM` | the counts below and the two origins ([`records::Summary`]) | one record of 128 |
 //! | `VERT` | scene vertex positions, world f64 x, y, z | 24 |
 //! | `TRIS` | scene triangles: three u32 vertex indices, in scene (file) order | 12 |
-//! | `OBJS` | objects: id, first triangle, triangle count, first vertex, mask, has-grid (0/1), grid columns, grid rows, name length (u32 each), a zero u32 | 40 |
+//! | `OBJS` | objects: id, first triangle, triangle count, first vertex, mask, has-grid (0/1), grid columns, grid rows, name length, flags (bit 0: mirrored by its transform; other bits zero; files written before it was defined hold 0) (u32 each) | 40 |
 //! | `NAME` | the objects' names, UTF-8, one after another (lengths in `OBJS`) | 1 |
 //! | `NODE` | the kernel's tree: [`GpuNode`](crate::layout::GpuNode)s, depth-first | 32 |
 //! | `LTRI` | the tree's triangles in leaf order: [`GpuTriangle`](crate::layout::GpuTriangle)s, f32 offsets from the tree's origin | 36 |

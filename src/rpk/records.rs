@@ -238,8 +238,8 @@ pub struct ObjectRecord {
     pub rows: u32,
     /// Bytes of the name in the names section.
     pub name_length: u32,
-    /// Zero.
-    pub reserved: u32,
+    /// Bit 0: the object is mirrored (`Object::mirrored`); the other bits are zero.
+    pub flags: u32,
 }
 
 impl ObjectRecord {
@@ -255,7 +255,7 @@ impl ObjectRecord {
             self.columns,
             self.rows,
             self.name_length,
-            self.reserved,
+            self.flags,
         ] {
             out.u32(v);
         }
@@ -274,7 +274,7 @@ impl ObjectRecord {
             columns: r.u32(),
             rows: r.u32(),
             name_length: r.u32(),
-            reserved: r.u32(),
+            flags: r.u32(),
         }
     }
 }
@@ -354,7 +354,7 @@ mod tests {
             columns: 7,
             rows: 8,
             name_length: 9,
-            reserved: 0,
+            flags: 1,
         };
         object.encode(&mut out);
         assert_eq!(out.0.len(), OBJECT_BYTES);

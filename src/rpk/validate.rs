@@ -240,8 +240,11 @@ fn objects_of(
             }
             _ => return Err(format!("object {k}'s grid fields are malformed")),
         };
-        if r.reserved != 0 {
-            return Err(format!("object {k}'s reserved field is not zero"));
+        if r.flags > 1 {
+            return Err(format!(
+                "object {k}'s flags field {} is not 0 or 1",
+                r.flags
+            ));
         }
         let name = names
             .get(name_at..name_at + r.name_length as usize)
@@ -258,6 +261,7 @@ fn objects_of(
             first_vertex: r.first_vertex,
             mask: r.mask,
             grid,
+            mirrored: r.flags & 1 == 1,
         });
     }
     if next_triangle != triangles.len() as u64 {

@@ -35,7 +35,7 @@ pub fn save(built: &BuiltScene, path: &Path) -> Result<()> {
             columns: o.grid.map_or(0, |g| g.columns),
             rows: o.grid.map_or(0, |g| g.rows),
             name_length,
-            reserved: 0,
+            flags: u32::from(o.mirrored),
         }
         .encode(&mut objects);
         names.extend_from_slice(o.name.as_bytes());
