@@ -113,36 +113,20 @@ impl Picker for AutoPicker {
         std::mem::take(&mut self.notes)
     }
 
+    fn set_mask(&mut self, object: u32, mask: u32) -> Result<()> {
+        self.edit(|built| built.set_object_mask(object, mask).map(|()| Refit::Rebuilt))
+            .map(|_| ())
+    }
+
+    fn current_scene(&self) -> Option<Arc<BuiltScene>> {
+        Some(self.built.clone())
+    }
+
     /// Moves the vertices once for both paths: the scene is taken from the pickers while it is
     /// refitted (so it is not copied unless the caller holds it too), then handed back to both
     /// (the GPU's buffers brought up to date).
     fn set_positions(&mut self, object: u32, positions: &[DVec3]) -> Result<Refit> {
-        let placeholder = Arc::new(BuiltScene::from_parts(
-            Scene::new(),
-            Bvh::default(),
-            Vec::new(),
-        ));
-        let mut built = std::mem::replace(&mut self.built, placeholder.clone());
-        *self.cpu.built_mut() = placeholder.clone();
-        if let Some(gpu) = &mut self.gpu {
-            *gpu.built_mut() = placeholder;
-        }
-        let refit = Arc::make_mut(&mut built).set_positions(object, positions);
-        self.built = built.clone();
-        *self.cpu.built_mut() = built.clone();
-        if let Some(gpu) = &mut self.gpu {
-            *gpu.built_mut() = built;
-        }
-        let refit = refit?;
-        if let Some(gpu) = &mut self.gpu
-            && let Err(e) = gpu.scene_changed(refit)
-        {
-            self.notes.push(format!(
-                "the GPU failed ({e}); falling back to the CPU path"
-            ));
-            self.gpu = None;
-        }
-        Ok(refit)
+        self.edit(|built| built.set_positions(object, positions))
     }
 
     fn describe(&self) -> String {
@@ -159,5 +143,39 @@ impl Picker for AutoPicker {
             ),
             _ => format!("auto: {}", self.cpu.describe()),
         }
+    }
+}
+
+impl AutoPicker {
+    /// Applies `change` to the scene once for both paths: the scene is taken from the pickers
+    /// while it changes (so it is not copied unless the caller holds it too), then handed back
+    /// to both, the GPU's buffers brought up to date as the change's [`Refit`] says.
+    fn edit(&mut self, change: impl FnOnce(&mut BuiltScene) -> Result<Refit>) -> Result<Refit> {
+        let placeholder = Arc::new(BuiltScene::from_parts(
+            Scene::new(),
+            Bvh::default(),
+            Vec::new(),
+        ));
+        let mut built = std::mem::replace(&mut self.built, placeholder.clone());
+        *self.cpu.built_mut() = placeholder.clone();
+        if let Some(gpu) = &mut self.gpu {
+            *gpu.built_mut() = placeholder;
+        }
+        let refit = change(Arc::make_mut(&mut built));
+        self.built = built.clone();
+        *self.cpu.built_mut() = built.clone();
+        if let Some(gpu) = &mut self.gpu {
+            *gpu.built_mut() = built;
+        }
+        let refit = refit?;
+        if let Some(gpu) = &mut self.gpu
+            && let Err(e) = gpu.scene_changed(refit)
+        {
+            self.notes.push(format!(
+                "the GPU failed ({e}); falling back to the CPU path"
+            ));
+            self.gpu = None;
+        }
+        Ok(refit)
     }
 }

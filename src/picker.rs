@@ -103,6 +103,19 @@ impl BuiltScene {
         }
     }
 
+    /// Sets object `object`'s layer mask (rays hit it only when their mask shares a bit; 0:
+    /// never hit), with the per-triangle masks the tracers read. Fails on an unknown object.
+    pub fn set_object_mask(&mut self, object: u32, mask: u32) -> Result<()> {
+        self.scene.set_object_mask(object, mask)?;
+        self.triangle_masks = masks_of(&self.scene, &self.bvh).into();
+        Ok(())
+    }
+
+    /// The options the tree was built with (the defaults for a tree made elsewhere).
+    pub fn options(&self) -> &BuildOptions {
+        &self.options
+    }
+
     /// A built scene from a tree made elsewhere (`bvh` must be built over `scene`).
     pub fn from_parts(scene: Scene, bvh: Bvh, triangle_masks: impl Into<Store<u32>>) -> Self {
         Self {
@@ -328,6 +341,21 @@ pub trait Picker {
         )))
     }
 
+    /// Sets object `object`'s layer mask ([`BuiltScene::set_object_mask`]); later picks see it.
+    /// As with [`Picker::set_positions`], a shared scene is copied first.
+    fn set_mask(&mut self, object: u32, mask: u32) -> Result<()> {
+        let _ = (object, mask);
+        Err(crate::error::Error::Invalid(format!(
+            "the {} picker cannot change masks",
+            self.describe()
+        )))
+    }
+
+    /// The scene this picker answers for now (after any edits), when it has one to show.
+    fn current_scene(&self) -> Option<Arc<BuiltScene>> {
+        None
+    }
+
     /// Messages about fallbacks since the last call (the automatic backend's), for the caller
     /// to show.
     fn take_notes(&mut self) -> Vec<String> {
@@ -404,6 +432,21 @@ impl<T: Tracer> Picker for T {
 
     fn describe(&self) -> String {
         self.path_name()
+    }
+
+    fn set_mask(&mut self, object: u32, mask: u32) -> Result<()> {
+        if object as usize >= Tracer::built(self).scene.objects().len() {
+            return Err(crate::error::Error::Invalid(format!(
+                "there is no object {object}"
+            )));
+        }
+        Arc::make_mut(self.built_mut()).set_object_mask(object, mask)?;
+        // The per-triangle masks may have appeared or gone: new buffers where there are any.
+        self.scene_changed(Refit::Rebuilt)
+    }
+
+    fn current_scene(&self) -> Option<Arc<BuiltScene>> {
+        Some(Tracer::built(self).clone())
     }
 
     fn set_positions(&mut self, object: u32, positions: &[DVec3]) -> Result<Refit> {

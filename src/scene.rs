@@ -231,14 +231,23 @@ impl Scene {
             .collect();
         self.set_object_positions(object, &moved)?;
         if det < 0.0 {
-            let o = &mut self.objects[object as usize];
-            o.mirrored = !o.mirrored;
-            let range = o.first_triangle as usize..(o.first_triangle + o.triangle_count) as usize;
-            for t in &mut self.triangles.to_mut()[range] {
-                t.swap(1, 2);
-            }
+            self.flip_winding(object);
         }
         Ok(())
+    }
+
+    /// Swaps the second and third vertices of each of object `object`'s triangles (front faces
+    /// become back faces) and toggles [`Object::mirrored`], so hits still report `u` and `v` for
+    /// the vertex order before the swap. Nothing for an unknown object.
+    pub fn flip_winding(&mut self, object: u32) {
+        let Some(o) = self.objects.get_mut(object as usize) else {
+            return;
+        };
+        o.mirrored = !o.mirrored;
+        let range = o.first_triangle as usize..(o.first_triangle + o.triangle_count) as usize;
+        for t in &mut self.triangles.to_mut()[range] {
+            t.swap(1, 2);
+        }
     }
 
     /// The scene vertex indices of object `object`'s vertices (empty for an unknown object).

@@ -3,21 +3,21 @@
 //! the [module docs](super).
 
 use super::ServerConfig;
-use super::batcher::{Job, Stats, Worker};
+use super::batcher::{Edit, EditError, Job, MeshSource, SceneView, SharedView, Stats, Worker};
 use super::page;
 use crate::apps::camera::{Camera, CameraSpec};
 use crate::apps::render::Shade;
 use crate::names::Named;
-use crate::picker::{Backend, BuiltScene};
+use crate::picker::Backend;
 use crate::query::{Answers, Cull, Intersector, Mode, Query};
 use crate::ray::{Hit, Ray};
 use axum::Router;
 use axum::body::{Body, Bytes};
 use axum::extract::rejection::QueryRejection;
-use axum::extract::{Query as UrlQuery, State};
+use axum::extract::{Path as UrlPath, Query as UrlQuery, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use axum::routing::{get, post};
+use axum::routing::{get, patch, post};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
@@ -30,8 +30,8 @@ use tokio::sync::{OwnedSemaphorePermit, Semaphore, oneshot};
 pub(crate) struct AppState {
     /// The picking worker.
     pub(crate) worker: Worker,
-    /// The scene the worker's picker holds.
-    pub(crate) built: Arc<BuiltScene>,
+    /// The scene version the worker last published (it changes with each edit).
+    pub(crate) view: SharedView,
     /// Which path answers picks.
     pub(crate) backend: Backend,
     /// Limits and defaults.
@@ -192,6 +192,8 @@ pub(crate) fn router(state: Arc<AppState>) -> Router {
         .route("/scene", get(scene))
         .route("/stats", get(stats))
         .route("/render", get(render_view))
+        .route("/objects", post(add_object))
+        .route("/objects/{id}", patch(change_object).delete(remove_object))
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
         .with_state(state)
@@ -258,14 +260,14 @@ fn json_response(status: StatusCode, value: &impl Serialize) -> Response {
 async fn not_found() -> ApiError {
     ApiError::new(
         StatusCode::NOT_FOUND,
-        "there is no such page; the API is GET /, GET /scene, GET /stats, GET /render and POST /pick",
+        "there is no such page; the API is GET /, GET /scene, GET /stats, GET /render, POST /pick, POST /objects, PATCH /objects/{id} and DELETE /objects/{id}",
     )
 }
 
 async fn method_not_allowed() -> ApiError {
     ApiError::new(
         StatusCode::METHOD_NOT_ALLOWED,
-        "this path does not take that method: /pick takes POST; /, /scene, /stats and /render take GET",
+        "this path does not take that method: /pick and /objects take POST; /objects/{id} takes PATCH and DELETE; /, /scene, /stats and /render take GET",
     )
 }
 
@@ -492,7 +494,8 @@ async fn pick(
             .map_err(|_| ApiError::internal("the picking worker dropped the request"))?
             .map_err(ApiError::internal)?
     };
-    let names: Vec<&str> = state
+    let view = state.view();
+    let names: Vec<&str> = view
         .built
         .scene
         .objects()
@@ -612,20 +615,24 @@ struct ListOut<'a> {
 
 /// `GET /scene`.
 async fn scene(State(state): State<Arc<AppState>>) -> Response {
-    let built = &state.built;
+    let view = state.view();
+    let built = &view.built;
     let scene = &built.scene;
     let bvh = &built.bvh;
     let triangles = scene.triangle_count();
     let objects: Vec<_> = scene
         .objects()
         .iter()
-        .map(|o| {
+        .zip(&view.objects)
+        .filter(|(_, (_, removed))| !removed)
+        .map(|(o, (transform, _))| {
             json!({
                 "id": o.id,
                 "name": public_name(&o.name),
                 "triangles": o.triangle_count,
                 "mask": o.mask,
                 "grid": o.grid.map(|g| json!({"columns": g.columns, "rows": g.rows})),
+                "transform": transform,
             })
         })
         .collect();
@@ -669,11 +676,179 @@ async fn scene(State(state): State<Arc<AppState>>) -> Response {
 fn default_camera(state: &AppState, size: Option<(u32, u32)>) -> Camera {
     let (width, height) = size.unwrap_or((state.config.view_width, state.config.view_height));
     let (lo, hi) = state
+        .view()
         .built
         .scene
         .bounds()
         .unwrap_or((DVec3::INFINITY, DVec3::NEG_INFINITY));
     Camera::frame_bounds(lo, hi, width, height)
+}
+
+impl AppState {
+    /// The scene version the worker last published.
+    pub(crate) fn view(&self) -> Arc<SceneView> {
+        self.view
+            .lock()
+            .map(|v| v.clone())
+            .unwrap_or_else(|e| e.into_inner().clone())
+    }
+}
+
+/// `POST /objects`: `{"mesh": id}` (a copy of that object's mesh, as it was loaded or added)
+/// or `{"vertices": [[x, y, z], …], "triangles": [[i, j, k], …]}`, with an optional
+/// `"transform"` (3 × 4 row-major, applied to that mesh) and `"mask"`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct AddRequest {
+    mesh: Option<u32>,
+    vertices: Option<Vec<[f64; 3]>>,
+    triangles: Option<Vec<[u32; 3]>>,
+    transform: Option<[[f64; 4]; 3]>,
+    mask: Option<u32>,
+}
+
+/// `PATCH /objects/{id}`: a new `"transform"` (relative to the object as it was loaded or
+/// added) and/or `"mask"`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ChangeRequest {
+    transform: Option<[[f64; 4]; 3]>,
+    mask: Option<u32>,
+}
+
+/// Reads a JSON edit body within the body limit and the memory budget.
+async fn edit_body<T: serde::de::DeserializeOwned>(
+    state: &AppState,
+    headers: &HeaderMap,
+    body: Body,
+    what: &str,
+) -> Result<T, ApiError> {
+    let limit = state.config.max_body_bytes;
+    let body_bytes = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|s| s.trim().parse::<u64>().ok())
+        .map_or(limit as u64, |n| n.min(limit as u64));
+    let _memory = state
+        .memory
+        .reserve(
+            &format!("this {what}'s body"),
+            body_bytes.saturating_mul(1 + PARSED_BYTES_PER_BODY_BYTE),
+        )
+        .await?;
+    let bytes = read_body(headers, body, limit, state.config.body_timeout).await?;
+    serde_json::from_slice(&bytes)
+        .map_err(|e| ApiError::bad_request(format!("the request body is not a valid {what}: {e}")))
+}
+
+/// Checks a transform from a request.
+fn request_transform(transform: Option<[[f64; 4]; 3]>) -> Result<Option<[[f64; 4]; 3]>, ApiError> {
+    if let Some(t) = &transform {
+        crate::scene::check_transform(t)
+            .map_err(|why| ApiError::bad_request(format!("the transform {why}")))?;
+    }
+    Ok(transform)
+}
+
+/// The object id in a path, or 404.
+fn object_id(id: &str) -> Result<u32, ApiError> {
+    id.parse::<u32>().map_err(|_| {
+        ApiError::new(
+            StatusCode::NOT_FOUND,
+            format!("there is no object \"{}\"", crate::budget::quote(id)),
+        )
+    })
+}
+
+/// Hands `edit` to the worker and answers `{"object": id}`.
+async fn submit_edit(state: &AppState, edit: Edit) -> Result<Response, ApiError> {
+    let (reply, answer) = oneshot::channel();
+    state
+        .worker
+        .submit(Job::Edit { edit, reply })
+        .map_err(ApiError::internal)?;
+    let object = answer
+        .await
+        .map_err(|_| ApiError::internal("the picking worker dropped the edit"))?
+        .map_err(|e| match e {
+            EditError::NotFound(m) => ApiError::new(StatusCode::NOT_FOUND, m),
+            EditError::Invalid(m) => ApiError::bad_request(m),
+        })?;
+    Ok(json_response(StatusCode::OK, &json!({ "object": object })))
+}
+
+/// `POST /objects`.
+async fn add_object(
+    State(state): State<Arc<AppState>>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    let request: AddRequest = edit_body(&state, &headers, body, "object").await?;
+    let mesh = match (request.mesh, request.vertices, request.triangles) {
+        (Some(id), None, None) => MeshSource::Copy(id),
+        (None, Some(_), Some(triangles)) if triangles.is_empty() => {
+            return Err(ApiError::bad_request(
+                "an inline mesh needs at least one triangle",
+            ));
+        }
+        (None, Some(vertices), Some(triangles)) => {
+            if let Some((i, v)) = vertices
+                .iter()
+                .enumerate()
+                .find(|(_, v)| !v.iter().all(|x| x.is_finite()))
+            {
+                return Err(ApiError::bad_request(format!(
+                    "vertex {i} has a coordinate that is not finite: {v:?}"
+                )));
+            }
+            MeshSource::Inline(crate::scene::Mesh {
+                positions: vertices.into_iter().map(DVec3::from).collect(),
+                triangles,
+            })
+        }
+        _ => {
+            return Err(ApiError::bad_request(
+                "an object needs either \"mesh\" (the id of an object whose mesh to copy) or both \"vertices\" and \"triangles\"",
+            ));
+        }
+    };
+    let edit = Edit::Add {
+        mesh,
+        transform: request_transform(request.transform)?,
+        mask: request.mask,
+    };
+    submit_edit(&state, edit).await
+}
+
+/// `PATCH /objects/{id}`.
+async fn change_object(
+    State(state): State<Arc<AppState>>,
+    UrlPath(id): UrlPath<String>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    let object = object_id(&id)?;
+    let request: ChangeRequest = edit_body(&state, &headers, body, "object change").await?;
+    if request.transform.is_none() && request.mask.is_none() {
+        return Err(ApiError::bad_request(
+            "a change needs \"transform\", \"mask\" or both",
+        ));
+    }
+    let edit = Edit::Change {
+        object,
+        transform: request_transform(request.transform)?,
+        mask: request.mask,
+    };
+    submit_edit(&state, edit).await
+}
+
+/// `DELETE /objects/{id}`.
+async fn remove_object(
+    State(state): State<Arc<AppState>>,
+    UrlPath(id): UrlPath<String>,
+) -> Result<Response, ApiError> {
+    let object = object_id(&id)?;
+    submit_edit(&state, Edit::Remove { object }).await
 }
 
 /// `GET /stats`.

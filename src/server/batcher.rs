@@ -1,8 +1,11 @@
 //! The picking worker: one thread owns the picker (GPU or CPU) for the server's lifetime. Jobs
 //! reach it over a channel; the pick jobs that arrive together (queued while it was busy, or
 //! within the batch window after the first) are answered by ONE [`Picker::query`] call per
-//! query settings, and the answers are split back to each job. The worker also renders views,
-//! since only it may touch the picker, and keeps the [`Stats`] counters.
+//! query settings, and the answers are split back to each job. The worker also renders views
+//! and applies scene edits (add, move, re-mask, remove an object), since only it may touch the
+//! picker, and keeps the [`Stats`] counters. Edits are applied between query calls, in the
+//! order they arrived: every pick sees one version of the scene, and after each edit the worker
+//! publishes the new version ([`SceneView`]) for `GET /scene`.
 
 use crate::apps::camera::Camera;
 use crate::apps::render::{Image, Shade, render};
@@ -10,6 +13,8 @@ use crate::error::{Error, Result};
 use crate::picker::{Backend, BuiltScene, Picker};
 use crate::query::{Answers, Mode, Query};
 use crate::ray::Ray;
+use crate::scene::Mesh;
+use glam::DVec3;
 use serde::Serialize;
 use std::ops::Range;
 use std::panic::{AssertUnwindSafe, catch_unwind};
@@ -50,6 +55,13 @@ pub(crate) enum Job {
         /// Where the answers go.
         reply: Reply<Answers>,
     },
+    /// Change the scene.
+    Edit {
+        /// What to change.
+        edit: Edit,
+        /// The object added or changed, or why not.
+        reply: oneshot::Sender<std::result::Result<u32, EditError>>,
+    },
     /// Render `camera`'s view.
     Render {
         /// The view.
@@ -61,10 +73,69 @@ pub(crate) enum Job {
     },
 }
 
+/// A scene edit (`POST /objects`, `PATCH` and `DELETE /objects/{id}`).
+pub(crate) enum Edit {
+    /// Adds an object: a copy of an existing object's mesh as it was loaded, or a new mesh,
+    /// placed by `transform` (file → world; none: as given) with layer mask `mask`.
+    Add {
+        /// Where the mesh comes from.
+        mesh: MeshSource,
+        /// 3 × 4 row-major affine transform, checked.
+        transform: Option<[[f64; 4]; 3]>,
+        /// Layer mask (default all bits).
+        mask: Option<u32>,
+    },
+    /// Changes an object's transform (relative to the object as it was loaded or added) and/or
+    /// mask.
+    Change {
+        /// The object.
+        object: u32,
+        /// The new transform, checked.
+        transform: Option<[[f64; 4]; 3]>,
+        /// The new mask.
+        mask: Option<u32>,
+    },
+    /// Removes an object: it is never hit again, and `GET /scene` no longer lists it.
+    Remove {
+        /// The object.
+        object: u32,
+    },
+}
+
+/// Where an added object's mesh comes from.
+pub(crate) enum MeshSource {
+    /// The mesh of this existing object, as it was loaded or added.
+    Copy(u32),
+    /// A new mesh.
+    Inline(Mesh),
+}
+
+/// Why an edit was refused: an unknown (or removed) object, or anything else wrong.
+#[derive(Debug)]
+pub(crate) enum EditError {
+    /// No such object (404).
+    NotFound(String),
+    /// A bad edit (400).
+    Invalid(String),
+}
+
+/// The scene as the picks see it, published by the worker after each edit.
+#[derive(Clone)]
+pub(crate) struct SceneView {
+    /// The scene and its tree.
+    pub(crate) built: Arc<BuiltScene>,
+    /// Per object: the transform set by an edit (none: as loaded), and whether it is removed.
+    pub(crate) objects: Vec<(Option<[[f64; 4]; 3]>, bool)>,
+}
+
+/// The published [`SceneView`], shared with the request handlers.
+pub(crate) type SharedView = Arc<Mutex<Arc<SceneView>>>;
+
 impl Job {
     /// Rays this job traces and all-hits list entries it keeps (for the batch size caps).
     fn size(&self) -> (usize, usize) {
         match self {
+            Job::Edit { .. } => (0, 0),
             Job::Pick { rays, query, .. } => (
                 rays.len(),
                 rays.len().saturating_mul(query.list_length() as usize),
@@ -92,6 +163,7 @@ impl Worker {
         backend: Backend,
         window: Duration,
         caps: (usize, usize),
+        view: SharedView,
     ) -> Result<Worker> {
         let (sender, receiver) = mpsc::channel::<Job>();
         let (ready_tx, ready_rx) = mpsc::sync_channel::<Result<String>>(1);
@@ -112,14 +184,18 @@ impl Worker {
                         return;
                     }
                 };
+                let objects = view.lock().map_or(0, |v| v.objects.len());
                 let mut batcher = Batcher {
                     receiver,
                     window,
                     max_rays: caps.0.max(1),
                     max_entries: caps.1.max(1),
                     stats: worker_stats,
+                    backend,
+                    view,
+                    loaded: vec![None; objects],
                 };
-                batcher.run(picker.as_mut());
+                batcher.run(&mut picker);
             })
             .map_err(|e| Error::Invalid(format!("could not start the picking thread: {e}")))?;
         let description = ready_rx
@@ -150,6 +226,19 @@ impl Worker {
     }
 }
 
+/// Object `object`'s triangles as stored (a mirrored object's with the winding that keeps its
+/// front faces front), with vertex indices into its own vertices.
+fn object_triangles(scene: &crate::scene::Scene, object: u32) -> Vec<[u32; 3]> {
+    let o = &scene.objects()[object as usize];
+    (o.first_triangle..o.first_triangle + o.triangle_count)
+        .map(|t| {
+            scene
+                .triangle_vertices(t as usize)
+                .map(|v| v - o.first_vertex)
+        })
+        .collect()
+}
+
 /// The picker for `backend`, with its one-line description ([`Picker::describe`]).
 fn make_picker(backend: Backend, built: Arc<BuiltScene>) -> Result<(Box<dyn Picker>, String)> {
     let picker = crate::picker::make_picker(backend, built)?;
@@ -173,6 +262,12 @@ struct Batcher {
     /// ...or this many all-hits list entries.
     max_entries: usize,
     stats: Arc<Mutex<Stats>>,
+    /// The backend, for a picker over a rebuilt scene.
+    backend: Backend,
+    /// The scene version last published.
+    view: SharedView,
+    /// Per object: its positions as loaded or added, kept from its first move on.
+    loaded: Vec<Option<Vec<DVec3>>>,
 }
 
 /// A pick job waiting in a batch.
@@ -183,13 +278,174 @@ struct PendingPick {
 
 impl Batcher {
     /// Collects and answers batches until every sender is gone.
-    fn run(&mut self, picker: &mut dyn Picker) {
-        show_notes(picker);
+    fn run(&mut self, picker: &mut Box<dyn Picker>) {
+        show_notes(picker.as_mut());
         while let Ok(first) = self.receiver.recv() {
             let jobs = self.collect(first);
-            self.answer(picker, jobs);
-            show_notes(picker);
+            // Picks and renders up to each edit, then the edit: no query call straddles one.
+            let mut part = Vec::new();
+            for job in jobs {
+                match job {
+                    Job::Edit { edit, reply } => {
+                        self.answer(picker.as_mut(), std::mem::take(&mut part));
+                        let done = catch_unwind(AssertUnwindSafe(|| self.apply(picker, edit)))
+                            .unwrap_or_else(|_| {
+                                Err(EditError::Invalid("the edit panicked".into()))
+                            });
+                        let _ = reply.send(done);
+                    }
+                    job => part.push(job),
+                }
+            }
+            self.answer(picker.as_mut(), part);
+            show_notes(picker.as_mut());
         }
+    }
+
+    /// Applies `edit` to the picker's scene and publishes the new version.
+    fn apply(
+        &mut self,
+        picker: &mut Box<dyn Picker>,
+        edit: Edit,
+    ) -> std::result::Result<u32, EditError> {
+        let invalid = |e: Error| EditError::Invalid(e.to_string());
+        let view = self
+            .view
+            .lock()
+            .map(|v| v.clone())
+            .map_err(|_| EditError::Invalid("the scene view is unavailable".into()))?;
+        let mut objects = view.objects.clone();
+        let live = |object: u32| {
+            objects
+                .get(object as usize)
+                .is_some_and(|&(_, removed)| !removed)
+                .then_some(())
+                .ok_or_else(|| EditError::NotFound(format!("there is no object {object}")))
+        };
+        let built = picker
+            .current_scene()
+            .ok_or_else(|| EditError::Invalid("this picker cannot change its scene".into()))?;
+        let object = match edit {
+            Edit::Change {
+                object,
+                transform,
+                mask,
+            } => {
+                live(object)?;
+                if let Some(transform) = transform {
+                    let loaded = self.loaded_positions(&built, object);
+                    let mirrors = |t: &Option<[[f64; 4]; 3]>| {
+                        t.is_some_and(|t| crate::scene::check_transform(&t).is_ok_and(|d| d < 0.0))
+                    };
+                    if mirrors(&Some(transform)) == mirrors(&objects[object as usize].0) {
+                        // The same handedness: the vertices move, the tree is refitted.
+                        let moved: Vec<DVec3> = loaded
+                            .iter()
+                            .map(|&p| crate::scene::apply_transform(&transform, p))
+                            .collect();
+                        picker.set_positions(object, &moved).map_err(invalid)?;
+                    } else {
+                        // A mirror comes or goes: the winding flips, so the tree is built anew.
+                        let mut scene = built.scene.clone();
+                        scene
+                            .set_object_positions(object, &loaded)
+                            .map_err(invalid)?;
+                        if mirrors(&objects[object as usize].0) {
+                            // Back to the loaded winding first.
+                            scene.flip_winding(object);
+                        }
+                        scene
+                            .transform_object(object, &transform)
+                            .map_err(invalid)?;
+                        self.rebuild(picker, scene, built.options())?;
+                    }
+                    objects[object as usize].0 = Some(transform);
+                }
+                if let Some(mask) = mask {
+                    picker.set_mask(object, mask).map_err(invalid)?;
+                }
+                object
+            }
+            Edit::Remove { object } => {
+                live(object)?;
+                picker.set_mask(object, 0).map_err(invalid)?;
+                objects[object as usize].1 = true;
+                object
+            }
+            Edit::Add {
+                mesh,
+                transform,
+                mask,
+            } => {
+                let mesh = match mesh {
+                    MeshSource::Copy(source) => {
+                        live(source)?;
+                        Mesh {
+                            positions: self.loaded_positions(&built, source),
+                            triangles: object_triangles(&built.scene, source),
+                        }
+                    }
+                    MeshSource::Inline(mesh) => mesh,
+                };
+                let mut scene = built.scene.clone();
+                let id = scene
+                    .add_mesh(format!("object {}", objects.len()), mesh)
+                    .map_err(invalid)?;
+                if let Some(transform) = &transform {
+                    self.loaded.resize(id as usize + 1, None);
+                    self.loaded[id as usize] = Some(
+                        scene
+                            .object_vertices(id)
+                            .map(|v| scene.position(v))
+                            .collect(),
+                    );
+                    scene.transform_object(id, transform).map_err(invalid)?;
+                }
+                if let Some(mask) = mask {
+                    scene.set_object_mask(id, mask).map_err(invalid)?;
+                }
+                self.rebuild(picker, scene, built.options())?;
+                objects.push((transform, false));
+                id
+            }
+        };
+        let built = picker
+            .current_scene()
+            .ok_or_else(|| EditError::Invalid("this picker cannot change its scene".into()))?;
+        if let Ok(mut published) = self.view.lock() {
+            *published = Arc::new(SceneView { built, objects });
+        }
+        Ok(object)
+    }
+
+    /// Builds `scene` with `options` and puts a new picker over it in `picker`'s place.
+    fn rebuild(
+        &self,
+        picker: &mut Box<dyn Picker>,
+        scene: crate::scene::Scene,
+        options: &crate::bvh::BuildOptions,
+    ) -> std::result::Result<(), EditError> {
+        let invalid = |e: Error| EditError::Invalid(e.to_string());
+        let rebuilt = BuiltScene::new(scene, options).map_err(invalid)?;
+        let (new_picker, _) = make_picker(self.backend, Arc::new(rebuilt)).map_err(invalid)?;
+        *picker = new_picker;
+        Ok(())
+    }
+
+    /// Object `object`'s positions as it was loaded or added (kept from its first move on).
+    fn loaded_positions(&mut self, built: &BuiltScene, object: u32) -> Vec<DVec3> {
+        if self.loaded.len() <= object as usize {
+            self.loaded.resize(object as usize + 1, None);
+        }
+        self.loaded[object as usize]
+            .get_or_insert_with(|| {
+                built
+                    .scene
+                    .object_vertices(object)
+                    .map(|v| built.scene.position(v))
+                    .collect()
+            })
+            .clone()
     }
 
     /// `first` and whatever arrives within the batch window after it (or is already queued),
@@ -225,6 +481,10 @@ impl Batcher {
         let mut renders = Vec::new();
         for job in jobs {
             match job {
+                Job::Edit { reply, .. } => {
+                    // `run` applies edits itself, between the batches it answers here.
+                    let _ = reply.send(Err(EditError::Invalid("an edit reached a batch".into())));
+                }
                 Job::Pick { rays, query, reply } => {
                     let key = group_key(query);
                     let pending = PendingPick { rays, reply };

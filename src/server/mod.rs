@@ -195,19 +195,25 @@ impl Server {
     /// entering the async runtime, or from `spawn_blocking`. Fails as building the picker
     /// fails (no GPU adapter, a scene too large for the GPU).
     pub fn new(built: Arc<BuiltScene>, backend: Backend, config: ServerConfig) -> Result<Server> {
+        let view: batcher::SharedView =
+            Arc::new(std::sync::Mutex::new(Arc::new(batcher::SceneView {
+                built: built.clone(),
+                objects: vec![(None, false); built.scene.objects().len()],
+            })));
         let worker = batcher::Worker::start(
-            built.clone(),
+            built,
             backend,
             config.batch_window,
             (
                 config.max_rays.saturating_mul(4),
                 config.max_hit_entries().saturating_mul(4),
             ),
+            view.clone(),
         )?;
         Ok(Server {
             state: Arc::new(api::AppState {
                 worker,
-                built,
+                view,
                 backend,
                 memory: api::MemoryBudget::new(config.memory_budget, config.memory_wait),
                 config,

@@ -1,0 +1,297 @@
+//! Scene edits over HTTP: `POST /objects` (a copy of an object's mesh, or an inline mesh),
+//! `PATCH /objects/{id}` (transform, mask), `DELETE /objects/{id}` and `GET /scene`, end to
+//! end on the CPU engine and the GPU (lavapipe): picks follow each edit; bad bodies get 400
+//! with a sentence and unknown ids 404; and picks running while an object moves back and forth
+//! never see a mix of two versions of the scene.
+
+use glam::DVec3;
+use raypick::check::synthetic::{box_mesh, terrain};
+use raypick::server::{Server, ServerConfig};
+use raypick::{Backend, BuildOptions, BuiltScene, Scene};
+use serde_json::{Value, json};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// A flat 40 × 10 ground (object 0, z = 0) and a unit box standing on it at x 0..1 (object 1).
+fn scene() -> Arc<BuiltScene> {
+    let mut scene = Scene::new();
+    scene
+        .add_mesh("ground", terrain(41, 11, -5.0, 5.0, 1.0, |_, _| 0.0))
+        .unwrap();
+    scene
+        .add_mesh(
+            "box",
+            box_mesh(DVec3::new(0.0, 0.0, 0.0), DVec3::new(1.0, 1.0, 1.0)),
+        )
+        .unwrap();
+    Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap())
+}
+
+fn start(backend: Backend) -> String {
+    let config = ServerConfig {
+        batch_window: Duration::from_millis(2),
+        ..ServerConfig::default()
+    };
+    let server = Server::new(scene(), backend, config).expect("the server starts");
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    listener.set_nonblocking(true).expect("nonblocking");
+    let addr = listener.local_addr().expect("address");
+    std::thread::spawn(move || {
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .expect("runtime");
+        runtime.block_on(async move {
+            let listener = tokio::net::TcpListener::from_std(listener).expect("listener");
+            server.serve(listener).await.expect("serve");
+        });
+    });
+    format!("http://{addr}")
+}
+
+fn agent() -> ureq::Agent {
+    ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .proxy(None)
+        .timeout_global(Some(Duration::from_secs(120)))
+        .build()
+        .into()
+}
+
+/// Sends `body` (if any) with `method`: status and JSON answer.
+fn call(method: &str, url: &str, body: Option<&Value>) -> (u16, Value) {
+    let agent = agent();
+    let response = match (method, body) {
+        ("GET", _) => agent.get(url).call(),
+        ("DELETE", _) => agent.delete(url).call(),
+        ("POST", Some(b)) => agent
+            .post(url)
+            .header("content-type", "application/json")
+            .send(b.to_string()),
+        ("PATCH", Some(b)) => agent
+            .patch(url)
+            .header("content-type", "application/json")
+            .send(b.to_string()),
+        _ => panic!("{method}"),
+    };
+    let mut response = response.expect(method);
+    let status = response.status().as_u16();
+    let text = response.body_mut().read_to_string().expect("body");
+    (
+        status,
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}")),
+    )
+}
+
+/// The object each ray straight down from `(x, 0.5, 10)` hits first (`None`: a miss), with
+/// layer mask `mask`.
+fn down(base: &str, xs: &[f64], mask: u32) -> Vec<Option<u64>> {
+    let rays: Vec<Value> = xs
+        .iter()
+        .map(|&x| json!({"origin": [x, 0.5, 10.0], "dir": [0.0, 0.0, -1.0]}))
+        .collect();
+    let (status, answer) = call(
+        "POST",
+        &format!("{base}/pick"),
+        Some(&json!({"rays": rays, "mask": mask, "cull": "back"})),
+    );
+    assert_eq!(status, 200, "{answer}");
+    answer["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| {
+            r["hit"]
+                .as_bool()
+                .unwrap()
+                .then(|| r["object"].as_u64().unwrap())
+        })
+        .collect()
+}
+
+fn translate(x: f64) -> Value {
+    json!([
+        [1.0, 0.0, 0.0, x],
+        [0.0, 1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0, 0.0]
+    ])
+}
+
+fn edits_follow_on(backend: Backend) {
+    let base = start(backend);
+    let objects = |base: &str| -> Vec<u64> {
+        let (status, scene) = call("GET", &format!("{base}/scene"), None);
+        assert_eq!(status, 200);
+        scene["objects"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|o| o["id"].as_u64().unwrap())
+            .collect()
+    };
+    assert_eq!(objects(&base), [0, 1]);
+    assert_eq!(down(&base, &[0.5, 10.5], u32::MAX), [Some(1), Some(0)]);
+
+    // Move the box 10 along x: a refit.
+    let (status, answer) = call(
+        "PATCH",
+        &format!("{base}/objects/1"),
+        Some(&json!({"transform": translate(10.0)})),
+    );
+    assert_eq!((status, &answer), (200, &json!({"object": 1})));
+    assert_eq!(down(&base, &[0.5, 10.5], u32::MAX), [Some(0), Some(1)]);
+    let (_, scene) = call("GET", &format!("{base}/scene"), None);
+    assert_eq!(scene["objects"][1]["transform"], translate(10.0));
+
+    // A copy of the box's mesh (as loaded), placed at x 20..21; an inline triangle at x 30.
+    let (status, answer) = call(
+        "POST",
+        &format!("{base}/objects"),
+        Some(&json!({"mesh": 1, "transform": translate(20.0)})),
+    );
+    assert_eq!((status, &answer), (200, &json!({"object": 2})));
+    let (status, answer) = call(
+        "POST",
+        &format!("{base}/objects"),
+        Some(&json!({
+            "vertices": [[29.0, -1.0, 2.0], [32.0, -1.0, 2.0], [30.0, 3.0, 2.0]],
+            "triangles": [[0, 1, 2]],
+            "mask": 4,
+        })),
+    );
+    assert_eq!((status, &answer), (200, &json!({"object": 3})));
+    assert_eq!(
+        down(&base, &[0.5, 10.5, 20.5, 30.5], u32::MAX),
+        [Some(0), Some(1), Some(2), Some(3)]
+    );
+    // The inline triangle has mask 4; the box's mask changed to 2.
+    let (status, _) = call(
+        "PATCH",
+        &format!("{base}/objects/1"),
+        Some(&json!({"mask": 2})),
+    );
+    assert_eq!(status, 200);
+    assert_eq!(
+        down(&base, &[10.5, 30.5], 1),
+        [Some(0), Some(0)],
+        "mask 1 passes through the box (2) and the triangle (4)"
+    );
+    assert_eq!(down(&base, &[10.5, 30.5], 6), [Some(1), Some(3)]);
+
+    // A mirror (x → -x, then back out to 10..11): the box's outside stays its front side.
+    let (status, _) = call(
+        "PATCH",
+        &format!("{base}/objects/1"),
+        Some(&json!({"transform": [[-1, 0, 0, 11], [0, 1, 0, 0], [0, 0, 1, 0]]})),
+    );
+    assert_eq!(status, 200);
+    assert_eq!(
+        down(&base, &[10.5], 2),
+        [Some(1)],
+        "back-face culling keeps the top"
+    );
+
+    // Remove the copy.
+    let (status, answer) = call("DELETE", &format!("{base}/objects/2"), None);
+    assert_eq!((status, &answer), (200, &json!({"object": 2})));
+    assert_eq!(down(&base, &[20.5], u32::MAX), [Some(0)]);
+    assert_eq!(objects(&base), [0, 1, 3]);
+
+    // Unknown ids: 404 with a sentence.
+    for (method, path, body) in [
+        ("PATCH", "/objects/2", Some(json!({"mask": 1}))),
+        ("DELETE", "/objects/2", None),
+        ("DELETE", "/objects/99", None),
+        ("PATCH", "/objects/abc", Some(json!({"mask": 1}))),
+        ("POST", "/objects", Some(json!({"mesh": 99}))),
+    ] {
+        let (status, answer) = call(method, &format!("{base}{path}"), body.as_ref());
+        assert_eq!(status, 404, "{method} {path}: {answer}");
+        assert!(
+            answer["error"].as_str().unwrap().contains("no object"),
+            "{answer}"
+        );
+    }
+    // Bad bodies: 400 with a sentence, nothing changed.
+    for (method, path, body, says) in [
+        ("PATCH", "/objects/1", json!({}), "needs"),
+        (
+            "PATCH",
+            "/objects/1",
+            json!({"transform": [[1, 0, 0, 0], [1, 0, 0, 0], [0, 0, 1, 0]]}),
+            "singular",
+        ),
+        (
+            "PATCH",
+            "/objects/1",
+            json!({"transform": [[1, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]]}),
+            "not a valid",
+        ),
+        ("PATCH", "/objects/1", json!({"colour": 3}), "not a valid"),
+        (
+            "POST",
+            "/objects",
+            json!({"mesh": 1, "vertices": [[0, 0, 0]]}),
+            "either",
+        ),
+        (
+            "POST",
+            "/objects",
+            json!({"vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], "triangles": [[0, 1, 7]]}),
+            "vertex 7",
+        ),
+        (
+            "POST",
+            "/objects",
+            json!({"vertices": [[0, 0, 0]], "triangles": []}),
+            "at least one triangle",
+        ),
+    ] {
+        let (status, answer) = call(method, &format!("{base}{path}"), Some(&body));
+        assert_eq!(status, 400, "{method} {path} {body}: {answer}");
+        let error = answer["error"].as_str().unwrap();
+        assert!(error.contains(says), "{body}: {error}");
+    }
+    assert_eq!(down(&base, &[10.5, 20.5], u32::MAX), [Some(1), Some(0)]);
+}
+
+#[test]
+fn picks_follow_every_edit_on_the_cpu() {
+    edits_follow_on(Backend::Cpu);
+}
+
+#[test]
+fn picks_follow_every_edit_on_the_gpu() {
+    edits_follow_on(Backend::Gpu);
+}
+
+#[test]
+fn picks_during_moves_see_one_version_of_the_scene() {
+    let base = start(Backend::Cpu);
+    let mover = {
+        let base = base.clone();
+        std::thread::spawn(move || {
+            for k in 0..60 {
+                let x = if k % 2 == 0 { 10.0 } else { 0.0 };
+                let (status, _) = call(
+                    "PATCH",
+                    &format!("{base}/objects/1"),
+                    Some(&json!({"transform": translate(x)})),
+                );
+                assert_eq!(status, 200);
+            }
+        })
+    };
+    let mut seen = [0usize; 2];
+    while !mover.is_finished() {
+        // One request, two rays: the box is under exactly one of them in every version.
+        match down(&base, &[0.5, 10.5], u32::MAX).as_slice() {
+            [Some(1), Some(0)] => seen[0] += 1,
+            [Some(0), Some(1)] => seen[1] += 1,
+            other => panic!("a pick saw two versions at once: {other:?}"),
+        }
+    }
+    mover.join().unwrap();
+    assert!(seen[0] + seen[1] > 0);
+}
