@@ -832,3 +832,60 @@ fn malformed_glb_is_a_parse_error() {
     }
     assert!(load_gltf(&dir.write("good.glb", &good)).is_ok());
 }
+
+#[test]
+fn a_mirrored_node_keeps_its_front_faces_front() {
+    // The plate faces +z (counter-clockwise from above). Node 1 mirrors it in x and lifts it:
+    // glTF then winds its front faces clockwise, so it still faces +z in the world.
+    let dir = TempDir::new();
+    let mut asset = Asset::default();
+    let p = asset.positions(&[[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]]);
+    let doc = asset.gltf(json!({
+        "meshes": [{"name": "plate", "primitives": [{"attributes": {"POSITION": p}}]}],
+        "nodes": [
+            {"mesh": 0},
+            {"mesh": 0, "translation": [5.0, 0.0, 0.0], "scale": [-1.0, 1.0, 1.0]}
+        ],
+        "scenes": [{"nodes": [0, 1]}],
+        "scene": 0
+    }));
+    let path = dir.write_json("mirror.gltf", &doc);
+    let placed = raypick::io::gltf::load_gltf_placed(&path).unwrap();
+    assert_eq!(
+        placed.iter().map(|o| o.2).collect::<Vec<_>>(),
+        [false, true]
+    );
+    let scene = raypick::io::scene_files::load_scene(&[raypick::io::scene_files::SceneFile {
+        file: path.clone(),
+        mask: None,
+        transform: None,
+    }])
+    .unwrap();
+    assert!(!scene.objects()[0].mirrored && scene.objects()[1].mirrored);
+    let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
+    let rays = [
+        Ray::new(DVec3::new(0.2, -0.2, 10.0), DVec3::NEG_Z),
+        Ray::new(DVec3::new(4.8, -0.2, 10.0), DVec3::NEG_Z),
+    ];
+    let from_above = CpuPicker::new(built.clone())
+        .query(
+            &rays,
+            &raypick::Query {
+                cull: raypick::Cull::Back,
+                ..raypick::Query::default()
+            },
+        )
+        .unwrap()
+        .nearest;
+    for (k, hit) in from_above.iter().enumerate() {
+        assert!(hit.hit, "plate {k}: its front face, seen from above");
+        assert_eq!(hit.object, k as u32);
+        assert!(hit.normal.z > 0.0, "plate {k}: the normal faces up");
+    }
+    // u and v weigh the file's second and third vertices on the mirrored plate too.
+    let world = [[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]]
+        .map(|[x, y, z]| DVec3::new(5.0 - x, y, z));
+    let h = &from_above[1];
+    let on = world[0] * (1.0 - h.u - h.v) + world[1] * h.u + world[2] * h.v;
+    assert!((on - h.position).length() < 1e-12, "{h:?}");
+}

@@ -98,6 +98,17 @@ pub const OUTPUT_FLOOR: u64 = 1 << 23;
 /// extensions) is an [`Error::Parse`] naming the file and the mesh,
 /// primitive, accessor or node at fault.
 pub fn load_gltf(path: &Path) -> Result<Vec<(String, Mesh)>, Error> {
+    Ok(load_gltf_placed(path)?
+        .into_iter()
+        .map(|(name, mesh, _)| (name, mesh))
+        .collect())
+}
+
+/// [`load_gltf`], with for each primitive whether its node's world transform mirrors it (a
+/// negative determinant). glTF then winds its front faces clockwise; the scene loader swaps
+/// such triangles' second and third vertices (`Scene::flip_winding`) so that front faces stay
+/// front faces, as the specification asks.
+pub fn load_gltf_placed(path: &Path) -> Result<Vec<(String, Mesh, bool)>, Error> {
     let name = path.display().to_string();
     let bytes = crate::io::read_regular(path)?;
     let parse = |line: Option<usize>, message: String| Error::Parse {
@@ -294,7 +305,7 @@ impl Loader<'_> {
         }
     }
 
-    fn load(&mut self) -> Result<Vec<(String, Mesh)>, Error> {
+    fn load(&mut self) -> Result<Vec<(String, Mesh, bool)>, Error> {
         let instances = self.instances()?;
         self.check_sizes(&instances)?;
         let mut per_mesh: HashMap<usize, usize> = HashMap::new();
@@ -364,6 +375,7 @@ impl Loader<'_> {
                         positions,
                         triangles,
                     },
+                    instance.world.determinant() < 0.0,
                 ));
             }
         }

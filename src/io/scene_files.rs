@@ -17,7 +17,7 @@
 
 use crate::dem::{grid_to_mesh, load_elevation};
 use crate::error::{Error, Result};
-use crate::io::gltf::load_gltf;
+use crate::io::gltf::load_gltf_placed;
 use crate::io::obj::load_obj;
 use crate::io::ply::load_ply;
 use crate::io::stl::load_stl;
@@ -129,11 +129,14 @@ pub fn load_scene(files: &[SceneFile]) -> Result<Scene> {
                 objects
             }
         };
-        for (name, mesh, grid) in objects {
-            match grid {
+        for (name, mesh, grid, mirrored) in objects {
+            let id = match grid {
                 Some(shape) => scene.add_grid_mesh(name, mesh, shape)?,
                 None => scene.add_mesh(name, mesh)?,
             };
+            if mirrored {
+                scene.flip_winding(id);
+            }
         }
         for id in first..scene.objects().len() as u32 {
             if let Some(mask) = file.mask {
@@ -147,8 +150,9 @@ pub fn load_scene(files: &[SceneFile]) -> Result<Scene> {
     Ok(scene)
 }
 
-/// One object a file holds: its name, mesh and grid shape (for an elevation grid).
-type FileObject = (String, Mesh, Option<GridShape>);
+/// One object a file holds: its name, mesh, grid shape (for an elevation grid), and whether
+/// the file's own placement mirrors it (a glTF node with a negative determinant).
+type FileObject = (String, Mesh, Option<GridShape>, bool);
 
 /// Reads `path`'s objects.
 fn read_file(path: &Path) -> Result<Vec<FileObject>> {
@@ -165,15 +169,15 @@ fn read_file(path: &Path) -> Result<Vec<FileObject>> {
         .and_then(Path::extension)
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
-    let one = |mesh: Mesh| vec![(name.clone(), mesh, None)];
+    let one = |mesh: Mesh| vec![(name.clone(), mesh, None, false)];
     Ok(match extension.as_deref() {
         Some("obj") => one(load_obj(path)?),
         Some("ply") => one(load_ply(path)?),
         Some("gz") if inner_extension.as_deref() == Some("ply") => one(load_ply(path)?),
         Some("stl") => one(load_stl(path)?),
-        Some("gltf" | "glb") => load_gltf(path)?
+        Some("gltf" | "glb") => load_gltf_placed(path)?
             .into_iter()
-            .map(|(object_name, mesh)| (object_name, mesh, None))
+            .map(|(object_name, mesh, mirrored)| (object_name, mesh, None, mirrored))
             .collect(),
         Some("asc" | "tif" | "tiff") => {
             let grid = load_elevation(path)?;
@@ -190,7 +194,7 @@ fn read_file(path: &Path) -> Result<Vec<FileObject>> {
                 columns: grid.ncols as u32,
                 rows: grid.nrows as u32,
             };
-            vec![(name.clone(), grid_to_mesh(&grid), Some(shape))]
+            vec![(name.clone(), grid_to_mesh(&grid), Some(shape), false)]
         }
         _ => {
             return Err(Error::Invalid(format!(
