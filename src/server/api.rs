@@ -869,6 +869,9 @@ struct RenderParams {
     width: Option<u32>,
     /// Image height of the framing camera (without `camera`).
     height: Option<u32>,
+    /// Ignored: a page adds its own count of scene edits so that it asks again after one.
+    #[allow(dead_code, reason = "accepted and ignored")]
+    version: Option<u64>,
 }
 
 /// `GET /render`.

@@ -175,7 +175,7 @@ test("raypick viewer in headless Chromium", { timeout: 300000 }, async (t) => {
         document.getElementById("view").complete && document.getElementById("view").naturalWidth > 0`);
       const s = await driver.run(state);
       assert.deepEqual(s.natural, [s.camera.perspective.width, s.camera.perspective.height]);
-      assert.match(s.src, /^\/render\?shade=normal&camera=/);
+      assert.match(s.src, /^\/render\?shade=normal&version=\d+&camera=/);
       const info = await driver.run(`return document.getElementById("scene-info").textContent`);
       assert.match(info, /triangles/);
       const png = await driver.screenshot(join(OUT, "screenshot.png"));
@@ -255,6 +255,82 @@ test("raypick viewer in headless Chromium", { timeout: 300000 }, async (t) => {
       assert.ok(distance(after.camera) > distance(before.camera) * 1.05,
         `the eye moved away: ${distance(before.camera)} -> ${distance(after.camera)}`);
       await driver.screenshot(join(OUT, "screenshot-zoom.png"));
+    });
+
+    await t.test("a click selects a building and a shift-drag moves it over the terrain", async () => {
+      const s = await driver.run(state);
+      const [w, h] = s.natural;
+      const shownWidth = await driver.run(`return document.getElementById("view").getBoundingClientRect().width`);
+      const k = shownWidth / w;
+      // A pixel on the tower (object 1), found through the API with the camera on screen.
+      const grid = [];
+      for (let y = 4; y < h; y += 8) for (let x = 4; x < w; x += 8) grid.push([x, y]);
+      const found = await (await fetch(new URL("/pick", BASE), {
+        method: "POST",
+        body: JSON.stringify({ camera: s.camera, pixels: grid }),
+      })).json();
+      const on = grid.map((px, i) => [px, found.results[i]]).filter(([, r]) => r.hit && r.object === 1);
+      assert.ok(on.length > 0, "the tower is in view");
+      const [[px, py], before] = on[Math.floor(on.length / 2)];
+      const at = (x, y) => ({ x: Math.round((x + 0.5 - w / 2) * k), y: Math.round((y + 0.5 - h / 2) * k) });
+      const start = at(px, py);
+      const picksBefore = await driver.run(`return window.viewer.picks`);
+      await driver.actions([{
+        type: "pointer", id: "mouse", parameters: { pointerType: "mouse" },
+        actions: [
+          { type: "pointerMove", duration: 0, origin: image, x: start.x, y: start.y },
+          { type: "pointerDown", button: 0 },
+          { type: "pointerUp", button: 0 },
+        ],
+      }]);
+      await driver.until("the selection", `return window.viewer.picks > ${picksBefore} && window.viewer.selected`);
+      assert.equal(await driver.run(`return window.viewer.selected.object`), 1);
+      // Shift held: the drag moves the tower instead of orbiting.
+      const steps = 8;
+      const moves = [];
+      for (let i = 0; i < steps; i += 1) {
+        moves.push({ type: "pointerMove", duration: 60, origin: "pointer", x: Math.round(-90 / steps), y: 0 });
+      }
+      const pointer = [
+        { type: "pointerMove", duration: 0, origin: image, x: start.x, y: start.y },
+        { type: "pointerDown", button: 0 },
+        ...moves,
+        { type: "pause", duration: 300 },
+        { type: "pointerUp", button: 0 },
+        { type: "pause", duration: 0 },
+      ];
+      const keys = [{ type: "keyDown", value: "\uE008" }];
+      while (keys.length < pointer.length - 1) keys.push({ type: "pause", duration: 0 });
+      keys.push({ type: "keyUp", value: "\uE008" });
+      const rendersBefore = s.renders;
+      await driver.actions([
+        { type: "key", id: "keyboard", actions: keys },
+        { type: "pointer", id: "mouse", parameters: { pointerType: "mouse" }, actions: pointer },
+      ]);
+      await driver.until("the move and the new image", `const s = (() => { ${state} })();
+        return window.viewer.moves >= 1 && !s.loading && s.renders > ${rendersBefore} ? s : null`);
+      const after = await driver.run(state);
+      assert.deepEqual(after.camera, s.camera, "a move is not an orbit");
+      // The server has the new transform; the picks follow the tower.
+      const scene = await (await fetch(new URL("/scene", BASE))).json();
+      const tower = scene.objects.find((o) => o.id === 1);
+      assert.ok(tower.transform, "the tower has a transform");
+      const d = tower.transform.map((row) => row[3]);
+      assert.ok(Math.hypot(d[0], d[1]) > 1, `the tower moved: ${d}`);
+      const eye = s.camera.perspective.eye;
+      const p = before.position;
+      const dir = [p[0] - eye[0], p[1] - eye[1], p[2] - eye[2]];
+      const ray = { origin: [eye[0] + d[0], eye[1] + d[1], eye[2] + d[2]], dir };
+      const followed = await (await fetch(new URL("/pick", BASE), {
+        method: "POST",
+        body: JSON.stringify({ rays: [ray], mode: "all", max_hits: 64 }),
+      })).json();
+      const moved = followed.results[0].hits.find((hit) => hit.object === 1);
+      assert.ok(moved, "the moved ray meets the tower");
+      const expected = [p[0] + d[0], p[1] + d[1], p[2] + d[2]];
+      assert.ok(Math.hypot(...moved.position.map((x, i) => x - expected[i])) < 1e-6,
+        `the tower's point moved with it: ${moved.position} vs ${expected}`);
+      await driver.screenshot(join(OUT, "screenshot-move.png"));
     });
 
     await t.test("the page logged no errors", async () => {
