@@ -28,10 +28,16 @@ fn scene() -> Arc<BuiltScene> {
 }
 
 fn start(backend: Backend) -> String {
-    let config = ServerConfig {
-        batch_window: Duration::from_millis(2),
-        ..ServerConfig::default()
-    };
+    start_with(
+        backend,
+        ServerConfig {
+            batch_window: Duration::from_millis(2),
+            ..ServerConfig::default()
+        },
+    )
+}
+
+fn start_with(backend: Backend, config: ServerConfig) -> String {
     let server = Server::new(scene(), backend, config).expect("the server starts");
     let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
     listener.set_nonblocking(true).expect("nonblocking");
@@ -294,4 +300,39 @@ fn picks_during_moves_see_one_version_of_the_scene() {
     }
     mover.join().unwrap();
     assert!(seen[0] + seen[1] > 0);
+}
+
+#[test]
+fn the_triangles_clients_add_are_capped() {
+    let base = start_with(
+        Backend::Cpu,
+        ServerConfig {
+            max_added_triangles: 30,
+            ..ServerConfig::default()
+        },
+    );
+    // The box has 12 triangles: two copies fit under 30, the third does not.
+    for expected in [2, 3] {
+        let (status, answer) = call(
+            "POST",
+            &format!("{base}/objects"),
+            Some(&json!({"mesh": 1})),
+        );
+        assert_eq!((status, &answer), (200, &json!({"object": expected})));
+    }
+    let (status, answer) = call(
+        "POST",
+        &format!("{base}/objects"),
+        Some(&json!({"mesh": 1})),
+    );
+    assert_eq!(status, 413, "{answer}");
+    assert!(
+        answer["error"]
+            .as_str()
+            .unwrap()
+            .contains("over its limit of 30"),
+        "{answer}"
+    );
+    let (_, scene) = call("GET", &format!("{base}/scene"), None);
+    assert_eq!(scene["objects"].as_array().unwrap().len(), 4);
 }

@@ -772,6 +772,7 @@ async fn submit_edit(state: &AppState, edit: Edit) -> Result<Response, ApiError>
         .map_err(|_| ApiError::internal("the picking worker dropped the edit"))?
         .map_err(|e| match e {
             EditError::NotFound(m) => ApiError::new(StatusCode::NOT_FOUND, m),
+            EditError::TooLarge(m) => ApiError::too_large(m),
             EditError::Invalid(m) => ApiError::bad_request(m),
         })?;
     Ok(json_response(StatusCode::OK, &json!({ "object": object })))

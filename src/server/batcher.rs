@@ -115,6 +115,8 @@ pub(crate) enum MeshSource {
 pub(crate) enum EditError {
     /// No such object (404).
     NotFound(String),
+    /// The scene would grow past its limit (413).
+    TooLarge(String),
     /// A bad edit (400).
     Invalid(String),
 }
@@ -164,6 +166,7 @@ impl Worker {
         window: Duration,
         caps: (usize, usize),
         view: SharedView,
+        max_added_triangles: usize,
     ) -> Result<Worker> {
         let (sender, receiver) = mpsc::channel::<Job>();
         let (ready_tx, ready_rx) = mpsc::sync_channel::<Result<String>>(1);
@@ -194,6 +197,8 @@ impl Worker {
                     backend,
                     view,
                     loaded: vec![None; objects],
+                    added_triangles: 0,
+                    max_added_triangles,
                 };
                 batcher.run(&mut picker);
             })
@@ -268,6 +273,10 @@ struct Batcher {
     view: SharedView,
     /// Per object: its positions as loaded or added, kept from its first move on.
     loaded: Vec<Option<Vec<DVec3>>>,
+    /// Triangles added by edits so far...
+    added_triangles: usize,
+    /// ...and at most.
+    max_added_triangles: usize,
 }
 
 /// A pick job waiting in a batch.
@@ -387,6 +396,15 @@ impl Batcher {
                     }
                     MeshSource::Inline(mesh) => mesh,
                 };
+                let total = self.added_triangles.saturating_add(mesh.triangles.len());
+                if total > self.max_added_triangles {
+                    return Err(EditError::TooLarge(format!(
+                        "adding {} triangles would bring the triangles added to this server to \
+                         {total}, over its limit of {}",
+                        mesh.triangles.len(),
+                        self.max_added_triangles
+                    )));
+                }
                 let mut scene = built.scene.clone();
                 let id = scene
                     .add_mesh(format!("object {}", objects.len()), mesh)
@@ -405,6 +423,7 @@ impl Batcher {
                     scene.set_object_mask(id, mask).map_err(invalid)?;
                 }
                 self.rebuild(picker, scene, built.options())?;
+                self.added_triangles = total;
                 objects.push((transform, false));
                 id
             }

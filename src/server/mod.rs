@@ -150,6 +150,10 @@ pub struct ServerConfig {
     /// How long a request waits for its memory to become free in the budget before it is
     /// answered 503.
     pub memory_wait: Duration,
+    /// The most triangles `POST /objects` may add over the server's life (copies included):
+    /// an object that would pass it is refused with 413, so clients cannot grow the scene
+    /// without bound.
+    pub max_added_triangles: usize,
 }
 
 impl ServerConfig {
@@ -180,6 +184,7 @@ impl Default for ServerConfig {
             max_connections: 1024,
             memory_budget: Self::default_memory_budget(),
             memory_wait: Duration::from_secs(5),
+            max_added_triangles: 1 << 23,
         }
     }
 }
@@ -209,6 +214,7 @@ impl Server {
                 config.max_hit_entries().saturating_mul(4),
             ),
             view.clone(),
+            config.max_added_triangles,
         )?;
         Ok(Server {
             state: Arc::new(api::AppState {
