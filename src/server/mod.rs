@@ -83,7 +83,8 @@
 //!
 //! ## `GET /scene`
 //!
-//! The backend and device, the bounds, the objects (id, name, triangles, mask, grid shape),
+//! The backend and device, the bounds, the objects (id, name, triangles, mask, grid shape,
+//! and the transform last set by an edit, `null` for as loaded; removed objects are left out),
 //! the triangle count, the tree (nodes, leaves, depth, GPU bytes and bytes per triangle), the
 //! framing camera the viewer starts from, the limits and the counters.
 //!
@@ -93,6 +94,18 @@
 //! `camera`, the framing camera ([`crate::apps::camera::Camera::frame_bounds`]) at `width` x `height`
 //! (default [`ServerConfig::view_width`] x [`ServerConfig::view_height`]).
 //!
+//! ## `POST /objects`, `PATCH /objects/{id}`, `DELETE /objects/{id}`
+//!
+//! Scene edits, answered `{"object": id}`. `POST` adds `{"mesh": id}` (a copy of that object's
+//! mesh as it was loaded or added) or `{"vertices": [[x, y, z], ...], "triangles": [[i, j, k],
+//! ...]}`, either with an optional `"transform"` (3 × 4 row-major, file → world) and `"mask"`;
+//! the tree is built again. `PATCH` sets `"transform"` (relative to the object as loaded or
+//! added: a refit, or a rebuild when a mirror comes or goes) and/or `"mask"`. `DELETE` removes
+//! the object (its mask becomes 0: it is never hit again). The worker applies edits between
+//! query calls in arrival order, so no pick mixes two versions of the scene. 400 for a bad body
+//! (a singular transform, an index out of range, neither or both kinds of mesh), 404 for an
+//! unknown or removed id, 413 past [`ServerConfig::max_added_triangles`].
+//!
 //! ## `GET /stats`
 //!
 //! The worker's [`Stats`].
@@ -100,7 +113,8 @@
 //! ## `GET /`
 //!
 //! The viewer: the rendered view; click picks the pixel and shows the world position, object,
-//! triangle and terrain cell; drag orbits around the target; the wheel zooms.
+//! triangle and terrain cell, and selects the object; drag orbits around the target; the wheel
+//! zooms; shift-drag moves the selected object over the terrain (`PATCH /objects/{id}`).
 
 mod api;
 pub mod batcher;
