@@ -42,6 +42,10 @@ pub struct ServeArgs {
     /// wait briefly, then get 503. Default: a quarter of --max-memory.
     #[arg(long, value_parser = raypick::budget::parse_size)]
     pub memory_budget: Option<u64>,
+    /// Most triangles `POST /objects` may add over the server's life, copies included (413
+    /// past it).
+    #[arg(long, default_value_t = ServerConfig::default().max_added_triangles)]
+    pub max_added_triangles: usize,
 }
 
 /// `seconds` as a timeout: a positive, finite number of seconds.
@@ -67,6 +71,7 @@ pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         memory_budget: args
             .memory_budget
             .unwrap_or_else(ServerConfig::default_memory_budget),
+        max_added_triangles: args.max_added_triangles,
         ..ServerConfig::default()
     };
     let built = Arc::new(args.scene.build_owned(matches)?);
