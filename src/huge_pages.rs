@@ -128,24 +128,25 @@ static KEEPING: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::n
 /// Tells [`Allocator`] whether to keep freed large blocks for reuse (the default) or to give
 /// every one back to the system at once; turning it off gives back the blocks kept so far.
 pub fn keep_freed_blocks(on: bool) {
-    KEEPING.store(on, std::sync::atomic::Ordering::Relaxed);
-    if !on {
-        let blocks = {
-            let mut kept = kept();
-            kept.bytes = 0;
-            std::mem::take(&mut kept.blocks)
-        };
-        for (address, len) in blocks.into_iter().filter(|&(_, len)| len > 0) {
-            // SAFETY: a kept block came from `System` with alignment 16 or less (see
-            // `Allocator`), which frees by pointer alone; it is out of the cache, so no one
-            // else holds it.
-            unsafe {
-                System.dealloc(
-                    address as *mut u8,
-                    Layout::from_size_align_unchecked(len, 16),
-                )
-            };
+    let blocks = {
+        let mut kept = kept();
+        KEEPING.store(on, std::sync::atomic::Ordering::Relaxed);
+        if on {
+            return;
         }
+        kept.bytes = 0;
+        std::mem::take(&mut kept.blocks)
+    };
+    for (address, len) in blocks.into_iter().filter(|&(_, len)| len > 0) {
+        // SAFETY: a kept block came from `System` with alignment 16 or less (see
+        // `Allocator`), which frees by pointer alone; it is out of the cache, so no one else
+        // holds it.
+        unsafe {
+            System.dealloc(
+                address as *mut u8,
+                Layout::from_size_align_unchecked(len, 16),
+            )
+        };
     }
 }
 
@@ -159,9 +160,11 @@ fn kept() -> std::sync::MutexGuard<'static, Kept> {
 /// less), or `None` for a block it leaves alone: small, over-aligned (the system allocator's
 /// aligned blocks are not interchangeable with plain ones), or too large to round.
 fn large_length(size: usize, align: usize) -> Option<usize> {
-    (size >= MIN_BYTES && align <= 16)
+    // 16 is the system allocator's plain alignment on 64-bit targets only.
+    (cfg!(target_pointer_width = "64") && size >= MIN_BYTES && align <= 16)
         .then(|| size.checked_next_multiple_of(HUGE_PAGE))
         .flatten()
+        .filter(|&bytes| bytes <= isize::MAX as usize - align)
 }
 
 /// A kept block of at least `bytes` (and at most half as much again, so a small request does
@@ -182,10 +185,11 @@ fn take_kept(bytes: usize) -> Option<*mut u8> {
 /// Keeps the freed block at `block`, at least `bytes` long, when a slot and the byte budget
 /// allow; `false` when the caller must free it.
 fn keep(block: *mut u8, bytes: usize) -> bool {
+    let mut kept = kept();
+    // Read under the lock, so no block is kept after `keep_freed_blocks(false)` drained them.
     if !KEEPING.load(std::sync::atomic::Ordering::Relaxed) {
         return false;
     }
-    let mut kept = kept();
     if kept.bytes + bytes > KEPT_BYTES {
         return false;
     }

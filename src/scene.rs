@@ -75,9 +75,16 @@ pub fn check_transform(transform: &[[f64; 4]; 3]) -> std::result::Result<f64, St
     let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
         - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
         + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
-    if det == 0.0 || !det.is_finite() {
+    // Singular, or so nearly that rounding decides the sign: the determinant against the
+    // volume its rows could span at most (the product of their lengths).
+    let rows: f64 = m
+        .iter()
+        .map(|r| (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt())
+        .product();
+    if !det.is_finite() || det.abs() <= 1e-12 * rows || rows.is_nan() {
         return Err(format!(
-            "is singular (its 3 × 3 part has determinant {det})"
+            "is singular (its 3 × 3 part has determinant {det}, its rows' lengths multiply to \
+             {rows})"
         ));
     }
     Ok(det)

@@ -198,11 +198,70 @@ fn edits_follow_on(backend: Backend) {
         "back-face culling keeps the top"
     );
 
+    // A copy of the mirrored box is the box as loaded: right side out.
+    let (status, answer) = call(
+        "POST",
+        &format!("{base}/objects"),
+        Some(&json!({"mesh": 1, "transform": translate(25.0)})),
+    );
+    assert_eq!((status, &answer), (200, &json!({"object": 4})));
+    let (_, top) = call(
+        "POST",
+        &format!("{base}/pick"),
+        Some(
+            &json!({"rays": [{"origin": [25.5, 0.5, 10.0], "dir": [0.0, 0.0, -1.0]}],
+                     "cull": "back"}),
+        ),
+    );
+    assert_eq!(top["results"][0]["object"], 4, "{top}");
+    assert_eq!(
+        top["results"][0]["position"][2], 1.0,
+        "the top, seen from above: {top}"
+    );
+    assert_eq!(top["results"][0]["normal"], json!([0.0, 0.0, 1.0]), "{top}");
+
+    // An add that fails on the worker (a vertex leaves the finite range) leaves nothing behind:
+    // the next object gets that id and moves as itself.
+    let (status, answer) = call(
+        "POST",
+        &format!("{base}/objects"),
+        Some(&json!({
+            "vertices": [[1e300, 0.0, 0.0], [0.0, 1e300, 0.0], [0.0, 0.0, 1e300]],
+            "triangles": [[0, 1, 2]],
+            "transform": [[1e10, 0, 0, 0], [0, 1e10, 0, 0], [0, 0, 1e10, 0]],
+        })),
+    );
+    assert_eq!(status, 400, "{answer}");
+    let (status, answer) = call(
+        "POST",
+        &format!("{base}/objects"),
+        Some(&json!({
+            "vertices": [[-4.0, -4.0, 3.0], [-2.0, -4.0, 3.0], [-3.0, -2.0, 3.0]],
+            "triangles": [[0, 1, 2]],
+        })),
+    );
+    assert_eq!((status, &answer), (200, &json!({"object": 5})));
+    let (status, _) = call(
+        "PATCH",
+        &format!("{base}/objects/5"),
+        Some(
+            &json!({"transform": [[1.0, 0.0, 0.0, 2.0], [0.0, 1.0, 0.0, 7.0], [0.0, 0.0, 1.0, 0.0]]}),
+        ),
+    );
+    assert_eq!(status, 200);
+    let (_, moved) = call(
+        "POST",
+        &format!("{base}/pick"),
+        Some(&json!({"rays": [{"origin": [-1.0, 3.5, 10.0], "dir": [0.0, 0.0, -1.0]}]})),
+    );
+    assert_eq!(moved["results"][0]["object"], 5, "{moved}");
+    assert_eq!(moved["results"][0]["position"][2], 3.0, "{moved}");
+
     // Remove the copy.
     let (status, answer) = call("DELETE", &format!("{base}/objects/2"), None);
     assert_eq!((status, &answer), (200, &json!({"object": 2})));
     assert_eq!(down(&base, &[20.5], u32::MAX), [Some(0)]);
-    assert_eq!(objects(&base), [0, 1, 3]);
+    assert_eq!(objects(&base), [0, 1, 3, 4, 5]);
 
     // Unknown ids: 404 with a sentence.
     for (method, path, body) in [
@@ -252,6 +311,12 @@ fn edits_follow_on(backend: Backend) {
             "/objects",
             json!({"vertices": [[0, 0, 0]], "triangles": []}),
             "at least one triangle",
+        ),
+        (
+            "POST",
+            "/objects",
+            json!({"vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5]], "triangles": [[0, 1, 2]]}),
+            "at most three per",
         ),
     ] {
         let (status, answer) = call(method, &format!("{base}{path}"), Some(&body));

@@ -79,10 +79,14 @@ impl Bvh {
         let (ids, blocks) = (&self.triangle_ids, &mut self.blocks);
         blocks.par_iter_mut().for_each(|block| {
             let ids = &ids[block.triangles.start as usize..block.triangles.end as usize];
+            // The moved object's vertices at their new positions, any other's where they are.
             let world = |i: u32| {
-                scene
-                    .triangle_vertices(i as usize)
-                    .map(|v| positions[(v - first_vertex) as usize])
+                scene.triangle_vertices(i as usize).map(|v| {
+                    v.checked_sub(first_vertex)
+                        .and_then(|k| positions.get(k as usize))
+                        .copied()
+                        .unwrap_or_else(|| scene.position(v as usize))
+                })
             };
             let (min, max) = ids
                 .iter()

@@ -495,13 +495,7 @@ async fn pick(
             .map_err(ApiError::internal)?
     };
     let view = state.view();
-    let names: Vec<&str> = view
-        .built
-        .scene
-        .objects()
-        .iter()
-        .map(|o| public_name(&o.name))
-        .collect();
+    let names: Vec<&str> = view.objects.iter().map(|o| public_name(&o.name)).collect();
     Ok(if query.mode == Mode::All {
         let results: Vec<ListOut> = (0..answers.nearest.len())
             .map(|i| ListOut {
@@ -616,43 +610,39 @@ struct ListOut<'a> {
 /// `GET /scene`.
 async fn scene(State(state): State<Arc<AppState>>) -> Response {
     let view = state.view();
-    let built = &view.built;
-    let scene = &built.scene;
-    let bvh = &built.bvh;
-    let triangles = scene.triangle_count();
-    let objects: Vec<_> = scene
-        .objects()
+    let triangles = view.triangles;
+    let objects: Vec<_> = view
+        .objects
         .iter()
-        .zip(&view.objects)
-        .filter(|(_, (_, removed))| !removed)
-        .map(|(o, (transform, _))| {
+        .filter(|o| !o.removed)
+        .map(|o| {
             json!({
                 "id": o.id,
                 "name": public_name(&o.name),
-                "triangles": o.triangle_count,
+                "triangles": o.triangles,
                 "mask": o.mask,
                 "grid": o.grid.map(|g| json!({"columns": g.columns, "rows": g.rows})),
-                "transform": transform,
+                "transform": o.transform,
             })
         })
         .collect();
-    let bounds = scene
-        .bounds()
+    let bounds = view
+        .bounds
         .map(|(lo, hi)| json!({"min": lo.to_array(), "max": hi.to_array()}));
-    let gpu_bytes = bvh.gpu_bytes();
+    let (nodes, leaves, depth, gpu_bytes) = view.tree;
     json_response(
         StatusCode::OK,
         &json!({
             "backend": state.backend.name(),
             "device": state.worker.description(),
             "bounds": bounds,
-            "origin": bvh.origin.to_array(),
+            "origin": view.origin.to_array(),
             "triangles": triangles,
             "objects": objects,
             "tree": {
-                "nodes": bvh.nodes.len(),
-                "leaves": bvh.leaf_count(),
-                "depth": bvh.depth(),
+                "nodes": nodes,
+                "leaves": leaves,
+                "depth": depth,
                 "gpu_bytes": gpu_bytes,
                 "gpu_bytes_per_triangle":
                     (triangles > 0).then(|| gpu_bytes as f64 / triangles as f64),
@@ -677,9 +667,7 @@ fn default_camera(state: &AppState, size: Option<(u32, u32)>) -> Camera {
     let (width, height) = size.unwrap_or((state.config.view_width, state.config.view_height));
     let (lo, hi) = state
         .view()
-        .built
-        .scene
-        .bounds()
+        .bounds
         .unwrap_or((DVec3::INFINITY, DVec3::NEG_INFINITY));
     Camera::frame_bounds(lo, hi, width, height)
 }
@@ -773,6 +761,7 @@ async fn submit_edit(state: &AppState, edit: Edit) -> Result<Response, ApiError>
         .map_err(|e| match e {
             EditError::NotFound(m) => ApiError::new(StatusCode::NOT_FOUND, m),
             EditError::TooLarge(m) => ApiError::too_large(m),
+            EditError::Failed(m) => ApiError::internal(m),
             EditError::Invalid(m) => ApiError::bad_request(m),
         })?;
     Ok(json_response(StatusCode::OK, &json!({ "object": object })))
@@ -791,6 +780,14 @@ async fn add_object(
             return Err(ApiError::bad_request(
                 "an inline mesh needs at least one triangle",
             ));
+        }
+        (None, Some(vertices), Some(triangles)) if vertices.len() > 3 * triangles.len() => {
+            return Err(ApiError::bad_request(format!(
+                "an inline mesh has {} vertices for {} triangles; it may have at most three per \
+                 triangle",
+                vertices.len(),
+                triangles.len()
+            )));
         }
         (None, Some(vertices), Some(triangles)) => {
             if let Some((i, v)) = vertices

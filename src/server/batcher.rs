@@ -115,19 +115,82 @@ pub(crate) enum MeshSource {
 pub(crate) enum EditError {
     /// No such object (404).
     NotFound(String),
-    /// The scene would grow past its limit (413).
+    /// The scene would grow past its limit, or past what the GPU holds (413).
     TooLarge(String),
+    /// The server failed to carry out a valid edit (500).
+    Failed(String),
     /// A bad edit (400).
     Invalid(String),
 }
 
-/// The scene as the picks see it, published by the worker after each edit.
-#[derive(Clone)]
+/// The scene as the picks see it, summarised for `GET /scene` and the answers' object names,
+/// published by the worker after each edit. It holds no handle on the scene itself, so the
+/// worker's picker is the scene's only owner and edits change it in place.
+#[derive(Clone, Debug)]
 pub(crate) struct SceneView {
-    /// The scene and its tree.
-    pub(crate) built: Arc<BuiltScene>,
-    /// Per object: the transform set by an edit (none: as loaded), and whether it is removed.
-    pub(crate) objects: Vec<(Option<[[f64; 4]; 3]>, bool)>,
+    /// Per object, in id order.
+    pub(crate) objects: Vec<ObjectView>,
+    /// World bounds, when there are vertices.
+    pub(crate) bounds: Option<(DVec3, DVec3)>,
+    /// The tree's f64 origin.
+    pub(crate) origin: DVec3,
+    /// Triangles in the scene (removed objects' included).
+    pub(crate) triangles: usize,
+    /// The tree: nodes, leaves, depth, GPU bytes.
+    pub(crate) tree: (usize, usize, usize, u64),
+}
+
+/// One object of a [`SceneView`].
+#[derive(Clone, Debug)]
+pub(crate) struct ObjectView {
+    pub(crate) id: u32,
+    pub(crate) name: String,
+    pub(crate) triangles: u32,
+    pub(crate) mask: u32,
+    pub(crate) grid: Option<crate::scene::GridShape>,
+    /// The transform last set by an edit (none: as loaded).
+    pub(crate) transform: Option<[[f64; 4]; 3]>,
+    /// Removed by an edit.
+    pub(crate) removed: bool,
+}
+
+impl SceneView {
+    /// The view of `built`, with each object's edit state (transform, removed).
+    pub(crate) fn of(built: &BuiltScene, edits: Vec<(Option<[[f64; 4]; 3]>, bool)>) -> Self {
+        let scene = &built.scene;
+        let objects = scene
+            .objects()
+            .iter()
+            .zip(edits.into_iter().chain(std::iter::repeat((None, false))))
+            .map(|(o, (transform, removed))| ObjectView {
+                id: o.id,
+                name: o.name.clone(),
+                triangles: o.triangle_count,
+                mask: o.mask,
+                grid: o.grid,
+                transform,
+                removed,
+            })
+            .collect();
+        let bvh = &built.bvh;
+        SceneView {
+            objects,
+            bounds: scene.bounds(),
+            origin: bvh.origin,
+            triangles: scene.triangle_count(),
+            tree: (
+                bvh.nodes.len(),
+                bvh.leaf_count(),
+                bvh.depth(),
+                bvh.gpu_bytes(),
+            ),
+        }
+    }
+}
+
+/// Whether `transform` mirrors (a negative determinant); none does not.
+fn mirrors(transform: &Option<[[f64; 4]; 3]>) -> bool {
+    transform.is_some_and(|t| crate::scene::check_transform(&t).is_ok_and(|d| d < 0.0))
 }
 
 /// The published [`SceneView`], shared with the request handlers.
@@ -298,9 +361,7 @@ impl Batcher {
                     Job::Edit { edit, reply } => {
                         self.answer(picker.as_mut(), std::mem::take(&mut part));
                         let done = catch_unwind(AssertUnwindSafe(|| self.apply(picker, edit)))
-                            .unwrap_or_else(|_| {
-                                Err(EditError::Invalid("the edit panicked".into()))
-                            });
+                            .unwrap_or_else(|_| Err(EditError::Failed("the edit panicked".into())));
                         let _ = reply.send(done);
                     }
                     job => part.push(job),
@@ -311,7 +372,10 @@ impl Batcher {
         }
     }
 
-    /// Applies `edit` to the picker's scene and publishes the new version.
+    /// Applies `edit` to the picker's scene and publishes the new version. The picker's scene
+    /// is shared with no one while it changes (the published view holds a summary, not the
+    /// scene, and this function lets go of its own handle first), so a move refits in place
+    /// instead of copying the scene.
     fn apply(
         &mut self,
         picker: &mut Box<dyn Picker>,
@@ -322,32 +386,39 @@ impl Batcher {
             .view
             .lock()
             .map(|v| v.clone())
-            .map_err(|_| EditError::Invalid("the scene view is unavailable".into()))?;
-        let mut objects = view.objects.clone();
-        let live = |object: u32| {
+            .map_err(|_| EditError::Failed("the scene view is unavailable".into()))?;
+        let mut objects: Vec<(Option<[[f64; 4]; 3]>, bool)> = view
+            .objects
+            .iter()
+            .map(|o| (o.transform, o.removed))
+            .collect();
+        drop(view);
+        let live = |objects: &[(Option<[[f64; 4]; 3]>, bool)], object: u32| {
             objects
                 .get(object as usize)
                 .is_some_and(|&(_, removed)| !removed)
                 .then_some(())
                 .ok_or_else(|| EditError::NotFound(format!("there is no object {object}")))
         };
-        let built = picker
-            .current_scene()
-            .ok_or_else(|| EditError::Invalid("this picker cannot change its scene".into()))?;
+        let scene_of = |picker: &dyn Picker| {
+            picker
+                .current_scene()
+                .ok_or_else(|| EditError::Failed("this picker cannot change its scene".into()))
+        };
         let object = match edit {
             Edit::Change {
                 object,
                 transform,
                 mask,
             } => {
-                live(object)?;
+                live(&objects, object)?;
                 if let Some(transform) = transform {
+                    let built = scene_of(picker.as_ref())?;
                     let loaded = self.loaded_positions(&built, object);
-                    let mirrors = |t: &Option<[[f64; 4]; 3]>| {
-                        t.is_some_and(|t| crate::scene::check_transform(&t).is_ok_and(|d| d < 0.0))
-                    };
-                    if mirrors(&Some(transform)) == mirrors(&objects[object as usize].0) {
+                    let current = objects[object as usize].0;
+                    if mirrors(&Some(transform)) == mirrors(&current) {
                         // The same handedness: the vertices move, the tree is refitted.
+                        drop(built);
                         let moved: Vec<DVec3> = loaded
                             .iter()
                             .map(|&p| crate::scene::apply_transform(&transform, p))
@@ -356,17 +427,19 @@ impl Batcher {
                     } else {
                         // A mirror comes or goes: the winding flips, so the tree is built anew.
                         let mut scene = built.scene.clone();
+                        let options = *built.options();
+                        drop(built);
                         scene
                             .set_object_positions(object, &loaded)
                             .map_err(invalid)?;
-                        if mirrors(&objects[object as usize].0) {
+                        if mirrors(&current) {
                             // Back to the loaded winding first.
                             scene.flip_winding(object);
                         }
                         scene
                             .transform_object(object, &transform)
                             .map_err(invalid)?;
-                        self.rebuild(picker, scene, built.options())?;
+                        self.rebuild(picker, scene, &options)?;
                     }
                     objects[object as usize].0 = Some(transform);
                 }
@@ -376,7 +449,7 @@ impl Batcher {
                 object
             }
             Edit::Remove { object } => {
-                live(object)?;
+                live(&objects, object)?;
                 picker.set_mask(object, 0).map_err(invalid)?;
                 objects[object as usize].1 = true;
                 object
@@ -386,15 +459,28 @@ impl Batcher {
                 transform,
                 mask,
             } => {
-                let mesh = match mesh {
+                let built = scene_of(picker.as_ref())?;
+                // The copy of an object as it was loaded or added: its positions then, its
+                // triangles in file order, and whether it was mirrored then.
+                let (mesh, mirrored) = match mesh {
                     MeshSource::Copy(source) => {
-                        live(source)?;
-                        Mesh {
-                            positions: self.loaded_positions(&built, source),
-                            triangles: object_triangles(&built.scene, source),
+                        live(&objects, source)?;
+                        let stored = built.scene.objects()[source as usize].mirrored;
+                        let mut triangles = object_triangles(&built.scene, source);
+                        if stored {
+                            triangles.iter_mut().for_each(|t| t.swap(1, 2));
                         }
+                        let positions = self.loaded_positions(&built, source);
+                        let loaded_mirrored = stored != mirrors(&objects[source as usize].0);
+                        (
+                            Mesh {
+                                positions,
+                                triangles,
+                            },
+                            loaded_mirrored,
+                        )
                     }
-                    MeshSource::Inline(mesh) => mesh,
+                    MeshSource::Inline(mesh) => (mesh, false),
                 };
                 let total = self.added_triangles.saturating_add(mesh.triangles.len());
                 if total > self.max_added_triangles {
@@ -406,33 +492,46 @@ impl Batcher {
                     )));
                 }
                 let mut scene = built.scene.clone();
+                let mut options = *built.options();
+                drop(built);
                 let id = scene
                     .add_mesh(format!("object {}", objects.len()), mesh)
                     .map_err(invalid)?;
+                if mirrored {
+                    scene.flip_winding(id);
+                }
+                let before_transform: Option<Vec<DVec3>> = transform.map(|_| {
+                    scene
+                        .object_vertices(id)
+                        .map(|v| scene.position(v))
+                        .collect()
+                });
                 if let Some(transform) = &transform {
-                    self.loaded.resize(id as usize + 1, None);
-                    self.loaded[id as usize] = Some(
-                        scene
-                            .object_vertices(id)
-                            .map(|v| scene.position(v))
-                            .collect(),
-                    );
                     scene.transform_object(id, transform).map_err(invalid)?;
                 }
                 if let Some(mask) = mask {
                     scene.set_object_mask(id, mask).map_err(invalid)?;
                 }
-                self.rebuild(picker, scene, built.options())?;
+                // The grid builder takes one height grid; with an object added, median cut.
+                if options.builder == crate::bvh::Builder::Grid {
+                    options.builder = crate::bvh::Builder::Auto;
+                }
+                self.rebuild(picker, scene, &options)?;
+                // Only now that the object exists: its positions before its transform.
+                if self.loaded.len() <= id as usize {
+                    self.loaded.resize(id as usize + 1, None);
+                }
+                self.loaded[id as usize] = before_transform;
                 self.added_triangles = total;
                 objects.push((transform, false));
                 id
             }
         };
-        let built = picker
-            .current_scene()
-            .ok_or_else(|| EditError::Invalid("this picker cannot change its scene".into()))?;
-        if let Ok(mut published) = self.view.lock() {
-            *published = Arc::new(SceneView { built, objects });
+        let built = scene_of(picker.as_ref())?;
+        let published = Arc::new(SceneView::of(&built, objects));
+        drop(built);
+        if let Ok(mut view) = self.view.lock() {
+            *view = published;
         }
         Ok(object)
     }
@@ -444,9 +543,12 @@ impl Batcher {
         scene: crate::scene::Scene,
         options: &crate::bvh::BuildOptions,
     ) -> std::result::Result<(), EditError> {
-        let invalid = |e: Error| EditError::Invalid(e.to_string());
-        let rebuilt = BuiltScene::new(scene, options).map_err(invalid)?;
-        let (new_picker, _) = make_picker(self.backend, Arc::new(rebuilt)).map_err(invalid)?;
+        let failed = |e: Error| match e {
+            Error::TooLargeForGpu { .. } => EditError::TooLarge(e.to_string()),
+            e => EditError::Failed(e.to_string()),
+        };
+        let rebuilt = BuiltScene::new(scene, options).map_err(failed)?;
+        let (new_picker, _) = make_picker(self.backend, Arc::new(rebuilt)).map_err(failed)?;
         *picker = new_picker;
         Ok(())
     }

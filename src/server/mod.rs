@@ -214,11 +214,9 @@ impl Server {
     /// entering the async runtime, or from `spawn_blocking`. Fails as building the picker
     /// fails (no GPU adapter, a scene too large for the GPU).
     pub fn new(built: Arc<BuiltScene>, backend: Backend, config: ServerConfig) -> Result<Server> {
-        let view: batcher::SharedView =
-            Arc::new(std::sync::Mutex::new(Arc::new(batcher::SceneView {
-                built: built.clone(),
-                objects: vec![(None, false); built.scene.objects().len()],
-            })));
+        let view: batcher::SharedView = Arc::new(std::sync::Mutex::new(Arc::new(
+            batcher::SceneView::of(&built, Vec::new()),
+        )));
         let worker = batcher::Worker::start(
             built,
             backend,
