@@ -92,3 +92,70 @@ fn every_backend_and_builder_writes_the_same_csv() {
         }
     }
 }
+
+#[test]
+fn a_described_scene_with_transforms_writes_the_same_csv_on_every_backend() {
+    common::gpu();
+    // The bunny three times: as it is, turned and moved, and mirrored (negative determinant).
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("identity-transforms");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::copy(data("bunny.obj"), dir.join("bunny.obj")).unwrap();
+    let description = dir.join("scene.json");
+    std::fs::write(
+        &description,
+        r#"{"objects": [
+            {"file": "bunny.obj"},
+            {"file": "bunny.obj", "transform": [[0.8, -0.6, 0, 4.5], [0.6, 0.8, 0, -1.25], [0, 0, 1.5, 0.5]]},
+            {"file": "bunny.obj", "mask": 2, "transform": [[-1, 0, 0, -4], [0, 1, 0, 0.75], [0, 0, 1, 0]]}
+        ]}"#,
+    )
+    .unwrap();
+    let scene = load_scene(&raypick::io::scene_files::load_description(&description).unwrap())
+        .expect("the description loads");
+    assert!(scene.objects()[2].mirrored);
+    let mut text = String::new();
+    for (_, r) in mixed_rays(&scene, 2000, 23) {
+        let (o, d) = (r.origin, r.dir);
+        text += &format!(
+            "{:?} {:?} {:?} {:?} {:?} {:?}\n",
+            o.x, o.y, o.z, d.x, d.y, d.z
+        );
+    }
+    let rays = dir.join("rays.txt");
+    std::fs::write(&rays, text).unwrap();
+    for mode in [
+        &["--mode", "closest", "--cull", "back"][..],
+        &["--mode", "all", "--max-hits", "4"],
+    ] {
+        let mut first: Option<(String, Vec<u8>)> = None;
+        for builder in ["median-cut", "sah"] {
+            for backend in ["cpu", "gpu", "reference"] {
+                let mut args = vec!["--backend", backend, "--builder", builder];
+                args.extend_from_slice(mode);
+                let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
+                    .arg("pick")
+                    .arg("--scenes")
+                    .arg(&description)
+                    .arg("--rays")
+                    .arg(&rays)
+                    .args(&args)
+                    .output()
+                    .expect("run raypick");
+                assert!(
+                    out.status.success(),
+                    "{args:?}: {}",
+                    String::from_utf8_lossy(&out.stderr)
+                );
+                let csv = out.stdout;
+                assert!(csv.len() > 2000 * 20, "{args:?}: too little output");
+                match &first {
+                    None => first = Some((format!("{args:?}"), csv)),
+                    Some((what, want)) => {
+                        assert!(&csv == want, "{args:?} writes other CSV than {what}")
+                    }
+                }
+            }
+        }
+    }
+}
