@@ -66,7 +66,8 @@ pub fn apply_transform(transform: &[[f64; 4]; 3], p: DVec3) -> DVec3 {
 }
 
 /// The determinant of `transform`'s 3 × 3 part, or why the transform cannot place an object: a
-/// number that is not finite, or a singular matrix (determinant 0, which flattens the object).
+/// number that is not finite, or a singular matrix (which flattens the object) or one so nearly
+/// singular that rounding decides its determinant's sign.
 pub fn check_transform(transform: &[[f64; 4]; 3]) -> std::result::Result<f64, String> {
     if let Some(x) = transform.iter().flatten().find(|x| !x.is_finite()) {
         return Err(format!("has a number that is not finite ({x})"));
@@ -88,6 +89,12 @@ pub fn check_transform(transform: &[[f64; 4]; 3]) -> std::result::Result<f64, St
         ));
     }
     Ok(det)
+}
+
+/// Whether the triangle `[a, b, c]` has exactly zero area in f64 (such triangles are never hit).
+#[inline]
+pub fn zero_area([a, b, c]: [DVec3; 3]) -> bool {
+    (b - a).cross(c - a) == DVec3::ZERO
 }
 
 /// A set of objects ready to be built into a tree.
@@ -389,8 +396,7 @@ impl Scene {
 
     /// Whether scene triangle `index` has exactly zero area in f64 (such triangles are never hit).
     pub fn is_degenerate(&self, index: usize) -> bool {
-        let [a, b, c] = self.world_triangle(index);
-        (b - a).cross(c - a) == DVec3::ZERO
+        zero_area(self.world_triangle(index))
     }
 }
 

@@ -25,24 +25,35 @@ fn ray_file(file: &Path, count: usize) -> PathBuf {
         transform: None,
     }])
     .expect("the scene loads");
+    let stem = file.file_stem().unwrap().to_string_lossy();
+    let path = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("identity-{stem}.rays"));
+    write_rays(&scene, count, 17, &path);
+    path
+}
+
+/// Writes `count` mixed rays over `scene` (seed `seed`) to `path`, one per line.
+fn write_rays(scene: &raypick::Scene, count: usize, seed: u64, path: &Path) {
     let mut text = String::new();
-    for (_, r) in mixed_rays(&scene, count, 17) {
+    for (_, r) in mixed_rays(scene, count, seed) {
         let (o, d) = (r.origin, r.dir);
         text += &format!(
             "{:?} {:?} {:?} {:?} {:?} {:?}\n",
             o.x, o.y, o.z, d.x, d.y, d.z
         );
     }
-    let stem = file.file_stem().unwrap().to_string_lossy();
-    let path = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("identity-{stem}.rays"));
-    std::fs::write(&path, text).expect("write the ray file");
-    path
+    std::fs::write(path, text).expect("write the ray file");
 }
 
+/// `raypick pick --scene FILE` (or `--scenes` for a `.json` description) on `rays`.
 fn pick(scene: &Path, rays: &Path, extra: &[&str]) -> Vec<u8> {
+    let flag = if scene.extension().is_some_and(|e| e == "json") {
+        "--scenes"
+    } else {
+        "--scene"
+    };
     let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
         .arg("pick")
-        .arg("--scene")
+        .arg(flag)
         .arg(scene)
         .arg("--rays")
         .arg(rays)
@@ -114,16 +125,8 @@ fn a_described_scene_with_transforms_writes_the_same_csv_on_every_backend() {
     let scene = load_scene(&raypick::io::scene_files::load_description(&description).unwrap())
         .expect("the description loads");
     assert!(scene.objects()[2].mirrored);
-    let mut text = String::new();
-    for (_, r) in mixed_rays(&scene, 2000, 23) {
-        let (o, d) = (r.origin, r.dir);
-        text += &format!(
-            "{:?} {:?} {:?} {:?} {:?} {:?}\n",
-            o.x, o.y, o.z, d.x, d.y, d.z
-        );
-    }
     let rays = dir.join("rays.txt");
-    std::fs::write(&rays, text).unwrap();
+    write_rays(&scene, 2000, 23, &rays);
     for mode in [
         &["--mode", "closest", "--cull", "back"][..],
         &["--mode", "all", "--max-hits", "4"],
@@ -133,21 +136,7 @@ fn a_described_scene_with_transforms_writes_the_same_csv_on_every_backend() {
             for backend in ["cpu", "gpu", "reference"] {
                 let mut args = vec!["--backend", backend, "--builder", builder];
                 args.extend_from_slice(mode);
-                let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
-                    .arg("pick")
-                    .arg("--scenes")
-                    .arg(&description)
-                    .arg("--rays")
-                    .arg(&rays)
-                    .args(&args)
-                    .output()
-                    .expect("run raypick");
-                assert!(
-                    out.status.success(),
-                    "{args:?}: {}",
-                    String::from_utf8_lossy(&out.stderr)
-                );
-                let csv = out.stdout;
+                let csv = pick(&description, &rays, &args);
                 assert!(csv.len() > 2000 * 20, "{args:?}: too little output");
                 match &first {
                     None => first = Some((format!("{args:?}"), csv)),

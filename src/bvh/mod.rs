@@ -127,9 +127,10 @@ pub(crate) fn is_traceable(scene: &Scene, index: usize, local: [Vec3; 3]) -> boo
 /// [`is_traceable`] for a triangle with world corners `world` and f32 offsets `local`: neither
 /// has zero area (`Scene::is_degenerate`'s test on the world corners).
 #[inline]
-pub(crate) fn traceable_corners([p, q, r]: [DVec3; 3], [a, b, c]: [Vec3; 3]) -> bool {
+pub(crate) fn traceable_corners(world: [DVec3; 3], [a, b, c]: [Vec3; 3]) -> bool {
+    // The edges are f32 differences, as the kernel forms them, widened for the cross product.
     let f32_area_zero = (b - a).as_dvec3().cross((c - a).as_dvec3()) == DVec3::ZERO;
-    !f32_area_zero && (q - p).cross(r - p) != DVec3::ZERO
+    !f32_area_zero && !crate::scene::zero_area(world)
 }
 
 /// Scene triangle `index` as the kernel stores it: f32 offsets (from [`local_positions`]).
