@@ -172,6 +172,8 @@ fn trace_with<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
         triangles,
         triangle_ids,
         triangle_masks: &[],
+        instances: &[],
+        top_nodes: 0,
         iteration_cap,
         max_hits: 0,
         watertight: true,

@@ -83,8 +83,10 @@ pub struct GpuRay {
     pub mask: u32,
     /// Query mode (bits 0–1) and culling (bits 2–3).
     pub flags: u32,
-    /// Padding to 16 bytes.
-    pub pad: [u32; 2],
+    /// What rounding the origin to f32 left off, as three IEEE half floats packed low half
+    /// first (`[x | y << 16, z]`): read only in an instanced scene, where each instance's
+    /// frame is entered from the origin taken in two parts ([`GpuInstance`]); zero otherwise.
+    pub origin_lo: [u32; 2],
 }
 
 /// One entry of an all-hits list.
@@ -141,6 +143,52 @@ pub struct GpuParams {
     pub use_masks: u32,
     /// 1 for the watertight ray/triangle test (Woop, Benthin, Wald 2013), 0 for Möller–Trumbore.
     pub watertight: u32,
+    /// Nodes of the top tree over instances, at the start of the node buffer (0: a scene
+    /// without instances, one tree over its triangles).
+    pub top_nodes: u32,
+}
+
+/// `GpuInstance::flags` bit 0: the instance's transform mirrors (a negative determinant). The
+/// kernel culls in the mesh's frame as it is (what is front there is front in the world, once
+/// the world winding is swapped back, as the host does when it refines the hit).
+pub const INSTANCE_MIRRORED: u32 = 1;
+
+/// One instance of a mesh, as the kernel enters it from a leaf of the top tree (whose `first`
+/// is the instance's index): the map from the scene frame into the mesh's own f32 frame, the
+/// mesh's bottom tree, and what hits on it report.
+///
+/// A scene-frame point `p` (split as `p_hi + p_lo`, [`GpuRay::origin_lo`]) goes to the mesh
+/// frame as `L·((p_hi − c_hi) + (p_lo − c_lo))`, a direction `d` as `L·d`, where `L` (rows
+/// `l0`, `l1`, `l2`) is the inverse of the instance's linear part and `c = c_hi + c_lo` is
+/// where the mesh's origin lands in the scene frame, both worked out in f64 on the host. The
+/// ray parameter `t` is the same in both frames.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuInstance {
+    /// First row of `L`.
+    pub l0: [f32; 3],
+    /// `c_hi.x`.
+    pub cx: f32,
+    /// Second row of `L`.
+    pub l1: [f32; 3],
+    /// `c_hi.y`.
+    pub cy: f32,
+    /// Third row of `L`.
+    pub l2: [f32; 3],
+    /// `c_hi.z`.
+    pub cz: f32,
+    /// `c_lo`.
+    pub c_lo: [f32; 3],
+    /// The bottom tree's root node, in the shared node buffer.
+    pub root: u32,
+    /// The hit id of the instance's triangle 0: a hit on file-order triangle `k` of the mesh
+    /// reports `prim = prim_base + k` (ids run on instance after instance, so the tie rule
+    /// needs no lookup).
+    pub prim_base: u32,
+    /// Layer mask: rays hit the instance only when their mask shares a bit with it.
+    pub mask: u32,
+    /// [`INSTANCE_MIRRORED`].
+    pub flags: u32,
     /// Padding to 16 bytes.
     pub pad: u32,
 }
@@ -179,7 +227,7 @@ pub const SHARED_LAYOUTS: &[StructLayout] = &[
             ("tmax", offset_of!(GpuRay, tmax)),
             ("mask", offset_of!(GpuRay, mask)),
             ("flags", offset_of!(GpuRay, flags)),
-            ("pad", offset_of!(GpuRay, pad)),
+            ("origin_lo", offset_of!(GpuRay, origin_lo)),
         ],
     ),
     (
@@ -217,7 +265,25 @@ pub const SHARED_LAYOUTS: &[StructLayout] = &[
             ("max_hits", offset_of!(GpuParams, max_hits)),
             ("use_masks", offset_of!(GpuParams, use_masks)),
             ("watertight", offset_of!(GpuParams, watertight)),
-            ("pad", offset_of!(GpuParams, pad)),
+            ("top_nodes", offset_of!(GpuParams, top_nodes)),
+        ],
+    ),
+    (
+        "GpuInstance",
+        size_of::<GpuInstance>(),
+        &[
+            ("l0", offset_of!(GpuInstance, l0)),
+            ("cx", offset_of!(GpuInstance, cx)),
+            ("l1", offset_of!(GpuInstance, l1)),
+            ("cy", offset_of!(GpuInstance, cy)),
+            ("l2", offset_of!(GpuInstance, l2)),
+            ("cz", offset_of!(GpuInstance, cz)),
+            ("c_lo", offset_of!(GpuInstance, c_lo)),
+            ("root", offset_of!(GpuInstance, root)),
+            ("prim_base", offset_of!(GpuInstance, prim_base)),
+            ("mask", offset_of!(GpuInstance, mask)),
+            ("flags", offset_of!(GpuInstance, flags)),
+            ("pad", offset_of!(GpuInstance, pad)),
         ],
     ),
 ];
@@ -242,6 +308,9 @@ const _: () = {
     assert!(offset_of!(GpuHit, count) == 24);
     assert!(size_of::<GpuParams>() == 32);
     assert!(offset_of!(GpuParams, max_hits) == 16);
+    assert!(size_of::<GpuInstance>() == 80);
+    assert!(offset_of!(GpuInstance, c_lo) == 48);
+    assert!(offset_of!(GpuInstance, prim_base) == 64);
     assert!(MAX_LEAF_SIZE < KIND_INNER);
     assert!(KIND_INNER + 2 < (1 << KIND_BITS));
 };

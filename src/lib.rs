@@ -39,6 +39,7 @@ pub mod exact;
 pub mod frame;
 pub mod gpu;
 pub mod huge_pages;
+pub mod instance;
 pub mod io;
 pub mod layout;
 pub mod names;

@@ -8,8 +8,10 @@ use crate::cpu::{TraceSettings, trace_batch};
 use crate::engine::{Simd, WideBvh};
 use crate::error::Result;
 use crate::frame::{
-    NEVER_TRACED, check_found, local_rays_into, resolve_chunk, resolve_with, scene_rays,
+    NEVER_TRACED, check_found_in, local_rays_into, put_origin_lo, resolve_chunk, resolve_with,
+    scene_rays,
 };
+use crate::instance::{Instance, Instances};
 use crate::layout::{GpuHit, GpuHitEntry, GpuRay, NO_HIT};
 use crate::query::{Answers, Intersector, Mode, Query};
 use crate::ray::{Hit, Ray};
@@ -35,6 +37,9 @@ pub struct BuiltScene {
     /// How the tree was built, for a rebuild ([`BuiltScene::set_positions`]); the defaults for a
     /// tree made elsewhere.
     options: BuildOptions,
+    /// An instanced scene's instances and meshes ([`BuiltScene::instanced`]): `bvh` is then the
+    /// two-level tree (top tree first) and `scene` is empty.
+    instances: Option<Instances>,
 }
 
 /// What moving an object's vertices did to the tree ([`BuiltScene::set_positions`]).
@@ -58,7 +63,41 @@ impl BuiltScene {
             triangle_masks: triangle_masks.into(),
             wide: OnceLock::new(),
             options: *options,
+            instances: None,
         })
+    }
+
+    /// An instanced scene: each of `meshes` (scenes of one object, in file coordinates) built
+    /// once with `options`, placed by `instances` (the ids hits report are their positions),
+    /// under a top tree built by median cut ([`Instances::build`]).
+    pub fn instanced(
+        meshes: Vec<Scene>,
+        instances: Vec<Instance>,
+        options: &BuildOptions,
+    ) -> Result<Self> {
+        let (instances, bvh) = Instances::build(meshes, instances, options)?;
+        Ok(Self {
+            scene: Scene::new(),
+            bvh,
+            triangle_masks: Store::default(),
+            wide: OnceLock::new(),
+            options: *options,
+            instances: Some(instances),
+        })
+    }
+
+    /// The instances, for an instanced scene.
+    pub fn instances(&self) -> Option<&Instances> {
+        self.instances.as_ref()
+    }
+
+    /// Hit ids the tracers may report: leaf-order triangles, or an instanced scene's
+    /// instance-by-instance triangle ids.
+    fn prim_count(&self) -> usize {
+        match &self.instances {
+            Some(i) => i.prim_count() as usize,
+            None => self.bvh.triangle_ids.len(),
+        }
     }
 
     /// Moves object `object`'s vertices to `positions` (as many as it has, in its own vertex
@@ -124,6 +163,7 @@ impl BuiltScene {
             triangle_masks: triangle_masks.into(),
             wide: OnceLock::new(),
             options: BuildOptions::default(),
+            instances: None,
         }
     }
 
@@ -141,6 +181,7 @@ impl BuiltScene {
             triangle_masks: triangle_masks.into(),
             wide: OnceLock::from(Ok(wide)),
             options: BuildOptions::default(),
+            instances: None,
         }
     }
 
@@ -159,6 +200,7 @@ impl BuiltScene {
             triangle_masks: &self.triangle_masks,
             max_hits: query.list_length(),
             watertight: query.intersector == Intersector::Watertight,
+            instances: self.instances.as_ref(),
         }
     }
 
@@ -188,7 +230,8 @@ impl BuiltScene {
         found: &[GpuHit],
         lists: &[GpuHitEntry],
     ) -> Result<Answers> {
-        check_found(&self.bvh, found, |f| f.prim)?;
+        let prims = self.prim_count();
+        check_found_in(prims, found, |f| f.prim)?;
         if query.mode == Mode::All {
             let k = query.max_hits as usize;
             let counted = |i: usize| (i % k) < found[i / k].count as usize;
@@ -197,10 +240,13 @@ impl BuiltScene {
                 .enumerate()
                 .map(|(i, e)| if counted(i) { e.prim } else { NO_HIT })
                 .collect();
-            check_found(&self.bvh, &live, |&p| p)?;
+            check_found_in(prims, &live, |&p| p)?;
         }
-        let resolved = |i: usize, f: &GpuHit| {
-            resolve_with(&self.scene, &self.bvh, &rays[i], dir_lengths[i], f)
+        let resolved = |i: usize, f: &GpuHit| match &self.instances {
+            Some(instances) => {
+                crate::instance::resolve_with(instances, &rays[i], dir_lengths[i], f)
+            }
+            None => resolve_with(&self.scene, &self.bvh, &rays[i], dir_lengths[i], f),
         };
         let mut nearest = Vec::new();
         match order {
@@ -491,7 +537,10 @@ fn trace_whole<T: Tracer + ?Sized>(
     rays: &[Ray],
     query: &Query,
 ) -> Result<Answers> {
-    let (local, dir_lengths) = scene_rays(built.bvh.origin, rays, query);
+    let (mut local, dir_lengths) = scene_rays(built.bvh.origin, rays, query);
+    if built.instances.is_some() {
+        put_origin_lo(built.bvh.origin, rays, &mut local);
+    }
     let reorder = local.len() >= reorder_from;
     if query.mode == Mode::All {
         let (found, lists) = trace_in_order(&local, settings.max_hits, reorder, |rays| {
@@ -534,7 +583,10 @@ fn pick_fused(
     let origin = built.bvh.origin;
     let ordered = (n >= reorder_from)
         .then(|| {
-            let (local, lengths) = scene_rays(origin, rays, query);
+            let (mut local, lengths) = scene_rays(origin, rays, query);
+            if built.instances.is_some() {
+                put_origin_lo(origin, rays, &mut local);
+            }
             RayOrder::new(&local).map(|order| (local, lengths, order))
         })
         .flatten();
@@ -565,11 +617,14 @@ fn pick_fused(
                     let start = span.start;
                     local_rays_into(
                         origin,
-                        &rays[span],
+                        &rays[span.clone()],
                         query,
                         &mut local[..m],
                         &mut lengths[..m],
                     );
+                    if built.instances.is_some() {
+                        put_origin_lo(origin, &rays[span], &mut local[..m]);
+                    }
                     for (k, slot) in input[..m].iter_mut().enumerate() {
                         *slot = start + k;
                     }
@@ -577,23 +632,36 @@ fn pick_fused(
             }
             let mut found = [GpuHit::default(); FUSED_CHUNK];
             chunk(&local[..m], &mut found[..m]);
-            check_found(&built.bvh, &found[..m], |f| f.prim)?;
-            prefetch_hit_triangles(&built.scene, &built.bvh, &found[..m]);
+            check_found_in(built.prim_count(), &found[..m], |f| f.prim)?;
             let input = &input[..m];
-            resolve_chunk(
-                &built.scene,
-                &built.bvh,
-                rays,
-                input,
-                &lengths[..m],
-                &found[..m],
-                |k, hit| {
-                    // SAFETY: `input` holds each step's slots of a permutation of 0..n (the
-                    // identity, or `RayOrder`), and steps cover disjoint spans of it, so each
-                    // slot of the reserved capacity is written exactly once, by one task.
-                    unsafe { out.write(input[k], hit) };
-                },
-            );
+            let emit = |k: usize, hit| {
+                // SAFETY: `input` holds each step's slots of a permutation of 0..n (the
+                // identity, or `RayOrder`), and steps cover disjoint spans of it, so each slot
+                // of the reserved capacity is written exactly once, by one task.
+                unsafe { out.write(input[k], hit) };
+            };
+            match &built.instances {
+                Some(instances) => crate::instance::resolve_chunk(
+                    instances,
+                    rays,
+                    input,
+                    &lengths[..m],
+                    &found[..m],
+                    emit,
+                ),
+                None => {
+                    prefetch_hit_triangles(&built.scene, &built.bvh, &found[..m]);
+                    resolve_chunk(
+                        &built.scene,
+                        &built.bvh,
+                        rays,
+                        input,
+                        &lengths[..m],
+                        &found[..m],
+                        emit,
+                    )
+                }
+            }
             Ok(())
         })?;
     // SAFETY: every slot below n was written above (on an error we return before this, and Hit
@@ -708,12 +776,23 @@ impl Tracer for CpuPicker {
         rays: &[GpuRay],
         settings: &TraceSettings<'_>,
     ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
+        if self.built.instances().is_some() {
+            return Ok(trace_batch(&self.built.bvh, rays, settings));
+        }
         Ok(self
             .engine(settings)?
             .trace_batch(rays, settings.max_hits as usize))
     }
 
     fn chunk_trace<'a>(&'a self, settings: &TraceSettings<'a>) -> Result<Option<ChunkTrace<'a>>> {
+        if self.built.instances().is_some() {
+            let buffers = crate::cpu::buffers(&self.built.bvh, settings);
+            return Ok(Some(Box::new(move |rays, hits| {
+                for (ray, hit) in rays.iter().zip(hits) {
+                    *hit = crate::cpu::traverse::trace(buffers, ray, &mut []);
+                }
+            })));
+        }
         let engine = self.engine(settings)?;
         Ok(Some(Box::new(move |rays, hits| {
             engine.trace_chunk(rays, hits, &mut [])

@@ -224,6 +224,7 @@ fn the_binding_table_is_read_from_the_wgsl() {
             ("hit_lists", 5, write),
             ("triangle_masks", 6, read),
             ("triangle_ids", 7, read),
+            ("instances", 8, read),
         ]
     );
 }

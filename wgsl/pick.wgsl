@@ -1,7 +1,10 @@
 // Picking: one invocation per ray; closest hit, any hit, or all hits up to max_hits.
 // Stackless, ordered traversal of the median-cut tree with parent links and a three-state
 // automaton (Hapala et al. 2011); Möller–Trumbore per triangle, or the watertight test of
-// Woop, Benthin and Wald (2013). Face culling and layer masks per ray.
+// Woop, Benthin and Wald (2013). Face culling and layer masks per ray. In an instanced scene
+// (params.top_nodes > 0) the same automaton walks two levels with no stack: at a leaf of the
+// top tree it moves the ray into the instance's frame and descends into the mesh's bottom tree;
+// leaving the bottom root it climbs back to the instance's leaf and the world ray.
 // CPU twin, line for line: src/cpu/ray_box.rs, src/cpu/ray_triangle.rs, src/cpu/traverse.rs.
 // Shared struct layouts: src/layout.rs (checked by tests/layout.rs).
 
@@ -25,7 +28,7 @@ struct GpuRay {
     tmax: f32,
     mask: u32,
     flags: u32,
-    pad: vec2<u32>,
+    origin_lo: vec2<u32>,
 }
 
 struct GpuHitEntry {
@@ -54,6 +57,21 @@ struct GpuParams {
     max_hits: u32,
     use_masks: u32,
     watertight: u32,
+    top_nodes: u32,
+}
+
+struct GpuInstance {
+    l0: vec3<f32>,
+    cx: f32,
+    l1: vec3<f32>,
+    cy: f32,
+    l2: vec3<f32>,
+    cz: f32,
+    c_lo: array<f32, 3>,
+    root: u32,
+    prim_base: u32,
+    mask: u32,
+    flags: u32,
     pad: u32,
 }
 
@@ -65,6 +83,7 @@ struct GpuParams {
 @group(0) @binding(5) var<storage, read_write> hit_lists: array<GpuHitEntry>;
 @group(0) @binding(6) var<storage, read> triangle_masks: array<u32>;
 @group(0) @binding(7) var<storage, read> triangle_ids: array<u32>;
+@group(0) @binding(8) var<storage, read> instances: array<GpuInstance>;
 
 const KIND_INNER: u32 = 16u;
 const KIND_BITS: u32 = 5u;
@@ -77,6 +96,8 @@ const MODE_ALL: u32 = 2u;
 const CULL_SHIFT: u32 = 2u;
 const CULL_BACK: u32 = 1u;
 const CULL_FRONT: u32 = 2u;
+// `inside` while the walk is in the top tree (or the scene has no instances).
+const NO_INSTANCE: u32 = 0xffffffffu;
 // Relative widening of each box's [t_near, t_far] so rounding never culls a box the ray touches.
 const BOX_PAD: f32 = 1e-6;
 // Direction components smaller than this are treated as this (no infinities in WGSL).
@@ -242,15 +263,40 @@ fn sibling(index: u32, parent: u32, parent_node: GpuNode) -> u32 {
     return parent + 1u;
 }
 
+// The rest of the ray's origin after rounding to f32 (three half floats).
+fn origin_lo(ray: GpuRay) -> vec3<f32> {
+    let xy = unpack2x16float(ray.origin_lo.x);
+    return vec3<f32>(xy.x, xy.y, unpack2x16float(ray.origin_lo.y).x);
+}
+
+// The ray's origin in instance r's frame (src/cpu/traverse.rs, `enter_instance`).
+fn instance_origin(r: GpuInstance, hi: vec3<f32>, lo: vec3<f32>) -> vec3<f32> {
+    let d = (hi - vec3<f32>(r.cx, r.cy, r.cz)) + (lo - vec3<f32>(r.c_lo[0], r.c_lo[1], r.c_lo[2]));
+    return vec3<f32>(dot(r.l0, d), dot(r.l1, d), dot(r.l2, d));
+}
+
+fn instance_dir(r: GpuInstance, dir: vec3<f32>) -> vec3<f32> {
+    return vec3<f32>(dot(r.l0, dir), dot(r.l1, dir), dot(r.l2, dir));
+}
+
 fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
     var best = GpuHit(ray.tmax, NO_HIT, 0.0, 0.0, 0u, 0u, 0u, 0u);
     if params.node_count == 0u || !(ray.tmin <= ray.tmax) {
         return best;
     }
     let mode = ray.flags & 3u;
+    // Culling needs no change in an instance's frame: a mirroring instance's faces are stored
+    // so that front faces stay front faces in the world (src/instance/mod.rs).
     let cull = (ray.flags >> CULL_SHIFT) & 3u;
-    let inv_dir = safe_inverse(ray.dir);
-    let shear = shear_for(ray.dir);
+    let instanced = params.top_nodes != 0u;
+    // The ray as the current tree sees it: the world's, or an instance's.
+    var origin = ray.origin;
+    var dir = ray.dir;
+    var inv_dir = safe_inverse(dir);
+    var shear = shear_for(dir);
+    var inside = NO_INSTANCE;
+    var instance: GpuInstance;
+    var instance_leaf = 0u;
     // Hits need t in (tmin, limit]; limit shrinks to the nearest hit (closest), or to the
     // farthest kept hit once the all-hits list is full and has overflowed.
     var limit = ray.tmax;
@@ -269,9 +315,19 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
             if current == 0u {
                 break;
             }
+            if inside != NO_INSTANCE && current == instance.root {
+                // The instance's tree is done: back to its leaf and the world ray.
+                current = instance_leaf;
+                inside = NO_INSTANCE;
+                origin = ray.origin;
+                dir = ray.dir;
+                inv_dir = safe_inverse(dir);
+                shear = shear_for(dir);
+                continue;
+            }
             let parent = parent_of(node);
             let parent_node = nodes[parent];
-            if current == near_child(parent, parent_node, ray.dir) {
+            if current == near_child(parent, parent_node, dir) {
                 current = sibling(current, parent, parent_node);
                 state = FROM_SIBLING;
             } else {
@@ -283,25 +339,44 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
         // Arrived from the parent or the sibling: test this node's box.
         best.box_tests += 1u;
         var descend = false;
-        if ray_box(node, ray.origin, ray.dir, inv_dir, ray.tmin, limit) {
+        if ray_box(node, origin, dir, inv_dir, ray.tmin, limit) {
             let kind = kind_of(node);
             if kind >= KIND_INNER {
                 descend = true;
+            } else if instanced && inside == NO_INSTANCE {
+                // A leaf of the top tree: enter its instance, unless the masks share no bit.
+                let r = instances[node.first];
+                if (r.mask & ray.mask) != 0u {
+                    instance = r;
+                    inside = node.first;
+                    instance_leaf = current;
+                    origin = instance_origin(r, ray.origin, origin_lo(ray));
+                    dir = instance_dir(r, ray.dir);
+                    inv_dir = safe_inverse(dir);
+                    shear = shear_for(dir);
+                    current = r.root;
+                    state = FROM_PARENT;
+                    continue;
+                }
             } else {
                 for (var i = 0u; i < kind; i += 1u) {
-                    let prim = node.first + i;
-                    if params.use_masks != 0u && (triangle_masks[prim] & ray.mask) == 0u {
+                    let leaf_prim = node.first + i;
+                    if params.use_masks != 0u && (triangle_masks[leaf_prim] & ray.mask) == 0u {
                         continue;
                     }
                     best.triangle_tests += 1u;
                     var h: TriangleHit;
                     if params.watertight != 0u {
-                        h = ray_triangle_watertight(triangles[prim], ray.origin, shear);
+                        h = ray_triangle_watertight(triangles[leaf_prim], origin, shear);
                     } else {
-                        h = ray_triangle(triangles[prim], ray.origin, ray.dir);
+                        h = ray_triangle(triangles[leaf_prim], origin, dir);
                     }
                     if !h.hit || !facing_allowed(h.det, cull) || !(h.t > ray.tmin) || !(h.t <= limit) {
                         continue;
+                    }
+                    var prim = leaf_prim;
+                    if inside != NO_INSTANCE {
+                        prim = instance.prim_base + triangle_ids[leaf_prim];
                     }
                     if mode == MODE_ALL {
                         limit = insert_hit(&best, list_base, GpuHitEntry(h.t, prim, h.u, h.v), ray.tmax);
@@ -326,10 +401,19 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
             break;
         }
         if descend {
-            current = near_child(current, node, ray.dir);
+            current = near_child(current, node, dir);
             state = FROM_PARENT;
         } else if current == 0u {
             break;
+        } else if inside != NO_INSTANCE && current == instance.root {
+            // Missed the instance's root box: back to its leaf and the world ray.
+            current = instance_leaf;
+            inside = NO_INSTANCE;
+            origin = ray.origin;
+            dir = ray.dir;
+            inv_dir = safe_inverse(dir);
+            shear = shear_for(dir);
+            state = FROM_CHILD;
         } else if state == FROM_PARENT {
             let parent = parent_of(node);
             current = sibling(current, parent, nodes[parent]);
@@ -351,13 +435,21 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
 
 // The tie rule (src/cpu/traverse.rs, `comes_before`): a smaller t first; equal t, the lower scene
 // triangle id first, so that no answer depends on the walk or the tree.
+// An instanced scene's hit ids are their own keys (they run instance by instance, file order).
+fn tie_key(prim: u32) -> u32 {
+    if params.top_nodes != 0u {
+        return prim;
+    }
+    return triangle_ids[prim];
+}
+
 fn comes_before(a: GpuHitEntry, b: GpuHitEntry) -> bool {
-    return a.t < b.t || (a.t == b.t && triangle_ids[a.prim] < triangle_ids[b.prim]);
+    return a.t < b.t || (a.t == b.t && tie_key(a.prim) < tie_key(b.prim));
 }
 
 // Closest and any-hit modes: whether a hit at t <= limit replaces `best` under the tie rule.
 fn closest_accepts(best: GpuHit, t: f32, prim: u32) -> bool {
-    return best.prim == NO_HIT || t < best.t || triangle_ids[prim] < triangle_ids[best.prim];
+    return best.prim == NO_HIT || t < best.t || tie_key(prim) < tie_key(best.prim);
 }
 
 // Inserts a hit into the ray's list, kept sorted under the tie rule; when the list is full the

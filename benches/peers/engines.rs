@@ -218,6 +218,8 @@ impl Engine for RaypickReference {
             triangles: bvh.triangles.as_slice(),
             triangle_ids: bvh.triangle_ids.as_slice(),
             triangle_masks: &[],
+            instances: &[],
+            top_nodes: 0,
             iteration_cap: bvh.iteration_cap(),
             max_hits: 0,
             watertight: false,

@@ -18,6 +18,8 @@ pub struct TraceSettings<'a> {
     pub max_hits: u32,
     /// Watertight triangle test instead of Möller–Trumbore.
     pub watertight: bool,
+    /// The instances of an instanced scene (whose tree then starts with the top tree).
+    pub instances: Option<&'a crate::instance::Instances>,
 }
 
 /// Closest-hit traversal of each ray with Möller–Trumbore, in parallel; `out[i]` answers `rays[i]`.
@@ -32,7 +34,11 @@ pub fn buffers<'a>(bvh: &'a Bvh, settings: &TraceSettings<'a>) -> traverse::Buff
         triangles: bvh.triangles.as_slice(),
         triangle_ids: bvh.triangle_ids.as_slice(),
         triangle_masks: settings.triangle_masks,
-        iteration_cap: bvh.iteration_cap(),
+        instances: settings.instances.map_or(&[], |i| i.records()),
+        top_nodes: settings.instances.map_or(0, |i| i.top_nodes()),
+        iteration_cap: settings
+            .instances
+            .map_or(bvh.iteration_cap(), |i| i.iteration_cap()),
         max_hits: settings.max_hits,
         watertight: settings.watertight,
     }

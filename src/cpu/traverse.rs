@@ -1,16 +1,20 @@
 //! Stackless, ordered closest-hit traversal: the CPU twin of `trace` in `wgsl/pick.wgsl`.
 //!
-//! Read it beside the shader: same states, same order of tests, same buffers.
+//! Read it beside the shader: same states, same order of tests, same buffers. In an instanced
+//! scene the same automaton walks two levels with no stack: at a leaf of the top tree it moves
+//! the ray into the instance's frame and descends into the mesh's bottom tree; leaving the
+//! bottom root, it climbs back to the instance's leaf and the world ray.
 #![allow(
     clippy::needless_range_loop,
     reason = "keeps the code comparable to the WGSL"
 )]
 
 use super::ray_box::{ray_box, safe_inverse};
+use super::ray_triangle::Shear;
 use super::ray_triangle::{TriangleHit, ray_triangle, ray_triangle_watertight, shear_for};
 use crate::layout::{
-    CAP_REACHED, CULL_BACK, CULL_FRONT, CULL_SHIFT, GpuHit, GpuHitEntry, GpuNode, GpuRay,
-    GpuTriangle, KIND_BITS, KIND_INNER, MODE_ALL, MODE_ANY, NO_HIT,
+    CAP_REACHED, CULL_BACK, CULL_FRONT, CULL_SHIFT, GpuHit, GpuHitEntry, GpuInstance, GpuNode,
+    GpuRay, GpuTriangle, KIND_BITS, KIND_INNER, MODE_ALL, MODE_ANY, NO_HIT,
 };
 use glam::Vec3;
 
@@ -18,6 +22,8 @@ use glam::Vec3;
 const FROM_PARENT: u32 = 0; // descending into the near child
 const FROM_SIBLING: u32 = 1; // moving across to the far child
 const FROM_CHILD: u32 = 2; // climbing back up after a subtree is done
+// `inside` while the walk is in the top tree (or the scene has no instances).
+const NO_INSTANCE: u32 = u32::MAX;
 
 fn kind_of(node: &GpuNode) -> u32 {
     node.kind()
@@ -41,6 +47,33 @@ fn sibling(index: u32, parent: u32, parent_node: &GpuNode) -> u32 {
         return parent_node.first;
     }
     parent + 1
+}
+
+/// The rest of the ray's origin after rounding to f32 ([`GpuRay::origin_lo`]), decoded exactly
+/// as WGSL's `unpack2x16float` does.
+pub fn origin_lo(ray: &GpuRay) -> Vec3 {
+    let half = |bits: u32| half::f16::from_bits(bits as u16).to_f32();
+    Vec3::new(
+        half(ray.origin_lo[0]),
+        half(ray.origin_lo[0] >> 16),
+        half(ray.origin_lo[1]),
+    )
+}
+
+/// `dot(a, b)` as the kernel writes it.
+fn dot3(a: [f32; 3], b: Vec3) -> f32 {
+    Vec3::from(a).dot(b)
+}
+
+/// The ray in instance `r`'s frame: its origin (taken in two parts, `hi + lo`) and direction
+/// mapped by the inverse linear part, from the mesh origin's place `c`.
+pub(crate) fn enter_instance(r: &GpuInstance, hi: Vec3, lo: Vec3, dir: Vec3) -> (Vec3, Vec3) {
+    let c_hi = Vec3::new(r.cx, r.cy, r.cz);
+    let d = (hi - c_hi) + (lo - Vec3::from(r.c_lo));
+    (
+        Vec3::new(dot3(r.l0, d), dot3(r.l1, d), dot3(r.l2, d)),
+        Vec3::new(dot3(r.l0, dir), dot3(r.l1, dir), dot3(r.l2, dir)),
+    )
 }
 
 pub(crate) fn facing_allowed(det: f32, cull: u32) -> bool {
@@ -93,8 +126,14 @@ pub struct Buffers<'a, N: ?Sized = [GpuNode], T: ?Sized = [GpuTriangle]> {
     pub nodes: &'a N,
     /// Triangles in leaf order.
     pub triangles: &'a T,
-    /// Scene triangle id of each leaf-order triangle (`Bvh::triangle_ids`): the tie rule.
+    /// Scene triangle id of each leaf-order triangle (`Bvh::triangle_ids`): the tie rule. In an
+    /// instanced scene, each mesh's file-order triangle id (a hit reports
+    /// `prim_base + id`).
     pub triangle_ids: &'a [u32],
+    /// Instance records (empty: a scene without instances).
+    pub instances: &'a [GpuInstance],
+    /// Nodes of the top tree over the instances (0: a scene without instances).
+    pub top_nodes: u32,
     /// Layer mask of each leaf-order triangle (ignored when empty).
     pub triangle_masks: &'a [u32],
     /// Iterations after which the walk gives up with `CAP_REACHED`.
@@ -126,8 +165,8 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
 ) -> GpuHit {
     let nodes = buffers.nodes;
     let triangles = buffers.triangles;
-    let origin = Vec3::from(ray.origin);
-    let dir = Vec3::from(ray.dir);
+    let world_origin = Vec3::from(ray.origin);
+    let world_dir = Vec3::from(ray.dir);
     let mut best = GpuHit {
         t: ray.tmax,
         prim: NO_HIT,
@@ -137,9 +176,20 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
         return best;
     }
     let mode = ray.flags & 3;
+    // Culling needs no change in an instance's frame: a mirroring instance's faces are stored
+    // so that front faces stay front faces in the world (`crate::instance`).
     let cull = (ray.flags >> CULL_SHIFT) & 3;
-    let inv_dir = safe_inverse(dir);
-    let shear = shear_for(dir);
+    let instanced = buffers.top_nodes != 0;
+    // Hit ids are their own tie keys in an instanced scene.
+    let tie_ids: &[u32] = if instanced { &[] } else { buffers.triangle_ids };
+    // The ray as the current tree sees it: the world's, or an instance's.
+    let mut origin = world_origin;
+    let mut dir = world_dir;
+    let mut inv_dir = safe_inverse(dir);
+    let mut shear: Shear = shear_for(dir);
+    let mut inside = NO_INSTANCE;
+    let mut instance = GpuInstance::default();
+    let mut instance_leaf = 0u32;
     // Hits need t in (tmin, limit]; limit shrinks to the nearest hit (closest), or to the
     // farthest kept hit once the all-hits list is full and has overflowed.
     let mut limit = ray.tmax;
@@ -157,6 +207,18 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
         if state == FROM_CHILD {
             if current == 0 {
                 break;
+            }
+            if inside != NO_INSTANCE && current == instance.root {
+                // The instance's tree is done: back to its leaf and the world ray.
+                current = instance_leaf;
+                inside = NO_INSTANCE;
+                (origin, dir, inv_dir, shear) = (
+                    world_origin,
+                    world_dir,
+                    safe_inverse(world_dir),
+                    shear_for(world_dir),
+                );
+                continue;
             }
             let parent = parent_of(node);
             let parent_node = &nodes.node(parent);
@@ -176,19 +238,33 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
             let kind = kind_of(node);
             if kind >= KIND_INNER {
                 descend = true;
+            } else if instanced && inside == NO_INSTANCE {
+                // A leaf of the top tree: enter its instance, unless the masks share no bit.
+                let r = buffers.instances[node.first as usize];
+                if (r.mask & ray.mask) != 0 {
+                    instance = r;
+                    inside = node.first;
+                    instance_leaf = current;
+                    (origin, dir) = enter_instance(&r, world_origin, origin_lo(ray), world_dir);
+                    inv_dir = safe_inverse(dir);
+                    shear = shear_for(dir);
+                    current = r.root;
+                    state = FROM_PARENT;
+                    continue;
+                }
             } else {
                 for i in 0..kind {
-                    let prim = node.first + i;
+                    let leaf_prim = node.first + i;
                     if !buffers.triangle_masks.is_empty()
-                        && (buffers.triangle_masks[prim as usize] & ray.mask) == 0
+                        && (buffers.triangle_masks[leaf_prim as usize] & ray.mask) == 0
                     {
                         continue;
                     }
                     best.triangle_tests += 1;
                     let h: TriangleHit<f32> = if buffers.watertight {
-                        ray_triangle_watertight(&triangles.triangle(prim), origin, &shear)
+                        ray_triangle_watertight(&triangles.triangle(leaf_prim), origin, &shear)
                     } else {
-                        ray_triangle(&triangles.triangle(prim), origin, dir)
+                        ray_triangle(&triangles.triangle(leaf_prim), origin, dir)
                     };
                     if !h.hit
                         || !facing_allowed(h.det, cull)
@@ -197,6 +273,11 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
                     {
                         continue;
                     }
+                    let prim = if inside != NO_INSTANCE {
+                        instance.prim_base + buffers.triangle_ids[leaf_prim as usize]
+                    } else {
+                        leaf_prim
+                    };
                     if mode == MODE_ALL {
                         limit = insert_hit(
                             &mut best,
@@ -208,10 +289,10 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
                                 v: h.v,
                             },
                             ray.tmax,
-                            buffers.triangle_ids,
+                            tie_ids,
                         );
                     } else {
-                        if !closest_accepts(&best, h.t, prim, buffers.triangle_ids) {
+                        if !closest_accepts(&best, h.t, prim, tie_ids) {
                             continue;
                         }
                         best.t = h.t;
@@ -235,6 +316,17 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
             state = FROM_PARENT;
         } else if current == 0 {
             break;
+        } else if inside != NO_INSTANCE && current == instance.root {
+            // Missed the instance's root box: back to its leaf and the world ray.
+            current = instance_leaf;
+            inside = NO_INSTANCE;
+            (origin, dir, inv_dir, shear) = (
+                world_origin,
+                world_dir,
+                safe_inverse(world_dir),
+                shear_for(world_dir),
+            );
+            state = FROM_CHILD;
         } else if state == FROM_PARENT {
             let parent = parent_of(node);
             current = sibling(current, parent, &nodes.node(parent));
@@ -257,9 +349,20 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
 /// The tie rule, so that no answer depends on the walk or the tree: hit `a` comes before hit `b`
 /// when its t is smaller, or the t are equal and its scene triangle id (objects in order, then
 /// triangles in file order) is lower.
+/// `triangle_ids` maps a prim to its tie key; empty, each prim is its own key (an instanced
+/// scene's hit ids run in tie order).
 #[inline(always)]
 pub(crate) fn comes_before(a: &GpuHitEntry, b: &GpuHitEntry, triangle_ids: &[u32]) -> bool {
-    a.t < b.t || (a.t == b.t && triangle_ids[a.prim as usize] < triangle_ids[b.prim as usize])
+    a.t < b.t || (a.t == b.t && tie_key(a.prim, triangle_ids) < tie_key(b.prim, triangle_ids))
+}
+
+/// Prim `prim`'s place in the tie order (see [`comes_before`]).
+#[inline(always)]
+fn tie_key(prim: u32, triangle_ids: &[u32]) -> u32 {
+    if triangle_ids.is_empty() {
+        return prim;
+    }
+    triangle_ids[prim as usize]
 }
 
 /// Closest and any-hit modes: whether a hit at `t <= limit` on leaf-order triangle `prim`
@@ -268,7 +371,7 @@ pub(crate) fn comes_before(a: &GpuHitEntry, b: &GpuHitEntry, triangle_ids: &[u32
 pub(crate) fn closest_accepts(best: &GpuHit, t: f32, prim: u32, triangle_ids: &[u32]) -> bool {
     best.prim == NO_HIT
         || t < best.t
-        || triangle_ids[prim as usize] < triangle_ids[best.prim as usize]
+        || tie_key(prim, triangle_ids) < tie_key(best.prim, triangle_ids)
 }
 
 /// Inserts a hit into the ray's list, kept sorted under the tie rule; when the list is full the

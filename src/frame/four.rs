@@ -94,7 +94,7 @@ mod avx {
             let (out, len) = (&mut local[g..g + 4], &mut lengths[g..g + 4]);
             four(scene_origin, r, flags, out, len);
             for i in 0..4 {
-                if out[i].pad[0] != 0 {
+                if out[i].origin_lo[0] != 0 {
                     // Off the common path: the scalar function decides.
                     scalar(
                         scene_origin,
@@ -367,7 +367,7 @@ mod avx {
                 tmax: lanes[7][i],
                 mask: r[i].mask,
                 flags,
-                pad: [u32::from(!common), 0],
+                origin_lo: [u32::from(!common), 0],
             };
             len[i] = dl[i];
         }
@@ -517,7 +517,7 @@ mod tests {
                 let mut lengths = [0.0; 4];
                 // SAFETY: the CPU has AVX (checked above).
                 unsafe { avx::four(origin, r, Query::default().flags(), l, &mut lengths) };
-                assert!(l.iter().all(|l| l.pad[0] == 0), "{r:?}");
+                assert!(l.iter().all(|l| l.origin_lo[0] == 0), "{r:?}");
             }
         }
     }

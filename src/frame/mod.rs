@@ -14,6 +14,7 @@ use rayon::prelude::*;
 
 mod four;
 pub use four::local_rays_into;
+pub(crate) use four::refine_four;
 
 /// The kernel input for an invalid ray: `tmax < tmin`, so traversal returns at once.
 pub const NEVER_TRACED: GpuRay = GpuRay {
@@ -23,7 +24,7 @@ pub const NEVER_TRACED: GpuRay = GpuRay {
     tmax: -1.0,
     mask: 0,
     flags: 0,
-    pad: [0; 2],
+    origin_lo: [0; 2],
 };
 
 /// A world ray in the scene frame: the kernel input plus the length of the world direction
@@ -84,7 +85,7 @@ pub fn local_ray(scene_origin: DVec3, ray: &Ray, query: &Query) -> Option<(GpuRa
             tmax,
             mask: ray.mask,
             flags: query.flags(),
-            pad: [0; 2],
+            origin_lo: [0; 2],
         },
         dir_length,
     ))
@@ -119,6 +120,37 @@ pub fn scene_rays(scene_origin: DVec3, rays: &[Ray], query: &Query) -> (Vec<GpuR
     (local, lengths)
 }
 
+/// Fills each traced ray's [`GpuRay::origin_lo`] (an instanced scene's kernels read it): what
+/// rounding `rays[i]`'s origin to the f32 offset `local[i].origin` left off, in f64, as three
+/// half floats. A rest too small for a normal half float is 0, so every decoder reads the same
+/// bits; a ray never traced keeps zeros.
+pub fn put_origin_lo(scene_origin: DVec3, rays: &[Ray], local: &mut [GpuRay]) {
+    let half = |x: f64| -> u32 {
+        let h = half::f16::from_f64(x);
+        if h.is_normal() {
+            u32::from(h.to_bits())
+        } else {
+            0
+        }
+    };
+    let fill = |(ray, l): (&Ray, &mut GpuRay)| {
+        #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN: never traced")]
+        if !(l.tmin <= l.tmax) || l.mask == 0 {
+            return;
+        }
+        let rest = (ray.origin - scene_origin) - glam::Vec3::from(l.origin).as_dvec3();
+        l.origin_lo = [half(rest.x) | half(rest.y) << 16, half(rest.z)];
+    };
+    if rays.len() <= 4096 {
+        rays.iter().zip(local.iter_mut()).for_each(fill);
+    } else {
+        rays.par_iter()
+            .zip(local.par_iter_mut())
+            .with_min_len(4096)
+            .for_each(fill);
+    }
+}
+
 /// Checks that every traversal result names a triangle of the tree (or none): a result past the
 /// end or at the iteration cap means the tree's links are corrupted.
 pub fn check_found<T: Sync>(
@@ -126,7 +158,15 @@ pub fn check_found<T: Sync>(
     found: &[T],
     prim: impl Fn(&T) -> u32 + Sync + Send,
 ) -> Result<()> {
-    let count = bvh.triangle_ids.len();
+    check_found_in(bvh.triangle_ids.len(), found, prim)
+}
+
+/// [`check_found`] against `count` hit ids (an instanced scene's run past its triangles).
+pub fn check_found_in<T: Sync>(
+    count: usize,
+    found: &[T],
+    prim: impl Fn(&T) -> u32 + Sync + Send,
+) -> Result<()> {
     let is_bad = |&p: &u32| p != NO_HIT && (p == CAP_REACHED || p as usize >= count);
     // A chunk of the fused pick (a few hundred results) is checked in place; a whole batch in
     // parallel.
@@ -221,7 +261,7 @@ pub fn resolve_chunk(
 }
 
 /// A miss carrying the traversal's b and i.
-fn stats_of(found: &GpuHit) -> Hit {
+pub(crate) fn stats_of(found: &GpuHit) -> Hit {
     Hit {
         box_tests: found.box_tests,
         triangle_tests: found.triangle_tests,
@@ -230,7 +270,7 @@ fn stats_of(found: &GpuHit) -> Hit {
 }
 
 /// The traversal's own t (in the world ray's units), u and v: what the refinement falls back on.
-fn traced(found: &GpuHit, dir_length: f64) -> [f64; 3] {
+pub(crate) fn traced(found: &GpuHit, dir_length: f64) -> [f64; 3] {
     [found.t as f64 / dir_length, found.u as f64, found.v as f64]
 }
 

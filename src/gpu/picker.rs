@@ -6,7 +6,7 @@ use super::bindings::{Binding, bindings, group_entries, layout_entries};
 use super::context::GpuContext;
 use crate::cpu::TraceSettings;
 use crate::error::{Error, Result};
-use crate::layout::{GpuHit, GpuHitEntry, GpuNode, GpuParams, GpuRay, GpuTriangle};
+use crate::layout::{GpuHit, GpuHitEntry, GpuInstance, GpuNode, GpuParams, GpuRay, GpuTriangle};
 use crate::picker::{BuiltScene, Refit, Tracer};
 use crate::ray_order::DEFAULT_REORDER_FROM;
 use std::mem::size_of;
@@ -40,6 +40,7 @@ pub struct GpuPicker {
     triangles: wgpu::Buffer,
     triangle_masks: wgpu::Buffer,
     triangle_ids: wgpu::Buffer,
+    instances: wgpu::Buffer,
     batch: Option<BatchBuffers>,
     chunk_rays: u32,
     workgroup_size: u32,
@@ -114,6 +115,12 @@ impl GpuPicker {
         );
         let triangle_masks = storage_init(device, "triangle masks", &built.triangle_masks, 0u32);
         let triangle_ids = storage_init(device, "triangle ids", &built.bvh.triangle_ids, 0u32);
+        let instances = storage_init(
+            device,
+            "instances",
+            instance_records(&built),
+            GpuInstance::default(),
+        );
         let params = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("params"),
             size: size_of::<GpuParams>() as u64,
@@ -138,6 +145,7 @@ impl GpuPicker {
             triangles,
             triangle_masks,
             triangle_ids,
+            instances,
             batch: None,
             chunk_rays: DEFAULT_CHUNK_RAYS.min(by_binding),
             workgroup_size,
@@ -241,12 +249,15 @@ impl GpuPicker {
         let params = GpuParams {
             ray_count: count,
             node_count: self.built.bvh.nodes.len() as u32,
-            iteration_cap: self.built.bvh.iteration_cap(),
+            iteration_cap: self
+                .built
+                .instances()
+                .map_or(self.built.bvh.iteration_cap(), |i| i.iteration_cap()),
             row_pitch: groups_x * self.workgroup_size,
             max_hits,
             use_masks: u32::from(!self.built.triangle_masks.is_empty()),
             watertight: u32::from(watertight),
-            pad: 0,
+            top_nodes: self.built.instances().map_or(0, |i| i.top_nodes()),
         };
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
@@ -373,6 +384,7 @@ impl GpuPicker {
                 ("hit_lists", &lists),
                 ("triangle_masks", &self.triangle_masks),
                 ("triangle_ids", &self.triangle_ids),
+                ("instances", &self.instances),
             ],
         );
         // On an error the scope guards pop themselves as they drop.
@@ -426,6 +438,10 @@ impl Tracer for GpuPicker {
                         0,
                         bytemuck::cast_slice(&built.bvh.triangles),
                     );
+                    let records = instance_records(&built);
+                    if !records.is_empty() {
+                        queue.write_buffer(&self.instances, 0, bytemuck::cast_slice(records));
+                    }
                 }
             }
             Refit::Rebuilt => {
@@ -444,6 +460,12 @@ impl Tracer for GpuPicker {
                     storage_init(device, "triangle masks", &built.triangle_masks, 0u32);
                 self.triangle_ids =
                     storage_init(device, "triangle ids", &built.bvh.triangle_ids, 0u32);
+                self.instances = storage_init(
+                    device,
+                    "instances",
+                    instance_records(&built),
+                    GpuInstance::default(),
+                );
                 // The batch's bind group names the old buffers.
                 self.batch = None;
                 let oom_error = pollster::block_on(oom.pop());
@@ -471,6 +493,11 @@ impl Tracer for GpuPicker {
     fn path_name(&self) -> String {
         format!("gpu {}", self.context.describe())
     }
+}
+
+/// The instance records an instanced scene's kernel reads (none for other scenes).
+fn instance_records(built: &BuiltScene) -> &[GpuInstance] {
+    built.instances().map_or(&[], |i| i.records())
 }
 
 /// Checks that the adapter can run workgroups of `size` invocations (the kernel's workgroups are

@@ -59,10 +59,21 @@ pub fn assert_query_equivalent(
     rays: &[(RayKind, Ray)],
     query: &Query,
 ) -> Answers {
-    built
-        .bvh
-        .validate()
-        .unwrap_or_else(|e| panic!("{name}: invalid tree: {e}"));
+    // An instanced scene is judged against its instances baked into world triangles.
+    let baked;
+    let scene = match built.instances() {
+        Some(instances) => {
+            baked = instances.baked().expect("bake the instances");
+            &baked
+        }
+        None => {
+            built
+                .bvh
+                .validate()
+                .unwrap_or_else(|e| panic!("{name}: invalid tree: {e}"));
+            &built.scene
+        }
+    };
     let plain: Vec<Ray> = rays.iter().map(|(_, r)| *r).collect();
     let cpu = CpuPicker::new(built.clone())
         .query(&plain, query)
@@ -114,9 +125,9 @@ pub fn assert_query_equivalent(
             plain[differ[0]]
         );
     }
-    let oracle = brute_force_query(&built.scene, &plain, query);
+    let oracle = brute_force_query(scene, &plain, query);
     let every_hit = brute_force_query(
-        &built.scene,
+        scene,
         &plain,
         &Query {
             mode: Mode::Any,
@@ -138,7 +149,7 @@ pub fn assert_query_equivalent(
             ("gpu/oracle", &gpu_answers, &oracle),
         ] {
             let (tally, bad) = compare_answers(
-                &built.scene,
+                scene,
                 &kind_rays,
                 query.mode,
                 &pick(a),

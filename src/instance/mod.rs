@@ -1,0 +1,433 @@
+//! Instanced scenes: each mesh stored and built once, in its own f32 frame, and placed any
+//! number of times by f64 affine transforms. Owns the instance model ([`Instance`],
+//! [`Instances`]), the two-level layout the tracers walk (a top tree over the instances' boxes,
+//! built by median cut in [`top`], in front of every mesh's bottom tree, in one node buffer),
+//! the per-instance records the kernel reads ([`GpuInstance`]), and the way back from a hit to
+//! the world ([`Instances::locate`]).
+//!
+//! Data flow: meshes ([`Scene`]s of one object, in file coordinates) + instances
+//! -> [`Instances::build`] -> (`Instances`, the combined [`Bvh`]) -> the tracers (the kernel, its
+//! twin, the engine) -> hits whose `prim` is `prim_base + file-order triangle` -> [`resolve`]
+//! (the world triangle in f64, refined as every hit is).
+
+pub mod resolve;
+pub mod top;
+
+use crate::bvh::{BuildOptions, Bvh};
+use crate::error::{Error, Result};
+use crate::layout::{CAP_REACHED, GpuInstance, GpuNode, INSTANCE_MIRRORED, KIND_BITS, MAX_NODES};
+use crate::scene::{Scene, apply_transform, check_transform};
+use glam::{DMat3, DVec3, Vec3};
+use std::sync::Arc;
+
+pub use resolve::{resolve_chunk, resolve_with};
+
+/// The identity transform (3 × 4, row-major).
+pub const IDENTITY: [[f64; 4]; 3] = [
+    [1.0, 0.0, 0.0, 0.0],
+    [0.0, 1.0, 0.0, 0.0],
+    [0.0, 0.0, 1.0, 0.0],
+];
+
+/// One placed copy of a mesh. Its id (the `object` its hits report) is its position in the
+/// scene's instance list.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Instance {
+    /// A name for messages (the file it came from).
+    pub name: String,
+    /// The mesh it places (an index into the scene's meshes).
+    pub mesh: u32,
+    /// From the mesh's (file) coordinates to the world: 3 × 4 row-major, world = M·[x, y, z, 1].
+    pub transform: [[f64; 4]; 3],
+    /// Layer mask: rays hit the instance only when their mask shares a bit with it (0: never).
+    pub mask: u32,
+}
+
+/// A mesh of an instanced scene: its f64 positions in file coordinates (a scene of one object)
+/// and the tree built over it, in the mesh's own f32 frame.
+#[derive(Debug)]
+pub struct MeshTree {
+    /// The mesh, as one object (grid shape and mirroring as loaded).
+    pub scene: Scene,
+    /// Its own tree (origin: the centre of the mesh's bounds).
+    pub bvh: Bvh,
+}
+
+/// The instances of a scene and the meshes they place, with what the tracers read of them.
+#[derive(Clone, Debug)]
+pub struct Instances {
+    meshes: Vec<Arc<MeshTree>>,
+    instances: Vec<Instance>,
+    /// One record per instance, in instance order.
+    records: Vec<GpuInstance>,
+    /// Where each mesh's nodes and triangles start in the combined buffers.
+    mesh_nodes: Vec<u32>,
+    mesh_triangles: Vec<u32>,
+    top_nodes: u32,
+    origin: DVec3,
+    iteration_cap: u32,
+}
+
+impl Instances {
+    /// Builds each mesh's tree once with `options`, then the top tree over the instances, and
+    /// returns the instances with the combined tree the tracers walk (top nodes first, then
+    /// each mesh's nodes; each mesh's triangles in leaf order, one mesh after another). Fails,
+    /// naming the instance, on an unknown mesh or a transform that is not finite or is
+    /// singular; and when the instanced triangles outnumber the hit ids (2³² − 2).
+    pub fn build(
+        meshes: Vec<Scene>,
+        instances: Vec<Instance>,
+        options: &BuildOptions,
+    ) -> Result<(Instances, Bvh)> {
+        for (k, m) in meshes.iter().enumerate() {
+            if m.objects().len() != 1 {
+                return Err(Error::Invalid(format!(
+                    "mesh {k} has {} objects; a mesh of an instanced scene is one object",
+                    m.objects().len()
+                )));
+            }
+        }
+        let trees = meshes
+            .into_iter()
+            .map(|scene| {
+                let bvh = Bvh::build(&scene, options)?;
+                Ok(Arc::new(MeshTree { scene, bvh }))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Self::assemble(trees, instances)
+    }
+
+    /// [`Instances::build`] over meshes whose trees exist.
+    pub fn assemble(meshes: Vec<Arc<MeshTree>>, instances: Vec<Instance>) -> Result<(Self, Bvh)> {
+        for (k, i) in instances.iter().enumerate() {
+            check_instance(&meshes, k, i)?;
+        }
+        let mut total = 0u64;
+        for i in &instances {
+            total += meshes[i.mesh as usize].scene.triangle_count() as u64;
+        }
+        if total >= u64::from(CAP_REACHED) {
+            return Err(Error::Invalid(format!(
+                "the instances hold {total} triangles in all; hits can name at most {}",
+                CAP_REACHED - 1
+            )));
+        }
+        let mut mesh_nodes = Vec::with_capacity(meshes.len());
+        let mut mesh_triangles = Vec::with_capacity(meshes.len());
+        let (mut nodes, mut triangles) = (0u64, 0u64);
+        for m in &meshes {
+            mesh_nodes.push(nodes);
+            mesh_triangles.push(triangles);
+            nodes += m.bvh.nodes.len() as u64;
+            triangles += m.bvh.triangles.len() as u64;
+        }
+        let mut this = Instances {
+            meshes,
+            instances,
+            records: Vec::new(),
+            mesh_nodes: Vec::new(),
+            mesh_triangles: mesh_triangles.iter().map(|&t| t as u32).collect(),
+            top_nodes: 0,
+            origin: DVec3::ZERO,
+            iteration_cap: 0,
+        };
+        let boxes = this.world_boxes();
+        let (lo, hi) = boxes
+            .iter()
+            .flatten()
+            .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), b| {
+                (lo.min(b.0), hi.max(b.1))
+            });
+        this.origin = if lo.is_finite() {
+            (lo + hi) * 0.5
+        } else {
+            DVec3::ZERO
+        };
+        let top = top::build(&this.scene_boxes(&boxes));
+        let top_count = top.len() as u64;
+        if top_count + nodes > u64::from(MAX_NODES) || triangles > u64::from(u32::MAX) {
+            return Err(Error::Invalid(format!(
+                "the instanced scene needs {} nodes, more than the {MAX_NODES} the node format \
+                 can address",
+                top_count + nodes
+            )));
+        }
+        this.top_nodes = top_count as u32;
+        this.mesh_nodes = mesh_nodes.iter().map(|&n| (n + top_count) as u32).collect();
+        this.records = (0..this.instances.len()).map(|k| this.record(k)).collect();
+        let bvh = this.combined(top);
+        this.iteration_cap = this.cap(&bvh.nodes[..this.top_nodes as usize]);
+        Ok((this, bvh))
+    }
+
+    /// The meshes, in order.
+    pub fn meshes(&self) -> &[Arc<MeshTree>] {
+        &self.meshes
+    }
+
+    /// The instances, in id order.
+    pub fn instances(&self) -> &[Instance] {
+        &self.instances
+    }
+
+    /// The kernel's record of each instance, in id order.
+    pub fn records(&self) -> &[GpuInstance] {
+        &self.records
+    }
+
+    /// Nodes of the top tree, at the start of the combined node buffer.
+    pub fn top_nodes(&self) -> u32 {
+        self.top_nodes
+    }
+
+    /// The scene frame's origin: the centre of the instances' world boxes.
+    pub fn origin(&self) -> DVec3 {
+        self.origin
+    }
+
+    /// Loop iterations the two-level walk may take: each top node entered at most once going
+    /// down and once coming up, and each entered instance's bottom tree likewise, plus the step
+    /// back to its leaf.
+    pub fn iteration_cap(&self) -> u32 {
+        self.iteration_cap
+    }
+
+    /// Triangles of all instances together (the hit ids run `0..` this).
+    pub fn prim_count(&self) -> u64 {
+        self.records.last().map_or(0, |r| {
+            let last = self.instances.last().expect("a record per instance");
+            u64::from(r.prim_base) + self.meshes[last.mesh as usize].scene.triangle_count() as u64
+        })
+    }
+
+    /// Bytes the instancing adds beyond the meshes: instance records (f64 and kernel) and the
+    /// top tree.
+    pub fn instance_bytes(&self) -> u64 {
+        (self.instances.len() * (size_of::<Instance>() + size_of::<GpuInstance>())
+            + self.top_nodes as usize * size_of::<GpuNode>()) as u64
+    }
+
+    /// Where hit id `prim` lands: the instance, and the mesh's file-order triangle.
+    pub fn locate(&self, prim: u32) -> (u32, u32) {
+        let k = self
+            .records
+            .partition_point(|r| r.prim_base <= prim)
+            .saturating_sub(1);
+        (k as u32, prim - self.records[k].prim_base)
+    }
+
+    /// The world corners of instance `instance`'s triangle `triangle` (file order), in the
+    /// winding the world sees (swapped once more for a mirroring transform), and whether u and v
+    /// come out swapped against the file's vertex order.
+    #[inline]
+    pub fn world_triangle(&self, instance: u32, triangle: u32) -> ([DVec3; 3], bool) {
+        let i = &self.instances[instance as usize];
+        let mesh = &self.meshes[i.mesh as usize].scene;
+        let [a, b, c] = mesh
+            .world_triangle(triangle as usize)
+            .map(|p| apply_transform(&i.transform, p));
+        let mirrored = self.records[instance as usize].flags & INSTANCE_MIRRORED != 0;
+        let swapped = mesh.objects()[0].mirrored != mirrored;
+        if mirrored {
+            ([a, c, b], swapped)
+        } else {
+            ([a, b, c], swapped)
+        }
+    }
+
+    /// The same scene with every instance's mesh copied and transformed into world f64
+    /// positions: one object per instance, ids in order (what the brute-force oracle and a
+    /// scene without instances see).
+    pub fn baked(&self) -> Result<Scene> {
+        let mut scene = Scene::new();
+        for (k, i) in self.instances.iter().enumerate() {
+            let mesh = &self.meshes[i.mesh as usize].scene;
+            let o = &mesh.objects()[0];
+            // A mirrored mesh is stored swapped: copied in file order, then swapped as loaded.
+            let unswap = |t: &[u32; 3]| if o.mirrored { [t[0], t[2], t[1]] } else { *t };
+            let m = crate::scene::Mesh {
+                positions: mesh.positions().to_vec(),
+                triangles: mesh.triangles().iter().map(unswap).collect(),
+            };
+            let id = match o.grid {
+                Some(shape) => scene.add_grid_mesh(i.name.clone(), m, shape)?,
+                None => scene.add_mesh(i.name.clone(), m)?,
+            };
+            debug_assert_eq!(id as usize, k);
+            if o.mirrored {
+                scene.flip_winding(id);
+            }
+            scene.set_object_mask(id, i.mask)?;
+            scene.transform_object(id, &i.transform)?;
+        }
+        Ok(scene)
+    }
+
+    /// Each instance's world box in f64 (`None` for a mesh with nothing to hit).
+    fn world_boxes(&self) -> Vec<Option<(DVec3, DVec3)>> {
+        self.instances
+            .iter()
+            .map(|i| {
+                let m = &self.meshes[i.mesh as usize];
+                if m.bvh.nodes.is_empty() {
+                    return None;
+                }
+                let (lo, hi) = m.scene.bounds()?;
+                let mut b = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+                for k in 0..8 {
+                    let corner = DVec3::new(
+                        if k & 1 == 0 { lo.x } else { hi.x },
+                        if k & 2 == 0 { lo.y } else { hi.y },
+                        if k & 4 == 0 { lo.z } else { hi.z },
+                    );
+                    let p = apply_transform(&i.transform, corner);
+                    b = (b.0.min(p), b.1.max(p));
+                }
+                Some(b)
+            })
+            .collect()
+    }
+
+    /// The boxes in the scene frame, rounded outward to f32 and widened by a few units in the
+    /// last place of their largest coordinate: the top tree is tested with the ray's f32 origin
+    /// alone, so a box must hold whatever the instance's frame can hit.
+    fn scene_boxes(&self, boxes: &[Option<(DVec3, DVec3)>]) -> Vec<Option<(Vec3, Vec3)>> {
+        boxes
+            .iter()
+            .map(|b| {
+                let (lo, hi) = (*b)?;
+                let (lo, hi) = (lo - self.origin, hi - self.origin);
+                let size = lo.abs().max(hi.abs()).max_element() + (hi - lo).max_element();
+                let pad = size * f64::from(f32::EPSILON) * 8.0;
+                let down = |x: f64| {
+                    let f = (x - pad) as f32;
+                    if f64::from(f) > x - pad {
+                        f.next_down()
+                    } else {
+                        f
+                    }
+                };
+                let up = |x: f64| {
+                    let f = (x + pad) as f32;
+                    if f64::from(f) < x + pad {
+                        f.next_up()
+                    } else {
+                        f
+                    }
+                };
+                Some((
+                    Vec3::new(down(lo.x), down(lo.y), down(lo.z)),
+                    Vec3::new(up(hi.x), up(hi.y), up(hi.z)),
+                ))
+            })
+            .collect()
+    }
+
+    /// Instance `k`'s kernel record: the inverse linear map and the mesh origin's place in the
+    /// scene frame, worked out in f64 and rounded once.
+    fn record(&self, k: usize) -> GpuInstance {
+        let i = &self.instances[k];
+        let m = &i.transform;
+        let mesh = &self.meshes[i.mesh as usize];
+        let linear = DMat3::from_cols(
+            DVec3::new(m[0][0], m[1][0], m[2][0]),
+            DVec3::new(m[0][1], m[1][1], m[2][1]),
+            DVec3::new(m[0][2], m[1][2], m[2][2]),
+        );
+        let inverse = linear.inverse();
+        let c = apply_transform(m, mesh.bvh.origin) - self.origin;
+        let c_hi = c.as_vec3();
+        let c_lo = (c - c_hi.as_dvec3()).as_vec3();
+        let prim_base: u64 = self.instances[..k]
+            .iter()
+            .map(|j| self.meshes[j.mesh as usize].scene.triangle_count() as u64)
+            .sum();
+        let row = |r: usize| inverse.row(r).as_vec3().to_array();
+        GpuInstance {
+            l0: row(0),
+            cx: c_hi.x,
+            l1: row(1),
+            cy: c_hi.y,
+            l2: row(2),
+            cz: c_hi.z,
+            c_lo: c_lo.to_array(),
+            root: if mesh.bvh.nodes.is_empty() {
+                u32::MAX
+            } else {
+                self.mesh_nodes[i.mesh as usize]
+            },
+            prim_base: prim_base as u32,
+            mask: i.mask,
+            flags: if linear.determinant() < 0.0 {
+                INSTANCE_MIRRORED
+            } else {
+                0
+            },
+            pad: 0,
+        }
+    }
+
+    /// The combined tree: `top` (parents linked), then each mesh's nodes with their links and
+    /// triangle ranges moved to where the mesh sits in the shared buffers.
+    fn combined(&self, mut top: Vec<GpuNode>) -> Bvh {
+        if top.is_empty() {
+            // Nothing to hit: no tree at all, so no walk starts in a bottom tree.
+            return Bvh {
+                origin: self.origin,
+                ..Bvh::default()
+            };
+        }
+        crate::bvh::link_parents(&mut top);
+        let mut nodes = top;
+        let mut triangles = Vec::new();
+        let mut triangle_ids = Vec::new();
+        for (k, m) in self.meshes.iter().enumerate() {
+            let (node_base, tri_base) = (self.mesh_nodes[k], self.mesh_triangles[k]);
+            nodes.extend(m.bvh.nodes.iter().map(|n| {
+                let mut n = *n;
+                let parent = n.parent() + node_base;
+                n.parent_kind = parent << KIND_BITS | n.kind();
+                n.first += if n.is_leaf() { tri_base } else { node_base };
+                n
+            }));
+            triangles.extend_from_slice(&m.bvh.triangles);
+            triangle_ids.extend_from_slice(&m.bvh.triangle_ids);
+        }
+        Bvh {
+            origin: self.origin,
+            nodes: nodes.into(),
+            triangles: triangles.into(),
+            triangle_ids: triangle_ids.into(),
+            blocks: Vec::new(),
+        }
+    }
+
+    /// [`Instances::iteration_cap`] for the top tree `top`.
+    fn cap(&self, top: &[GpuNode]) -> u32 {
+        let mut cap = 2 * top.len() as u64 + 2;
+        for n in top.iter().filter(|n| n.is_leaf()) {
+            let mesh = self.instances[n.first as usize].mesh as usize;
+            cap += 2 * self.meshes[mesh].bvh.nodes.len() as u64 + 2;
+        }
+        cap.min(u64::from(u32::MAX)) as u32
+    }
+}
+
+/// Refuses an instance with an unknown mesh or a transform that cannot place it.
+fn check_instance(meshes: &[Arc<MeshTree>], k: usize, i: &Instance) -> Result<()> {
+    if i.mesh as usize >= meshes.len() {
+        return Err(Error::Invalid(format!(
+            "instance {k} (\"{}\") places mesh {}, but there are {} meshes",
+            crate::budget::quote(&i.name),
+            i.mesh,
+            meshes.len()
+        )));
+    }
+    check_transform(&i.transform).map_err(|why| {
+        Error::Invalid(format!(
+            "instance {k} (\"{}\"): the transform {why}",
+            crate::budget::quote(&i.name)
+        ))
+    })?;
+    Ok(())
+}

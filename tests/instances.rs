@@ -1,0 +1,337 @@
+//! Instanced scenes (meshes stored once, placed by f64 transforms under a median-cut top
+//! tree): random scenes of rotated, non-uniformly scaled, sheared, mirrored and far-translated
+//! instances answer every ray kind, in every mode, on the engine, the twin and the GPU as the
+//! brute-force oracle answers the instances baked into world triangles, with 0 mismatches; the
+//! twin and the GPU agree bit for bit; hits report the instance and the mesh's own triangle.
+
+mod common;
+
+use common::assert_query_equivalent;
+use glam::{DMat3, DQuat, DVec3};
+use rand::Rng;
+use raypick::check::synthetic::{
+    RayKind, box_mesh, hills, icosphere, mixed_rays, rng, terrain, triangle_soup,
+};
+use raypick::instance::Instance;
+use raypick::{BuildOptions, BuiltScene, Cull, Intersector, Mesh, Mode, Picker, Query, Scene};
+use std::sync::Arc;
+
+/// A scene of one object holding `mesh` (a height grid when `grid` says its shape).
+fn mesh_scene(name: &str, mesh: Mesh, grid: Option<(u32, u32)>) -> Scene {
+    let mut scene = Scene::new();
+    match grid {
+        Some((columns, rows)) => scene
+            .add_grid_mesh(name, mesh, raypick::GridShape { columns, rows })
+            .unwrap(),
+        None => scene.add_mesh(name, mesh).unwrap(),
+    };
+    scene
+}
+
+fn meshes() -> Vec<Scene> {
+    vec![
+        mesh_scene(
+            "sphere",
+            icosphere(DVec3::new(0.5, -0.25, 1.0), 2.0, 2),
+            None,
+        ),
+        mesh_scene(
+            "box",
+            box_mesh(DVec3::new(-1.0, -2.0, 0.0), DVec3::new(1.5, 1.0, 3.0)),
+            None,
+        ),
+        mesh_scene("soup", triangle_soup(150, 4.0, 11), None),
+        mesh_scene(
+            "terrain",
+            terrain(9, 7, -4.0, 3.0, 1.0, |x, y| hills(x * 5.0, y * 5.0) * 0.1),
+            Some((9, 7)),
+        ),
+    ]
+}
+
+/// `m` (3 × 3, applied to column vectors) and translation `t` as a 3 × 4 row-major transform.
+fn transform(m: DMat3, t: DVec3) -> [[f64; 4]; 3] {
+    let r = |k: usize| {
+        let row = m.row(k);
+        [row.x, row.y, row.z, t[k]]
+    };
+    [r(0), r(1), r(2)]
+}
+
+/// `count` instances of random meshes: a random rotation, non-uniform scale (a mirror one time
+/// in four), a shear one time in three, placed within `spread` of `centre`.
+fn random_instances(count: usize, centre: DVec3, spread: f64, seed: u64) -> Vec<Instance> {
+    let mut g = rng(seed);
+    (0..count)
+        .map(|k| {
+            let axis = DVec3::new(
+                g.random_range(-1.0..1.0),
+                g.random_range(-1.0..1.0),
+                g.random_range(-1.0..1.0),
+            )
+            .try_normalize()
+            .unwrap_or(DVec3::Z);
+            let rotation = DMat3::from_quat(DQuat::from_axis_angle(axis, g.random_range(0.0..6.3)));
+            let mut scale = DVec3::new(
+                g.random_range(0.4..2.5),
+                g.random_range(0.4..2.5),
+                g.random_range(0.4..2.5),
+            );
+            if g.random_range(0..4) == 0 {
+                scale.x = -scale.x;
+            }
+            let mut m = rotation * DMat3::from_diagonal(scale);
+            if g.random_range(0..3) == 0 {
+                m *= DMat3::from_cols(DVec3::X, DVec3::new(0.3, 1.0, 0.0), DVec3::Z);
+            }
+            let t = centre
+                + DVec3::new(
+                    g.random_range(-spread..spread),
+                    g.random_range(-spread..spread),
+                    g.random_range(-spread * 0.3..spread * 0.3),
+                );
+            Instance {
+                name: format!("instance {k}"),
+                mesh: g.random_range(0..4),
+                transform: transform(m, t),
+                mask: if k % 7 == 3 { 2 } else { 1 },
+            }
+        })
+        .collect()
+}
+
+fn queries() -> Vec<Query> {
+    let base = Query::default();
+    vec![
+        base,
+        Query {
+            intersector: Intersector::MollerTrumbore,
+            ..base
+        },
+        Query {
+            mode: Mode::Any,
+            ..base
+        },
+        Query {
+            mode: Mode::All,
+            max_hits: 4,
+            ..base
+        },
+        Query {
+            cull: Cull::Back,
+            ..base
+        },
+        Query {
+            cull: Cull::Front,
+            mode: Mode::All,
+            max_hits: 8,
+            ..base
+        },
+    ]
+}
+
+/// Every query over the mixed ray kinds, aimed at the baked world triangles.
+fn check(name: &str, instances: Vec<Instance>, rays_per_scene: usize) {
+    let built = Arc::new(
+        BuiltScene::instanced(meshes(), instances, &BuildOptions::default()).expect("build"),
+    );
+    let baked = built.instances().unwrap().baked().unwrap();
+    let rays = mixed_rays(&baked, rays_per_scene, 5);
+    for query in queries() {
+        assert_query_equivalent(name, built.clone(), &rays, &query);
+    }
+}
+
+#[test]
+fn random_instances_near_the_origin_match_the_oracle_on_every_path() {
+    check("near", random_instances(24, DVec3::ZERO, 12.0, 1), 1200);
+}
+
+#[test]
+fn instances_a_million_metres_out_match_the_oracle_on_every_path() {
+    check(
+        "far",
+        random_instances(24, DVec3::new(1.0e6, -2.0e6, 300.0), 15.0, 2),
+        1200,
+    );
+}
+
+#[test]
+fn instances_spread_over_a_million_metres_match_the_oracle_on_every_path() {
+    // One cluster at the origin, one 10⁶ m out: the scene frame's centre is half way, so each
+    // instance is entered from a ray origin split in two parts.
+    let mut instances = random_instances(12, DVec3::ZERO, 10.0, 3);
+    instances.extend(random_instances(12, DVec3::new(1.0e6, 0.0, 0.0), 10.0, 4));
+    check("spread", instances, 1200);
+}
+
+#[test]
+fn hits_report_the_instance_and_the_meshs_own_triangle_within_a_millimetre_far_out() {
+    // Two copies of the box, one 10⁶ m out and turned, one near the origin; rays aimed at a
+    // known point on a known face of each.
+    let turn = DMat3::from_rotation_z(0.5);
+    let far = DVec3::new(1.0e6 + 0.125, 2.5e5, -40.0);
+    let instances = vec![
+        Instance {
+            name: "near".into(),
+            mesh: 1,
+            transform: transform(DMat3::IDENTITY, DVec3::ZERO),
+            mask: u32::MAX,
+        },
+        Instance {
+            name: "far".into(),
+            mesh: 1,
+            transform: transform(turn, far),
+            mask: u32::MAX,
+        },
+    ];
+    let built = Arc::new(
+        BuiltScene::instanced(meshes(), instances, &BuildOptions::default()).expect("build"),
+    );
+    // The box's top face is z = 3; aim straight down at (0.3, -0.7) in its frame.
+    let local = DVec3::new(0.3, -0.7, 3.0);
+    for (k, (m, t)) in [(DMat3::IDENTITY, DVec3::ZERO), (turn, far)]
+        .into_iter()
+        .enumerate()
+    {
+        let target = m * local + t;
+        let ray = raypick::Ray::new(target + DVec3::new(0.0, 0.0, 10.0), DVec3::NEG_Z);
+        for mut picker in [
+            Box::new(raypick::CpuPicker::new(built.clone())) as Box<dyn Picker>,
+            Box::new(raypick::ReferencePicker::new(built.clone())),
+        ] {
+            let hit = picker.pick(&[ray]).unwrap()[0];
+            assert!(hit.hit, "instance {k}: {hit:?}");
+            assert_eq!(hit.object, k as u32);
+            assert!(
+                (hit.position - target).length() < 1e-3,
+                "{hit:?} vs {target}"
+            );
+            assert!((hit.t - 10.0).abs() < 1e-3, "{hit:?}");
+            let faces = built.instances().unwrap().meshes()[1]
+                .scene
+                .triangle_count();
+            assert!((hit.triangle as usize) < faces);
+            assert!(hit.normal.z > 0.999, "{hit:?}");
+        }
+    }
+}
+
+#[test]
+fn a_mesh_placed_many_times_is_stored_once() {
+    let instances = random_instances(200, DVec3::ZERO, 100.0, 9);
+    let built = BuiltScene::instanced(meshes(), instances, &BuildOptions::default()).unwrap();
+    let i = built.instances().unwrap();
+    let mesh_triangles: usize = i.meshes().iter().map(|m| m.bvh.triangles.len()).sum();
+    assert_eq!(built.bvh.triangles.len(), mesh_triangles);
+    assert_eq!(
+        built.bvh.nodes.len() as u32,
+        i.top_nodes() + {
+            i.meshes()
+                .iter()
+                .map(|m| m.bvh.nodes.len() as u32)
+                .sum::<u32>()
+        }
+    );
+    assert_eq!(i.top_nodes(), 2 * 200 - 1);
+}
+
+#[test]
+fn bad_instances_are_refused_naming_them() {
+    let mut instances = random_instances(3, DVec3::ZERO, 5.0, 1);
+    instances[1].transform[2] = [0.0, 0.0, 0.0, 1.0];
+    let e = BuiltScene::instanced(meshes(), instances.clone(), &BuildOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("instance 1") && e.contains("singular"), "{e}");
+    instances[1].transform[2] = [0.0, 0.0, f64::NAN, 1.0];
+    let e = BuiltScene::instanced(meshes(), instances.clone(), &BuildOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("instance 1") && e.contains("not finite"), "{e}");
+    instances[1].transform = raypick::instance::IDENTITY;
+    instances[2].mesh = 9;
+    let e = BuiltScene::instanced(meshes(), instances, &BuildOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("instance 2") && e.contains("mesh 9"), "{e}");
+}
+
+#[test]
+fn rays_miss_instances_whose_masks_they_do_not_share() {
+    let instances = random_instances(20, DVec3::ZERO, 8.0, 12);
+    let built = Arc::new(
+        BuiltScene::instanced(meshes(), instances.clone(), &BuildOptions::default()).unwrap(),
+    );
+    let baked = built.instances().unwrap().baked().unwrap();
+    let rays: Vec<raypick::Ray> = mixed_rays(&baked, 600, 3)
+        .into_iter()
+        .filter(|(k, _)| *k == RayKind::Random || *k == RayKind::Camera)
+        .map(|(_, mut r)| {
+            r.mask = 2;
+            r
+        })
+        .collect();
+    let hits = raypick::ReferencePicker::new(built).pick(&rays).unwrap();
+    assert!(hits.iter().any(|h| h.hit));
+    for h in hits.iter().filter(|h| h.hit) {
+        assert_eq!(instances[h.object as usize].mask, 2, "{h:?}");
+    }
+}
+
+#[test]
+fn rays_aimed_a_millimetre_inside_an_edge_pick_that_triangle_in_a_scene_a_million_metres_wide() {
+    // Spheres at the origin and 10⁶ m out: the scene frame's centre is 5·10⁵ m from both, where
+    // an f32 offset is good to 3 cm. The ray origin is split in two parts, so each instance's
+    // frame is entered to within micrometres and the aimed triangle is the one hit.
+    let turn = DMat3::from_rotation_z(0.7) * DMat3::from_diagonal(DVec3::new(1.0, 1.5, 0.8));
+    let far = DVec3::new(1.0e6 + 0.37, -3.0e5, 12.0);
+    let instances = vec![
+        Instance {
+            name: "near".into(),
+            mesh: 0,
+            transform: transform(DMat3::IDENTITY, DVec3::ZERO),
+            mask: u32::MAX,
+        },
+        Instance {
+            name: "far".into(),
+            mesh: 0,
+            transform: transform(turn, far),
+            mask: u32::MAX,
+        },
+    ];
+    let built = Arc::new(
+        BuiltScene::instanced(meshes(), instances, &BuildOptions::default()).expect("build"),
+    );
+    let baked = built.instances().unwrap().baked().unwrap();
+    let sphere_triangles = built.instances().unwrap().meshes()[0]
+        .scene
+        .triangle_count() as u32;
+    let mut g = rng(77);
+    let mut rays = Vec::new();
+    let mut aimed = Vec::new();
+    for _ in 0..300 {
+        let (object, triangle) = (1u32, g.random_range(0..sphere_triangles));
+        let index = baked.global_index(object, triangle).unwrap();
+        let [a, b, c] = baked.world_triangle(index);
+        let normal = (b - a).cross(c - a).normalize();
+        // 1 mm from edge a–b, inside the triangle.
+        let height = (b - a).cross(c - a).length() / (b - a).length();
+        let (u, v) = (g.random_range(0.2..0.6), 0.001 / height);
+        let target = a + (b - a) * u + (c - a) * v;
+        rays.push(raypick::Ray::new(target + normal * 5.0, -normal));
+        aimed.push((object, triangle, target));
+    }
+    for mut picker in [
+        Box::new(raypick::CpuPicker::new(built.clone())) as Box<dyn Picker>,
+        Box::new(raypick::ReferencePicker::new(built.clone())),
+        Box::new(raypick::GpuPicker::new(common::gpu(), built.clone()).unwrap()),
+    ] {
+        let hits = picker.pick(&rays).unwrap();
+        for (hit, &(object, triangle, target)) in hits.iter().zip(&aimed) {
+            assert!(hit.hit, "{}: {hit:?}", picker.describe());
+            assert_eq!((hit.object, hit.triangle), (object, triangle), "{hit:?}");
+            assert!((hit.position - target).length() < 1e-4, "{hit:?} {target}");
+        }
+    }
+}
