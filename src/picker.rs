@@ -91,6 +91,41 @@ impl BuiltScene {
         self.instances.as_ref()
     }
 
+    /// The world box around the scene (`None`: an empty scene).
+    pub fn bounds(&self) -> Option<(DVec3, DVec3)> {
+        match &self.instances {
+            Some(i) => i.bounds(),
+            None => self.scene.bounds(),
+        }
+    }
+
+    /// Objects that hits can report (an instanced scene's instances).
+    pub fn object_count(&self) -> usize {
+        match &self.instances {
+            Some(i) => i.instances().len(),
+            None => self.scene.objects().len(),
+        }
+    }
+
+    /// Triangles in the world (an instanced scene's counted once per instance).
+    pub fn world_triangle_count(&self) -> u64 {
+        match &self.instances {
+            Some(i) => i.prim_count(),
+            None => self.scene.triangle_count() as u64,
+        }
+    }
+
+    /// Whether some object is a height grid (hits on it report cells).
+    pub fn has_grid(&self) -> bool {
+        match &self.instances {
+            Some(i) => i
+                .meshes()
+                .iter()
+                .any(|m| m.scene.objects()[0].grid.is_some()),
+            None => self.scene.objects().iter().any(|o| o.grid.is_some()),
+        }
+    }
+
     /// Hit ids the tracers may report: leaf-order triangles, or an instanced scene's
     /// instance-by-instance triangle ids.
     fn prim_count(&self) -> usize {

@@ -335,3 +335,54 @@ fn rays_aimed_a_millimetre_inside_an_edge_pick_that_triangle_in_a_scene_a_millio
         }
     }
 }
+
+#[test]
+fn pick_scenes_with_a_file_listed_twice_is_instanced_and_writes_the_same_csv_on_every_backend() {
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("instances-cli");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::copy(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/bunny.obj"),
+        dir.join("bunny.obj"),
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("scene.json"),
+        r#"{"objects": [
+            {"file": "bunny.obj", "transform": [[1, 0, 0, 1000000], [0, 1, 0, 2000000], [0, 0, 1, 0]]},
+            {"file": "bunny.obj", "transform": [[0, -2, 0, 1000000.5], [2, 0, 0, 2000000], [0, 0, 0.5, 0.1]]},
+            {"file": "bunny.obj", "mask": 2, "transform": [[-1, 0, 0, 999999.5], [0, 1, 0, 2000000.25], [0, 0, 1, 0]]}
+        ]}"#,
+    )
+    .unwrap();
+    let bin = env!("CARGO_BIN_EXE_raypick");
+    let mut first: Option<Vec<u8>> = None;
+    for backend in ["cpu", "gpu", "reference"] {
+        let out = std::process::Command::new(bin)
+            .args(["pick", "--scenes"])
+            .arg(dir.join("scene.json"))
+            .args(["--backend", backend, "--cull", "back"])
+            .env("XDG_RUNTIME_DIR", "/tmp")
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{backend}: {stderr}");
+        assert!(
+            stderr.contains("3 objects") && stderr.contains("instances of 1 mesh"),
+            "{backend}: {stderr}"
+        );
+        let csv = out.stdout;
+        assert!(
+            String::from_utf8_lossy(&csv)
+                .lines()
+                .filter(|l| l.split(',').nth(1) == Some("1"))
+                .count()
+                > 20,
+            "{backend}: no hits"
+        );
+        match &first {
+            None => first = Some(csv),
+            Some(want) => assert!(&csv == want, "{backend} writes other CSV than cpu"),
+        }
+    }
+}

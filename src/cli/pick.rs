@@ -50,7 +50,7 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     // Arguments are checked before anything is read or written.
     let query = q.query();
     query.validate()?;
-    let built = Arc::new(args.scene.build(matches)?);
+    let built = Arc::new(args.scene.build_instanced(matches, false)?.0);
     // A large ray file is read in chunks while answers are written (memory bounded whatever its
     // length); it is first checked whole, line by line in constant memory, so that a bad line is
     // reported before any output. A small one is read whole and parsed once, before any output
@@ -76,7 +76,7 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
                 .collect()
         }
         _ => {
-            let (min, max) = built.scene.bounds().unwrap_or((DVec3::ZERO, DVec3::ZERO));
+            let (min, max) = built.bounds().unwrap_or((DVec3::ZERO, DVec3::ZERO));
             Camera::frame_from_above(min, max, GRID_SIDE, GRID_SIDE)
                 .pixel_center_rays()
                 .map(|r| r.with_range(q.tmin, q.tmax).with_mask(q.ray_mask))
@@ -97,7 +97,7 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let options = OutputOptions {
         format: output_format(args.format, args.out.as_deref()),
         mode: q.mode,
-        cells: built.scene.objects().iter().any(|o| o.grid.is_some()),
+        cells: built.has_grid(),
     };
     let scene_name = scene_summary(&args.scene, &built);
     let mut picker = make_picker(args.backend, built)?;
@@ -182,13 +182,19 @@ const GRID_SIDE: u32 = 8;
 /// The scene for the summary line: the built-in example, or the files (the first three, then a
 /// count), with the object and triangle counts.
 fn scene_summary(args: &SceneArgs, built: &BuiltScene) -> String {
-    let scene = &built.scene;
-    let objects = scene.objects().len();
-    let counts = format!(
+    let objects = built.object_count();
+    let mut counts = format!(
         "{objects} object{}, {} triangles",
         if objects == 1 { "" } else { "s" },
-        scene.triangle_count()
+        built.world_triangle_count()
     );
+    if let Some(i) = built.instances() {
+        let meshes = i.meshes().len();
+        counts += &format!(
+            "; instances of {meshes} mesh{}",
+            if meshes == 1 { "" } else { "es" }
+        );
+    }
     let files: Vec<String> = match &args.scenes {
         Some(description) => vec![description.display().to_string()],
         None => args.scene.iter().map(|p| p.display().to_string()).collect(),

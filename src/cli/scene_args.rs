@@ -3,7 +3,7 @@
 
 use clap::{ArgMatches, Args};
 use raypick::check::synthetic::example_scene;
-use raypick::io::scene_files::{SceneFile, load_description, load_scene};
+use raypick::io::scene_files::{SceneFile, load_description, load_instanced, load_scene};
 use raypick::{BuildOptions, Builder, BuiltScene, Error, SplitAxis};
 use std::path::PathBuf;
 
@@ -147,6 +147,50 @@ impl SceneArgs {
     /// exits: a saved scene is used in place ([`raypick::rpk::load_in_place`]).
     pub fn build(&self, matches: &ArgMatches) -> Result<BuiltScene, Error> {
         self.build_timed(matches).map(|(built, _, _)| built)
+    }
+
+    /// [`SceneArgs::build_timed`] for a command that picks instanced scenes (pick, verify,
+    /// serve): when a file is listed several times, or glTF nodes share a mesh, each mesh is
+    /// built once and placed by its transforms ([`BuiltScene::instanced`]), with the same objects
+    /// in the same order as the copies [`SceneArgs::build`] makes. `owned`: a saved scene is
+    /// copied into memory of its own (see [`SceneArgs::build_owned`]).
+    pub fn build_instanced(
+        &self,
+        matches: &ArgMatches,
+        owned: bool,
+    ) -> Result<(BuiltScene, f64, f64), Error> {
+        let start = std::time::Instant::now();
+        let placement = if owned {
+            Placement::Owned
+        } else {
+            Placement::InPlace
+        };
+        if let Some(built) = self.saved(matches, placement)? {
+            return Ok((built, start.elapsed().as_secs_f64(), 0.0));
+        }
+        let files = self.files(matches)?;
+        let repeated = files
+            .iter()
+            .enumerate()
+            .any(|(k, f)| files[..k].iter().any(|g| g.file == f.file));
+        let gltf = files.iter().any(|f| {
+            f.file
+                .extension()
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"))
+        });
+        if repeated || gltf {
+            let shared = super::progress::phase("loading the scene", || load_instanced(&files))?;
+            if let Some((meshes, instances)) = shared {
+                let loaded = start.elapsed().as_secs_f64();
+                let options = self.build_options();
+                let built = super::progress::phase("building the trees", || {
+                    BuiltScene::instanced(meshes, instances, &options)
+                })?;
+                return Ok((built, loaded, start.elapsed().as_secs_f64() - loaded));
+            }
+        }
+        self.build_placed(matches, placement)
     }
 
     /// [`SceneArgs::build`] for a process that lives on (the server, a soak): a saved scene is

@@ -56,13 +56,35 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     if args.rays.is_none() {
         check_count(args.random as u64, &args.query.query())?;
     }
-    let (built, load_s, build_s) = args.scene.build_timed(matches)?;
+    let (built, load_s, build_s) = args.scene.build_instanced(matches, false)?;
     let built = Arc::new(built);
+    // The scene in world triangles: an instanced scene's instances are baked into copies for
+    // the rays aimed at triangles, the oracle and the tie checks (which share nothing with the
+    // trees).
+    let baked;
+    let world = match built.instances() {
+        Some(instances) => {
+            raypick::budget::check(
+                "baking the instances into world triangles for the oracle",
+                instances.prim_count(),
+                96,
+            )?;
+            baked = instances.baked()?;
+            println!(
+                "instances: {} of {} meshes, top tree {} nodes",
+                instances.instances().len(),
+                instances.meshes().len(),
+                instances.top_nodes()
+            );
+            &baked
+        }
+        None => &built.scene,
+    };
     let bvh = &built.bvh;
-    let triangles = built.scene.triangle_count();
+    let triangles = world.triangle_count();
     println!(
         "scene: {} object(s), {triangles} triangles, loaded in {:.0} ms; tree: {} nodes, depth {}, {:.1} GPU bytes/triangle, built in {:.0} ms",
-        built.scene.objects().len(),
+        world.objects().len(),
         load_s * 1e3,
         bvh.nodes.len(),
         bvh.depth(),
@@ -77,7 +99,7 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             .into_iter()
             .map(|r| ("file", r))
             .collect(),
-        None => mixed_rays(&built.scene, args.random, args.seed)
+        None => mixed_rays(world, args.random, args.seed)
             .into_iter()
             .map(|(k, r)| (k.name(), r.with_mask(q.ray_mask)))
             .collect(),
@@ -135,13 +157,13 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     println!("engine: {engine_name}");
     let oracle = if triangles as f64 * n <= args.oracle_budget {
         let (answers, s) = super::progress::phase("brute force", || {
-            timed(|| Ok(brute_force_query(&built.scene, &rays, &query)))
+            timed(|| Ok(brute_force_query(world, &rays, &query)))
         })?;
         let every = if query.mode == Mode::Any {
             None
         } else {
             Some(brute_force_query(
-                &built.scene,
+                world,
                 &rays,
                 &Query {
                     mode: Mode::Any,
@@ -199,7 +221,7 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             .map(|(a, every)| every.as_ref().unwrap_or(a).subset(&idx));
         let pair = |a: &Answers, b: &Answers| {
             compare_answers(
-                &built.scene,
+                world,
                 &kind_rays,
                 query.mode,
                 &a.subset(&idx),

@@ -65,6 +65,7 @@ pub struct Instances {
     mesh_triangles: Vec<u32>,
     top_nodes: u32,
     origin: DVec3,
+    bounds: Option<(DVec3, DVec3)>,
     iteration_cap: u32,
 }
 
@@ -129,19 +130,29 @@ impl Instances {
             mesh_triangles: mesh_triangles.iter().map(|&t| t as u32).collect(),
             top_nodes: 0,
             origin: DVec3::ZERO,
+            bounds: None,
             iteration_cap: 0,
         };
         let boxes = this.world_boxes();
+        if let Some(k) = boxes
+            .iter()
+            .position(|b| b.is_some_and(|(lo, hi)| !(lo.is_finite() && hi.is_finite())))
+        {
+            return Err(Error::Invalid(format!(
+                "instance {k} (\"{}\"): the transform carries the mesh past the finite range",
+                crate::budget::quote(&this.instances[k].name)
+            )));
+        }
         let (lo, hi) = boxes
             .iter()
             .flatten()
             .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), b| {
                 (lo.min(b.0), hi.max(b.1))
             });
-        this.origin = if lo.is_finite() {
-            (lo + hi) * 0.5
+        (this.origin, this.bounds) = if lo.is_finite() {
+            ((lo + hi) * 0.5, Some((lo, hi)))
         } else {
-            DVec3::ZERO
+            (DVec3::ZERO, None)
         };
         let top = top::build(&this.scene_boxes(&boxes));
         let top_count = top.len() as u64;
@@ -183,6 +194,11 @@ impl Instances {
     /// The scene frame's origin: the centre of the instances' world boxes.
     pub fn origin(&self) -> DVec3 {
         self.origin
+    }
+
+    /// The world box around every instance that can be hit (`None`: nothing can be).
+    pub fn bounds(&self) -> Option<(DVec3, DVec3)> {
+        self.bounds
     }
 
     /// Loop iterations the two-level walk may take: each top node entered at most once going

@@ -109,6 +109,14 @@ pub fn load_gltf(path: &Path) -> Result<Vec<(String, Mesh)>, Error> {
 /// such triangles' second and third vertices (`Scene::flip_winding`) so that front faces stay
 /// front faces, as the specification asks.
 pub fn load_gltf_placed(path: &Path) -> Result<Vec<(String, Mesh, bool)>, Error> {
+    with_loader(path, |loader| loader.load())
+}
+
+/// Parses and validates the file at `path`, then runs `load` over it.
+fn with_loader<T>(
+    path: &Path,
+    load: impl FnOnce(&mut Loader<'_>) -> Result<T, Error>,
+) -> Result<T, Error> {
     let name = path.display().to_string();
     let bytes = crate::io::read_regular(path)?;
     let parse = |line: Option<usize>, message: String| Error::Parse {
@@ -154,7 +162,18 @@ pub fn load_gltf_placed(path: &Path) -> Result<Vec<(String, Mesh, bool)>, Error>
         primitives: HashMap::new(),
         input_bytes: bytes.len() as u64,
     };
-    loader.load()
+    load(&mut loader)
+}
+
+/// A glTF file's triangle primitives, each once in its mesh's coordinates (`(name, mesh)`), and
+/// their placements in walk order (`(object name, primitive index, node world transform)`).
+pub type Shared = (Vec<(String, Mesh)>, Vec<(String, usize, DMat4)>);
+
+/// [`load_gltf_placed`] without copying: each primitive once, in its mesh's own coordinates, and
+/// every placement of it with its node's world transform, so that nodes sharing a mesh become
+/// instances of it. The placements name the objects as [`load_gltf_placed`] does, in its order.
+pub fn load_gltf_shared(path: &Path) -> Result<Shared, Error> {
+    with_loader(path, |loader| loader.load_shared())
 }
 
 /// Splits a GLB container into its JSON chunk and optional `BIN` chunk.
@@ -305,36 +324,109 @@ impl Loader<'_> {
         }
     }
 
-    fn load(&mut self) -> Result<Vec<(String, Mesh, bool)>, Error> {
+    /// Each triangle primitive once, in its mesh's coordinates, and its placements in walk order:
+    /// the primitive's index in the first list, the label [`Loader::load`] gives the placed
+    /// object, and the node's world transform.
+    fn load_shared(&mut self) -> Result<Shared, Error> {
         let instances = self.instances()?;
         self.check_sizes(&instances)?;
+        let labels = self.labels(&instances);
+        let document = self.document;
+        let mut primitives: Vec<(String, Mesh)> = Vec::new();
+        let mut index: HashMap<(usize, usize), Option<usize>> = HashMap::new();
+        let mut placements = Vec::new();
+        for (instance, label) in instances.iter().zip(labels) {
+            let Some(mesh) = document.meshes().nth(instance.mesh) else {
+                continue; // Validation guarantees the index.
+            };
+            for primitive in mesh.primitives() {
+                let key = (instance.mesh, primitive.index());
+                if !index.contains_key(&key) {
+                    let read = self.read_primitive(&primitive, instance.mesh)?;
+                    let at = read.map(
+                        |LocalPrimitive {
+                             positions,
+                             triangles,
+                         }| {
+                            primitives.push((
+                                format!(
+                                    "{}#{}/{}",
+                                    self.file,
+                                    describe_mesh(&mesh),
+                                    primitive.index()
+                                ),
+                                Mesh {
+                                    positions,
+                                    triangles,
+                                },
+                            ));
+                            primitives.len() - 1
+                        },
+                    );
+                    index.insert(key, at);
+                }
+                if let Some(at) = index[&key] {
+                    placements.push((
+                        format!("{}#{label}/{}", self.file, primitive.index()),
+                        at,
+                        instance.world,
+                    ));
+                }
+            }
+        }
+        Ok((primitives, placements))
+    }
+
+    /// Each placement's label: the mesh's name (or index), with the node (and the scene, when
+    /// the node is walked from several) for a mesh placed more than once.
+    fn labels(&self, instances: &[Instance]) -> Vec<String> {
         let mut per_mesh: HashMap<usize, usize> = HashMap::new();
         let mut node_scenes: HashMap<usize, Vec<usize>> = HashMap::new();
-        for instance in &instances {
+        for instance in instances {
             *per_mesh.entry(instance.mesh).or_default() += 1;
             let scenes = node_scenes.entry(instance.node).or_default();
             if !scenes.contains(&instance.scene) {
                 scenes.push(instance.scene);
             }
         }
-        let mut per_mesh_left = per_mesh.clone();
+        instances
+            .iter()
+            .map(|instance| {
+                let mut label = match self
+                    .document
+                    .meshes()
+                    .nth(instance.mesh)
+                    .and_then(|m| m.name().filter(|n| !n.is_empty()).map(str::to_owned))
+                {
+                    Some(name) => name,
+                    None => instance.mesh.to_string(),
+                };
+                if per_mesh[&instance.mesh] > 1 {
+                    if node_scenes[&instance.node].len() > 1 {
+                        label.push_str(&format!("@scene{}.node{}", instance.scene, instance.node));
+                    } else {
+                        label.push_str(&format!("@node{}", instance.node));
+                    }
+                }
+                label
+            })
+            .collect()
+    }
+
+    fn load(&mut self) -> Result<Vec<(String, Mesh, bool)>, Error> {
+        let instances = self.instances()?;
+        self.check_sizes(&instances)?;
+        let labels = self.labels(&instances);
+        let mut per_mesh_left: HashMap<usize, usize> = HashMap::new();
+        for instance in &instances {
+            *per_mesh_left.entry(instance.mesh).or_default() += 1;
+        }
         let document = self.document;
         let mut out = Vec::new();
-        for instance in &instances {
+        for (instance, label) in instances.iter().zip(labels) {
             let Some(mesh) = document.meshes().nth(instance.mesh) else {
                 continue; // Validation guarantees the index.
             };
-            let mut label = match mesh.name() {
-                Some(name) if !name.is_empty() => name.to_owned(),
-                _ => instance.mesh.to_string(),
-            };
-            if per_mesh[&instance.mesh] > 1 {
-                if node_scenes[&instance.node].len() > 1 {
-                    label.push_str(&format!("@scene{}.node{}", instance.scene, instance.node));
-                } else {
-                    label.push_str(&format!("@node{}", instance.node));
-                }
-            }
             let remaining = per_mesh_left.entry(instance.mesh).or_default();
             *remaining -= 1;
             let last = *remaining == 0;

@@ -6,9 +6,12 @@
 //! (JSON) lists files with their layer masks and affine transforms; a file listed several times
 //! is read once.
 //!
-//! A transform is applied to the file's f64 positions as it is loaded (`Scene::transform_object`):
-//! each listing of a file is its own copy of the mesh in the scene, not yet an instance of one
-//! stored mesh.
+//! Two ways to load a description: [`load_scene`] applies each transform to the file's f64
+//! positions as it is loaded (`Scene::transform_object`), so each listing of a file is its own
+//! copy; [`load_instanced`] stores each mesh once and places it by its transforms (a file listed
+//! several times, glTF nodes sharing a mesh), for an instanced scene
+//! ([`crate::BuiltScene::instanced`]). Both give the same objects in the same order, under the
+//! same names.
 //!
 //! Every scene file must be a regular file (a FIFO or a device is refused before it is opened),
 //! and the files a description lists must stay inside its folder: relative paths without `..`
@@ -17,7 +20,8 @@
 
 use crate::dem::{grid_to_mesh, load_elevation};
 use crate::error::{Error, Result};
-use crate::io::gltf::load_gltf_placed;
+use crate::instance::Instance;
+use crate::io::gltf::{load_gltf_placed, load_gltf_shared};
 use crate::io::obj::load_obj;
 use crate::io::ply::load_ply;
 use crate::io::stl::load_stl;
@@ -148,6 +152,117 @@ pub fn load_scene(files: &[SceneFile]) -> Result<Scene> {
         }
     }
     Ok(scene)
+}
+
+/// The meshes and instances of `files` when something in them is placed more than once (a file
+/// listed several times, or glTF nodes sharing a mesh): each file read once, each mesh stored
+/// once in its file's coordinates, and one instance per object [`load_scene`] would make, in the
+/// same order and with the same names, its transform the listing's composed with the glTF
+/// node's. `None` when nothing repeats (a scene of copies is then the same scene, and simpler).
+pub fn load_instanced(files: &[SceneFile]) -> Result<Option<(Vec<Scene>, Vec<Instance>)>> {
+    // Per distinct file: its placements (name, mesh index, file-to-listing transform).
+    type Placements = Vec<(String, u32, glam::DMat4)>;
+    let mut meshes: Vec<Scene> = Vec::new();
+    let mut loaded: Vec<(&Path, Placements)> = Vec::new();
+    let mut instances = Vec::new();
+    let mut repeats = false;
+    for file in files {
+        let k = match loaded.iter().position(|(path, _)| *path == file.file) {
+            Some(k) => {
+                repeats = true;
+                k
+            }
+            None => {
+                let placements = read_file_shared(&file.file, &mut meshes)?;
+                let mut used: Vec<u32> = placements.iter().map(|p| p.1).collect();
+                used.sort_unstable();
+                repeats |= used.windows(2).any(|w| w[0] == w[1]);
+                loaded.push((&file.file, placements));
+                loaded.len() - 1
+            }
+        };
+        let listing = file.transform.map_or(glam::DMat4::IDENTITY, |m| {
+            glam::DMat4::from_cols_array_2d(&[
+                [m[0][0], m[1][0], m[2][0], 0.0],
+                [m[0][1], m[1][1], m[2][1], 0.0],
+                [m[0][2], m[1][2], m[2][2], 0.0],
+                [m[0][3], m[1][3], m[2][3], 1.0],
+            ])
+        });
+        for (name, mesh, placed) in &loaded[k].1 {
+            let world = listing * *placed;
+            let row = |r: usize| {
+                let v = world.row(r);
+                [v.x, v.y, v.z, v.w]
+            };
+            instances.push(Instance {
+                name: name.clone(),
+                mesh: *mesh,
+                transform: [row(0), row(1), row(2)],
+                mask: file.mask.unwrap_or(u32::MAX),
+            });
+        }
+    }
+    Ok(repeats.then_some((meshes, instances)))
+}
+
+/// Reads `path`'s meshes into `meshes` (each a scene of one object, in the file's coordinates)
+/// and returns its objects' placements: name, mesh index and the transform that places it.
+fn read_file_shared(
+    path: &Path,
+    meshes: &mut Vec<Scene>,
+) -> Result<Vec<(String, u32, glam::DMat4)>> {
+    let is_gltf = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"));
+    let base = meshes.len() as u32;
+    if is_gltf {
+        regular_file(path)?;
+        let (primitives, placements) = load_gltf_shared(path)?;
+        for (name, mesh) in primitives {
+            let mut scene = Scene::new();
+            scene.add_mesh(name, mesh)?;
+            meshes.push(scene);
+        }
+        let mut out = Vec::with_capacity(placements.len());
+        for (name, primitive, world) in placements {
+            let affine = [0, 1, 2].map(|r| world.row(r).to_array());
+            if crate::scene::check_transform(&affine).is_ok() && world.row(3) == glam::DVec4::W {
+                out.push((name, base + primitive as u32, world));
+            } else {
+                // A node that flattens its mesh (a zero scale) places a copy, as loaded.
+                let source = &meshes[(base as usize) + primitive];
+                let copy = Mesh {
+                    positions: source
+                        .positions()
+                        .iter()
+                        .map(|p| world.transform_point3(*p))
+                        .collect(),
+                    triangles: source.triangles().to_vec(),
+                };
+                let mut scene = Scene::new();
+                scene.add_mesh(name.clone(), copy)?;
+                meshes.push(scene);
+                out.push((name, meshes.len() as u32 - 1, glam::DMat4::IDENTITY));
+            }
+        }
+        return Ok(out);
+    }
+    let mut out = Vec::new();
+    for (name, mesh, grid, mirrored) in read_file(path)? {
+        let mut scene = Scene::new();
+        let id = match grid {
+            Some(shape) => scene.add_grid_mesh(name.clone(), mesh, shape)?,
+            None => scene.add_mesh(name.clone(), mesh)?,
+        };
+        if mirrored {
+            scene.flip_winding(id);
+        }
+        meshes.push(scene);
+        out.push((name, meshes.len() as u32 - 1, glam::DMat4::IDENTITY));
+    }
+    Ok(out)
 }
 
 /// One object a file holds: its name, mesh, grid shape (for an elevation grid), and whether
