@@ -341,31 +341,36 @@ impl Loader<'_> {
             };
             for primitive in mesh.primitives() {
                 let key = (instance.mesh, primitive.index());
-                if !index.contains_key(&key) {
-                    let read = self.read_primitive(&primitive, instance.mesh)?;
-                    let at = read.map(
-                        |LocalPrimitive {
-                             positions,
-                             triangles,
-                         }| {
-                            primitives.push((
-                                format!(
+                let at = match index.get(&key) {
+                    Some(&at) => at,
+                    None => {
+                        let read = self.read_primitive(&primitive, instance.mesh)?;
+                        let at = read.map(
+                            |LocalPrimitive {
+                                 positions,
+                                 triangles,
+                             }| {
+                                let name = format!(
                                     "{}#{}/{}",
                                     self.file,
                                     describe_mesh(&mesh),
                                     primitive.index()
-                                ),
-                                Mesh {
-                                    positions,
-                                    triangles,
-                                },
-                            ));
-                            primitives.len() - 1
-                        },
-                    );
-                    index.insert(key, at);
-                }
-                if let Some(at) = index[&key] {
+                                );
+                                primitives.push((
+                                    name,
+                                    Mesh {
+                                        positions,
+                                        triangles,
+                                    },
+                                ));
+                                primitives.len() - 1
+                            },
+                        );
+                        index.insert(key, at);
+                        at
+                    }
+                };
+                if let Some(at) = at {
                     placements.push((
                         format!("{}#{label}/{}", self.file, primitive.index()),
                         at,
