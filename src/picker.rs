@@ -783,6 +783,9 @@ impl CpuPicker {
     /// The engine over this picker's scene for `settings`, as this picker is set.
     fn engine<'a>(&'a self, settings: &TraceSettings<'a>) -> Result<crate::engine::Engine<'a>> {
         let built = &self.built;
+        if let Some(instances) = built.instances() {
+            return crate::engine::Engine::instanced(instances, &built.bvh, settings, self.simd);
+        }
         let mut engine = crate::engine::Engine::new(
             built.wide()?,
             &built.bvh,
@@ -811,23 +814,12 @@ impl Tracer for CpuPicker {
         rays: &[GpuRay],
         settings: &TraceSettings<'_>,
     ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
-        if self.built.instances().is_some() {
-            return Ok(trace_batch(&self.built.bvh, rays, settings));
-        }
         Ok(self
             .engine(settings)?
             .trace_batch(rays, settings.max_hits as usize))
     }
 
     fn chunk_trace<'a>(&'a self, settings: &TraceSettings<'a>) -> Result<Option<ChunkTrace<'a>>> {
-        if self.built.instances().is_some() {
-            let buffers = crate::cpu::buffers(&self.built.bvh, settings);
-            return Ok(Some(Box::new(move |rays, hits| {
-                for (ray, hit) in rays.iter().zip(hits) {
-                    *hit = crate::cpu::traverse::trace(buffers, ray, &mut []);
-                }
-            })));
-        }
         let engine = self.engine(settings)?;
         Ok(Some(Box::new(move |rays, hits| {
             engine.trace_chunk(rays, hits, &mut [])

@@ -6,6 +6,7 @@
 //! answer, bit for bit, in every mode; `tests/engine.rs` holds it to that on every scene, ray
 //! kind and mode, with SIMD and with the portable lanes.
 
+pub mod instanced;
 pub mod lanes;
 pub mod lanes8;
 pub mod walk;
@@ -90,6 +91,8 @@ pub struct Engine<'a> {
     scene: walk::Scene<'a>,
     simd: Simd,
     stack: usize,
+    /// An instanced scene's top tree and meshes (`scene` is then empty).
+    top: Option<instanced::TopScene<'a>>,
 }
 
 impl<'a> Engine<'a> {
@@ -120,7 +123,61 @@ impl<'a> Engine<'a> {
                 Simd::Portable
             },
             stack: walk::stack_size(wide.depth),
+            top: None,
         }
+    }
+
+    /// The engine over an instanced scene (`bvh` is its combined tree) for `settings`: the top
+    /// tree walked nearest first, each instance's mesh through its own wide tree
+    /// ([`instanced`]). Fails on a corrupted mesh tree.
+    pub fn instanced(
+        instances: &'a crate::instance::Instances,
+        bvh: &'a Bvh,
+        settings: &TraceSettings<'a>,
+        simd: Simd,
+    ) -> crate::error::Result<Self> {
+        let mut meshes = Vec::with_capacity(instances.meshes().len());
+        let mut depth = 0;
+        for m in instances.meshes() {
+            let wide = m.wide()?;
+            depth = depth.max(wide.depth);
+            meshes.push(walk::Scene {
+                nodes: &wide.nodes,
+                triangles: &m.bvh.triangles,
+                triangle_ids: &m.bvh.triangle_ids,
+                triangle_masks: &[],
+                watertight: settings.watertight,
+                packets: false,
+                size: wide.size(),
+                interleave: false,
+            });
+        }
+        let empty = walk::Scene {
+            nodes: &[],
+            triangles: &[],
+            triangle_ids: &[],
+            triangle_masks: &[],
+            watertight: settings.watertight,
+            packets: false,
+            size: 0.0,
+            interleave: false,
+        };
+        Ok(Self {
+            scene: empty,
+            simd: if simd.is_available() {
+                simd
+            } else {
+                Simd::Portable
+            },
+            stack: walk::stack_size(depth),
+            top: Some(instanced::TopScene {
+                nodes: &bvh.nodes[..instances.top_nodes() as usize],
+                instances,
+                meshes,
+                stack: walk::stack_size(depth),
+                depth: instances.top_depth(),
+            }),
+        })
     }
 
     /// Walks incoherent rays interleaved (`true`) or one by one (`false`), instead of as the
@@ -155,13 +212,35 @@ impl<'a> Engine<'a> {
             /// This thread's stacks, kept between chunks (the interleaved walks' are a few
             /// tens of KiB).
             static STACKS: RefCell<Stacks> = const {
-                RefCell::new(Stacks { single: Vec::new(), packet: Vec::new() })
+                RefCell::new(Stacks {
+                    single: Vec::new(),
+                    packet: Vec::new(),
+                    top: Vec::new(),
+                    scratch: Vec::new(),
+                })
             };
         }
         STACKS.with_borrow_mut(|stacks| {
             if stacks.packet.len() < self.stack {
                 stacks.single = vec![walk::Entry::default(); self.stack * walk::INTERLEAVED];
                 stacks.packet = vec![walk::PacketEntry::default(); self.stack];
+            }
+            if let Some(top) = &self.top {
+                let need = top.depth + 2;
+                if stacks.top.len() < need {
+                    stacks.top = vec![0; need];
+                }
+                match self.simd {
+                    #[cfg(target_arch = "x86_64")]
+                    // SAFETY: `Engine::instanced` checked that this CPU has AVX2.
+                    Simd::Avx2 => unsafe { trace_instanced_avx2(top, rays, hits, lists, stacks) },
+                    #[cfg(target_arch = "x86_64")]
+                    Simd::Sse => {
+                        trace_instanced::<Pair<lanes::Sse>>(top, rays, hits, lists, stacks)
+                    }
+                    _ => trace_instanced::<Pair<Portable>>(top, rays, hits, lists, stacks),
+                }
+                return;
             }
             let scene = &self.scene;
             match self.simd {
@@ -196,6 +275,51 @@ struct Stacks {
     /// [`walk::INTERLEAVED`] stacks, one after another.
     single: Vec<walk::Entry>,
     packet: Vec<walk::PacketEntry>,
+    /// The instanced walk's top-tree stack and one instance's all-hits list.
+    top: Vec<u32>,
+    scratch: Vec<GpuHitEntry>,
+}
+
+/// Traces a task's rays through an instanced scene, one by one ([`instanced::trace`]).
+#[inline(always)]
+fn trace_instanced<L: Lanes8>(
+    top: &instanced::TopScene<'_>,
+    rays: &[GpuRay],
+    hits: &mut [GpuHit],
+    lists: &mut [GpuHitEntry],
+    stacks: &mut Stacks,
+) {
+    let k = if rays.is_empty() {
+        0
+    } else {
+        lists.len() / rays.len()
+    };
+    if stacks.scratch.len() < k {
+        stacks.scratch = vec![GpuHitEntry::default(); k];
+    }
+    for (j, ray) in rays.iter().enumerate() {
+        hits[j] = instanced::trace::<L>(
+            top,
+            ray,
+            &mut lists[j * k..(j + 1) * k],
+            &mut stacks.scratch[..k],
+            &mut stacks.top,
+            &mut stacks.single,
+        );
+    }
+}
+
+/// [`trace_instanced`] on AVX lanes, compiled with AVX2 enabled.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn trace_instanced_avx2(
+    top: &instanced::TopScene<'_>,
+    rays: &[GpuRay],
+    hits: &mut [GpuHit],
+    lists: &mut [GpuHitEntry],
+    stacks: &mut Stacks,
+) {
+    trace_instanced::<lanes8::Avx>(top, rays, hits, lists, stacks);
 }
 
 /// Traces a task's rays: each group of [`walk::PACKET`] coherent rays (camera rays, pixel

@@ -14,11 +14,12 @@ pub mod resolve;
 pub mod top;
 
 use crate::bvh::{BuildOptions, Bvh};
+use crate::engine::WideBvh;
 use crate::error::{Error, Result};
 use crate::layout::{CAP_REACHED, GpuInstance, GpuNode, INSTANCE_MIRRORED, KIND_BITS, MAX_NODES};
 use crate::scene::{Scene, apply_transform, check_transform};
 use glam::{DMat3, DVec3, Vec3};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 pub use resolve::{resolve_chunk, resolve_with};
 
@@ -51,6 +52,27 @@ pub struct MeshTree {
     pub scene: Scene,
     /// Its own tree (origin: the centre of the mesh's bounds).
     pub bvh: Bvh,
+    /// The CPU engine's wide tree, collapsed from `bvh` on first use.
+    wide: OnceLock<std::result::Result<WideBvh, String>>,
+}
+
+impl MeshTree {
+    /// A mesh with its tree.
+    pub fn new(scene: Scene, bvh: Bvh) -> Self {
+        Self {
+            scene,
+            bvh,
+            wide: OnceLock::new(),
+        }
+    }
+
+    /// The CPU engine's wide tree (an error for a corrupted tree).
+    pub fn wide(&self) -> Result<&WideBvh> {
+        self.wide
+            .get_or_init(|| WideBvh::collapse(&self.bvh).map_err(|e| e.to_string()))
+            .as_ref()
+            .map_err(|e| Error::Invalid(e.clone()))
+    }
 }
 
 /// The instances of a scene and the meshes they place, with what the tracers read of them.
@@ -64,6 +86,7 @@ pub struct Instances {
     mesh_nodes: Vec<u32>,
     mesh_triangles: Vec<u32>,
     top_nodes: u32,
+    top_depth: usize,
     origin: DVec3,
     bounds: Option<(DVec3, DVec3)>,
     iteration_cap: u32,
@@ -92,7 +115,7 @@ impl Instances {
             .into_iter()
             .map(|scene| {
                 let bvh = Bvh::build(&scene, options)?;
-                Ok(Arc::new(MeshTree { scene, bvh }))
+                Ok(Arc::new(MeshTree::new(scene, bvh)))
             })
             .collect::<Result<Vec<_>>>()?;
         Self::assemble(trees, instances)
@@ -129,6 +152,7 @@ impl Instances {
             mesh_nodes: Vec::new(),
             mesh_triangles: mesh_triangles.iter().map(|&t| t as u32).collect(),
             top_nodes: 0,
+            top_depth: 0,
             origin: DVec3::ZERO,
             bounds: None,
             iteration_cap: 0,
@@ -166,6 +190,7 @@ impl Instances {
         this.top_nodes = top_count as u32;
         this.mesh_nodes = mesh_nodes.iter().map(|&n| (n + top_count) as u32).collect();
         this.records = (0..this.instances.len()).map(|k| this.record(k)).collect();
+        this.top_depth = depth(&top);
         let bvh = this.combined(top);
         this.iteration_cap = this.cap(&bvh.nodes[..this.top_nodes as usize]);
         Ok((this, bvh))
@@ -189,6 +214,11 @@ impl Instances {
     /// Nodes of the top tree, at the start of the combined node buffer.
     pub fn top_nodes(&self) -> u32 {
         self.top_nodes
+    }
+
+    /// Levels of the top tree (0 when empty).
+    pub fn top_depth(&self) -> usize {
+        self.top_depth
     }
 
     /// The scene frame's origin: the centre of the instances' world boxes.
@@ -427,6 +457,21 @@ impl Instances {
         }
         cap.min(u64::from(u32::MAX)) as u32
     }
+}
+
+/// Levels of the depth-first tree `nodes` (0 when empty).
+fn depth(nodes: &[GpuNode]) -> usize {
+    let mut deepest = 0;
+    let mut stack = vec![(0usize, 1usize)];
+    while let Some((i, d)) = stack.pop() {
+        let Some(n) = nodes.get(i) else { break };
+        deepest = deepest.max(d);
+        if !n.is_leaf() {
+            stack.push((i + 1, d + 1));
+            stack.push((n.first as usize, d + 1));
+        }
+    }
+    deepest
 }
 
 /// Refuses an instance with an unknown mesh or a transform that cannot place it.
