@@ -122,6 +122,10 @@ impl Picker for AutoPicker {
         Some(self.built.clone())
     }
 
+    fn edit(&mut self, change: &mut dyn FnMut(&mut BuiltScene) -> Result<Refit>) -> Result<Refit> {
+        AutoPicker::edit(self, change)
+    }
+
     /// Moves the vertices once for both paths: the scene is taken from the pickers while it is
     /// refitted (so it is not copied unless the caller holds it too), then handed back to both
     /// (the GPU's buffers brought up to date).

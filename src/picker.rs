@@ -48,8 +48,12 @@ pub enum Refit {
     /// The tree kept its shape; its boxes (and the engine's) were recomputed.
     Refitted,
     /// A triangle became degenerate or stopped being so, which changes the set of triangles
-    /// the tree holds: it was built again.
+    /// the tree holds: it was built again (or, in an instanced scene, the instances were laid
+    /// out anew).
     Rebuilt,
+    /// An instanced scene's instance moved or changed its mask: only the top tree's boxes and
+    /// the instance records changed.
+    Moved,
 }
 
 impl BuiltScene {
@@ -89,6 +93,67 @@ impl BuiltScene {
     /// The instances, for an instanced scene.
     pub fn instances(&self) -> Option<&Instances> {
         self.instances.as_ref()
+    }
+
+    /// The instances and the combined tree, to change; an error for a scene without instances.
+    fn instances_mut(&mut self) -> Result<(&mut Instances, &mut Bvh)> {
+        match &mut self.instances {
+            Some(i) => Ok((i, &mut self.bvh)),
+            None => Err(crate::error::Error::Invalid(
+                "the scene has no instances (build it with BuiltScene::instanced)".into(),
+            )),
+        }
+    }
+
+    /// Places instance `instance` by `transform` (3 × 4 row-major, its mesh's coordinates to
+    /// the world) and refits the top tree above it ([`Instances::set_transform`]). Fails,
+    /// naming it, on an unknown instance or a transform that cannot place it, with nothing
+    /// changed.
+    pub fn set_instance_transform(
+        &mut self,
+        instance: u32,
+        transform: [[f64; 4]; 3],
+    ) -> Result<Refit> {
+        let (i, bvh) = self.instances_mut()?;
+        i.set_transform(bvh, instance, transform)?;
+        Ok(Refit::Moved)
+    }
+
+    /// Sets instance `instance`'s layer mask (0 removes it from every pick, its id kept).
+    pub fn set_instance_mask(&mut self, instance: u32, mask: u32) -> Result<Refit> {
+        self.instances_mut()?.0.set_mask(instance, mask)?;
+        Ok(Refit::Moved)
+    }
+
+    /// Adds an instance (its id is returned: the next one) and lays the top tree out anew
+    /// ([`Instances::add`]).
+    pub fn add_instance(&mut self, instance: Instance) -> Result<u32> {
+        let (i, bvh) = self.instances_mut()?;
+        i.add(bvh, instance)
+    }
+
+    /// Adds a mesh (a scene of one object, in its own coordinates) for instances to place,
+    /// built with this scene's options; returns its index.
+    pub fn add_mesh(&mut self, mesh: Scene) -> Result<u32> {
+        let options = self.options;
+        self.instances_mut()?.0.add_mesh(mesh, &options)
+    }
+
+    /// Moves mesh `mesh`'s vertices (the same triangles) and refits its tree and every instance
+    /// of it ([`Instances::set_mesh_positions`]).
+    pub fn set_mesh_positions(&mut self, mesh: u32, positions: &[DVec3]) -> Result<Refit> {
+        let options = self.options;
+        let (i, bvh) = self.instances_mut()?;
+        let refit = i.set_mesh_positions(bvh, mesh, positions, &options)?;
+        self.wide = OnceLock::new();
+        Ok(refit)
+    }
+
+    /// Builds the top tree again over the instances where they are now.
+    pub fn rebuild_top(&mut self) -> Result<Refit> {
+        let (i, bvh) = self.instances_mut()?;
+        i.rebuild_top(bvh)?;
+        Ok(Refit::Rebuilt)
     }
 
     /// The world box around the scene (`None`: an empty scene).
@@ -144,6 +209,12 @@ impl BuiltScene {
     /// object, on an unknown object, a wrong count or a non-finite coordinate, with nothing
     /// changed.
     pub fn set_positions(&mut self, object: u32, positions: &[DVec3]) -> Result<Refit> {
+        if self.instances.is_some() {
+            return Err(crate::error::Error::Invalid(
+                "an instanced scene's objects are instances: move one with                  set_instance_transform, or its mesh's vertices with set_mesh_positions"
+                    .into(),
+            ));
+        }
         self.scene.check_object_positions(object, positions)?;
         if self.bvh.refit(&self.scene, object, positions) {
             self.scene.put_object_positions(object, positions);
@@ -180,6 +251,9 @@ impl BuiltScene {
     /// Sets object `object`'s layer mask (rays hit it only when their mask shares a bit; 0:
     /// never hit), with the per-triangle masks the tracers read. Fails on an unknown object.
     pub fn set_object_mask(&mut self, object: u32, mask: u32) -> Result<()> {
+        if let Some(i) = &mut self.instances {
+            return i.set_mask(object, mask);
+        }
         self.scene.set_object_mask(object, mask)?;
         self.triangle_masks = masks_of(&self.scene, &self.bvh).into();
         Ok(())
@@ -432,6 +506,19 @@ pub trait Picker {
         )))
     }
 
+    /// Applies `change` to the picker's scene (a shared scene is copied first) and brings the
+    /// picker up to date as the returned [`Refit`] says (the GPU uploads only what changed):
+    /// how an instanced scene's instances are moved, masked or added, e.g.
+    /// `picker.edit(&mut |scene| scene.set_instance_transform(3, m))`. Pickers that cannot
+    /// change their scene say so.
+    fn edit(&mut self, change: &mut dyn FnMut(&mut BuiltScene) -> Result<Refit>) -> Result<Refit> {
+        let _ = change;
+        Err(crate::error::Error::Invalid(format!(
+            "the {} picker cannot change its scene",
+            self.describe()
+        )))
+    }
+
     /// The scene this picker answers for now (after any edits), when it has one to show.
     fn current_scene(&self) -> Option<Arc<BuiltScene>> {
         None
@@ -515,8 +602,14 @@ impl<T: Tracer> Picker for T {
         self.path_name()
     }
 
+    fn edit(&mut self, change: &mut dyn FnMut(&mut BuiltScene) -> Result<Refit>) -> Result<Refit> {
+        let refit = change(Arc::make_mut(self.built_mut()))?;
+        self.scene_changed(refit)?;
+        Ok(refit)
+    }
+
     fn set_mask(&mut self, object: u32, mask: u32) -> Result<()> {
-        if object as usize >= Tracer::built(self).scene.objects().len() {
+        if object as usize >= Tracer::built(self).object_count() {
             return Err(crate::error::Error::Invalid(format!(
                 "there is no object {object}"
             )));

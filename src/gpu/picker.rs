@@ -444,6 +444,22 @@ impl Tracer for GpuPicker {
                     }
                 }
             }
+            Refit::Moved => {
+                // The top tree's nodes (first in the node buffer) and the instance records.
+                let queue = &self.context.queue;
+                let top = built.instances().map_or(0, |i| i.top_nodes() as usize);
+                if top > 0 {
+                    queue.write_buffer(
+                        &self.nodes,
+                        0,
+                        bytemuck::cast_slice(&built.bvh.nodes[..top]),
+                    );
+                }
+                let records = instance_records(&built);
+                if !records.is_empty() {
+                    queue.write_buffer(&self.instances, 0, bytemuck::cast_slice(records));
+                }
+            }
             Refit::Rebuilt => {
                 let device = &self.context.device;
                 check_sizes(&device.limits(), &built)?;

@@ -87,10 +87,15 @@ pub struct Instances {
     mesh_triangles: Vec<u32>,
     top_nodes: u32,
     top_depth: usize,
+    /// Each instance's leaf in the top tree ([`NO_LEAF`]: a mesh with nothing to hit).
+    leaf_of: Vec<u32>,
     origin: DVec3,
     bounds: Option<(DVec3, DVec3)>,
     iteration_cap: u32,
 }
+
+/// `leaf_of` of an instance without a leaf.
+const NO_LEAF: u32 = u32::MAX;
 
 impl Instances {
     /// Builds each mesh's tree once with `options`, then the top tree over the instances, and
@@ -153,6 +158,7 @@ impl Instances {
             mesh_triangles: mesh_triangles.iter().map(|&t| t as u32).collect(),
             top_nodes: 0,
             top_depth: 0,
+            leaf_of: Vec::new(),
             origin: DVec3::ZERO,
             bounds: None,
             iteration_cap: 0,
@@ -189,11 +195,197 @@ impl Instances {
         }
         this.top_nodes = top_count as u32;
         this.mesh_nodes = mesh_nodes.iter().map(|&n| (n + top_count) as u32).collect();
-        this.records = (0..this.instances.len()).map(|k| this.record(k)).collect();
+        let mut prim_base = 0u32;
+        this.records = Vec::with_capacity(this.instances.len());
+        for k in 0..this.instances.len() {
+            let record = this.record(k, prim_base);
+            this.records.push(record);
+            prim_base += this.meshes[this.instances[k].mesh as usize]
+                .scene
+                .triangle_count() as u32;
+        }
+        this.leaf_of = vec![NO_LEAF; this.instances.len()];
+        for (n, node) in top.iter().enumerate() {
+            if node.is_leaf() {
+                this.leaf_of[node.first as usize] = n as u32;
+            }
+        }
         this.top_depth = depth(&top);
         let bvh = this.combined(top);
         this.iteration_cap = this.cap(&bvh.nodes[..this.top_nodes as usize]);
         Ok((this, bvh))
+    }
+
+    /// Places instance `k` by `transform` (from its mesh's coordinates to the world): its
+    /// record is worked out again and its leaf's box, and the boxes above it, refitted in the
+    /// top tree's nodes at the start of `bvh` (this scene's combined tree); nothing else
+    /// changes, the scene frame's origin included. Fails, naming the instance, on an unknown
+    /// instance or a transform that cannot place it, with nothing changed.
+    pub fn set_transform(&mut self, bvh: &mut Bvh, k: u32, transform: [[f64; 4]; 3]) -> Result<()> {
+        let i = self.known(k)?;
+        let mut placed = self.instances[i].clone();
+        placed.transform = transform;
+        check_instance(&self.meshes, i, &placed)?;
+        let old = std::mem::replace(&mut self.instances[i], placed);
+        if let Some((lo, hi)) = self.world_box(i)
+            && !(lo.is_finite() && hi.is_finite())
+        {
+            self.instances[i] = old;
+            return Err(Error::Invalid(format!(
+                "instance {k} (\"{}\"): the transform carries the mesh past the finite range",
+                crate::budget::quote(&self.instances[i].name)
+            )));
+        }
+        self.records[i] = self.record(i, self.records[i].prim_base);
+        self.refit_leaf(bvh, i);
+        Ok(())
+    }
+
+    /// Sets instance `k`'s layer mask (0: never hit, which is how an instance is removed
+    /// without renumbering the others). Fails on an unknown instance.
+    pub fn set_mask(&mut self, k: u32, mask: u32) -> Result<()> {
+        let i = self.known(k)?;
+        self.instances[i].mask = mask;
+        self.records[i].mask = mask;
+        Ok(())
+    }
+
+    /// Adds `instance` (its id is the next one) and builds the top tree again over all
+    /// instances, with the combined tree (`bvh`) laid out anew and the scene frame re-centred.
+    /// Fails, naming it, on an unknown mesh or a transform that cannot place it, with nothing
+    /// changed.
+    pub fn add(&mut self, bvh: &mut Bvh, instance: Instance) -> Result<u32> {
+        let mut instances = self.instances.clone();
+        instances.push(instance);
+        let (rebuilt, combined) = Self::assemble(self.meshes.clone(), instances)?;
+        *self = rebuilt;
+        *bvh = combined;
+        Ok(self.instances.len() as u32 - 1)
+    }
+
+    /// Adds `mesh` (a scene of one object, in its own coordinates) with its tree built by
+    /// `options`, for instances to place; returns its index. The combined tree holds it once an
+    /// instance places it ([`Instances::add`]).
+    pub fn add_mesh(&mut self, mesh: Scene, options: &BuildOptions) -> Result<u32> {
+        if mesh.objects().len() != 1 {
+            return Err(Error::Invalid(format!(
+                "a mesh of an instanced scene is one object, not {}",
+                mesh.objects().len()
+            )));
+        }
+        let bvh = Bvh::build(&mesh, options)?;
+        self.meshes.push(Arc::new(MeshTree::new(mesh, bvh)));
+        Ok(self.meshes.len() as u32 - 1)
+    }
+
+    /// Builds the top tree again over the instances where they are now (a refitted top tree's
+    /// boxes may have grown loose after many moves), the combined tree laid out anew.
+    pub fn rebuild_top(&mut self, bvh: &mut Bvh) -> Result<()> {
+        let (rebuilt, combined) = Self::assemble(self.meshes.clone(), self.instances.clone())?;
+        *self = rebuilt;
+        *bvh = combined;
+        Ok(())
+    }
+
+    /// Moves mesh `mesh`'s vertices to `positions` (its vertex order, the same triangles) and
+    /// refits its bottom tree bottom-up without building it again, then every instance of it in
+    /// the top tree; the mesh's part of `bvh` is rewritten in place. Only when one of its
+    /// triangles becomes degenerate or stops being so is its tree built again with `options`
+    /// (and the combined tree laid out anew). Fails on an unknown mesh, a wrong count or a
+    /// non-finite coordinate, with nothing changed.
+    pub fn set_mesh_positions(
+        &mut self,
+        bvh: &mut Bvh,
+        mesh: u32,
+        positions: &[DVec3],
+        options: &BuildOptions,
+    ) -> Result<crate::picker::Refit> {
+        let m = mesh as usize;
+        let Some(tree) = self.meshes.get(m) else {
+            return Err(Error::Invalid(format!(
+                "there is no mesh {mesh} (the scene has {})",
+                self.meshes.len()
+            )));
+        };
+        tree.scene.check_object_positions(0, positions)?;
+        let mut scene = tree.scene.clone();
+        let mut tree_bvh = tree.bvh.clone();
+        let refitted = tree_bvh.refit(&scene, 0, positions);
+        scene.put_object_positions(0, positions);
+        if !refitted {
+            tree_bvh = Bvh::build(&scene, options)?;
+        }
+        let fresh = MeshTree::new(scene, tree_bvh);
+        if refitted && let Some(Ok(wide)) = self.meshes[m].wide.get() {
+            // The engine's wide tree refitted too, not collapsed again.
+            let mut wide = wide.clone();
+            wide.refit(&fresh.bvh.triangles);
+            let _ = fresh.wide.set(Ok(wide));
+        }
+        self.meshes[m] = Arc::new(fresh);
+        if !refitted || self.meshes[m].bvh.nodes.is_empty() {
+            self.rebuild_top(bvh)?;
+            return Ok(crate::picker::Refit::Rebuilt);
+        }
+        // The mesh's nodes and triangles where the combined tree holds them.
+        let (node_base, tri_base) = (self.mesh_nodes[m], self.mesh_triangles[m]);
+        let own = &self.meshes[m].bvh;
+        let nodes = bvh.nodes.to_mut();
+        for (j, n) in own.nodes.iter().enumerate() {
+            let at = &mut nodes[node_base as usize + j];
+            at.min = n.min;
+            at.max = n.max;
+        }
+        let triangles = bvh.triangles.to_mut();
+        triangles[tri_base as usize..tri_base as usize + own.triangles.len()]
+            .copy_from_slice(&own.triangles);
+        for i in 0..self.instances.len() {
+            if self.instances[i].mesh == mesh {
+                self.records[i] = self.record(i, self.records[i].prim_base);
+                self.refit_leaf(bvh, i);
+            }
+        }
+        Ok(crate::picker::Refit::Refitted)
+    }
+
+    /// Instance `k`'s index, or an error naming it.
+    fn known(&self, k: u32) -> Result<usize> {
+        if (k as usize) < self.instances.len() {
+            Ok(k as usize)
+        } else {
+            Err(Error::Invalid(format!(
+                "there is no instance {k} (the scene has {})",
+                self.instances.len()
+            )))
+        }
+    }
+
+    /// Instance `i`'s leaf box from where it is now, and every box above it, in `bvh`'s top
+    /// nodes.
+    fn refit_leaf(&mut self, bvh: &mut Bvh, i: usize) {
+        let leaf = self.leaf_of[i];
+        if leaf == NO_LEAF {
+            return;
+        }
+        let Some((lo, hi)) = self.scene_boxes(&[self.world_box(i)])[0] else {
+            return;
+        };
+        let nodes = bvh.nodes.to_mut();
+        nodes[leaf as usize].min = lo.into();
+        nodes[leaf as usize].max = hi.into();
+        let mut at = leaf as usize;
+        while at != 0 {
+            at = nodes[at].parent() as usize;
+            let (l, r) = (nodes[at + 1], nodes[nodes[at].first as usize]);
+            nodes[at].min = Vec3::from(l.min).min(Vec3::from(r.min)).into();
+            nodes[at].max = Vec3::from(l.max).max(Vec3::from(r.max)).into();
+        }
+        if let Some((blo, bhi)) = self.world_box(i) {
+            self.bounds = Some(match self.bounds {
+                Some((a, b)) => (a.min(blo), b.max(bhi)),
+                None => (blo, bhi),
+            });
+        }
     }
 
     /// The meshes, in order.
@@ -311,27 +503,30 @@ impl Instances {
 
     /// Each instance's world box in f64 (`None` for a mesh with nothing to hit).
     fn world_boxes(&self) -> Vec<Option<(DVec3, DVec3)>> {
-        self.instances
-            .iter()
-            .map(|i| {
-                let m = &self.meshes[i.mesh as usize];
-                if m.bvh.nodes.is_empty() {
-                    return None;
-                }
-                let (lo, hi) = m.scene.bounds()?;
-                let mut b = (DVec3::INFINITY, DVec3::NEG_INFINITY);
-                for k in 0..8 {
-                    let corner = DVec3::new(
-                        if k & 1 == 0 { lo.x } else { hi.x },
-                        if k & 2 == 0 { lo.y } else { hi.y },
-                        if k & 4 == 0 { lo.z } else { hi.z },
-                    );
-                    let p = apply_transform(&i.transform, corner);
-                    b = (b.0.min(p), b.1.max(p));
-                }
-                Some(b)
-            })
+        (0..self.instances.len())
+            .map(|k| self.world_box(k))
             .collect()
+    }
+
+    /// Instance `k`'s world box: its mesh's box corners through its transform.
+    fn world_box(&self, k: usize) -> Option<(DVec3, DVec3)> {
+        let i = &self.instances[k];
+        let m = &self.meshes[i.mesh as usize];
+        if m.bvh.nodes.is_empty() {
+            return None;
+        }
+        let (lo, hi) = m.scene.bounds()?;
+        let mut b = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for c in 0..8 {
+            let corner = DVec3::new(
+                if c & 1 == 0 { lo.x } else { hi.x },
+                if c & 2 == 0 { lo.y } else { hi.y },
+                if c & 4 == 0 { lo.z } else { hi.z },
+            );
+            let p = apply_transform(&i.transform, corner);
+            b = (b.0.min(p), b.1.max(p));
+        }
+        Some(b)
     }
 
     /// The boxes in the scene frame, rounded outward to f32 and widened by a few units in the
@@ -369,9 +564,9 @@ impl Instances {
             .collect()
     }
 
-    /// Instance `k`'s kernel record: the inverse linear map and the mesh origin's place in the
-    /// scene frame, worked out in f64 and rounded once.
-    fn record(&self, k: usize) -> GpuInstance {
+    /// Instance `k`'s kernel record, its hits numbered from `prim_base`: the inverse linear map
+    /// and the mesh origin's place in the scene frame, worked out in f64 and rounded once.
+    fn record(&self, k: usize, prim_base: u32) -> GpuInstance {
         let i = &self.instances[k];
         let m = &i.transform;
         let mesh = &self.meshes[i.mesh as usize];
@@ -384,10 +579,6 @@ impl Instances {
         let c = apply_transform(m, mesh.bvh.origin) - self.origin;
         let c_hi = c.as_vec3();
         let c_lo = (c - c_hi.as_dvec3()).as_vec3();
-        let prim_base: u64 = self.instances[..k]
-            .iter()
-            .map(|j| self.meshes[j.mesh as usize].scene.triangle_count() as u64)
-            .sum();
         let row = |r: usize| inverse.row(r).as_vec3().to_array();
         GpuInstance {
             l0: row(0),
@@ -402,7 +593,7 @@ impl Instances {
             } else {
                 self.mesh_nodes[i.mesh as usize]
             },
-            prim_base: prim_base as u32,
+            prim_base,
             mask: i.mask,
             flags: if linear.determinant() < 0.0 {
                 INSTANCE_MIRRORED
