@@ -127,12 +127,11 @@ impl<'a> Engine<'a> {
         }
     }
 
-    /// The engine over an instanced scene (`bvh` is its combined tree) for `settings`: the top
-    /// tree walked nearest first, each instance's mesh through its own wide tree
-    /// ([`instanced`]). Fails on a corrupted mesh tree.
+    /// The engine over an instanced scene for `settings`: the wide top tree walked nearest
+    /// first, each instance's mesh through its own wide tree ([`instanced`]). Fails on a
+    /// corrupted mesh tree.
     pub fn instanced(
         instances: &'a crate::instance::Instances,
-        bvh: &'a Bvh,
         settings: &TraceSettings<'a>,
         simd: Simd,
     ) -> crate::error::Result<Self> {
@@ -171,11 +170,19 @@ impl<'a> Engine<'a> {
             },
             stack: walk::stack_size(depth),
             top: Some(instanced::TopScene {
-                nodes: &bvh.nodes[..instances.top_nodes() as usize],
+                top: walk::Scene {
+                    nodes: &instances.top_wide().nodes,
+                    triangles: &[],
+                    triangle_ids: &[],
+                    triangle_masks: &[],
+                    watertight: false,
+                    packets: false,
+                    size: instances.top_wide().size(),
+                    interleave: false,
+                },
                 instances,
                 meshes,
-                stack: walk::stack_size(depth),
-                depth: instances.top_depth(),
+                top_stack: walk::stack_size(instances.top_wide().depth),
             }),
         })
     }
@@ -226,9 +233,8 @@ impl<'a> Engine<'a> {
                 stacks.packet = vec![walk::PacketEntry::default(); self.stack];
             }
             if let Some(top) = &self.top {
-                let need = top.depth + 2;
-                if stacks.top.len() < need {
-                    stacks.top = vec![0; need];
+                if stacks.top.len() < top.top_stack {
+                    stacks.top = vec![walk::Entry::default(); top.top_stack];
                 }
                 match self.simd {
                     #[cfg(target_arch = "x86_64")]
@@ -276,7 +282,7 @@ struct Stacks {
     single: Vec<walk::Entry>,
     packet: Vec<walk::PacketEntry>,
     /// The instanced walk's top-tree stack and one instance's all-hits list.
-    top: Vec<u32>,
+    top: Vec<walk::Entry>,
     scratch: Vec<GpuHitEntry>,
 }
 

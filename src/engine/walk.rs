@@ -400,6 +400,36 @@ impl<'r, L: Lanes8> RayState<'r, L> {
     }
 }
 
+/// What the walk does at a leaf: `visit(state, first, count, list)` for the leaf child
+/// `first` of `count` (a trait, not a closure: its `#[inline(always)]` method is compiled into
+/// the caller with the caller's target features, where a closure would be a call).
+pub trait Leaves<L: Lanes8> {
+    /// Visits one leaf; may lower `state.limit`, set `state.best` and `state.done`.
+    fn visit(
+        &mut self,
+        state: &mut RayState<'_, L>,
+        first: u32,
+        count: usize,
+        list: &mut [GpuHitEntry],
+    );
+}
+
+/// The leaves of a triangle tree: each tested eight triangles at a time.
+struct Triangles<'s, 'a>(&'s Scene<'a>);
+
+impl<L: Lanes8> Leaves<L> for Triangles<'_, '_> {
+    #[inline(always)]
+    fn visit(
+        &mut self,
+        st: &mut RayState<'_, L>,
+        first: u32,
+        count: usize,
+        list: &mut [GpuHitEntry],
+    ) {
+        st.leaf(self.0, first as usize, count, list);
+    }
+}
+
 /// One ray's walk, resumable a node at a time ([`Walk::step`]), which [`trace_interleaved`] runs
 /// for several rays in turn.
 struct Walk<'r, L: Lanes8> {
@@ -434,6 +464,7 @@ impl<'r, L: Lanes8> Walk<'r, L> {
         scene: &Scene<'_>,
         stack: &mut [Entry],
         hit_list: &mut [GpuHitEntry],
+        leaf: &mut impl Leaves<L>,
     ) -> bool {
         let st = &mut self.st;
         if self.kind == INNER {
@@ -483,7 +514,7 @@ impl<'r, L: Lanes8> Walk<'r, L> {
             }
         } else {
             debug_assert!(self.kind != EMPTY);
-            st.leaf(scene, self.child as usize, usize::from(self.kind), hit_list);
+            leaf.visit(st, self.child, usize::from(self.kind), hit_list);
             if st.done {
                 return false;
             }
@@ -523,7 +554,32 @@ pub fn trace<L: Lanes8>(
         kind: INNER,
         top: 0,
     };
-    while walk.step::<false>(scene, stack, hit_list) {}
+    while walk.step::<false>(scene, stack, hit_list, &mut Triangles(scene)) {}
+    walk.st.finish(hit_list)
+}
+
+/// [`trace`]'s walk over a tree whose leaves are not triangles: `leaf` visits each leaf met, nearest first, and may lower `state.limit` (pruning what is
+/// left), set `state.best` and `state.done`. The instanced walk's top tree
+/// ([`super::instanced`]), whose leaves are instances. `scene.triangles` is not read.
+#[inline(always)]
+pub fn trace_leaves<L: Lanes8>(
+    scene: &Scene<'_>,
+    ray: &GpuRay,
+    hit_list: &mut [GpuHitEntry],
+    stack: &mut [Entry],
+    leaf: &mut impl Leaves<L>,
+) -> GpuHit {
+    let (miss, state) = RayState::<L>::new(scene, ray);
+    let Some(st) = state else {
+        return miss;
+    };
+    let mut walk = Walk {
+        st,
+        child: 0,
+        kind: INNER,
+        top: 0,
+    };
+    while walk.step::<false>(scene, stack, hit_list, leaf) {}
     walk.st.finish(hit_list)
 }
 
@@ -573,7 +629,7 @@ pub fn trace_interleaved<L: Lanes8>(
             let stack = &mut stacks[i * depth..(i + 1) * depth];
             let list = &mut lists[i * k..(i + 1) * k];
             if let Some(walk) = walks[i].as_mut()
-                && !walk.step::<true>(scene, stack, list)
+                && !walk.step::<true>(scene, stack, list, &mut Triangles(scene))
             {
                 going &= !(1 << i);
             }

@@ -178,14 +178,23 @@ impl WideBvh {
     /// binary tree, box for box, without collapsing again. The tree is one [`WideBvh::collapse`]
     /// made (or a validated one): children after their parents.
     pub fn refit(&mut self, triangles: &[GpuTriangle]) {
+        self.refit_leaves(|first, kind| {
+            let first = first as usize;
+            crate::bvh::bounds(&triangles[first..first + kind as usize])
+        });
+    }
+
+    /// [`WideBvh::refit`] with each leaf child's box from `leaf_box(child, kind)` (an instanced
+    /// scene's top tree, whose leaves are instances).
+    pub fn refit_leaves(&mut self, leaf_box: impl Fn(u32, u8) -> (Vec3, Vec3) + Sync) {
         let nodes = self.nodes.to_mut();
         // Leaf children first, every node in parallel; then the inner children, each from its
         // node's bounds, children before parents.
         nodes.par_iter_mut().with_min_len(256).for_each(|node| {
             for lane in 0..WIDTH {
-                let (kind, first) = (node.kind[lane], node.child[lane] as usize);
+                let (kind, first) = (node.kind[lane], node.child[lane]);
                 if kind != EMPTY && kind != INNER {
-                    let (min, max) = crate::bvh::bounds(&triangles[first..first + kind as usize]);
+                    let (min, max) = leaf_box(first, kind);
                     set_box(node, lane, min, max);
                 }
             }

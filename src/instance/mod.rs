@@ -87,6 +87,8 @@ pub struct Instances {
     mesh_triangles: Vec<u32>,
     top_nodes: u32,
     top_depth: usize,
+    /// The top tree collapsed 8-wide, for the CPU engine (leaf children are instances).
+    top_wide: WideBvh,
     /// Each instance's leaf in the top tree ([`NO_LEAF`]: a mesh with nothing to hit).
     leaf_of: Vec<u32>,
     origin: DVec3,
@@ -158,6 +160,7 @@ impl Instances {
             mesh_triangles: mesh_triangles.iter().map(|&t| t as u32).collect(),
             top_nodes: 0,
             top_depth: 0,
+            top_wide: WideBvh::default(),
             leaf_of: Vec::new(),
             origin: DVec3::ZERO,
             bounds: None,
@@ -212,6 +215,10 @@ impl Instances {
         }
         this.top_depth = depth(&top);
         let bvh = this.combined(top);
+        this.top_wide = WideBvh::collapse(&Bvh {
+            nodes: bvh.nodes[..this.top_nodes as usize].to_vec().into(),
+            ..Bvh::default()
+        })?;
         this.iteration_cap = this.cap(&bvh.nodes[..this.top_nodes as usize]);
         Ok((this, bvh))
     }
@@ -238,6 +245,7 @@ impl Instances {
         }
         self.records[i] = self.record(i, self.records[i].prim_base);
         self.refit_leaf(bvh, i);
+        self.refit_top_wide(bvh);
         Ok(())
     }
 
@@ -345,7 +353,19 @@ impl Instances {
                 self.refit_leaf(bvh, i);
             }
         }
+        self.refit_top_wide(bvh);
         Ok(crate::picker::Refit::Refitted)
+    }
+
+    /// The wide top tree's boxes from the binary top tree's leaves in `bvh` (after
+    /// [`Instances::refit_leaf`]).
+    fn refit_top_wide(&mut self, bvh: &Bvh) {
+        let nodes = &bvh.nodes;
+        let leaf_of = &self.leaf_of;
+        self.top_wide.refit_leaves(|k, _| {
+            let n = &nodes[leaf_of[k as usize] as usize];
+            (Vec3::from(n.min), Vec3::from(n.max))
+        });
     }
 
     /// Instance `k`'s index, or an error naming it.
@@ -406,6 +426,11 @@ impl Instances {
     /// Nodes of the top tree, at the start of the combined node buffer.
     pub fn top_nodes(&self) -> u32 {
         self.top_nodes
+    }
+
+    /// The top tree collapsed 8-wide (the CPU engine's; leaf children are instances).
+    pub fn top_wide(&self) -> &WideBvh {
+        &self.top_wide
     }
 
     /// Levels of the top tree (0 when empty).

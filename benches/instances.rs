@@ -1,0 +1,231 @@
+//! Issue 15's instancing targets, on 10,000 instances of the bunny (`tests/data/bunny.obj`, 3,674
+//! triangles: 36.7M instanced triangles) on a 100 × 100 grid 1.25 bunny widths apart, each
+//! stood up, turned about the vertical and scaled 0.8–1.2:
+//!
+//! - `instances/top_build`: the top tree over the 10,000 instances once the bunny's tree exists
+//!   (`Instances::assemble`: world boxes, median cut, records, the combined node buffer);
+//!   target ≤ 50 ms;
+//! - bytes per instance beyond one bunny (`Instances::instance_bytes` ÷ instances: the f64
+//!   instance, its kernel record and its share of the top tree); target ≤ 100;
+//! - `instances/pick_field` and `instances/pick_one`: CPU engine picks of 512 × 512 camera rays
+//!   looking down on the field, and on one bunny alone (a scene of one bunny, no instances);
+//!   target: the field ≥ 0.5× one bunny's rays per second;
+//! - `instances/move_pick_cpu`: one instance moved (`Picker::edit` →
+//!   `BuiltScene::set_instance_transform`) and one click picked again on the CPU engine; target
+//!   ≤ 1 ms;
+//! - `instances/move_pick_gpu`: the same on the GPU picker (lavapipe here), the round trip with
+//!   the upload; target ≤ 5 ms.
+//!
+//! Before criterion runs it prints the medians of repeated runs and the ratios. Run with
+//! `cargo bench --bench instances`.
+
+#[path = "common/short_groups.rs"]
+mod short_groups;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use glam::{DMat3, DVec3};
+use rand::Rng;
+use raypick::apps::camera::Camera;
+use raypick::check::synthetic::rng;
+use raypick::instance::{Instance, Instances, MeshTree};
+use raypick::io::obj::load_obj;
+use raypick::{
+    BuildOptions, BuiltScene, Bvh, CpuPicker, GpuContext, GpuPicker, Picker, Ray, Scene,
+};
+use short_groups::configure;
+use std::hint::black_box;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+const SIDE: usize = 100;
+/// Grid step, in bunny widths: neighbours' boxes do not overlap.
+const SPACING: f64 = 1.25;
+const RAYS_SIDE: u32 = 512;
+
+fn median_ms(runs: usize, mut run: impl FnMut()) -> f64 {
+    let mut times: Vec<f64> = (0..runs)
+        .map(|_| {
+            let start = Instant::now();
+            run();
+            start.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    times[times.len() / 2]
+}
+
+/// The bunny stood up (its y axis to z), turned by `angle` about z, scaled by `scale`, at
+/// `at`.
+fn placement(angle: f64, scale: f64, at: DVec3) -> [[f64; 4]; 3] {
+    let stand = DMat3::from_cols(DVec3::X, DVec3::Z, DVec3::Y);
+    let m = DMat3::from_rotation_z(angle) * stand * scale;
+    let r = |k: usize| {
+        let row = m.row(k);
+        [row.x, row.y, row.z, at[k]]
+    };
+    [r(0), r(1), r(2)]
+}
+
+/// The field, `step` apart.
+fn field(step: f64) -> Vec<Instance> {
+    let mut g = rng(15);
+    (0..SIDE * SIDE)
+        .map(|k| {
+            let at = DVec3::new((k % SIDE) as f64 * step, (k / SIDE) as f64 * step, 0.0);
+            Instance {
+                name: format!("bunny {k}"),
+                mesh: 0,
+                transform: placement(g.random_range(0.0..6.3), g.random_range(0.8..1.2), at),
+                mask: u32::MAX,
+            }
+        })
+        .collect()
+}
+
+/// Camera rays looking down on `bounds`.
+fn camera_rays((min, max): (DVec3, DVec3)) -> Vec<Ray> {
+    Camera::frame_from_above(min, max, RAYS_SIDE, RAYS_SIDE)
+        .pixel_center_rays()
+        .collect()
+}
+
+fn instances(c: &mut Criterion) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/bunny.obj");
+    let bunny = load_obj(&path).expect("load the bunny");
+    let mut mesh = Scene::new();
+    mesh.add_mesh("bunny", bunny.clone()).unwrap();
+    let options = BuildOptions::default();
+    let tree = Arc::new(MeshTree::new(
+        mesh.clone(),
+        Bvh::build(&mesh, &options).unwrap(),
+    ));
+    let (lo, hi) = mesh.bounds().unwrap();
+    let step = SPACING * (hi - lo).max_element();
+    let placed = field(step);
+
+    // The top tree once the bunny's tree exists.
+    let top_ms = median_ms(15, || {
+        black_box(Instances::assemble(vec![tree.clone()], placed.clone()).unwrap());
+    });
+    let built =
+        Arc::new(BuiltScene::instanced(vec![mesh.clone()], placed.clone(), &options).unwrap());
+    let i = built.instances().unwrap();
+    let per_instance = i.instance_bytes() as f64 / placed.len() as f64;
+
+    // One bunny alone, stood up as in the field.
+    let mut one = Scene::new();
+    one.add_mesh("bunny", bunny).unwrap();
+    one.transform_object(0, &placement(0.3, 1.0, DVec3::ZERO))
+        .unwrap();
+    let one = Arc::new(BuiltScene::new(one, &options).unwrap());
+
+    let field_rays = camera_rays(built.bounds().unwrap());
+    let one_rays = camera_rays(one.bounds().unwrap());
+    let mut field_picker = CpuPicker::new(built.clone());
+    let mut one_picker = CpuPicker::new(one.clone());
+    let field_answers = field_picker.pick(&field_rays).unwrap();
+    let field_hits = field_answers.iter().filter(|h| h.hit).count();
+    let stats = |hits: &[raypick::Hit]| {
+        let n = hits.len().max(1) as f64;
+        (
+            hits.iter().map(|h| h.box_tests as f64).sum::<f64>() / n,
+            hits.iter().map(|h| h.triangle_tests as f64).sum::<f64>() / n,
+        )
+    };
+    eprintln!(
+        "field: box tests, triangle tests per ray {:?}",
+        stats(&field_answers)
+    );
+    let twin = raypick::ReferencePicker::new(built.clone())
+        .pick(&field_rays[..4096])
+        .unwrap();
+    eprintln!("field, twin: {:?}", stats(&twin));
+    let one_hits = one_picker
+        .pick(&one_rays)
+        .unwrap()
+        .iter()
+        .filter(|h| h.hit)
+        .count();
+    let field_ms = median_ms(7, || {
+        black_box(field_picker.pick(&field_rays).unwrap());
+    });
+    let one_ms = median_ms(7, || {
+        black_box(one_picker.pick(&one_rays).unwrap());
+    });
+    let n = field_rays.len() as f64;
+
+    // One of the 10,000 moved, one click picked again.
+    let mut k = 0u32;
+    let mut g = rng(3);
+    let moves: Vec<[[f64; 4]; 3]> = (0..64)
+        .map(|j| {
+            let side = step * SIDE as f64;
+            let at = DVec3::new(g.random_range(0.0..side), g.random_range(0.0..side), 0.0);
+            placement(j as f64 * 0.1, 1.0, at)
+        })
+        .collect();
+    let click = |m: &[[f64; 4]; 3]| {
+        let at = DVec3::new(m[0][3], m[1][3], 100.0);
+        Ray::new(at, DVec3::NEG_Z)
+    };
+    let mut move_pick = |picker: &mut dyn Picker| {
+        k = (k + 1) % moves.len() as u32;
+        let m = moves[k as usize];
+        let which = (k * 157) % (SIDE * SIDE) as u32;
+        picker
+            .edit(&mut |b| b.set_instance_transform(which, m))
+            .unwrap();
+        black_box(picker.pick(&[click(&m)]).unwrap());
+    };
+    let mut cpu = CpuPicker::new(built.clone());
+    move_pick(&mut cpu);
+    let move_cpu_ms = median_ms(101, || move_pick(&mut cpu));
+    let gpu = GpuContext::new()
+        .and_then(|context| GpuPicker::new(&context, built.clone()))
+        .ok();
+    let mut gpu_line = String::from("no GPU adapter");
+    let mut gpu = gpu;
+    if let Some(gpu) = &mut gpu {
+        move_pick(gpu);
+        let ms = median_ms(31, || move_pick(gpu));
+        gpu_line = format!("{ms:.3} ms on {} (target ≤ 5 ms)", gpu.context().describe());
+    }
+
+    println!(
+        "instances: {} bunnies ({} instanced triangles), top tree {} nodes\n\
+         top tree build {top_ms:.2} ms (target ≤ 50 ms, medians of 15)\n\
+         bytes per instance beyond one bunny {per_instance:.0} (target ≤ 100)\n\
+         pick, {} camera rays, 2 threads: field {:.2} M rays/s ({field_hits} hits), one bunny \
+         {:.2} M rays/s ({one_hits} hits): field ÷ one = {:.2} (target ≥ 0.5, medians of 7)\n\
+         move one of 10,000 and pick a click again: cpu {move_cpu_ms:.3} ms (target ≤ 1 ms, \
+         median of 101); gpu {gpu_line}",
+        placed.len(),
+        i.prim_count(),
+        i.top_nodes(),
+        field_rays.len(),
+        n / field_ms / 1e3,
+        n / one_ms / 1e3,
+        one_ms / field_ms,
+    );
+
+    let mut group = c.benchmark_group("instances");
+    configure(&mut group);
+    group.bench_function("top_build", |b| {
+        b.iter(|| black_box(Instances::assemble(vec![tree.clone()], placed.clone()).unwrap()))
+    });
+    group.bench_function("pick_field", |b| {
+        b.iter(|| black_box(field_picker.pick(&field_rays).unwrap()))
+    });
+    group.bench_function("pick_one", |b| {
+        b.iter(|| black_box(one_picker.pick(&one_rays).unwrap()))
+    });
+    group.bench_function("move_pick_cpu", |b| b.iter(|| move_pick(&mut cpu)));
+    if let Some(gpu) = &mut gpu {
+        group.bench_function("move_pick_gpu", |b| b.iter(|| move_pick(gpu)));
+    }
+    group.finish();
+}
+
+criterion_group!(benches, instances);
+criterion_main!(benches);
