@@ -762,34 +762,33 @@ fn pick_fused(
             chunk(&local[..m], &mut found[..m]);
             check_found_in(built.prim_count(), &found[..m], |f| f.prim)?;
             let input = &input[..m];
-            let emit = |k: usize, hit| {
-                // SAFETY: `input` holds each step's slots of a permutation of 0..n (the
-                // identity, or `RayOrder`), and steps cover disjoint spans of it, so each slot
-                // of the reserved capacity is written exactly once, by one task.
-                unsafe { out.write(input[k], hit) };
-            };
-            match &built.instances {
-                Some(instances) => crate::instance::resolve_chunk(
+            if let Some(instances) = &built.instances {
+                crate::instance::resolve_chunk(
                     instances,
                     rays,
                     input,
                     &lengths[..m],
                     &found[..m],
-                    emit,
-                ),
-                None => {
-                    prefetch_hit_triangles(&built.scene, &built.bvh, &found[..m]);
-                    resolve_chunk(
-                        &built.scene,
-                        &built.bvh,
-                        rays,
-                        input,
-                        &lengths[..m],
-                        &found[..m],
-                        emit,
-                    )
-                }
+                    // SAFETY: as below.
+                    |k, hit| unsafe { out.write(input[k], hit) },
+                );
+                return Ok(());
             }
+            prefetch_hit_triangles(&built.scene, &built.bvh, &found[..m]);
+            resolve_chunk(
+                &built.scene,
+                &built.bvh,
+                rays,
+                input,
+                &lengths[..m],
+                &found[..m],
+                |k, hit| {
+                    // SAFETY: `input` holds each step's slots of a permutation of 0..n (the
+                    // identity, or `RayOrder`), and steps cover disjoint spans of it, so each
+                    // slot of the reserved capacity is written exactly once, by one task.
+                    unsafe { out.write(input[k], hit) };
+                },
+            );
             Ok(())
         })?;
     // SAFETY: every slot below n was written above (on an error we return before this, and Hit
