@@ -889,3 +889,73 @@ fn a_mirrored_node_keeps_its_front_faces_front() {
     let on = world[0] * (1.0 - h.u - h.v) + world[1] * h.u + world[2] * h.v;
     assert!((on - h.position).length() < 1e-12, "{h:?}");
 }
+
+#[test]
+fn nodes_sharing_a_mesh_load_as_instances_of_it_and_answer_as_the_copies() {
+    use raypick::io::scene_files::{SceneFile, load_instanced, load_scene};
+    use raypick::{BuildOptions, BuiltScene, Cull, Picker, Query, Ray, ReferencePicker};
+    use std::sync::Arc;
+    let dir = TempDir::new();
+    let (asset, mesh) = triangle_asset();
+    let doc = asset.gltf(json!({
+        "meshes": [mesh],
+        "nodes": [
+            {"children": [1, 2, 3]},
+            {"mesh": 0},
+            {"mesh": 0, "translation": [0.0, 0.0, 5.0], "scale": [2.0, 1.0, 1.0]},
+            {"mesh": 0, "translation": [3.0, 0.0, 1.0], "scale": [-1.0, 1.0, 1.0]}
+        ],
+        "scenes": [{"nodes": [0]}],
+        "scene": 0
+    }));
+    let path = dir.write_json("shared.gltf", &doc);
+    let files = [SceneFile {
+        file: path.clone(),
+        mask: None,
+        transform: None,
+    }];
+    let (meshes, instances) = load_instanced(&files)
+        .unwrap()
+        .expect("a mesh placed three times is instanced");
+    assert_eq!(meshes.len(), 1, "the mesh is stored once");
+    assert_eq!(instances.len(), 3);
+    let copies = load_scene(&files).unwrap();
+    let names: Vec<&str> = copies.objects().iter().map(|o| o.name.as_str()).collect();
+    let instance_names: Vec<&str> = instances.iter().map(|i| i.name.as_str()).collect();
+    assert_eq!(instance_names, names);
+    let instanced =
+        Arc::new(BuiltScene::instanced(meshes, instances, &BuildOptions::default()).unwrap());
+    let copied = Arc::new(BuiltScene::new(copies, &BuildOptions::default()).unwrap());
+    // Straight down through each placed triangle, and up from below, culling back faces.
+    let rays: Vec<Ray> = [
+        (0.2, 0.2, 0.0),
+        (0.6, 0.2, 5.0),
+        (2.8, 0.2, 1.0),
+        (2.2, 0.2, 1.0),
+    ]
+    .into_iter()
+    .flat_map(|(x, y, z)| {
+        [
+            Ray::new(DVec3::new(x, y, z + 10.0), DVec3::NEG_Z),
+            Ray::new(DVec3::new(x, y, z - 10.0), DVec3::Z),
+        ]
+    })
+    .collect();
+    for cull in [Cull::None, Cull::Back] {
+        let query = Query {
+            cull,
+            ..Query::default()
+        };
+        let a = ReferencePicker::new(instanced.clone()).query(&rays, &query).unwrap();
+        let b = ReferencePicker::new(copied.clone()).query(&rays, &query).unwrap();
+        for (x, y) in a.nearest.iter().zip(&b.nearest) {
+            assert_eq!((x.hit, x.object, x.triangle), (y.hit, y.object, y.triangle), "{cull:?}");
+            if x.hit {
+                assert!((x.position - y.position).length() < 1e-12);
+                assert!((x.normal - y.normal).length() < 1e-12, "{x:?} {y:?}");
+                assert!((x.u - y.u).abs() < 1e-12 && (x.v - y.v).abs() < 1e-12);
+            }
+        }
+        assert!(a.nearest.iter().filter(|h| h.hit).count() >= 3, "{cull:?}");
+    }
+}
