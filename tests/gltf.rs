@@ -946,10 +946,18 @@ fn nodes_sharing_a_mesh_load_as_instances_of_it_and_answer_as_the_copies() {
             cull,
             ..Query::default()
         };
-        let a = ReferencePicker::new(instanced.clone()).query(&rays, &query).unwrap();
-        let b = ReferencePicker::new(copied.clone()).query(&rays, &query).unwrap();
+        let a = ReferencePicker::new(instanced.clone())
+            .query(&rays, &query)
+            .unwrap();
+        let b = ReferencePicker::new(copied.clone())
+            .query(&rays, &query)
+            .unwrap();
         for (x, y) in a.nearest.iter().zip(&b.nearest) {
-            assert_eq!((x.hit, x.object, x.triangle), (y.hit, y.object, y.triangle), "{cull:?}");
+            assert_eq!(
+                (x.hit, x.object, x.triangle),
+                (y.hit, y.object, y.triangle),
+                "{cull:?}"
+            );
             if x.hit {
                 assert!((x.position - y.position).length() < 1e-12);
                 assert!((x.normal - y.normal).length() < 1e-12, "{x:?} {y:?}");

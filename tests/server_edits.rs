@@ -2,7 +2,8 @@
 //! `PATCH /objects/{id}` (transform, mask), `DELETE /objects/{id}` and `GET /scene`, end to
 //! end on the CPU engine and the GPU (lavapipe): picks follow each edit; bad bodies get 400
 //! with a sentence and unknown ids 404; and picks running while an object moves back and forth
-//! never see a mix of two versions of the scene.
+//! never see a mix of two versions of the scene. All of it on a scene of copies and on the same
+//! scene instanced (each mesh stored once, edits moving instances).
 
 use glam::DVec3;
 use raypick::check::synthetic::{box_mesh, terrain};
@@ -27,8 +28,38 @@ fn scene() -> Arc<BuiltScene> {
     Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap())
 }
 
+/// [`scene`] as an instanced scene: the ground and the box as meshes, each placed once.
+fn instanced_scene() -> Arc<BuiltScene> {
+    let mesh = |name: &str, m| {
+        let mut scene = Scene::new();
+        scene.add_mesh(name, m).unwrap();
+        scene
+    };
+    let meshes = vec![
+        mesh("ground", terrain(41, 11, -5.0, 5.0, 1.0, |_, _| 0.0)),
+        mesh(
+            "box",
+            box_mesh(DVec3::new(0.0, 0.0, 0.0), DVec3::new(1.0, 1.0, 1.0)),
+        ),
+    ];
+    let instances = (0..2)
+        .map(|k| raypick::instance::Instance {
+            name: ["ground", "box"][k].into(),
+            mesh: k as u32,
+            transform: raypick::instance::IDENTITY,
+            mask: u32::MAX,
+        })
+        .collect();
+    Arc::new(BuiltScene::instanced(meshes, instances, &BuildOptions::default()).unwrap())
+}
+
 fn start(backend: Backend) -> String {
-    start_with(
+    start_on(scene(), backend)
+}
+
+fn start_on(scene: Arc<BuiltScene>, backend: Backend) -> String {
+    start_scene(
+        scene,
         backend,
         ServerConfig {
             batch_window: Duration::from_millis(2),
@@ -38,7 +69,11 @@ fn start(backend: Backend) -> String {
 }
 
 fn start_with(backend: Backend, config: ServerConfig) -> String {
-    let server = Server::new(scene(), backend, config).expect("the server starts");
+    start_scene(scene(), backend, config)
+}
+
+fn start_scene(scene: Arc<BuiltScene>, backend: Backend, config: ServerConfig) -> String {
+    let server = Server::new(scene, backend, config).expect("the server starts");
     let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
     listener.set_nonblocking(true).expect("nonblocking");
     let addr = listener.local_addr().expect("address");
@@ -124,8 +159,8 @@ fn translate(x: f64) -> Value {
     ])
 }
 
-fn edits_follow_on(backend: Backend) {
-    let base = start(backend);
+fn edits_follow_on(scene: Arc<BuiltScene>, backend: Backend) {
+    let base = start_on(scene, backend);
     let objects = |base: &str| -> Vec<u64> {
         let (status, scene) = call("GET", &format!("{base}/scene"), None);
         assert_eq!(status, 200);
@@ -329,17 +364,36 @@ fn edits_follow_on(backend: Backend) {
 
 #[test]
 fn picks_follow_every_edit_on_the_cpu() {
-    edits_follow_on(Backend::Cpu);
+    edits_follow_on(scene(), Backend::Cpu);
 }
 
 #[test]
 fn picks_follow_every_edit_on_the_gpu() {
-    edits_follow_on(Backend::Gpu);
+    edits_follow_on(scene(), Backend::Gpu);
+}
+
+#[test]
+fn picks_follow_every_edit_on_instances_on_the_cpu() {
+    edits_follow_on(instanced_scene(), Backend::Cpu);
+}
+
+#[test]
+fn picks_follow_every_edit_on_instances_on_the_gpu() {
+    edits_follow_on(instanced_scene(), Backend::Gpu);
 }
 
 #[test]
 fn picks_during_moves_see_one_version_of_the_scene() {
-    let base = start(Backend::Cpu);
+    picks_during_moves_on(scene());
+}
+
+#[test]
+fn picks_during_instance_moves_see_one_version_of_the_scene() {
+    picks_during_moves_on(instanced_scene());
+}
+
+fn picks_during_moves_on(scene: Arc<BuiltScene>) {
+    let base = start_on(scene, Backend::Cpu);
     let mover = {
         let base = base.clone();
         std::thread::spawn(move || {

@@ -74,7 +74,7 @@ pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         max_added_triangles: args.max_added_triangles,
         ..ServerConfig::default()
     };
-    let built = Arc::new(args.scene.build_owned(matches)?);
+    let built = Arc::new(args.scene.build_instanced(matches, true)?.0);
     let triangles = built.scene.triangle_count();
     let server = Server::new(built, args.backend, config)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()

@@ -157,6 +157,40 @@ pub(crate) struct ObjectView {
 impl SceneView {
     /// The view of `built`, with each object's edit state (transform, removed).
     pub(crate) fn of(built: &BuiltScene, edits: Vec<(Option<[[f64; 4]; 3]>, bool)>) -> Self {
+        let bvh = &built.bvh;
+        let tree = (
+            bvh.nodes.len(),
+            bvh.leaf_count(),
+            bvh.depth(),
+            bvh.gpu_bytes(),
+        );
+        if let Some(instances) = built.instances() {
+            let objects = instances
+                .instances()
+                .iter()
+                .zip(edits.into_iter().chain(std::iter::repeat((None, false))))
+                .enumerate()
+                .map(|(k, (i, (transform, removed)))| {
+                    let mesh = &instances.meshes()[i.mesh as usize].scene;
+                    ObjectView {
+                        id: k as u32,
+                        name: i.name.clone(),
+                        triangles: mesh.triangle_count() as u32,
+                        mask: i.mask,
+                        grid: mesh.objects()[0].grid,
+                        transform,
+                        removed,
+                    }
+                })
+                .collect();
+            return SceneView {
+                objects,
+                bounds: built.bounds(),
+                origin: bvh.origin,
+                triangles: built.world_triangle_count() as usize,
+                tree,
+            };
+        }
         let scene = &built.scene;
         let objects = scene
             .objects()
@@ -172,20 +206,26 @@ impl SceneView {
                 removed,
             })
             .collect();
-        let bvh = &built.bvh;
         SceneView {
             objects,
             bounds: scene.bounds(),
             origin: bvh.origin,
             triangles: scene.triangle_count(),
-            tree: (
-                bvh.nodes.len(),
-                bvh.leaf_count(),
-                bvh.depth(),
-                bvh.gpu_bytes(),
-            ),
+            tree,
         }
     }
+}
+
+/// `a ∘ b`: the affine map applying `b`, then `a` (3 × 4 row-major), in f64.
+fn compose(a: &[[f64; 4]; 3], b: &[[f64; 4]; 3]) -> [[f64; 4]; 3] {
+    let mut out = [[0.0; 4]; 3];
+    for r in 0..3 {
+        for c in 0..4 {
+            out[r][c] = a[r][0] * b[0][c] + a[r][1] * b[1][c] + a[r][2] * b[2][c];
+        }
+        out[r][3] += a[r][3];
+    }
+    out
 }
 
 /// Whether `transform` mirrors (a negative determinant); none does not.
@@ -260,6 +300,7 @@ impl Worker {
                     backend,
                     view,
                     loaded: vec![None; objects],
+                    placed: vec![None; objects],
                     added_triangles: 0,
                     max_added_triangles,
                 };
@@ -336,6 +377,9 @@ struct Batcher {
     view: SharedView,
     /// Per object: its positions as loaded or added, kept from its first move on.
     loaded: Vec<Option<Vec<DVec3>>>,
+    /// Per instance of an instanced scene: its transform as loaded or added, kept from its
+    /// first move on.
+    placed: Vec<Option<[[f64; 4]; 3]>>,
     /// Triangles added by edits so far...
     added_triangles: usize,
     /// ...and at most.
@@ -405,6 +449,10 @@ impl Batcher {
                 .current_scene()
                 .ok_or_else(|| EditError::Failed("this picker cannot change its scene".into()))
         };
+        if scene_of(picker.as_ref())?.instances().is_some() {
+            let object = self.apply_instanced(picker, edit, &mut objects)?;
+            return self.publish(picker.as_ref(), objects, object);
+        }
         let object = match edit {
             Edit::Change {
                 object,
@@ -527,13 +575,185 @@ impl Batcher {
                 id
             }
         };
-        let built = scene_of(picker.as_ref())?;
+        self.publish(picker.as_ref(), objects, object)
+    }
+
+    /// Publishes the scene's new version (`objects`: each object's edit state) and answers
+    /// `object`.
+    fn publish(
+        &self,
+        picker: &dyn Picker,
+        objects: Vec<(Option<[[f64; 4]; 3]>, bool)>,
+        object: u32,
+    ) -> std::result::Result<u32, EditError> {
+        let built = picker
+            .current_scene()
+            .ok_or_else(|| EditError::Failed("this picker cannot change its scene".into()))?;
         let published = Arc::new(SceneView::of(&built, objects));
         drop(built);
         if let Ok(mut view) = self.view.lock() {
             *view = published;
         }
         Ok(object)
+    }
+
+    /// [`Batcher::apply`] on an instanced scene: a move sets the instance's transform (the
+    /// edit's composed with the one it was loaded or added with) and refits the top tree; a
+    /// mask or a removal sets its mask; a copy adds an instance of the source's mesh, stored
+    /// once; an inline mesh is added as a mesh and placed once.
+    fn apply_instanced(
+        &mut self,
+        picker: &mut Box<dyn Picker>,
+        edit: Edit,
+        objects: &mut Vec<(Option<[[f64; 4]; 3]>, bool)>,
+    ) -> std::result::Result<u32, EditError> {
+        let invalid = |e: Error| EditError::Invalid(e.to_string());
+        let failed = |e: Error| match e {
+            Error::TooLargeForGpu { .. } => EditError::TooLarge(e.to_string()),
+            e => EditError::Failed(e.to_string()),
+        };
+        let live = |objects: &[(Option<[[f64; 4]; 3]>, bool)], object: u32| {
+            objects
+                .get(object as usize)
+                .is_some_and(|&(_, removed)| !removed)
+                .then_some(())
+                .ok_or_else(|| EditError::NotFound(format!("there is no object {object}")))
+        };
+        Ok(match edit {
+            Edit::Change {
+                object,
+                transform,
+                mask,
+            } => {
+                live(objects, object)?;
+                if let Some(transform) = transform {
+                    let world =
+                        compose(&transform, &self.placed_transform(picker.as_ref(), object)?);
+                    picker
+                        .edit(&mut |b| b.set_instance_transform(object, world))
+                        .map_err(invalid)?;
+                    objects[object as usize].0 = Some(transform);
+                }
+                if let Some(mask) = mask {
+                    picker
+                        .edit(&mut |b| b.set_instance_mask(object, mask))
+                        .map_err(invalid)?;
+                }
+                object
+            }
+            Edit::Remove { object } => {
+                live(objects, object)?;
+                picker
+                    .edit(&mut |b| b.set_instance_mask(object, 0))
+                    .map_err(invalid)?;
+                objects[object as usize].1 = true;
+                object
+            }
+            Edit::Add {
+                mesh,
+                transform,
+                mask,
+            } => {
+                if let Some(t) = &transform {
+                    crate::scene::check_transform(t)
+                        .map_err(|why| EditError::Invalid(format!("the transform {why}")))?;
+                }
+                let built = picker.current_scene().ok_or_else(|| {
+                    EditError::Failed("this picker cannot change its scene".into())
+                })?;
+                let instances = built.instances().expect("an instanced scene");
+                let (source, base, triangles) = match &mesh {
+                    MeshSource::Copy(source) => {
+                        live(objects, *source)?;
+                        let i = &instances.instances()[*source as usize];
+                        let triangles = instances.meshes()[i.mesh as usize].scene.triangle_count();
+                        (Some(i.mesh), None, triangles)
+                    }
+                    MeshSource::Inline(m) => {
+                        (None, Some(crate::instance::IDENTITY), m.triangles.len())
+                    }
+                };
+                drop(built);
+                let total = self.added_triangles.saturating_add(triangles);
+                if total > self.max_added_triangles {
+                    return Err(EditError::TooLarge(format!(
+                        "adding {triangles} triangles would bring the triangles added to this \
+                         server to {total}, over its limit of {}",
+                        self.max_added_triangles
+                    )));
+                }
+                let base = match (&mesh, base) {
+                    (MeshSource::Copy(source), _) => {
+                        self.placed_transform(picker.as_ref(), *source)?
+                    }
+                    (_, base) => base.unwrap_or(crate::instance::IDENTITY),
+                };
+                let name = format!("object {}", objects.len());
+                let mesh_index = match (source, mesh) {
+                    (Some(m), _) => m,
+                    (None, MeshSource::Inline(m)) => {
+                        let mut one = crate::scene::Scene::new();
+                        one.add_mesh(name.clone(), m).map_err(invalid)?;
+                        let mut added = 0;
+                        picker
+                            .edit(&mut |b| {
+                                added = b.add_mesh(one.clone())?;
+                                Ok(crate::picker::Refit::Moved)
+                            })
+                            .map_err(failed)?;
+                        added
+                    }
+                    (None, MeshSource::Copy(_)) => unreachable!("a copy has its source's mesh"),
+                };
+                let instance = crate::instance::Instance {
+                    name,
+                    mesh: mesh_index,
+                    transform: transform.map_or(base, |t| compose(&t, &base)),
+                    mask: mask.unwrap_or(u32::MAX),
+                };
+                let mut id = 0;
+                picker
+                    .edit(&mut |b| {
+                        id = b.add_instance(instance.clone())?;
+                        Ok(crate::picker::Refit::Rebuilt)
+                    })
+                    .map_err(|e| match e {
+                        Error::Invalid(_) => invalid(e),
+                        e => failed(e),
+                    })?;
+                if self.placed.len() <= id as usize {
+                    self.placed.resize(id as usize + 1, None);
+                }
+                self.placed[id as usize] = Some(base);
+                self.added_triangles = total;
+                objects.push((transform, false));
+                id
+            }
+        })
+    }
+
+    /// Instance `object`'s transform as it was loaded or added (kept from its first move on).
+    fn placed_transform(
+        &mut self,
+        picker: &dyn Picker,
+        object: u32,
+    ) -> std::result::Result<[[f64; 4]; 3], EditError> {
+        if self.placed.len() <= object as usize {
+            self.placed.resize(object as usize + 1, None);
+        }
+        if let Some(t) = self.placed[object as usize] {
+            return Ok(t);
+        }
+        let built = picker
+            .current_scene()
+            .ok_or_else(|| EditError::Failed("this picker cannot change its scene".into()))?;
+        let t = built
+            .instances()
+            .and_then(|i| i.instances().get(object as usize))
+            .map(|i| i.transform)
+            .ok_or_else(|| EditError::NotFound(format!("there is no object {object}")))?;
+        self.placed[object as usize] = Some(t);
+        Ok(t)
     }
 
     /// Builds `scene` with `options` and puts a new picker over it in `picker`'s place.
