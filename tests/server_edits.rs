@@ -53,10 +53,6 @@ fn instanced_scene() -> Arc<BuiltScene> {
     Arc::new(BuiltScene::instanced(meshes, instances, &BuildOptions::default()).unwrap())
 }
 
-fn start(backend: Backend) -> String {
-    start_on(scene(), backend)
-}
-
 fn start_on(scene: Arc<BuiltScene>, backend: Backend) -> String {
     start_scene(
         scene,
