@@ -58,6 +58,8 @@ struct GpuParams {
     use_masks: u32,
     watertight: u32,
     top_nodes: u32,
+    pad: vec3<u32>,
+    one: f32,
 }
 
 struct GpuInstance {
@@ -110,6 +112,31 @@ const FROM_PARENT: u32 = 0u;  // descending into the near child
 const FROM_SIBLING: u32 = 1u; // moving across to the far child
 const FROM_CHILD: u32 = 2u;   // climbing back up after a subtree is done
 
+// ---- products the compiler must not fuse ----
+// The CPU twin rounds every product before it is added; a GPU compiler may fuse `a * b + c`
+// into one fused multiply-add, which rounds once, and answers would then differ in the last
+// bit (it did on NVIDIA's Vulkan driver). A product multiplied by `params.one` (1.0, unknown to
+// the compiler) is only ever followed by another multiply, and fusing that one with an add
+// rounds exactly as adding would. Every product that meets an add goes through these; `dot3`
+// and `cross3` add in the twin's (glam's) order.
+
+fn mul(a: f32, b: f32) -> f32 {
+    return (a * b) * params.one;
+}
+
+fn mul3(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
+    return (a * b) * params.one;
+}
+
+fn dot3(a: vec3<f32>, b: vec3<f32>) -> f32 {
+    let p = mul3(a, b);
+    return (p.x + p.y) + p.z;
+}
+
+fn cross3(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
+    return mul3(a.yzx, b.zxy) - mul3(a.zxy, b.yzx);
+}
+
 // ---- ray/box (src/cpu/ray_box.rs) ----
 
 fn safe_inverse(dir: vec3<f32>) -> vec3<f32> {
@@ -128,7 +155,7 @@ fn ray_box(node: GpuNode, origin: vec3<f32>, dir: vec3<f32>, inv_dir: vec3<f32>,
     let far = select(max(t0, t1), vec3<f32>(HUGE), free);
     let t_near = max(max(near.x, near.y), near.z);
     let t_far = min(min(far.x, far.y), far.z);
-    return max(t_near - abs(t_near) * BOX_PAD, tmin) <= min(t_far + abs(t_far) * BOX_PAD, tmax);
+    return max(t_near - mul(abs(t_near), BOX_PAD), tmin) <= min(t_far + mul(abs(t_far), BOX_PAD), tmax);
 }
 
 // ---- ray/triangle (src/cpu/ray_triangle.rs) ----
@@ -153,17 +180,17 @@ fn ray_triangle(tri: GpuTriangle, origin: vec3<f32>, dir: vec3<f32>) -> Triangle
     let v2 = vertex(tri.v2);
     let e1 = v1 - v0;
     let e2 = v2 - v0;
-    let p = cross(dir, e2);
-    let det = dot(p, e1);
+    let p = cross3(dir, e2);
+    let det = dot3(p, e1);
     if det == 0.0 {
         return TriangleHit(false, 0.0, 0.0, 0.0, 0.0);
     }
     let inv_det = 1.0 / det;
     let to_origin = origin - v0;
-    let u = dot(p, to_origin) * inv_det;
-    let q = cross(to_origin, e1);
-    let v = dot(q, dir) * inv_det;
-    let t = dot(q, e2) * inv_det;
+    let u = dot3(p, to_origin) * inv_det;
+    let q = cross3(to_origin, e1);
+    let v = dot3(q, dir) * inv_det;
+    let t = dot3(q, e2) * inv_det;
     return TriangleHit(u >= 0.0 && v >= 0.0 && u + v <= 1.0, t, u, v, det);
 }
 
@@ -208,21 +235,21 @@ fn ray_triangle_watertight(tri: GpuTriangle, origin: vec3<f32>, sh: Shear) -> Tr
     let a = vertex(tri.v0) - origin;
     let b = vertex(tri.v1) - origin;
     let c = vertex(tri.v2) - origin;
-    let ax = dot(a, sh.x);
-    let ay = dot(a, sh.y);
-    let bx = dot(b, sh.x);
-    let by = dot(b, sh.y);
-    let cx = dot(c, sh.x);
-    let cy = dot(c, sh.y);
-    let u_edge = cx * by - cy * bx;
-    let v_edge = ax * cy - ay * cx;
-    let w_edge = bx * ay - by * ax;
+    let ax = dot3(a, sh.x);
+    let ay = dot3(a, sh.y);
+    let bx = dot3(b, sh.x);
+    let by = dot3(b, sh.y);
+    let cx = dot3(c, sh.x);
+    let cy = dot3(c, sh.y);
+    let u_edge = mul(cx, by) - mul(cy, bx);
+    let v_edge = mul(ax, cy) - mul(ay, cx);
+    let w_edge = mul(bx, ay) - mul(by, ax);
     let outside = (u_edge < 0.0 || v_edge < 0.0 || w_edge < 0.0) && (u_edge > 0.0 || v_edge > 0.0 || w_edge > 0.0);
     let det = u_edge + v_edge + w_edge;
     if outside || det == 0.0 {
         return TriangleHit(false, 0.0, 0.0, 0.0, 0.0);
     }
-    let t_scaled = u_edge * dot(a, sh.z) + v_edge * dot(b, sh.z) + w_edge * dot(c, sh.z);
+    let t_scaled = (mul(u_edge, dot3(a, sh.z)) + mul(v_edge, dot3(b, sh.z))) + mul(w_edge, dot3(c, sh.z));
     let inv_det = 1.0 / det;
     return TriangleHit(true, t_scaled * inv_det, v_edge * inv_det, w_edge * inv_det, det);
 }
@@ -263,20 +290,29 @@ fn sibling(index: u32, parent: u32, parent_node: GpuNode) -> u32 {
     return parent + 1u;
 }
 
+// A half float the host wrote (a normal one, or 0), exactly as f32; by hand, as
+// `unpack2x16float` needs a capability not every adapter has.
+fn half_to_f32(h: u32) -> f32 {
+    let e = (h >> 10u) & 31u;
+    if e == 0u {
+        return 0.0;
+    }
+    return bitcast<f32>(((h & 0x8000u) << 16u) | ((e + 112u) << 23u) | ((h & 0x3ffu) << 13u));
+}
+
 // The rest of the ray's origin after rounding to f32 (three half floats).
 fn origin_lo(ray: GpuRay) -> vec3<f32> {
-    let xy = unpack2x16float(ray.origin_lo.x);
-    return vec3<f32>(xy.x, xy.y, unpack2x16float(ray.origin_lo.y).x);
+    return vec3<f32>(half_to_f32(ray.origin_lo.x & 0xffffu), half_to_f32(ray.origin_lo.x >> 16u), half_to_f32(ray.origin_lo.y & 0xffffu));
 }
 
 // The ray's origin in instance r's frame (src/cpu/traverse.rs, `enter_instance`).
 fn instance_origin(r: GpuInstance, hi: vec3<f32>, lo: vec3<f32>) -> vec3<f32> {
     let d = (hi - vec3<f32>(r.cx, r.cy, r.cz)) + (lo - vec3<f32>(r.c_lo[0], r.c_lo[1], r.c_lo[2]));
-    return vec3<f32>(dot(r.l0, d), dot(r.l1, d), dot(r.l2, d));
+    return vec3<f32>(dot3(r.l0, d), dot3(r.l1, d), dot3(r.l2, d));
 }
 
 fn instance_dir(r: GpuInstance, dir: vec3<f32>) -> vec3<f32> {
-    return vec3<f32>(dot(r.l0, dir), dot(r.l1, dir), dot(r.l2, dir));
+    return vec3<f32>(dot3(r.l0, dir), dot3(r.l1, dir), dot3(r.l2, dir));
 }
 
 fn trace(ray: GpuRay, list_base: u32) -> GpuHit {

@@ -49,8 +49,9 @@ fn sibling(index: u32, parent: u32, parent_node: &GpuNode) -> u32 {
     parent + 1
 }
 
-/// The rest of the ray's origin after rounding to f32 ([`GpuRay::origin_lo`]), decoded exactly
-/// as WGSL's `unpack2x16float` does.
+/// The rest of the ray's origin after rounding to f32 ([`GpuRay::origin_lo`]): three half
+/// floats, each normal or 0 (`frame::put_origin_lo`), decoded exactly (the kernel's
+/// `half_to_f32`).
 pub fn origin_lo(ray: &GpuRay) -> Vec3 {
     let half = |bits: u32| half::f16::from_bits(bits as u16).to_f32();
     Vec3::new(
