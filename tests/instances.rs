@@ -490,3 +490,45 @@ fn moved_masked_added_and_reshaped_instances_answer_as_the_oracle_with_increment
     assert!(hits.iter().all(|h| !h.hit || h.object != 11));
     assert!(hits.iter().any(|h| h.hit && h.object == 30));
 }
+
+#[test]
+fn camera_rays_walk_instances_as_packets_with_the_single_ray_answers() {
+    use raypick::apps::camera::Camera;
+    use raypick::check::compare::differences;
+    use raypick::engine::Simd;
+    use raypick::{CpuPicker, ReferencePicker};
+    let built = Arc::new(
+        BuiltScene::instanced(
+            meshes(),
+            random_instances(40, DVec3::ZERO, 12.0, 31),
+            &BuildOptions::default(),
+        )
+        .unwrap(),
+    );
+    let (lo, hi) = built.bounds().unwrap();
+    let rays: Vec<raypick::Ray> = Camera::frame_from_above(lo, hi, 96, 96)
+        .pixel_center_rays()
+        .collect();
+    for query in queries() {
+        let reference = ReferencePicker::new(built.clone())
+            .query(&rays, &query)
+            .unwrap();
+        assert!(reference.nearest.iter().filter(|h| h.hit).count() > 1000);
+        for (simd, packets) in [
+            (Simd::best_available(), true),
+            (Simd::best_available(), false),
+            (Simd::Portable, true),
+        ] {
+            let mut engine = CpuPicker::new(built.clone());
+            engine.set_simd(simd);
+            engine.set_packets(packets);
+            let answers = engine.query(&rays, &query).unwrap();
+            let differ = differences(query.mode, &answers, &reference);
+            assert!(
+                differ.is_empty(),
+                "{query:?} {simd:?} packets {packets}: {} rays differ",
+                differ.len()
+            );
+        }
+    }
+}

@@ -702,6 +702,81 @@ pub fn trace_packet<L: Lanes8>(
     stack: &mut [PacketEntry],
     out: &mut [GpuHit],
 ) {
+    trace_packet_leaves::<L>(scene, rays, lists, stack, out, &mut PacketTriangles(scene));
+}
+
+/// What the packet walk does at a leaf: `visit` for the rays in `active` (bit `i`: `rays[i]`,
+/// whose state is `states[i]`), which met the leaf child `first` of `count`; returns the rays
+/// whose walk is over (any-hit mode found its hit). A trait, not a closure, for the reason
+/// [`Leaves`] gives.
+pub trait PacketLeaves<L: Lanes8> {
+    /// Visits one leaf for the `active` rays; may lower their limits and set their best hits.
+    fn visit<'r>(
+        &mut self,
+        states: &mut [Option<RayState<'r, L>>; PACKET],
+        lists: &mut [&mut [GpuHitEntry]; PACKET],
+        rays: &'r [GpuRay],
+        active: u32,
+        first: u32,
+        count: usize,
+    ) -> u32;
+}
+
+/// The leaves of a triangle tree for a packet: each group of the leaf's triangles gathered once
+/// and tested by every ray that still needs it, in the order a ray alone would test them.
+struct PacketTriangles<'s, 'a>(&'s Scene<'a>);
+
+impl<L: Lanes8> PacketLeaves<L> for PacketTriangles<'_, '_> {
+    #[inline(always)]
+    fn visit<'r>(
+        &mut self,
+        states: &mut [Option<RayState<'r, L>>; PACKET],
+        lists: &mut [&mut [GpuHitEntry]; PACKET],
+        rays: &'r [GpuRay],
+        mut active: u32,
+        first: u32,
+        count: usize,
+    ) -> u32 {
+        let scene = self.0;
+        let first = first as usize;
+        let mask = rays[active.trailing_zeros() as usize].mask;
+        let mut done = 0;
+        let mut k = 0;
+        while k < count && active != 0 {
+            let group = (count - k).min(LANES);
+            let lanes = lanes_for(scene, mask, first + k, group);
+            if lanes != 0 {
+                let v = L::gather(scene.triangles, first + k, group);
+                let mut rays_left = active;
+                while rays_left != 0 {
+                    let i = rays_left.trailing_zeros() as usize;
+                    rays_left &= rays_left - 1;
+                    if let Some(s) = states[i].as_mut() {
+                        s.group(scene, &v, first + k, lanes, lists[i]);
+                        if s.done {
+                            done |= 1 << i;
+                            active &= !(1 << i);
+                        }
+                    }
+                }
+            }
+            k += group;
+        }
+        done
+    }
+}
+
+/// [`trace_packet`]'s walk over a tree whose leaves `leaves` visits (the instanced walk's top
+/// tree, [`super::instanced`]). `scene.triangles` is read only by the visitor.
+#[inline(always)]
+pub fn trace_packet_leaves<L: Lanes8>(
+    scene: &Scene<'_>,
+    rays: &[GpuRay],
+    lists: &mut [GpuHitEntry],
+    stack: &mut [PacketEntry],
+    out: &mut [GpuHit],
+    leaves: &mut impl PacketLeaves<L>,
+) {
     let k = lists.len() / PACKET;
     let mut list_parts = lists.chunks_mut(k.max(1));
     let mut empty: [&mut [GpuHitEntry]; PACKET] = Default::default();
@@ -800,31 +875,15 @@ pub fn trace_packet<L: Lanes8>(
                 continue;
             }
         } else {
-            // Each group of the leaf's triangles is gathered once and tested by every ray that
-            // still needs it, in the order a ray alone would test them.
-            let (first, count) = (entry.child as usize, usize::from(entry.kind));
-            let mask = rays[active.trailing_zeros() as usize].mask;
-            let mut k = 0;
-            while k < count && active != 0 {
-                let group = (count - k).min(LANES);
-                let lanes = lanes_for(scene, mask, first + k, group);
-                if lanes != 0 {
-                    let v = L::gather(scene.triangles, first + k, group);
-                    let mut rays_left = active;
-                    while rays_left != 0 {
-                        let i = rays_left.trailing_zeros() as usize;
-                        rays_left &= rays_left - 1;
-                        if let Some(s) = states[i].as_mut() {
-                            s.group(scene, &v, first + k, lanes, empty[i]);
-                            if s.done {
-                                alive &= !(1 << i);
-                                active &= !(1 << i);
-                            }
-                        }
-                    }
-                }
-                k += group;
-            }
+            let done = leaves.visit(
+                &mut states,
+                &mut empty,
+                rays,
+                active,
+                entry.child,
+                usize::from(entry.kind),
+            );
+            alive &= !done;
             if alive == 0 {
                 break;
             }
