@@ -146,12 +146,12 @@ pub struct GpuParams {
     /// Nodes of the top tree over instances, at the start of the node buffer (0: a scene
     /// without instances, one tree over its triangles).
     pub top_nodes: u32,
-    /// Padding (WGSL: a `vec3<u32>`, aligned to 16 bytes).
-    pub pad: [u32; 3],
-    /// 1.0, which the shader compiler cannot see: the kernel multiplies each product that
-    /// meets an add by it, so no product is fused into a multiply-add and every answer keeps
-    /// the twin's rounding (`mul` in `wgsl/pick.wgsl`).
-    pub one: f32,
+    /// Zeros, which the shader compiler cannot see: the kernel ORs each product that meets an
+    /// add with them (through its bits), so no product is fused into a multiply-add and every
+    /// answer keeps the twin's rounding (`mul` in `wgsl/pick.wgsl`). WGSL: a `vec3<u32>`.
+    pub opaque: [u32; 3],
+    /// Padding to 16 bytes.
+    pub pad: u32,
 }
 
 /// `GpuInstance::flags` bit 0: the instance's transform mirrors (a negative determinant). The
@@ -272,8 +272,8 @@ pub const SHARED_LAYOUTS: &[StructLayout] = &[
             ("use_masks", offset_of!(GpuParams, use_masks)),
             ("watertight", offset_of!(GpuParams, watertight)),
             ("top_nodes", offset_of!(GpuParams, top_nodes)),
+            ("opaque", offset_of!(GpuParams, opaque)),
             ("pad", offset_of!(GpuParams, pad)),
-            ("one", offset_of!(GpuParams, one)),
         ],
     ),
     (
@@ -315,7 +315,7 @@ const _: () = {
     assert!(offset_of!(GpuHit, box_tests) == 16);
     assert!(offset_of!(GpuHit, count) == 24);
     assert!(size_of::<GpuParams>() == 48);
-    assert!(offset_of!(GpuParams, one) == 44);
+    assert!(offset_of!(GpuParams, pad) == 44);
     assert!(offset_of!(GpuParams, max_hits) == 16);
     assert!(size_of::<GpuInstance>() == 80);
     assert!(offset_of!(GpuInstance, c_lo) == 48);

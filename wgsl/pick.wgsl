@@ -58,8 +58,8 @@ struct GpuParams {
     use_masks: u32,
     watertight: u32,
     top_nodes: u32,
-    pad: vec3<u32>,
-    one: f32,
+    opaque: vec3<u32>,
+    pad: u32,
 }
 
 struct GpuInstance {
@@ -115,17 +115,16 @@ const FROM_CHILD: u32 = 2u;   // climbing back up after a subtree is done
 // ---- products the compiler must not fuse ----
 // The CPU twin rounds every product before it is added; a GPU compiler may fuse `a * b + c`
 // into one fused multiply-add, which rounds once, and answers would then differ in the last
-// bit (it did on NVIDIA's Vulkan driver). A product multiplied by `params.one` (1.0, unknown to
-// the compiler) is only ever followed by another multiply, and fusing that one with an add
-// rounds exactly as adding would. Every product that meets an add goes through these; `dot3`
-// and `cross3` add in the twin's (glam's) order.
+// bit (they did on NVIDIA's Vulkan driver). Each product that meets an add goes through its
+// bits and back, OR-ed with `params.opaque` (zeros the compiler cannot see), so no float
+// rewrite can reach across it. `dot3` and `cross3` add in the twin's (glam's) order.
 
 fn mul(a: f32, b: f32) -> f32 {
-    return (a * b) * params.one;
+    return bitcast<f32>(bitcast<u32>(a * b) | params.opaque.x);
 }
 
 fn mul3(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
-    return (a * b) * params.one;
+    return bitcast<vec3<f32>>(bitcast<vec3<u32>>(a * b) | params.opaque);
 }
 
 fn dot3(a: vec3<f32>, b: vec3<f32>) -> f32 {
@@ -137,12 +136,102 @@ fn cross3(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
     return mul3(a.yzx, b.zxy) - mul3(a.zxy, b.yzx);
 }
 
+// ---- division, rounded as the CPU rounds it ----
+// Vulkan lets a GPU divide to 2.5 ulp (NVIDIA's driver does, and answers then differed from the
+// twin's in the last bit of a shear constant or of 1/det), so every division in the kernel is
+// this one: the IEEE quotient rounded to nearest even, worked out on the significands with
+// exact integer steps, subnormals and the special values included.
+
+const SIGN_BIT: u32 = 0x80000000u;
+const INF_BITS: u32 = 0x7f800000u;
+
+// The significand of finite nonzero `bits` (leading bit at 23) and its exponent (unbiased + 127,
+// below 1 for a subnormal).
+fn unpack_significand(bits: u32) -> vec2<i32> {
+    var e = i32((bits >> 23u) & 255u);
+    var m = bits & 0x7fffffu;
+    if e == 0 {
+        e = 1;
+        while (m & 0x800000u) == 0u {
+            m = m << 1u;
+            e -= 1;
+        }
+    } else {
+        m = m | 0x800000u;
+    }
+    return vec2<i32>(i32(m), e);
+}
+
+fn div(a: f32, b: f32) -> f32 {
+    let ua = bitcast<u32>(a);
+    let ub = bitcast<u32>(b);
+    let sign = (ua ^ ub) & SIGN_BIT;
+    let abs_a = ua & 0x7fffffffu;
+    let abs_b = ub & 0x7fffffffu;
+    if abs_a > INF_BITS || abs_b > INF_BITS || (abs_a == INF_BITS && abs_b == INF_BITS) || (abs_a == 0u && abs_b == 0u) {
+        return bitcast<f32>(0x7fc00000u);
+    }
+    if abs_a == INF_BITS || abs_b == 0u {
+        return bitcast<f32>(sign | INF_BITS);
+    }
+    if abs_a == 0u || abs_b == INF_BITS {
+        return bitcast<f32>(sign);
+    }
+    let na = unpack_significand(abs_a);
+    let nb = unpack_significand(abs_b);
+    var r = u32(na.x);
+    let d = u32(nb.x);
+    var e = na.y - nb.y + 127;
+    if r < d {
+        r = r << 1u;
+        e -= 1;
+    }
+    // 25 quotient bits (24 of significand, one guard bit); what remains is the sticky bit.
+    var q = 0u;
+    for (var i = 0; i < 25; i += 1) {
+        q = q << 1u;
+        if r >= d {
+            r -= d;
+            q = q | 1u;
+        }
+        r = r << 1u;
+    }
+    var sticky = r != 0u;
+    if e >= 1 {
+        var m = q >> 1u;
+        if (q & 1u) != 0u && (sticky || (m & 1u) != 0u) {
+            m += 1u;
+        }
+        if m == 0x1000000u {
+            m = m >> 1u;
+            e += 1;
+        }
+        if e >= 255 {
+            return bitcast<f32>(sign | INF_BITS);
+        }
+        return bitcast<f32>(sign | (u32(e) << 23u) | (m & 0x7fffffu));
+    }
+    // A subnormal quotient: `shift` more bits go below the last place.
+    let shift = u32(1 - e);
+    if shift > 25u {
+        return bitcast<f32>(sign);
+    }
+    let m = q >> (shift + 1u);
+    let guard = (q >> shift) & 1u;
+    sticky = sticky || (q & ((1u << shift) - 1u)) != 0u;
+    var rounded = m;
+    if guard != 0u && (sticky || (m & 1u) != 0u) {
+        rounded += 1u;
+    }
+    return bitcast<f32>(sign | rounded);
+}
+
 // ---- ray/box (src/cpu/ray_box.rs) ----
 
 fn safe_inverse(dir: vec3<f32>) -> vec3<f32> {
     let magnitude = max(abs(dir), vec3<f32>(MIN_DIR));
     let sign = select(vec3<f32>(-1.0), vec3<f32>(1.0), dir >= vec3<f32>(0.0));
-    return sign / magnitude;
+    return vec3<f32>(div(sign.x, magnitude.x), div(sign.y, magnitude.y), div(sign.z, magnitude.z));
 }
 
 fn ray_box(node: GpuNode, origin: vec3<f32>, dir: vec3<f32>, inv_dir: vec3<f32>, tmin: f32, tmax: f32) -> bool {
@@ -185,7 +274,7 @@ fn ray_triangle(tri: GpuTriangle, origin: vec3<f32>, dir: vec3<f32>) -> Triangle
     if det == 0.0 {
         return TriangleHit(false, 0.0, 0.0, 0.0, 0.0);
     }
-    let inv_det = 1.0 / det;
+    let inv_det = div(1.0, det);
     let to_origin = origin - v0;
     let u = dot3(p, to_origin) * inv_det;
     let q = cross3(to_origin, e1);
@@ -225,7 +314,7 @@ fn shear_for(dir: vec3<f32>) -> Shear {
         ky = swap;
     }
     let ez = unit_axis(kz);
-    return Shear(unit_axis(kx) - (dir[kx] / dir[kz]) * ez, unit_axis(ky) - (dir[ky] / dir[kz]) * ez, ez / dir[kz]);
+    return Shear(unit_axis(kx) - div(dir[kx], dir[kz]) * ez, unit_axis(ky) - div(dir[ky], dir[kz]) * ez, vec3<f32>(div(ez.x, dir[kz]), div(ez.y, dir[kz]), div(ez.z, dir[kz])));
 }
 
 // Watertight ray/triangle test (Woop, Benthin, Wald, JCGT 2013): edge functions in a sheared
@@ -250,7 +339,7 @@ fn ray_triangle_watertight(tri: GpuTriangle, origin: vec3<f32>, sh: Shear) -> Tr
         return TriangleHit(false, 0.0, 0.0, 0.0, 0.0);
     }
     let t_scaled = (mul(u_edge, dot3(a, sh.z)) + mul(v_edge, dot3(b, sh.z))) + mul(w_edge, dot3(c, sh.z));
-    let inv_det = 1.0 / det;
+    let inv_det = div(1.0, det);
     return TriangleHit(true, t_scaled * inv_det, v_edge * inv_det, w_edge * inv_det, det);
 }
 

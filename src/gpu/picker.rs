@@ -258,8 +258,8 @@ impl GpuPicker {
             use_masks: u32::from(!self.built.triangle_masks.is_empty()),
             watertight: u32::from(watertight),
             top_nodes: self.built.instances().map_or(0, |i| i.top_nodes()),
-            one: 1.0,
-            pad: [0; 3],
+            opaque: [0; 3],
+            pad: 0,
         };
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
