@@ -876,7 +876,7 @@ impl CpuPicker {
     fn engine<'a>(&'a self, settings: &TraceSettings<'a>) -> Result<crate::engine::Engine<'a>> {
         let built = &self.built;
         if let Some(instances) = built.instances() {
-            return crate::engine::Engine::instanced(instances, settings, self.simd, self.packets);
+            return crate::engine::Engine::instanced(instances, settings, self.simd);
         }
         let mut engine = crate::engine::Engine::new(
             built.wide()?,

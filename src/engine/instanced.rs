@@ -7,9 +7,8 @@
 //! all-hits mode; any-hit mode, as everywhere, returns some hit when there is one.
 
 use super::lanes8::Lanes8;
-use super::walk::{self, Entry, Leaves, PACKET, PacketEntry, PacketLeaves, RayState};
+use super::walk::{self, Entry, Leaves, RayState};
 use crate::cpu::traverse::{closest_accepts, enter_instance, insert_hit, origin_lo};
-use crate::frame::NEVER_TRACED;
 use crate::instance::Instances;
 use crate::layout::{GpuHit, GpuHitEntry, GpuRay, MODE_ALL, MODE_ANY, NO_HIT};
 use glam::Vec3;
@@ -113,128 +112,5 @@ impl<L: Lanes8> Leaves<L> for Visit<'_, '_> {
         if mode == MODE_ANY {
             st.done = true;
         }
-    }
-}
-
-/// Traces [`PACKET`] coherent scene-frame rays through the instances as one packet: each ray's
-/// [`trace`] answer, bit for bit. `lists` holds each ray's all-hits list in turn, `scratch` as
-/// many entries again; `top` holds the top tree's packet stack, `stack` the deepest mesh's.
-#[inline(always)]
-pub fn trace_packet<L: Lanes8>(
-    scene: &TopScene<'_>,
-    rays: &[GpuRay],
-    lists: &mut [GpuHitEntry],
-    scratch: &mut [GpuHitEntry],
-    top: &mut [PacketEntry],
-    stack: &mut [PacketEntry],
-    out: &mut [GpuHit],
-) {
-    let mut visit = PacketVisit {
-        scene,
-        scratch,
-        stack,
-    };
-    walk::trace_packet_leaves::<L>(&scene.top, rays, lists, top, out, &mut visit);
-}
-
-/// A packet's visit of the instance leaves: the rays that reached the leaf into the instance's
-/// frame, through its mesh as a packet, and each answer merged.
-struct PacketVisit<'v, 'a> {
-    scene: &'v TopScene<'a>,
-    scratch: &'v mut [GpuHitEntry],
-    stack: &'v mut [PacketEntry],
-}
-
-impl<L: Lanes8> PacketLeaves<L> for PacketVisit<'_, '_> {
-    #[inline(always)]
-    fn visit<'r>(
-        &mut self,
-        states: &mut [Option<RayState<'r, L>>; PACKET],
-        lists: &mut [&mut [GpuHitEntry]; PACKET],
-        rays: &'r [GpuRay],
-        active: u32,
-        k: u32,
-        _: usize,
-    ) -> u32 {
-        let r = &self.scene.instances.records()[k as usize];
-        let mesh = &self.scene.meshes[self.scene.instances.instances()[k as usize].mesh as usize];
-        let mut local = [NEVER_TRACED; PACKET];
-        let mut entered = 0u32;
-        let mut left = active;
-        while left != 0 {
-            let i = left.trailing_zeros() as usize;
-            left &= left - 1;
-            let (Some(st), ray) = (states[i].as_ref(), &rays[i]) else {
-                continue;
-            };
-            if (r.mask & ray.mask) == 0 {
-                continue;
-            }
-            let (o, d) = enter_instance(
-                r,
-                Vec3::from(ray.origin),
-                origin_lo(ray),
-                Vec3::from(ray.dir),
-            );
-            local[i] = GpuRay {
-                origin: o.to_array(),
-                tmin: ray.tmin,
-                dir: d.to_array(),
-                tmax: st.limit,
-                mask: ray.mask,
-                flags: ray.flags,
-                origin_lo: [0; 2],
-            };
-            entered |= 1 << i;
-        }
-        if entered == 0 {
-            return 0;
-        }
-        let mut sub = [GpuHit::default(); PACKET];
-        walk::trace_packet::<L>(mesh, &local, self.scratch, self.stack, &mut sub);
-        let k_list = self.scratch.len() / PACKET;
-        let id = |leaf: u32| r.prim_base + mesh.triangle_ids[leaf as usize];
-        let mut done = 0;
-        let mut left = entered;
-        while left != 0 {
-            let i = left.trailing_zeros() as usize;
-            left &= left - 1;
-            let (Some(st), h, ray) = (states[i].as_mut(), &sub[i], &rays[i]) else {
-                continue;
-            };
-            st.best.box_tests += h.box_tests;
-            st.best.triangle_tests += h.triangle_tests;
-            let mode = ray.flags & 3;
-            if mode == MODE_ALL {
-                let list = &mut *lists[i];
-                for e in &self.scratch[i * k_list..i * k_list + h.count as usize] {
-                    let entry = GpuHitEntry {
-                        prim: id(e.prim),
-                        ..*e
-                    };
-                    st.limit = insert_hit(&mut st.best, list, entry, ray.tmax, &[]);
-                }
-                if h.overflow != 0 {
-                    st.best.overflow = 1;
-                }
-                if st.best.overflow != 0 {
-                    st.limit = list[list.len() - 1].t;
-                }
-                continue;
-            }
-            if h.prim == NO_HIT || !closest_accepts(&st.best, h.t, id(h.prim), &[]) {
-                continue;
-            }
-            st.best.t = h.t;
-            st.best.prim = id(h.prim);
-            st.best.u = h.u;
-            st.best.v = h.v;
-            st.limit = h.t;
-            if mode == MODE_ANY {
-                st.done = true;
-                done |= 1 << i;
-            }
-        }
-        done
     }
 }

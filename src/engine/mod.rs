@@ -128,13 +128,12 @@ impl<'a> Engine<'a> {
     }
 
     /// The engine over an instanced scene for `settings`: the wide top tree walked nearest
-    /// first, each instance's mesh through its own wide tree ([`instanced`]), coherent groups
-    /// of rays as packets when `packets` holds. Fails on a corrupted mesh tree.
+    /// first, each instance's mesh through its own wide tree ([`instanced`]). Fails on a
+    /// corrupted mesh tree.
     pub fn instanced(
         instances: &'a crate::instance::Instances,
         settings: &TraceSettings<'a>,
         simd: Simd,
-        packets: bool,
     ) -> crate::error::Result<Self> {
         let mut meshes = Vec::with_capacity(instances.meshes().len());
         let mut depth = 0;
@@ -177,7 +176,7 @@ impl<'a> Engine<'a> {
                     triangle_ids: &[],
                     triangle_masks: &[],
                     watertight: false,
-                    packets,
+                    packets: false,
                     size: instances.top_wide().size(),
                     interleave: false,
                 },
@@ -225,7 +224,6 @@ impl<'a> Engine<'a> {
                     packet: Vec::new(),
                     top: Vec::new(),
                     scratch: Vec::new(),
-                    packet_top: Vec::new(),
                 })
             };
         }
@@ -286,8 +284,6 @@ struct Stacks {
     /// The instanced walk's top-tree stack and one instance's all-hits list.
     top: Vec<walk::Entry>,
     scratch: Vec<GpuHitEntry>,
-    /// The instanced packet walk's top-tree stack.
-    packet_top: Vec<walk::PacketEntry>,
 }
 
 /// Traces a task's rays through an instanced scene, one by one ([`instanced::trace`]).
@@ -304,37 +300,18 @@ fn trace_instanced<L: Lanes8>(
     } else {
         lists.len() / rays.len()
     };
-    let p = walk::PACKET;
-    if stacks.scratch.len() < k * p {
-        stacks.scratch = vec![GpuHitEntry::default(); k * p];
+    if stacks.scratch.len() < k {
+        stacks.scratch = vec![GpuHitEntry::default(); k];
     }
-    if stacks.packet_top.len() < top.top_stack {
-        stacks.packet_top = vec![walk::PacketEntry::default(); top.top_stack];
-    }
-    let mut j = 0;
-    while j < rays.len() {
-        if top.top.packets && j + p <= rays.len() && walk::coherent(&rays[j..j + p], top.top.size) {
-            instanced::trace_packet::<L>(
-                top,
-                &rays[j..j + p],
-                &mut lists[j * k..(j + p) * k],
-                &mut stacks.scratch[..k * p],
-                &mut stacks.packet_top,
-                &mut stacks.packet,
-                &mut hits[j..j + p],
-            );
-            j += p;
-            continue;
-        }
+    for (j, ray) in rays.iter().enumerate() {
         hits[j] = instanced::trace::<L>(
             top,
-            &rays[j],
+            ray,
             &mut lists[j * k..(j + 1) * k],
             &mut stacks.scratch[..k],
             &mut stacks.top,
             &mut stacks.single,
         );
-        j += 1;
     }
 }
 
