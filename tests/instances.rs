@@ -534,3 +534,57 @@ fn camera_rays_on_instances_give_the_twins_answers_with_packets_asked_for_or_not
         }
     }
 }
+
+#[test]
+fn the_kernels_own_exact_arithmetic_gives_the_twins_bits_on_lavapipe_too() {
+    // On llvmpipe the kernel uses the hardware's division and products (already rounded as the
+    // CPU rounds them); every other adapter runs the kernel's own exactly rounded division and
+    // unfused products, which made an NVIDIA H200 give the twin's bits. Here that path runs on
+    // lavapipe, against the twin, on a plain scene and an instanced one.
+    use raypick::check::compare::differences;
+    use raypick::{GpuPicker, ReferencePicker};
+    let bunny = raypick::io::obj::load_obj(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/bunny.obj")
+            .as_path(),
+    )
+    .unwrap();
+    let plain = Arc::new(
+        BuiltScene::new(
+            Scene::from_meshes([("bunny".to_string(), bunny)]).unwrap(),
+            &BuildOptions::default(),
+        )
+        .unwrap(),
+    );
+    let instanced = Arc::new(
+        BuiltScene::instanced(
+            meshes(),
+            random_instances(20, DVec3::new(1.0e6, 0.0, 5.0), 10.0, 8),
+            &BuildOptions::default(),
+        )
+        .unwrap(),
+    );
+    for (name, built) in [("bunny", plain), ("instances", instanced)] {
+        let world = match built.instances() {
+            Some(i) => i.baked().unwrap(),
+            None => built.scene.clone(),
+        };
+        let rays: Vec<raypick::Ray> = mixed_rays(&world, 1600, 13)
+            .into_iter()
+            .map(|(_, r)| r)
+            .collect();
+        let mut exact = GpuPicker::with_options(common::gpu(), built.clone(), 64, true).unwrap();
+        for query in queries() {
+            let reference = ReferencePicker::new(built.clone())
+                .query(&rays, &query)
+                .unwrap();
+            let answers = exact.query(&rays, &query).unwrap();
+            let differ = differences(query.mode, &answers, &reference);
+            assert!(
+                differ.is_empty(),
+                "{name} {query:?}: the exact kernel differs from the twin on {} rays",
+                differ.len()
+            );
+        }
+    }
+}

@@ -119,11 +119,22 @@ const FROM_CHILD: u32 = 2u;   // climbing back up after a subtree is done
 // bits and back, OR-ed with `params.opaque` (zeros the compiler cannot see), so no float
 // rewrite can reach across it. `dot3` and `cross3` add in the twin's (glam's) order.
 
+// 1: products and quotients are rounded as the twin rounds them, by the kernel itself; 0: by the
+// hardware (set by the host, `GpuPicker::with_options`: 0 only on llvmpipe, which already
+// rounds as the CPU does).
+override EXACT_ARITHMETIC: u32 = 1u;
+
 fn mul(a: f32, b: f32) -> f32 {
+    if EXACT_ARITHMETIC == 0u {
+        return a * b;
+    }
     return bitcast<f32>(bitcast<u32>(a * b) | params.opaque.x);
 }
 
 fn mul3(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
+    if EXACT_ARITHMETIC == 0u {
+        return a * b;
+    }
     return bitcast<vec3<f32>>(bitcast<vec3<u32>>(a * b) | params.opaque);
 }
 
@@ -163,6 +174,9 @@ fn unpack_significand(bits: u32) -> vec2<i32> {
 }
 
 fn div(a: f32, b: f32) -> f32 {
+    if EXACT_ARITHMETIC == 0u {
+        return a / b;
+    }
     let ua = bitcast<u32>(a);
     let ub = bitcast<u32>(b);
     let sign = (ua ^ ub) & SIGN_BIT;
