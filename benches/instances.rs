@@ -21,6 +21,8 @@
 
 #[path = "common/short_groups.rs"]
 mod short_groups;
+#[path = "common/timing.rs"]
+mod timing;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use glam::{DMat3, DVec3};
@@ -36,24 +38,12 @@ use short_groups::configure;
 use std::hint::black_box;
 use std::path::Path;
 use std::sync::Arc;
-use std::time::Instant;
+use timing::median_ms;
 
 const SIDE: usize = 100;
 /// Grid step, in bunny widths: neighbours' boxes do not overlap.
 const SPACING: f64 = 1.25;
 const RAYS_SIDE: u32 = 512;
-
-fn median_ms(runs: usize, mut run: impl FnMut()) -> f64 {
-    let mut times: Vec<f64> = (0..runs)
-        .map(|_| {
-            let start = Instant::now();
-            run();
-            start.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    times.sort_by(f64::total_cmp);
-    times[times.len() / 2]
-}
 
 /// The bunny stood up (its y axis to z), turned by `angle` about z, scaled by `scale`, at
 /// `at`.

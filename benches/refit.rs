@@ -18,6 +18,8 @@
 
 #[path = "common/short_groups.rs"]
 mod short_groups;
+#[path = "common/timing.rs"]
+mod timing;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use glam::{DMat3, DVec3};
@@ -26,7 +28,7 @@ use raypick::{BuildOptions, BuiltScene, Bvh, Refit, Scene};
 use short_groups::configure;
 use std::hint::black_box;
 use std::path::Path;
-use std::time::Instant;
+use timing::median_ms;
 
 /// The scenes: name and OBJ path.
 const SCENES: [(&str, &str); 2] = [
@@ -41,18 +43,6 @@ fn pose(scene: &Scene, angle: f64) -> Vec<DVec3> {
         .object_vertices(0)
         .map(|v| turn * (scene.position(v) * DVec3::new(1.0, 1.1, 0.9)) + DVec3::splat(angle))
         .collect()
-}
-
-fn median_ms(mut run: impl FnMut()) -> f64 {
-    let mut times: Vec<f64> = (0..15)
-        .map(|_| {
-            let start = Instant::now();
-            run();
-            start.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    times.sort_by(f64::total_cmp);
-    times[times.len() / 2]
 }
 
 fn refit(c: &mut Criterion) {
@@ -79,13 +69,13 @@ fn refit(c: &mut Criterion) {
             let outcome = built.set_positions(0, &poses[k]).expect("refit");
             assert_eq!(outcome, Refit::Refitted);
         };
-        let build_ms = median_ms(|| {
+        let build_ms = median_ms(15, || {
             black_box(build());
         });
-        let binary_ms = median_ms(|| {
+        let binary_ms = median_ms(15, || {
             black_box(Bvh::build(&scene, &options).expect("build"));
         });
-        let refit_ms = median_ms(|| refit(&mut built));
+        let refit_ms = median_ms(15, || refit(&mut built));
         println!(
             "refit/{name}: {} triangles; build + collapse {build_ms:.2} ms, binary build \
              {binary_ms:.2} ms, refit {refit_ms:.2} ms: refit / build = {:.3}, refit / binary \

@@ -286,6 +286,16 @@ struct Stacks {
     scratch: Vec<GpuHitEntry>,
 }
 
+/// Entries of each ray's all-hits list in `lists` (0 outside all-hits mode).
+#[inline(always)]
+fn list_length(rays: &[GpuRay], lists: &[GpuHitEntry]) -> usize {
+    if rays.is_empty() {
+        0
+    } else {
+        lists.len() / rays.len()
+    }
+}
+
 /// Traces a task's rays through an instanced scene, one by one ([`instanced::trace`]).
 #[inline(always)]
 fn trace_instanced<L: Lanes8>(
@@ -295,11 +305,7 @@ fn trace_instanced<L: Lanes8>(
     lists: &mut [GpuHitEntry],
     stacks: &mut Stacks,
 ) {
-    let k = if rays.is_empty() {
-        0
-    } else {
-        lists.len() / rays.len()
-    };
+    let k = list_length(rays, lists);
     if stacks.scratch.len() < k {
         stacks.scratch = vec![GpuHitEntry::default(); k];
     }
@@ -340,11 +346,7 @@ fn trace_chunk<L: Lanes8>(
     lists: &mut [GpuHitEntry],
     stacks: &mut Stacks,
 ) {
-    let k = if rays.is_empty() {
-        0
-    } else {
-        lists.len() / rays.len()
-    };
+    let k = list_length(rays, lists);
     let p = walk::PACKET;
     let packet_at = |i: usize| {
         scene.packets && i + p <= rays.len() && walk::coherent(&rays[i..i + p], scene.size)

@@ -558,9 +558,10 @@ pub fn trace<L: Lanes8>(
     walk.st.finish(hit_list)
 }
 
-/// [`trace`]'s walk over a tree whose leaves are not triangles: `leaf` visits each leaf met, nearest first, and may lower `state.limit` (pruning what is
-/// left), set `state.best` and `state.done`. The instanced walk's top tree
-/// ([`super::instanced`]), whose leaves are instances. `scene.triangles` is not read.
+/// [`trace`]'s walk with each leaf met visited by `leaf`, nearest first, which may lower
+/// `state.limit` (pruning what is left), set `state.best` and `state.done`: triangles for
+/// [`trace`], instances for the instanced walk's top tree ([`super::instanced`], which reads no
+/// `scene.triangles`).
 #[inline(always)]
 pub fn trace_leaves<L: Lanes8>(
     scene: &Scene<'_>,

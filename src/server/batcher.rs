@@ -216,6 +216,19 @@ impl SceneView {
     }
 }
 
+/// Whether `object` exists and was not removed (`objects`: each object's edit state), else a
+/// 404 naming it.
+fn live(
+    objects: &[(Option<[[f64; 4]; 3]>, bool)],
+    object: u32,
+) -> std::result::Result<(), EditError> {
+    objects
+        .get(object as usize)
+        .is_some_and(|&(_, removed)| !removed)
+        .then_some(())
+        .ok_or_else(|| EditError::NotFound(format!("there is no object {object}")))
+}
+
 /// `a ∘ b`: the affine map applying `b`, then `a` (3 × 4 row-major), in f64.
 fn compose(a: &[[f64; 4]; 3], b: &[[f64; 4]; 3]) -> [[f64; 4]; 3] {
     let mut out = [[0.0; 4]; 3];
@@ -437,13 +450,6 @@ impl Batcher {
             .map(|o| (o.transform, o.removed))
             .collect();
         drop(view);
-        let live = |objects: &[(Option<[[f64; 4]; 3]>, bool)], object: u32| {
-            objects
-                .get(object as usize)
-                .is_some_and(|&(_, removed)| !removed)
-                .then_some(())
-                .ok_or_else(|| EditError::NotFound(format!("there is no object {object}")))
-        };
         let scene_of = |picker: &dyn Picker| {
             picker
                 .current_scene()
@@ -611,13 +617,6 @@ impl Batcher {
         let failed = |e: Error| match e {
             Error::TooLargeForGpu { .. } => EditError::TooLarge(e.to_string()),
             e => EditError::Failed(e.to_string()),
-        };
-        let live = |objects: &[(Option<[[f64; 4]; 3]>, bool)], object: u32| {
-            objects
-                .get(object as usize)
-                .is_some_and(|&(_, removed)| !removed)
-                .then_some(())
-                .ok_or_else(|| EditError::NotFound(format!("there is no object {object}")))
         };
         Ok(match edit {
             Edit::Change {
