@@ -75,7 +75,15 @@ pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         ..ServerConfig::default()
     };
     let built = Arc::new(args.scene.build_instanced(matches, true)?.0);
-    let triangles = built.scene.triangle_count();
+    let triangles = match built.instances() {
+        Some(i) => format!(
+            "{} triangles (instances of {} mesh{})",
+            built.world_triangle_count(),
+            i.meshes().len(),
+            if i.meshes().len() == 1 { "" } else { "es" }
+        ),
+        None => format!("{} triangles", built.world_triangle_count()),
+    };
     let server = Server::new(built, args.backend, config)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
@@ -102,7 +110,7 @@ pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             );
         }
         println!(
-            "raypick serve: {triangles} triangles on {}; listening on http://{bound}/",
+            "raypick serve: {triangles} on {}; listening on http://{bound}/",
             server.device()
         );
         let _ = std::io::stdout().flush();

@@ -197,7 +197,7 @@ test("raypick viewer in headless Chromium", { timeout: 300000 }, async (t) => {
       await driver.until("the pick result", `return window.viewer.picks >= 1`);
       const text = await driver.run(`return document.getElementById("pick-result").innerText`);
       console.log(`pick result:\n${text}`);
-      assert.match(text, /object\s+\d+ \(\w+\)/);
+      assert.match(text, /object\s+\d+ \([^)]+\)/);
       const number = String.raw`-?\d+(?:\.\d+)?(?:e[-+]?\d+)?`;
       assert.match(text, new RegExp(String.raw`position\s+${number}, ${number}, ${number}`));
       const hit = await driver.run(`return window.viewer.lastPick`);
