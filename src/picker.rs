@@ -144,9 +144,7 @@ impl BuiltScene {
     pub fn set_mesh_positions(&mut self, mesh: u32, positions: &[DVec3]) -> Result<Refit> {
         let options = self.options;
         let (i, bvh) = self.instances_mut()?;
-        let refit = i.set_mesh_positions(bvh, mesh, positions, &options)?;
-        self.wide = OnceLock::new();
-        Ok(refit)
+        i.set_mesh_positions(bvh, mesh, positions, &options)
     }
 
     /// Builds the top tree again over the instances where they are now.

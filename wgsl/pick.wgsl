@@ -429,10 +429,12 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
     let cull = (ray.flags >> CULL_SHIFT) & 3u;
     let instanced = params.top_nodes != 0u;
     // The ray as the current tree sees it: the world's, or an instance's.
+    let world_inv_dir = safe_inverse(ray.dir);
+    let world_shear = shear_for(ray.dir);
     var origin = ray.origin;
     var dir = ray.dir;
-    var inv_dir = safe_inverse(dir);
-    var shear = shear_for(dir);
+    var inv_dir = world_inv_dir;
+    var shear = world_shear;
     var inside = NO_INSTANCE;
     var instance: GpuInstance;
     var instance_leaf = 0u;
@@ -460,8 +462,8 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
                 inside = NO_INSTANCE;
                 origin = ray.origin;
                 dir = ray.dir;
-                inv_dir = safe_inverse(dir);
-                shear = shear_for(dir);
+                inv_dir = world_inv_dir;
+                shear = world_shear;
                 continue;
             }
             let parent = parent_of(node);
@@ -550,8 +552,8 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
             inside = NO_INSTANCE;
             origin = ray.origin;
             dir = ray.dir;
-            inv_dir = safe_inverse(dir);
-            shear = shear_for(dir);
+            inv_dir = world_inv_dir;
+            shear = world_shear;
             state = FROM_CHILD;
         } else if state == FROM_PARENT {
             let parent = parent_of(node);

@@ -184,10 +184,12 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
     // Hit ids are their own tie keys in an instanced scene.
     let tie_ids: &[u32] = if instanced { &[] } else { buffers.triangle_ids };
     // The ray as the current tree sees it: the world's, or an instance's.
+    let world_inv_dir = safe_inverse(world_dir);
+    let world_shear: Shear = shear_for(world_dir);
     let mut origin = world_origin;
     let mut dir = world_dir;
-    let mut inv_dir = safe_inverse(dir);
-    let mut shear: Shear = shear_for(dir);
+    let mut inv_dir = world_inv_dir;
+    let mut shear = world_shear;
     let mut inside = NO_INSTANCE;
     let mut instance = GpuInstance::default();
     let mut instance_leaf = 0u32;
@@ -213,12 +215,8 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
                 // The instance's tree is done: back to its leaf and the world ray.
                 current = instance_leaf;
                 inside = NO_INSTANCE;
-                (origin, dir, inv_dir, shear) = (
-                    world_origin,
-                    world_dir,
-                    safe_inverse(world_dir),
-                    shear_for(world_dir),
-                );
+                (origin, dir, inv_dir, shear) =
+                    (world_origin, world_dir, world_inv_dir, world_shear);
                 continue;
             }
             let parent = parent_of(node);
@@ -321,12 +319,7 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
             // Missed the instance's root box: back to its leaf and the world ray.
             current = instance_leaf;
             inside = NO_INSTANCE;
-            (origin, dir, inv_dir, shear) = (
-                world_origin,
-                world_dir,
-                safe_inverse(world_dir),
-                shear_for(world_dir),
-            );
+            (origin, dir, inv_dir, shear) = (world_origin, world_dir, world_inv_dir, world_shear);
             state = FROM_CHILD;
         } else if state == FROM_PARENT {
             let parent = parent_of(node);

@@ -544,18 +544,7 @@ pub fn trace<L: Lanes8>(
     hit_list: &mut [GpuHitEntry],
     stack: &mut [Entry],
 ) -> GpuHit {
-    let (miss, state) = RayState::<L>::new(scene, ray);
-    let Some(st) = state else {
-        return miss;
-    };
-    let mut walk = Walk {
-        st,
-        child: 0,
-        kind: INNER,
-        top: 0,
-    };
-    while walk.step::<false>(scene, stack, hit_list, &mut Triangles(scene)) {}
-    walk.st.finish(hit_list)
+    trace_leaves::<L>(scene, ray, hit_list, stack, &mut Triangles(scene))
 }
 
 /// [`trace`]'s walk with each leaf met visited by `leaf`, nearest first, which may lower

@@ -86,7 +86,6 @@ pub struct Instances {
     mesh_nodes: Vec<u32>,
     mesh_triangles: Vec<u32>,
     top_nodes: u32,
-    top_depth: usize,
     /// The top tree collapsed 8-wide, for the CPU engine (leaf children are instances).
     top_wide: WideBvh,
     /// Each instance's leaf in the top tree ([`NO_LEAF`]: a mesh with nothing to hit).
@@ -159,7 +158,6 @@ impl Instances {
             mesh_nodes: Vec::new(),
             mesh_triangles: mesh_triangles.iter().map(|&t| t as u32).collect(),
             top_nodes: 0,
-            top_depth: 0,
             top_wide: WideBvh::default(),
             leaf_of: Vec::new(),
             origin: DVec3::ZERO,
@@ -213,7 +211,6 @@ impl Instances {
                 this.leaf_of[node.first as usize] = n as u32;
             }
         }
-        this.top_depth = depth(&top);
         let bvh = this.combined(top);
         this.top_wide = WideBvh::collapse(&Bvh {
             nodes: bvh.nodes[..this.top_nodes as usize].to_vec().into(),
@@ -431,11 +428,6 @@ impl Instances {
     /// The top tree collapsed 8-wide (the CPU engine's; leaf children are instances).
     pub fn top_wide(&self) -> &WideBvh {
         &self.top_wide
-    }
-
-    /// Levels of the top tree (0 when empty).
-    pub fn top_depth(&self) -> usize {
-        self.top_depth
     }
 
     /// The scene frame's origin: the centre of the instances' world boxes.
@@ -673,21 +665,6 @@ impl Instances {
         }
         cap.min(u64::from(u32::MAX)) as u32
     }
-}
-
-/// Levels of the depth-first tree `nodes` (0 when empty).
-fn depth(nodes: &[GpuNode]) -> usize {
-    let mut deepest = 0;
-    let mut stack = vec![(0usize, 1usize)];
-    while let Some((i, d)) = stack.pop() {
-        let Some(n) = nodes.get(i) else { break };
-        deepest = deepest.max(d);
-        if !n.is_leaf() {
-            stack.push((i + 1, d + 1));
-            stack.push((n.first as usize, d + 1));
-        }
-    }
-    deepest
 }
 
 /// Refuses an instance with an unknown mesh or a transform that cannot place it.
