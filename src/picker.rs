@@ -217,7 +217,7 @@ impl BuiltScene {
         if self.bvh.refit(&self.scene, object, positions) {
             self.scene.put_object_positions(object, positions);
             if let Some(Ok(wide)) = self.wide.get_mut() {
-                wide.refit(&self.bvh.triangles);
+                wide.refit(&self.bvh);
             }
             return Ok(Refit::Refitted);
         }

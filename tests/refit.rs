@@ -284,3 +284,90 @@ fn bad_positions_are_refused_and_change_nothing() {
         "a refused move copies nothing"
     );
 }
+
+/// Asserts that binary node `node`'s box (and every box below it) is exactly the min/max of
+/// the triangles under it, and returns it.
+fn binary_bounds(built: &BuiltScene, node: usize) -> (Vec3, Vec3) {
+    let n = &built.bvh.nodes[node];
+    let (lo, hi) = if n.is_leaf() {
+        let first = n.first as usize;
+        built.bvh.triangles[first..first + n.kind() as usize]
+            .iter()
+            .flat_map(|t| [t.v0, t.v1, t.v2])
+            .map(Vec3::from)
+            .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| {
+                (lo.min(p), hi.max(p))
+            })
+    } else {
+        let (l, r) = (
+            binary_bounds(built, node + 1),
+            binary_bounds(built, n.first as usize),
+        );
+        (l.0.min(r.0), l.1.max(r.1))
+    };
+    assert_eq!(
+        (Vec3::from(n.min), Vec3::from(n.max)),
+        (lo, hi),
+        "binary node {node}"
+    );
+    (lo, hi)
+}
+
+#[test]
+fn a_large_tree_refits_in_parallel_to_boxes_exact_for_its_new_triangles() {
+    // Large enough that the binary refit splits into tasks over disjoint node and triangle
+    // runs, and that the engine's tree was collapsed in pieces (its slots' sources too).
+    let mut scene = Scene::new();
+    scene
+        .add_mesh("sphere", icosphere(DVec3::new(5.0, -5.0, 4.0), 2.5, 3))
+        .unwrap();
+    scene
+        .add_mesh("terrain", terrain(180, 170, 0.0, 0.0, 0.25, hills))
+        .unwrap();
+    let mut built = BuiltScene::new(scene, &BuildOptions::default()).unwrap();
+    assert!(
+        built.bvh.nodes.len() >= 1 << 14,
+        "{}",
+        built.bvh.nodes.len()
+    );
+    let collapsed = built.wide().unwrap().clone();
+    assert_eq!(collapsed.sources.len(), collapsed.nodes.len());
+    for (round, object) in [(1.0, 1u32), (2.0, 0), (3.0, 1)] {
+        let positions = moved(&built.scene, object, round);
+        assert_eq!(
+            built.set_positions(object, &positions).unwrap(),
+            Refit::Refitted
+        );
+        // Every leaf-order triangle is its scene triangle rounded into the tree's frame.
+        let origin = built.bvh.origin;
+        for (t, &id) in built
+            .bvh
+            .triangles
+            .iter()
+            .zip(built.bvh.triangle_ids.iter())
+        {
+            let [v0, v1, v2] = built
+                .scene
+                .world_triangle(id as usize)
+                .map(|p| <[f32; 3]>::from((p - origin).as_vec3()));
+            assert_eq!(
+                *t,
+                GpuTriangle { v0, v1, v2 },
+                "triangle {id}, round {round}"
+            );
+        }
+        binary_bounds(&built, 0);
+        let wide = built.wide().unwrap();
+        wide_bounds(wide, &built.bvh.triangles, 0);
+        // A wide tree without its sources (a saved scene's) refits to the same boxes.
+        let mut unsourced = WideBvh {
+            sources: Vec::new(),
+            ..collapsed.clone()
+        };
+        unsourced.refit(&built.bvh);
+        assert!(
+            unsourced.nodes.as_slice() == wide.nodes.as_slice(),
+            "round {round}"
+        );
+    }
+}

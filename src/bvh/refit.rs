@@ -1,6 +1,7 @@
 //! Refitting a built tree after an object's vertices moved (the same triangles, new
 //! positions): the object's leaf-order f32 triangles are rewritten from the new f64 positions
-//! and every box is recomputed bottom-up; the tree's shape, its leaf order and its origin stay.
+//! and every box is recomputed bottom-up, in one pass (each leaf's triangles where the leaf is
+//! refitted); the tree's shape, its leaf order and its origin stay.
 //! Boxes are the min/max of their triangles' f32 corners, exactly as the builders make them, so
 //! the refitted tree holds the same triangles in boxes that are exact for them. Only when a
 //! triangle's traceability changes (it becomes degenerate, or stops being so) does the tree
@@ -30,52 +31,58 @@ impl Bvh {
             .with_min_len(4096)
             .map(|&p| (p - origin).as_vec3())
             .collect();
-        let corners = |id: u32| {
-            let corners = scene
-                .triangle_vertices(id as usize)
-                .map(|v| (v - first_vertex) as usize);
-            (corners.map(|v| positions[v]), corners.map(|v| local[v]))
+        let vertices = |k: usize| {
+            scene
+                .triangle_vertices(first as usize + k)
+                .map(|v| (v - first_vertex) as usize)
         };
-        let moved = |id: u32| id.wrapping_sub(first) < count as u32;
-        // Leaf order: each moved triangle rewritten; each must still be traceable.
-        let lost = AtomicBool::new(false);
-        let in_tree: usize = self
-            .triangles
-            .to_mut()
-            .par_iter_mut()
-            .zip(self.triangle_ids.par_iter())
+        // Scene order (the vertices read in the order they lie): whether each of the object's
+        // triangles may be traced at its new place (not zero area in f64 or in f32). The tree
+        // must hold as many of them as it holds now...
+        let traceable: Vec<bool> = (0..count)
+            .into_par_iter()
             .with_min_len(4096)
-            .map(|(triangle, &id)| {
-                if !moved(id) {
-                    return 0;
-                }
-                let (world, f32) = corners(id);
-                if !traceable_corners(world, f32) {
-                    lost.store(true, Ordering::Relaxed);
-                }
-                let [v0, v1, v2] = f32.map(<[f32; 3]>::from);
-                *triangle = GpuTriangle { v0, v1, v2 };
-                1
+            .map(|k| {
+                let v = vertices(k);
+                traceable_corners(v.map(|v| positions[v]), v.map(|v| local[v]))
             })
-            .sum();
+            .collect();
+        let wanted = traceable.par_iter().filter(|&&t| t).count();
+        let held = self
+            .triangle_ids
+            .par_iter()
+            .with_min_len(4096)
+            .filter(|&&id| (id.wrapping_sub(first) as usize) < count)
+            .count();
+        if held != wanted {
+            return false;
+        }
+        // ...and each one it holds must still be traceable (then they are the same ones).
+        let lost = AtomicBool::new(false);
+        let moved = |id: u32| {
+            let k = id.wrapping_sub(first) as usize;
+            if k >= count {
+                return None;
+            }
+            if !traceable[k] {
+                lost.store(true, Ordering::Relaxed);
+            }
+            let [v0, v1, v2] = vertices(k).map(|v| <[f32; 3]>::from(local[v]));
+            Some(GpuTriangle { v0, v1, v2 })
+        };
+        // Leaf order, in one pass with the boxes: each moved triangle rewritten where its leaf
+        // is refitted.
+        let leaves = Leaves {
+            ids: &self.triangle_ids,
+            moved: &moved,
+        };
+        let (nodes, triangles) = (self.nodes.to_mut(), self.triangles.to_mut());
+        if !refit_subtree(nodes, 0, triangles, 0, &leaves) {
+            refit_serially(nodes, 0, triangles, 0, &leaves);
+        }
         if lost.load(Ordering::Relaxed) {
             return false;
         }
-        // The moved triangles left out of the tree (degenerate ones) must still be left out.
-        if in_tree < count {
-            let mut present = vec![false; count];
-            for &id in self.triangle_ids.iter().filter(|&&id| moved(id)) {
-                present[(id - first) as usize] = true;
-            }
-            let found = present.par_iter().enumerate().any(|(k, &present)| {
-                let (world, f32) = corners(first + k as u32);
-                !present && traceable_corners(world, f32)
-            });
-            if found {
-                return false;
-            }
-        }
-        refit_boxes(self.nodes.to_mut(), &self.triangles);
         let (ids, blocks) = (&self.triangle_ids, &mut self.blocks);
         blocks.par_iter_mut().for_each(|block| {
             let ids = &ids[block.triangles.start as usize..block.triangles.end as usize];
@@ -102,38 +109,80 @@ impl Bvh {
     }
 }
 
-/// Subtrees smaller than this are refitted by one task.
-const SERIAL_NODES: usize = 4096;
+/// What a refit does at a leaf: its leaf-order triangles' scene ids, and `moved`, which gives
+/// a moved triangle's new f32 corners by scene id (`None`: not moved, left as it is).
+struct Leaves<'a, F> {
+    ids: &'a [u32],
+    moved: &'a F,
+}
 
-/// Recomputes every node's box from its triangles, children before parents (links point
-/// forward). The builders lay a subtree out as a contiguous run of nodes (the root, its left
-/// subtree, then its right one from the root's `first`), so the two subtrees of a large one are
-/// refitted as two tasks on disjoint slices. A tree laid out otherwise (a saved one may be:
-/// `Bvh::validate` asks only for forward links) has a link leave its task's slice, which the
-/// task notices; the whole tree is then refitted in one pass.
-fn refit_boxes(nodes: &mut [GpuNode], triangles: &[GpuTriangle]) {
-    if !refit_subtree(nodes, 0, triangles) {
-        refit_serially(nodes, 0, triangles);
+impl<F: Fn(u32) -> Option<GpuTriangle> + Sync> Leaves<'_, F> {
+    /// Rewrites the moved ones of the `kind` leaf-order triangles from index `first`, which lie
+    /// in `triangles` (leaf-order index `tri_base` onwards), and returns their bounds; `None`
+    /// when they do not lie there.
+    fn refit(
+        &self,
+        first: usize,
+        kind: usize,
+        triangles: &mut [GpuTriangle],
+        tri_base: usize,
+    ) -> Option<(Vec3, Vec3)> {
+        let at = first.checked_sub(tri_base)?;
+        let leaf = triangles.get_mut(at..at + kind)?;
+        let ids = self.ids.get(first..first + kind)?;
+        for (triangle, &id) in leaf.iter_mut().zip(ids) {
+            if let Some(t) = (self.moved)(id) {
+                *triangle = t;
+            }
+        }
+        Some(bounds(leaf))
     }
 }
 
+/// Subtrees smaller than this are refitted by one task.
+const SERIAL_NODES: usize = 4096;
+
 /// Refits the subtree rooted at `nodes[0]` (node `base` of the tree), which should span
-/// `nodes`; `false` when a link leaves `nodes`.
-fn refit_subtree(nodes: &mut [GpuNode], base: usize, triangles: &[GpuTriangle]) -> bool {
+/// `nodes` and hold its triangles in `triangles` (leaf-order index `tri_base` onwards); `false`
+/// when a link or a leaf leaves them. Children before parents (links point forward). The
+/// builders lay a subtree out as a contiguous run of nodes (the root, its left subtree, then its
+/// right one from the root's `first`) over a contiguous run of triangles, so the two subtrees of
+/// a large one are refitted as two tasks on disjoint slices. A tree laid out otherwise (a saved
+/// one may be: `Bvh::validate` asks only for forward links) has a link or a leaf leave its
+/// task's slices, which the task notices; the caller then refits the whole tree in one pass.
+fn refit_subtree<F: Fn(u32) -> Option<GpuTriangle> + Sync>(
+    nodes: &mut [GpuNode],
+    base: usize,
+    triangles: &mut [GpuTriangle],
+    tri_base: usize,
+    leaves: &Leaves<F>,
+) -> bool {
     let Some(&root) = nodes.first() else {
         return true;
     };
     let right = (root.first as usize).wrapping_sub(base);
     let split =
         root.kind() >= KIND_INNER && nodes.len() > SERIAL_NODES && right > 1 && right < nodes.len();
-    if !split {
-        return refit_serially(nodes, base, triangles);
-    }
+    // The right subtree's triangles start at its leftmost leaf's.
+    let mid = split
+        .then(|| {
+            let mut at = right;
+            while nodes.get(at)?.kind() >= KIND_INNER {
+                at += 1;
+            }
+            (nodes[at].first as usize).checked_sub(tri_base)
+        })
+        .flatten()
+        .filter(|&mid| mid <= triangles.len());
+    let Some(mid) = mid else {
+        return refit_serially(nodes, base, triangles, tri_base, leaves);
+    };
     let (top, rest) = nodes.split_at_mut(1);
     let (left, right_half) = rest.split_at_mut(right - 1);
+    let (left_tris, right_tris) = triangles.split_at_mut(mid);
     let (l_ok, r_ok) = rayon::join(
-        || refit_subtree(left, base + 1, triangles),
-        || refit_subtree(right_half, base + right, triangles),
+        || refit_subtree(left, base + 1, left_tris, tri_base, leaves),
+        || refit_subtree(right_half, base + right, right_tris, tri_base + mid, leaves),
     );
     let (l, r) = (left[0], right_half[0]);
     top[0].min = Vec3::from(l.min).min(Vec3::from(r.min)).into();
@@ -141,14 +190,24 @@ fn refit_subtree(nodes: &mut [GpuNode], base: usize, triangles: &[GpuTriangle]) 
     l_ok && r_ok
 }
 
-/// Refits `nodes` (node `base` onwards) in reverse order, children before parents; `false`,
-/// stopping, at a link that leaves `nodes`.
-fn refit_serially(nodes: &mut [GpuNode], base: usize, triangles: &[GpuTriangle]) -> bool {
+/// Refits `nodes` (node `base` onwards, their triangles in `triangles` from leaf-order index
+/// `tri_base`) in reverse order, children before parents; `false`, stopping, at a link or a
+/// leaf that leaves them.
+fn refit_serially<F: Fn(u32) -> Option<GpuTriangle> + Sync>(
+    nodes: &mut [GpuNode],
+    base: usize,
+    triangles: &mut [GpuTriangle],
+    tri_base: usize,
+    leaves: &Leaves<F>,
+) -> bool {
     for i in (0..nodes.len()).rev() {
         let node = nodes[i];
         let (min, max) = if node.kind() < KIND_INNER {
-            let first = node.first as usize;
-            bounds(&triangles[first..first + node.kind() as usize])
+            let (first, kind) = (node.first as usize, node.kind() as usize);
+            let Some(b) = leaves.refit(first, kind, triangles, tri_base) else {
+                return false;
+            };
+            b
         } else {
             let right = (node.first as usize).wrapping_sub(base);
             let (Some(&left), Some(&right)) = (nodes.get(i + 1), nodes.get(right)) else {

@@ -7,7 +7,7 @@
 
 use crate::bvh::Bvh;
 use crate::error::{Error, Result};
-use crate::layout::{GpuNode, GpuTriangle, KIND_INNER, MAX_LEAF_SIZE};
+use crate::layout::{GpuNode, KIND_INNER, MAX_LEAF_SIZE};
 use crate::store::Store;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -71,6 +71,10 @@ pub struct WideBvh {
     pub nodes: Store<WideNode>,
     /// Levels of wide nodes on the longest root-to-leaf path.
     pub depth: usize,
+    /// For each node, the binary node each child slot was collapsed from (its box is that
+    /// node's box), so a refit of the binary tree refits this one by copying
+    /// ([`WideBvh::refit`]). Empty for a tree made elsewhere (a saved scene's).
+    pub sources: Vec<[u32; WIDTH]>,
 }
 
 fn surface_area(n: &GpuNode) -> f32 {
@@ -110,28 +114,37 @@ impl WideBvh {
             return Ok(WideBvh {
                 nodes: vec![root].into(),
                 depth: 1,
+                sources: vec![[0; WIDTH]],
             });
         }
         // Serially: the whole tree, or a large one's top two levels, the subtrees below them
         // left as the pieces' roots (binary node, wide parent, lane).
         let (mut nodes, cut) = if binary.len() >= PARALLEL_FROM {
-            (Vec::new(), TOP_LEVELS)
+            (Collapsed::default(), TOP_LEVELS)
         } else {
-            (Vec::with_capacity(wide_bound(binary, 0)), usize::MAX)
+            (Collapsed::with_capacity(wide_bound(binary, 0)), usize::MAX)
         };
         let (mut depth, roots) = collapse_from(binary, 0, &mut nodes, cut)?;
         let pieces = roots
             .par_iter()
             .map(|&(n, _, _)| {
-                let mut piece = Vec::with_capacity(wide_bound(binary, n));
+                let mut piece = Collapsed::with_capacity(wide_bound(binary, n));
                 collapse_from(binary, n, &mut piece, usize::MAX).map(|(d, _)| (piece, d))
             })
             .collect::<Result<Vec<_>>>()?;
-        nodes.reserve_exact(pieces.iter().map(|(p, _)| p.len()).sum());
+        let Collapsed {
+            mut nodes,
+            mut sources,
+        } = nodes;
+        let more = pieces.iter().map(|(p, _)| p.nodes.len()).sum();
+        nodes.reserve_exact(more);
+        sources.reserve_exact(more);
         for ((n, slot, lane), (piece, piece_depth)) in roots.into_iter().zip(pieces) {
             let offset = nodes.len() as u32;
             set_child(&mut nodes[slot], lane, &binary[n as usize], offset, INNER);
-            nodes.extend(piece.into_iter().map(|mut w| {
+            sources[slot][lane] = n;
+            sources.extend(piece.sources);
+            nodes.extend(piece.nodes.into_iter().map(|mut w| {
                 for lane in 0..WIDTH {
                     if w.kind[lane] == INNER {
                         w.child[lane] += offset;
@@ -144,6 +157,7 @@ impl WideBvh {
         Ok(WideBvh {
             nodes: nodes.into(),
             depth,
+            sources,
         })
     }
 
@@ -167,17 +181,39 @@ impl WideBvh {
         side
     }
 
-    /// Bytes the engine adds to a built scene (its nodes; it reads the shared triangles).
+    /// Bytes the engine adds to a built scene (its nodes and their sources; it reads the
+    /// shared triangles).
     pub fn bytes(&self) -> u64 {
-        std::mem::size_of_val(self.nodes.as_slice()) as u64
+        (std::mem::size_of_val(self.nodes.as_slice()) + std::mem::size_of_val(&self.sources[..]))
+            as u64
     }
 
-    /// Recomputes every child box from the leaf-order `triangles` after they moved (a refit of
-    /// the binary tree, `Bvh::refit`): a leaf child's box is its triangles' min/max, an inner
-    /// child's the union of its node's children, so the result is the collapse of the refitted
-    /// binary tree, box for box, without collapsing again. The tree is one [`WideBvh::collapse`]
-    /// made (or a validated one): children after their parents.
-    pub fn refit(&mut self, triangles: &[GpuTriangle]) {
+    /// Recomputes every child box after `bvh`, the binary tree it was collapsed from, was
+    /// refitted (`Bvh::refit`), so the result is the collapse of the refitted binary tree, box
+    /// for box, without collapsing again. A collapsed tree copies each slot's box from its
+    /// source node, in parallel. A tree made elsewhere (no sources; a validated one: children
+    /// after their parents) works them out from the leaf-order triangles: a leaf child's box is
+    /// its triangles' min/max, an inner child's the union of its node's children.
+    pub fn refit(&mut self, bvh: &Bvh) {
+        if self.sources.len() == self.nodes.len() {
+            // Each slot's box is its binary node's: one parallel copy.
+            let (binary, sources) = (&bvh.nodes, &self.sources);
+            let nodes = self.nodes.to_mut();
+            nodes
+                .par_iter_mut()
+                .zip(sources.par_iter())
+                .with_min_len(256)
+                .for_each(|(node, sources)| {
+                    for lane in 0..WIDTH {
+                        if node.kind[lane] != EMPTY {
+                            let n = &binary[sources[lane] as usize];
+                            set_box(node, lane, n.min.into(), n.max.into());
+                        }
+                    }
+                });
+            return;
+        }
+        let triangles = &bvh.triangles;
         self.refit_leaves(|first, kind| {
             let first = first as usize;
             crate::bvh::bounds(&triangles[first..first + kind as usize])
@@ -382,6 +418,26 @@ fn wide_bound(binary: &[GpuNode], n: u32) -> usize {
     (last + 1 - n as usize) / 2 + 1
 }
 
+/// Wide nodes being collapsed, with the binary node each slot comes from
+/// ([`WideBvh::sources`]).
+#[derive(Default)]
+struct Collapsed {
+    nodes: Vec<WideNode>,
+    sources: Vec<[u32; WIDTH]>,
+}
+
+impl Collapsed {
+    fn with_capacity(n: usize) -> Self {
+        Self {
+            nodes: Vec::with_capacity(n),
+            sources: Vec::with_capacity(n),
+        }
+    }
+}
+
+/// [`WideBvh::sources`] of an empty slot.
+const NO_SOURCE: u32 = u32::MAX;
+
 /// An inner child that [`collapse_from`] leaves unopened: its binary node, the wide node and the
 /// lane it belongs in.
 type LeftOut = (u32, usize, usize);
@@ -393,20 +449,23 @@ type LeftOut = (u32, usize, usize);
 fn collapse_from(
     binary: &[GpuNode],
     root: u32,
-    nodes: &mut Vec<WideNode>,
+    out: &mut Collapsed,
     cut: usize,
 ) -> Result<(usize, Vec<LeftOut>)> {
     let mut opener = Opener::new(binary);
     // (binary node whose children fill the wide node, wide slot to fill, depth)
     let mut pending: Vec<(u32, u32, usize)> = vec![(root, 0, 1)];
     let mut left_out = Vec::new();
+    let Collapsed { nodes, sources } = out;
     nodes.push(WideNode::EMPTY_NODE);
+    sources.push([NO_SOURCE; WIDTH]);
     let mut depth = 0;
     while let Some((source, slot, d)) = pending.pop() {
         depth = depth.max(d);
         let (slots, len) = opener.widest_children(source)?;
         for (lane, &n) in slots[..len].iter().enumerate() {
             let node = &binary[n as usize];
+            sources[slot as usize][lane] = n;
             if node.is_leaf() {
                 set_child(
                     &mut nodes[slot as usize],
@@ -420,6 +479,7 @@ fn collapse_from(
             } else {
                 let child = nodes.len() as u32;
                 nodes.push(WideNode::EMPTY_NODE);
+                sources.push([NO_SOURCE; WIDTH]);
                 set_child(&mut nodes[slot as usize], lane, node, child, INNER);
                 pending.push((n, child, d + 1));
             }
@@ -486,8 +546,9 @@ mod tests {
             bvh.nodes.len()
         );
         let parallel = WideBvh::collapse(&bvh).unwrap();
-        let mut serial = Vec::new();
+        let mut serial = Collapsed::default();
         let (depth, left_out) = collapse_from(&bvh.nodes, 0, &mut serial, usize::MAX).unwrap();
+        let serial = serial.nodes;
         assert!(left_out.is_empty());
         assert_eq!(
             (parallel.nodes.len(), parallel.depth),

@@ -324,7 +324,7 @@ impl Instances {
         if refitted && let Some(Ok(wide)) = self.meshes[m].wide.get() {
             // The engine's wide tree refitted too, not collapsed again.
             let mut wide = wide.clone();
-            wide.refit(&fresh.bvh.triangles);
+            wide.refit(&fresh.bvh);
             let _ = fresh.wide.set(Ok(wide));
         }
         self.meshes[m] = Arc::new(fresh);

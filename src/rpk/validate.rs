@@ -52,6 +52,7 @@ pub fn assemble(path: &Path, parts: Parts) -> Result<BuiltScene> {
     let wide = WideBvh {
         nodes: wide,
         depth: usize::try_from(summary.wide_depth).unwrap_or(usize::MAX),
+        sources: Vec::new(),
     };
     let (scene, (tree, wide_tree)) = rayon::join(
         || scene_of(positions, triangles, &objects, &names, &summary),
