@@ -9,7 +9,8 @@
 //!   object's leaf-order triangles rewritten, the binary tree's and the wide tree's boxes
 //!   recomputed.
 //!
-//! Before criterion runs, each scene prints the medians of 15 runs of each and the ratios
+//! Before criterion runs, each scene prints the medians of 15 rounds (each runs all three in
+//! turn, so a slow spell on a shared machine falls on all alike) and the ratios
 //! refit ÷ build and refit ÷ binary build (issue 15's target: ≤ 10% on the 202k-triangle
 //! dragon).
 //!
@@ -28,7 +29,7 @@ use raypick::{BuildOptions, BuiltScene, Bvh, Refit, Scene};
 use short_groups::configure;
 use std::hint::black_box;
 use std::path::Path;
-use timing::median_ms;
+use timing::interleaved_medians_ms;
 
 /// The scenes: name and OBJ path.
 const SCENES: [(&str, &str); 2] = [
@@ -69,13 +70,19 @@ fn refit(c: &mut Criterion) {
             let outcome = built.set_positions(0, &poses[k]).expect("refit");
             assert_eq!(outcome, Refit::Refitted);
         };
-        let build_ms = median_ms(15, || {
-            black_box(build());
-        });
-        let binary_ms = median_ms(15, || {
-            black_box(Bvh::build(&scene, &options).expect("build"));
-        });
-        let refit_ms = median_ms(15, || refit(&mut built));
+        // Built, built binary and refitted in turn, fifteen rounds.
+        let [build_ms, binary_ms, refit_ms] = interleaved_medians_ms(
+            15,
+            [
+                &mut || {
+                    black_box(build());
+                },
+                &mut || {
+                    black_box(Bvh::build(&scene, &options).expect("build"));
+                },
+                &mut || refit(&mut built),
+            ],
+        );
         println!(
             "refit/{name}: {} triangles; build + collapse {build_ms:.2} ms, binary build \
              {binary_ms:.2} ms, refit {refit_ms:.2} ms: refit / build = {:.3}, refit / binary \

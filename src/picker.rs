@@ -34,6 +34,9 @@ pub struct BuiltScene {
     /// The CPU engine's wide tree, collapsed from `bvh` the first time the engine runs (or why
     /// it could not be: a corrupted tree).
     wide: OnceLock<std::result::Result<WideBvh, String>>,
+    /// `bvh`'s leaf-order vertex indices ([`Bvh::leaf_vertices`]), made by the first refit and
+    /// kept for the next ones (like `wide`, it belongs to the `bvh` it was made from).
+    leaf_vertices: OnceLock<Vec<[u32; 3]>>,
     /// How the tree was built, for a rebuild ([`BuiltScene::set_positions`]); the defaults for a
     /// tree made elsewhere.
     options: BuildOptions,
@@ -66,6 +69,7 @@ impl BuiltScene {
             bvh,
             triangle_masks: triangle_masks.into(),
             wide: OnceLock::new(),
+            leaf_vertices: OnceLock::new(),
             options: *options,
             instances: None,
         })
@@ -85,6 +89,7 @@ impl BuiltScene {
             bvh,
             triangle_masks: Store::default(),
             wide: OnceLock::new(),
+            leaf_vertices: OnceLock::new(),
             options: *options,
             instances: Some(instances),
         })
@@ -214,7 +219,13 @@ impl BuiltScene {
             ));
         }
         self.scene.check_object_positions(object, positions)?;
-        if self.bvh.refit(&self.scene, object, positions) {
+        let leaf_vertices = self
+            .leaf_vertices
+            .get_or_init(|| self.bvh.leaf_vertices(&self.scene));
+        if self
+            .bvh
+            .refit_with(&self.scene, object, positions, leaf_vertices)
+        {
             self.scene.put_object_positions(object, positions);
             if let Some(Ok(wide)) = self.wide.get_mut() {
                 wide.refit(&self.bvh);
@@ -230,6 +241,7 @@ impl BuiltScene {
                 self.scene = scene;
                 self.bvh = bvh;
                 self.wide = OnceLock::new();
+                self.leaf_vertices = OnceLock::new();
                 Ok(Refit::Rebuilt)
             }
             Err(e) => {
@@ -240,7 +252,9 @@ impl BuiltScene {
                     .object_vertices(object)
                     .map(|v| self.scene.position(v))
                     .collect();
-                self.bvh.refit(&self.scene, object, &old);
+                let leaf_vertices = self.leaf_vertices.get().map_or(&[][..], Vec::as_slice);
+                self.bvh
+                    .refit_with(&self.scene, object, &old, leaf_vertices);
                 Err(e)
             }
         }
@@ -269,6 +283,7 @@ impl BuiltScene {
             bvh,
             triangle_masks: triangle_masks.into(),
             wide: OnceLock::new(),
+            leaf_vertices: OnceLock::new(),
             options: BuildOptions::default(),
             instances: None,
         }
@@ -287,6 +302,7 @@ impl BuiltScene {
             bvh,
             triangle_masks: triangle_masks.into(),
             wide: OnceLock::from(Ok(wide)),
+            leaf_vertices: OnceLock::new(),
             options: BuildOptions::default(),
             instances: None,
         }

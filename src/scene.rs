@@ -321,7 +321,12 @@ impl Scene {
                 range.len()
             )));
         }
-        if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
+        use rayon::prelude::*;
+        let bad = positions
+            .par_iter()
+            .with_min_len(1 << 14)
+            .position_first(|p| !p.is_finite());
+        if let Some((i, p)) = bad.map(|i| (i, positions[i])) {
             return Err(Error::Invalid(format!(
                 "{}: vertex {i} has a non-finite coordinate {p}",
                 o.name

@@ -21,6 +21,36 @@ impl Bvh {
     /// one of the object's triangles became traceable or stopped being so (zero area in f64 or
     /// in f32): the tree must then be built again, and may have been partly rewritten.
     pub fn refit(&mut self, scene: &Scene, object: u32, positions: &[DVec3]) -> bool {
+        let leaf_vertices = self.leaf_vertices(scene);
+        self.refit_with(scene, object, positions, &leaf_vertices)
+    }
+
+    /// Each leaf-order triangle's three scene vertex indices, in leaf order: what a refit reads
+    /// there. Kept across refits by those who refit again ([`crate::BuiltScene`], an
+    /// instanced scene's meshes), so a refit does not look each triangle up in the scene
+    /// through `triangle_ids` (a random read per triangle: a fifth of a refit's time).
+    pub fn leaf_vertices(&self, scene: &Scene) -> Vec<[u32; 3]> {
+        self.triangle_ids
+            .par_iter()
+            .with_min_len(4096)
+            .map(|&id| scene.triangle_vertices(id as usize))
+            .collect()
+    }
+
+    /// [`Bvh::refit`] with `leaf_vertices`, this tree's [`Bvh::leaf_vertices`] over `scene`
+    /// (when it is not, the scene's own triangles are read instead).
+    pub(crate) fn refit_with(
+        &mut self,
+        scene: &Scene,
+        object: u32,
+        positions: &[DVec3],
+        leaf_vertices: &[[u32; 3]],
+    ) -> bool {
+        let leaf_vertices = if leaf_vertices.len() == self.triangles.len() {
+            leaf_vertices
+        } else {
+            &self.leaf_vertices(scene)
+        };
         let o = &scene.objects()[object as usize];
         let (first, count) = (o.first_triangle, o.triangle_count as usize);
         let first_vertex = o.first_vertex;
@@ -59,7 +89,7 @@ impl Bvh {
         }
         // ...and each one it holds must still be traceable (then they are the same ones).
         let lost = AtomicBool::new(false);
-        let moved = |id: u32| {
+        let moved = |j: usize, id: u32| {
             let k = id.wrapping_sub(first) as usize;
             if k >= count {
                 return None;
@@ -67,7 +97,14 @@ impl Bvh {
             if !traceable[k] {
                 lost.store(true, Ordering::Relaxed);
             }
-            let [v0, v1, v2] = vertices(k).map(|v| <[f32; 3]>::from(local[v]));
+            let corners =
+                leaf_vertices[j].map(|v| local.get(v.wrapping_sub(first_vertex) as usize));
+            let [Some(&a), Some(&b), Some(&c)] = corners else {
+                // Not this tree's vertices (a caller's mistake): rebuild rather than guess.
+                lost.store(true, Ordering::Relaxed);
+                return None;
+            };
+            let [v0, v1, v2] = [a, b, c].map(<[f32; 3]>::from);
             Some(GpuTriangle { v0, v1, v2 })
         };
         // Leaf order, in one pass with the boxes: each moved triangle rewritten where its leaf
@@ -110,13 +147,14 @@ impl Bvh {
 }
 
 /// What a refit does at a leaf: its leaf-order triangles' scene ids, and `moved`, which gives
-/// a moved triangle's new f32 corners by scene id (`None`: not moved, left as it is).
+/// a moved triangle's new f32 corners by leaf-order index and scene id (`None`: not moved,
+/// left as it is).
 struct Leaves<'a, F> {
     ids: &'a [u32],
     moved: &'a F,
 }
 
-impl<F: Fn(u32) -> Option<GpuTriangle> + Sync> Leaves<'_, F> {
+impl<F: Fn(usize, u32) -> Option<GpuTriangle> + Sync> Leaves<'_, F> {
     /// Rewrites the moved ones of the `kind` leaf-order triangles from index `first`, which lie
     /// in `triangles` (leaf-order index `tri_base` onwards), and returns their bounds; `None`
     /// when they do not lie there.
@@ -130,12 +168,23 @@ impl<F: Fn(u32) -> Option<GpuTriangle> + Sync> Leaves<'_, F> {
         let at = first.checked_sub(tri_base)?;
         let leaf = triangles.get_mut(at..at + kind)?;
         let ids = self.ids.get(first..first + kind)?;
-        for (triangle, &id) in leaf.iter_mut().zip(ids) {
-            if let Some(t) = (self.moved)(id) {
-                *triangle = t;
+        let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        for (j, (triangle, &id)) in leaf.iter_mut().zip(ids).enumerate() {
+            // Bounded from the values written, not read back.
+            let t = match (self.moved)(first + j, id) {
+                Some(t) => {
+                    *triangle = t;
+                    t
+                }
+                None => *triangle,
+            };
+            for p in [t.v0, t.v1, t.v2] {
+                let p = Vec3::from(p);
+                lo = lo.min(p);
+                hi = hi.max(p);
             }
         }
-        Some(bounds(leaf))
+        Some((lo, hi))
     }
 }
 
@@ -150,7 +199,7 @@ const SERIAL_NODES: usize = 4096;
 /// a large one are refitted as two tasks on disjoint slices. A tree laid out otherwise (a saved
 /// one may be: `Bvh::validate` asks only for forward links) has a link or a leaf leave its
 /// task's slices, which the task notices; the caller then refits the whole tree in one pass.
-fn refit_subtree<F: Fn(u32) -> Option<GpuTriangle> + Sync>(
+fn refit_subtree<F: Fn(usize, u32) -> Option<GpuTriangle> + Sync>(
     nodes: &mut [GpuNode],
     base: usize,
     triangles: &mut [GpuTriangle],
@@ -193,7 +242,7 @@ fn refit_subtree<F: Fn(u32) -> Option<GpuTriangle> + Sync>(
 /// Refits `nodes` (node `base` onwards, their triangles in `triangles` from leaf-order index
 /// `tri_base`) in reverse order, children before parents; `false`, stopping, at a link or a
 /// leaf that leaves them.
-fn refit_serially<F: Fn(u32) -> Option<GpuTriangle> + Sync>(
+fn refit_serially<F: Fn(usize, u32) -> Option<GpuTriangle> + Sync>(
     nodes: &mut [GpuNode],
     base: usize,
     triangles: &mut [GpuTriangle],
@@ -224,14 +273,17 @@ fn refit_serially<F: Fn(u32) -> Option<GpuTriangle> + Sync>(
     true
 }
 
-/// The min/max of `triangles`' corners.
+/// The min/max of `triangles`' corners (a plain loop: the iterator chain it replaced was most
+/// of a refit's time).
 #[inline]
 pub(crate) fn bounds(triangles: &[GpuTriangle]) -> (Vec3, Vec3) {
-    triangles
-        .iter()
-        .flat_map(|t| [t.v0, t.v1, t.v2])
-        .map(Vec3::from)
-        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| {
-            (lo.min(p), hi.max(p))
-        })
+    let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+    for t in triangles {
+        for p in [t.v0, t.v1, t.v2] {
+            let p = Vec3::from(p);
+            lo = lo.min(p);
+            hi = hi.max(p);
+        }
+    }
+    (lo, hi)
 }

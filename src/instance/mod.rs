@@ -54,6 +54,9 @@ pub struct MeshTree {
     pub bvh: Bvh,
     /// The CPU engine's wide tree, collapsed from `bvh` on first use.
     wide: OnceLock<std::result::Result<WideBvh, String>>,
+    /// `bvh`'s leaf-order vertex indices ([`Bvh::leaf_vertices`]), made by the mesh's first
+    /// refit and passed on to the refitted tree.
+    leaf_vertices: OnceLock<Arc<Vec<[u32; 3]>>>,
 }
 
 impl MeshTree {
@@ -63,6 +66,7 @@ impl MeshTree {
             scene,
             bvh,
             wide: OnceLock::new(),
+            leaf_vertices: OnceLock::new(),
         }
     }
 
@@ -315,12 +319,19 @@ impl Instances {
         tree.scene.check_object_positions(0, positions)?;
         let mut scene = tree.scene.clone();
         let mut tree_bvh = tree.bvh.clone();
-        let refitted = tree_bvh.refit(&scene, 0, positions);
+        let leaf_vertices = tree
+            .leaf_vertices
+            .get_or_init(|| Arc::new(tree.bvh.leaf_vertices(&tree.scene)))
+            .clone();
+        let refitted = tree_bvh.refit_with(&scene, 0, positions, &leaf_vertices);
         scene.put_object_positions(0, positions);
         if !refitted {
             tree_bvh = Bvh::build(&scene, options)?;
         }
         let fresh = MeshTree::new(scene, tree_bvh);
+        if refitted {
+            let _ = fresh.leaf_vertices.set(leaf_vertices);
+        }
         if refitted && let Some(Ok(wide)) = self.meshes[m].wide.get() {
             // The engine's wide tree refitted too, not collapsed again.
             let mut wide = wide.clone();
