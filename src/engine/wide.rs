@@ -195,22 +195,7 @@ impl WideBvh {
     /// after their parents) works them out from the leaf-order triangles: a leaf child's box is
     /// its triangles' min/max, an inner child's the union of its node's children.
     pub fn refit(&mut self, bvh: &Bvh) {
-        if self.sources.len() == self.nodes.len() {
-            // Each slot's box is its binary node's: one parallel copy.
-            let (binary, sources) = (&bvh.nodes, &self.sources);
-            let nodes = self.nodes.to_mut();
-            nodes
-                .par_iter_mut()
-                .zip(sources.par_iter())
-                .with_min_len(256)
-                .for_each(|(node, sources)| {
-                    for lane in 0..WIDTH {
-                        if node.kind[lane] != EMPTY {
-                            let n = &binary[sources[lane] as usize];
-                            set_box(node, lane, n.min.into(), n.max.into());
-                        }
-                    }
-                });
+        if self.refit_from_sources(&bvh.nodes) {
             return;
         }
         let triangles = &bvh.triangles;
@@ -218,6 +203,29 @@ impl WideBvh {
             let first = first as usize;
             crate::bvh::bounds(&triangles[first..first + kind as usize])
         });
+    }
+
+    /// Copies each slot's box from its source node in `binary` (the refitted nodes this tree
+    /// was collapsed from), in parallel; `false`, changing nothing, for a tree without sources.
+    pub fn refit_from_sources(&mut self, binary: &[GpuNode]) -> bool {
+        if self.sources.len() != self.nodes.len() {
+            return false;
+        }
+        let sources = &self.sources;
+        self.nodes
+            .to_mut()
+            .par_iter_mut()
+            .zip(sources.par_iter())
+            .with_min_len(256)
+            .for_each(|(node, sources)| {
+                for lane in 0..WIDTH {
+                    if node.kind[lane] != EMPTY {
+                        let n = &binary[sources[lane] as usize];
+                        set_box(node, lane, n.min.into(), n.max.into());
+                    }
+                }
+            });
+        true
     }
 
     /// [`WideBvh::refit`] with each leaf child's box from `leaf_box(child, kind)` (an instanced

@@ -368,6 +368,13 @@ impl Instances {
     /// The wide top tree's boxes from the binary top tree's leaves in `bvh` (after
     /// [`Instances::refit_leaf`]).
     fn refit_top_wide(&mut self, bvh: &Bvh) {
+        // The top tree's nodes lead the combined ones, as when it was collapsed.
+        if self
+            .top_wide
+            .refit_from_sources(&bvh.nodes[..self.top_nodes as usize])
+        {
+            return;
+        }
         let nodes = &bvh.nodes;
         let leaf_of = &self.leaf_of;
         self.top_wide.refit_leaves(|k, _| {
