@@ -95,6 +95,20 @@ impl BuiltScene {
         })
     }
 
+    /// An instanced scene from instances assembled elsewhere (a saved scene, [`crate::rpk`]);
+    /// `bvh` is the combined tree [`Instances::assemble`] returned with them.
+    pub(crate) fn from_instances(instances: Instances, bvh: Bvh) -> Self {
+        Self {
+            scene: Scene::new(),
+            bvh,
+            triangle_masks: Store::default(),
+            wide: OnceLock::new(),
+            leaf_vertices: OnceLock::new(),
+            options: BuildOptions::default(),
+            instances: Some(instances),
+        }
+    }
+
     /// The instances, for an instanced scene.
     pub fn instances(&self) -> Option<&Instances> {
         self.instances.as_ref()
@@ -447,7 +461,7 @@ impl BuiltScene {
 }
 
 /// The layer mask of each leaf-order triangle of `bvh`, or none when every object has all bits.
-fn masks_of(scene: &Scene, bvh: &Bvh) -> Vec<u32> {
+pub(crate) fn masks_of(scene: &Scene, bvh: &Bvh) -> Vec<u32> {
     if scene.objects().iter().all(|o| o.mask == u32::MAX) {
         Vec::new()
     } else {

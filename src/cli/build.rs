@@ -1,6 +1,8 @@
 //! `raypick build`: loads a scene, builds every tree the backends use (the kernel's and the
 //! CPU engine's) and saves the whole built scene as a `.rpk` file (`raypick::rpk`), which
-//! `--scene FILE.rpk` then loads in any command with no rebuild.
+//! `--scene FILE.rpk` then loads in any command with no rebuild. A scene of instances (a file
+//! listed several times, glTF nodes sharing a mesh) is saved as instances, each mesh once;
+//! `pick`, `verify` and `serve` pick it so, the other commands bake it into copies.
 
 use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
@@ -19,17 +21,24 @@ pub struct BuildArgs {
 }
 
 pub fn run(args: BuildArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
-    let (built, load_s, build_s) = args.scene.build_timed(matches)?;
+    // A description placing a file several times, or glTF nodes sharing a mesh, is saved as
+    // instances (each mesh once).
+    let (built, load_s, build_s) = args.scene.build_instanced(matches, false)?;
     let start = std::time::Instant::now();
     super::progress::phase("saving the built scene", || {
         raypick::rpk::save(&built, &args.out)
     })?;
     if !super::progress::is_quiet() {
         eprintln!(
-            "wrote {}: {} triangles, {} objects (loaded in {:.0} ms, built in {:.0} ms, saved in {:.0} ms)",
+            "wrote {}: {} triangles, {} objects{} (loaded in {:.0} ms, built in {:.0} ms, saved in {:.0} ms)",
             args.out.display(),
-            built.scene.triangle_count(),
-            built.scene.objects().len(),
+            built.world_triangle_count(),
+            built.object_count(),
+            built.instances().map_or(String::new(), |i| format!(
+                " (instances of {} mesh{})",
+                i.meshes().len(),
+                if i.meshes().len() == 1 { "" } else { "es" }
+            )),
             load_s * 1e3,
             build_s * 1e3,
             start.elapsed().as_secs_f64() * 1e3

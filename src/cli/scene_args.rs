@@ -213,7 +213,17 @@ impl SceneArgs {
     ) -> Result<(BuiltScene, f64, f64), Error> {
         let start = std::time::Instant::now();
         if let Some(built) = self.saved(matches, placement)? {
-            return Ok((built, start.elapsed().as_secs_f64(), 0.0));
+            let Some(instances) = built.instances() else {
+                return Ok((built, start.elapsed().as_secs_f64(), 0.0));
+            };
+            // A saved instanced scene, for a command that picks copies: its instances baked
+            // into objects (the same ids and names) and built again.
+            let scene = instances.baked()?;
+            let loaded = start.elapsed().as_secs_f64();
+            let options = self.build_options();
+            let built =
+                super::progress::phase("building the tree", || BuiltScene::new(scene, &options))?;
+            return Ok((built, loaded, start.elapsed().as_secs_f64() - loaded));
         }
         let files = self.files(matches)?;
         let scene = if files.is_empty() {

@@ -70,6 +70,14 @@ impl MeshTree {
         }
     }
 
+    /// A mesh with its tree and the CPU engine's tree collapsed from it elsewhere (a saved
+    /// scene's, validated).
+    pub fn with_wide(scene: Scene, bvh: Bvh, wide: WideBvh) -> Self {
+        let tree = Self::new(scene, bvh);
+        let _ = tree.wide.set(Ok(wide));
+        tree
+    }
+
     /// The CPU engine's wide tree (an error for a corrupted tree).
     pub fn wide(&self) -> Result<&WideBvh> {
         self.wide

@@ -17,6 +17,9 @@
 //! # std::fs::remove_file(&path).unwrap();
 //! ```
 //!
+//! An instanced scene ([`BuiltScene::instanced`]) is saved in the same framing with other
+//! sections: the instances and each mesh as a whole saved scene of its own ([`instanced`]).
+//!
 //! The module is the format: [`records`] encodes its fixed-size records,
 //! [`write`](mod@write) writes a file, [`read`] maps one and checks its header, sections and
 //! checksums, and [`validate`] checks what the sections say against each other before a
@@ -97,6 +100,7 @@
 //!
 //! [`BuiltScene`]: crate::BuiltScene
 
+pub mod instanced;
 pub mod read;
 pub mod records;
 pub mod validate;
@@ -227,6 +231,9 @@ pub fn save(built: &BuiltScene, path: &Path) -> Result<()> {
 /// for another format version, a truncated or corrupted file; [`crate::Error::Invalid`] when it
 /// is larger than the memory budget.
 pub fn load(path: &Path) -> Result<BuiltScene> {
+    if instanced::is_instanced_file(path) {
+        return instanced::load(path);
+    }
     let parts = read::read(path)?;
     validate::assemble(path, parts)
 }
@@ -249,6 +256,10 @@ pub fn load(path: &Path) -> Result<BuiltScene> {
 /// # Errors
 /// As [`load`]'s.
 pub unsafe fn load_in_place(path: &Path) -> Result<BuiltScene> {
+    if instanced::is_instanced_file(path) {
+        // Its meshes are copied out of the map.
+        return instanced::load(path);
+    }
     // SAFETY: passed on to the caller (see above).
     let parts = unsafe { read::read_in_place(path) }?;
     validate::assemble(path, parts)
@@ -259,6 +270,9 @@ pub unsafe fn load_in_place(path: &Path) -> Result<BuiltScene> {
 /// # Errors
 /// As [`load`]'s.
 pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<BuiltScene> {
+    if instanced::is_instanced(bytes) {
+        return instanced::decode(path, bytes);
+    }
     let parts = read::parse(path, bytes)?;
     validate::assemble(path, parts)
 }

@@ -73,7 +73,7 @@ pub(crate) fn problem(path: &Path, message: impl Into<String>) -> Error {
 
 /// The file at `path`, mapped after the checks every map needs: the platform, a regular file,
 /// the memory budget, a length that holds a header (a shorter file is read and refused here).
-fn map_file(path: &Path) -> Result<memmap2::Mmap> {
+pub(crate) fn map_file(path: &Path) -> Result<memmap2::Mmap> {
     super::write::refuse_big_endian()?;
     let (file, length) = crate::io::open_regular(path)?;
     crate::budget::check(&format!("loading {}", path.display()), length, 1)?;
@@ -144,6 +144,43 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<Parts> {
 }
 
 fn parse_from(path: &Path, bytes: &[u8], placement: Placement<'_>) -> Result<Parts> {
+    let header = header(path, bytes)?;
+    if header.sections as usize != SECTIONS.len() {
+        return Err(problem(
+            path,
+            format!(
+                "the file is corrupted: its header lists {} sections, but version {VERSION} has {}",
+                header.sections,
+                SECTIONS.len()
+            ),
+        ));
+    }
+    let table = section_table(path, bytes, &SECTIONS)?;
+    let summary_bytes = checked(
+        path,
+        SUMM,
+        &bytes[table[0].clone()],
+        table_crc(bytes, &table, 0),
+    )?;
+    if summary_bytes.len() != SUMM.element {
+        return Err(problem(
+            path,
+            format!(
+                "the file is corrupted: section {} holds {} bytes, not {}",
+                name(SUMM),
+                summary_bytes.len(),
+                SUMM.element
+            ),
+        ));
+    }
+    let summary = Summary::decode(summary_bytes);
+    check_lengths(path, &summary, &table)?;
+    take_sections(path, bytes, &table, summary, &placement)
+}
+
+/// The file's header, after checking the magic, its checksum, the version and the file's
+/// length against it.
+pub(crate) fn header(path: &Path, bytes: &[u8]) -> Result<Header> {
     if bytes.len() < HEADER_BYTES {
         return Err(short_file(path, bytes));
     }
@@ -186,52 +223,27 @@ fn parse_from(path: &Path, bytes: &[u8], placement: Placement<'_>) -> Result<Par
             ),
         ));
     }
-    if header.sections as usize != SECTIONS.len() {
-        return Err(problem(
-            path,
-            format!(
-                "the file is corrupted: its header lists {} sections, but version {VERSION} has {}",
-                header.sections,
-                SECTIONS.len()
-            ),
-        ));
-    }
-    let table = section_table(path, bytes)?;
-    let summary_bytes = checked(
-        path,
-        SUMM,
-        &bytes[table[0].clone()],
-        table_crc(bytes, &table, 0),
-    )?;
-    if summary_bytes.len() != SUMM.element {
-        return Err(problem(
-            path,
-            format!(
-                "the file is corrupted: section {} holds {} bytes, not {}",
-                name(SUMM),
-                summary_bytes.len(),
-                SUMM.element
-            ),
-        ));
-    }
-    let summary = Summary::decode(summary_bytes);
-    check_lengths(path, &summary, &table)?;
-    take_sections(path, bytes, &table, summary, &placement)
+    Ok(header)
 }
 
 /// The CRC-32 stored in section `k`'s header.
-fn table_crc(bytes: &[u8], table: &[Range<usize>], k: usize) -> u32 {
+pub(crate) fn table_crc(bytes: &[u8], table: &[Range<usize>], k: usize) -> u32 {
     let at = table[k].start - SECTION_HEADER_BYTES;
     let header: &[u8; SECTION_HEADER_BYTES] =
         bytes[at..table[k].start].try_into().expect("16 bytes");
     SectionHeader::decode(header).crc
 }
 
-/// The payload range of each section, in order, after checking kinds, bounds and padding.
-fn section_table(path: &Path, bytes: &[u8]) -> Result<Vec<Range<usize>>> {
-    let mut table = Vec::with_capacity(SECTIONS.len());
+/// The payload range of each section, in order, after checking that they are `kinds`, their
+/// bounds and padding.
+pub(crate) fn section_table(
+    path: &Path,
+    bytes: &[u8],
+    kinds: &[Kind],
+) -> Result<Vec<Range<usize>>> {
+    let mut table = Vec::with_capacity(kinds.len());
     let mut at = HEADER_BYTES;
-    for kind in SECTIONS {
+    for &kind in kinds {
         let corrupted = |why: String| problem(path, format!("the file is corrupted: {why}"));
         let start = super::payload_start(at);
         let Some(header) = bytes.get(start - SECTION_HEADER_BYTES..start) else {
@@ -290,12 +302,17 @@ fn section_table(path: &Path, bytes: &[u8]) -> Result<Vec<Range<usize>>> {
     Ok(table)
 }
 
-fn name(kind: Kind) -> String {
+pub(crate) fn name(kind: Kind) -> String {
     format!("{} ({})", String::from_utf8_lossy(&kind.tag), kind.what)
 }
 
 /// Checks `payload` against `crc`.
-fn checked<'a>(path: &Path, kind: Kind, payload: &'a [u8], crc: u32) -> Result<&'a [u8]> {
+pub(crate) fn checked<'a>(
+    path: &Path,
+    kind: Kind,
+    payload: &'a [u8],
+    crc: u32,
+) -> Result<&'a [u8]> {
     if crc_of(payload) != crc {
         return Err(checksum_error(path, kind));
     }

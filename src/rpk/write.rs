@@ -5,21 +5,71 @@ use super::records::{ObjectRecord, Out, SectionHeader, Summary, encode_block};
 use super::{
     ALIGN, HEADER_BYTES, Kind, SECTION_HEADER_BYTES, SECTIONS, VERSION, payload_start, records,
 };
+use crate::bvh::Bvh;
+use crate::engine::WideBvh;
 use crate::error::{Error, Result};
 use crate::picker::BuiltScene;
+use crate::scene::Scene;
 use rayon::prelude::*;
 use std::borrow::Cow;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
-/// Writes `built` to `path` (see [`super::save`]).
+/// Writes `built` to `path` (see [`super::save`]): an instanced scene as
+/// [`super::instanced`] lays it out, any other as the eleven sections.
 pub fn save(built: &BuiltScene, path: &Path) -> Result<()> {
     refuse_big_endian()?;
-    let wide = built.wide()?;
-    let scene = &built.scene;
-    let bvh = &built.bvh;
+    let (kinds, payloads) = match built.instances() {
+        Some(instances) => super::instanced::sections(instances)?,
+        None => (
+            SECTIONS.to_vec(),
+            scene_sections(
+                &built.scene,
+                &built.bvh,
+                &built.triangle_masks,
+                built.wide()?,
+            )?,
+        ),
+    };
+    let temporary = temporary_path(path);
+    let result = std::fs::File::create(&temporary)
+        .and_then(|file| {
+            let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
+            write_to(&mut out, &kinds, &payloads)?;
+            out.into_inner().map_err(|e| e.into_error())?.sync_all()
+        })
+        .and_then(|()| std::fs::rename(&temporary, path));
+    result.map_err(|source| {
+        let _ = std::fs::remove_file(&temporary);
+        Error::Io {
+            path: path.display().to_string(),
+            source,
+        }
+    })
+}
 
+/// A scene with its trees as a whole `.rpk` file's bytes, in memory (an instanced scene's
+/// meshes are saved so, each inside a section of the outer file).
+pub(crate) fn scene_bytes(
+    scene: &Scene,
+    bvh: &Bvh,
+    triangle_masks: &[u32],
+    wide: &WideBvh,
+) -> Result<Vec<u8>> {
+    let payloads = scene_sections(scene, bvh, triangle_masks, wide)?;
+    let mut out = Vec::new();
+    write_to(&mut out, &SECTIONS, &payloads).expect("writing to memory");
+    Ok(out)
+}
+
+/// The eleven sections of a scene with its trees, in the order of `SECTIONS`.
+fn scene_sections<'a>(
+    scene: &'a Scene,
+    bvh: &'a Bvh,
+    triangle_masks: &'a [u32],
+    wide: &'a WideBvh,
+) -> Result<Vec<Cow<'a, [u8]>>> {
     let mut objects = Out::default();
     let mut names = Vec::new();
     for o in scene.objects() {
@@ -54,13 +104,11 @@ pub fn save(built: &BuiltScene, path: &Path) -> Result<()> {
         blocks: bvh.blocks.len() as u64,
         wide_nodes: wide.nodes.len() as u64,
         wide_depth: wide.depth as u64,
-        masks: built.triangle_masks.len() as u64,
+        masks: triangle_masks.len() as u64,
         scene_origin: scene.origin(),
         tree_origin: bvh.origin,
     };
-
-    // In the order of `SECTIONS`.
-    let payloads: [Cow<'_, [u8]>; 11] = [
+    Ok(vec![
         Cow::Owned(summary.encode()),
         Cow::Borrowed(bytemuck::cast_slice(scene.positions())),
         Cow::Borrowed(bytemuck::cast_slice(scene.triangles())),
@@ -69,32 +117,10 @@ pub fn save(built: &BuiltScene, path: &Path) -> Result<()> {
         Cow::Borrowed(bytemuck::cast_slice(&bvh.nodes)),
         Cow::Borrowed(bytemuck::cast_slice(&bvh.triangles)),
         Cow::Borrowed(bytemuck::cast_slice(&bvh.triangle_ids)),
-        Cow::Borrowed(bytemuck::cast_slice(&built.triangle_masks)),
+        Cow::Borrowed(bytemuck::cast_slice(triangle_masks)),
         Cow::Owned(blocks.0),
         Cow::Borrowed(bytemuck::cast_slice(wide.nodes.as_slice())),
-    ];
-    let crcs: Vec<u32> = payloads.par_iter().map(|p| crc32fast::hash(p)).collect();
-    let file_length = HEADER_BYTES as u64
-        + payloads.iter().fold(HEADER_BYTES, |at, p| {
-            payload_start(at) + p.len().next_multiple_of(ALIGN)
-        }) as u64
-        - HEADER_BYTES as u64;
-    let header = records::Header {
-        version: VERSION,
-        sections: SECTIONS.len() as u32,
-        file_length,
-    };
-
-    let temporary = temporary_path(path);
-    let result = write_file(&temporary, &header, &SECTIONS, &payloads, &crcs)
-        .and_then(|()| std::fs::rename(&temporary, path));
-    result.map_err(|source| {
-        let _ = std::fs::remove_file(&temporary);
-        Error::Io {
-            path: path.display().to_string(),
-            source,
-        }
-    })
+    ])
 }
 
 /// The files are little-endian and their arrays are copied as they lie in memory.
@@ -119,18 +145,25 @@ fn temporary_path(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.{}-{k}.tmp", std::process::id()))
 }
 
-fn write_file(
-    path: &Path,
-    header: &records::Header,
+/// Writes the header and the sections `kinds` with their `payloads`, each checksummed, to
+/// `out`.
+fn write_to(
+    out: &mut impl Write,
     kinds: &[Kind],
     payloads: &[Cow<'_, [u8]>],
-    crcs: &[u32],
 ) -> std::io::Result<()> {
-    let file = std::fs::File::create(path)?;
-    let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
+    let crcs: Vec<u32> = payloads.par_iter().map(|p| crc32fast::hash(p)).collect();
+    let file_length = payloads.iter().fold(HEADER_BYTES, |at, p| {
+        payload_start(at) + p.len().next_multiple_of(ALIGN)
+    }) as u64;
+    let header = records::Header {
+        version: VERSION,
+        sections: kinds.len() as u32,
+        file_length,
+    };
     out.write_all(&header.encode())?;
     let mut at = HEADER_BYTES;
-    for ((kind, payload), &crc) in kinds.iter().zip(payloads).zip(crcs) {
+    for ((kind, payload), &crc) in kinds.iter().zip(payloads).zip(&crcs) {
         let section = SectionHeader {
             tag: kind.tag,
             crc,
@@ -144,7 +177,7 @@ fn write_file(
         out.write_all(&[0; ALIGN][..padding])?;
         at = start + payload.len() + padding;
     }
-    out.into_inner().map_err(|e| e.into_error())?.sync_all()
+    Ok(())
 }
 
 /// Recomputes the header's and every section's checksum over `bytes` as they lie, as far as the
