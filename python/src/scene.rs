@@ -278,7 +278,17 @@ impl Scene {
             }
             let path = paths[0].clone();
             let built = py
-                .detach(|| threads::run(|| rpk::load(&path)))
+                .detach(|| {
+                    threads::run(|| {
+                        let built = rpk::load(&path)?;
+                        // A saved instanced scene is picked here as copies, as a description
+                        // loads (the same object ids and names).
+                        match built.instances() {
+                            Some(i) => BuiltScene::new(i.baked()?, &options),
+                            None => Ok(built),
+                        }
+                    })
+                })
                 .map_err(to_py)?;
             return Ok(Scene::new(built));
         }

@@ -124,3 +124,28 @@ def test_los_and_viewshed_match_the_cli(cli, dem, tmp_path):
     assert [int(r["row"]) for r in rows] == list(shed["row"])
     assert [int(r["col"]) for r in rows] == list(shed["col"])
     assert [float(r["z"]) for r in rows] == list(shed["position"][:, 2])
+
+
+def test_a_saved_instanced_scene_loads_as_its_copies(cli, tmp_path):
+    """`raypick build` saves a description listing a file twice as instances; Python loads that
+    `.rpk` as the description's copies: the same objects, the same answers to the bit."""
+    (tmp_path / "bunny.obj").write_bytes(BUNNY.read_bytes())
+    desc = tmp_path / "twice.json"
+    desc.write_text(json.dumps({"objects": [
+        {"file": "bunny.obj"},
+        {"file": "bunny.obj", "mask": 2,
+         "transform": [[0, -2, 0, 0.5], [2, 0, 0, 0], [0, 0, 0.5, 0.1]]},
+    ]}))
+    done = subprocess.run([cli, "build", "--scenes", str(desc), "--out", str(tmp_path / "i.rpk")],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "instances of 1 mesh" in done.stderr
+    want = raypick.Scene.load(desc)
+    got = raypick.Scene.load(tmp_path / "i.rpk")
+    assert got.objects == want.objects
+    assert got.triangle_count == want.triangle_count
+    rays = rays_at(want, 3000, spread=0.2)
+    expected, answers = want.pick(rays), got.pick(rays)
+    assert answers["hit"].any()
+    for key in expected:
+        assert np.array_equal(expected[key], answers[key], equal_nan=True), key
