@@ -8,6 +8,8 @@
 //! engine (its walk for the tree's size, and the interleaved walk) and the reference twin in
 //! every query mode, and all must answer without error: the
 //! checks promise trees the walks can take (no read out of range, no hang, no iteration cap).
+//! Instanced scenes (`raypick::rpk::instanced`) go the same way: their instances, names and
+//! each mesh's nested saved scene.
 #![no_main]
 
 use std::path::Path;
@@ -31,8 +33,8 @@ fn check(bytes: &[u8]) {
     raypick_fuzz::debug(&result, |b: &BuiltScene| {
         format!(
             "{} objects, {} triangles, {} nodes, {} wide nodes",
-            b.scene.objects().len(),
-            b.scene.triangle_count(),
+            b.object_count(),
+            b.world_triangle_count(),
             b.bvh.nodes.len(),
             b.wide().map_or(0, |w| w.nodes.len())
         )
@@ -52,7 +54,6 @@ fn check(bytes: &[u8]) {
 /// Rays at the scene from its bounds' corners, faces and centre, in every mode.
 fn pick(built: Arc<BuiltScene>) {
     let (lo, hi) = built
-        .scene
         .bounds()
         .unwrap_or((DVec3::splat(-1.0), DVec3::splat(1.0)));
     let centre = lo + (hi - lo) * 0.5;
