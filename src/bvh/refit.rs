@@ -273,8 +273,8 @@ fn refit_serially<F: Fn(usize, u32) -> Option<GpuTriangle> + Sync>(
     true
 }
 
-/// The min/max of `triangles`' corners (a plain loop: the iterator chain it replaced was most
-/// of a refit's time).
+/// The min/max of `triangles`' corners (a plain loop: the iterator chain it replaced took a
+/// third of a refit's time).
 #[inline]
 pub(crate) fn bounds(triangles: &[GpuTriangle]) -> (Vec3, Vec3) {
     let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
