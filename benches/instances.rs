@@ -110,7 +110,25 @@ fn instances(c: &mut Criterion) {
         .unwrap();
     let one = Arc::new(BuiltScene::new(one, &options).unwrap());
 
-    let field_rays = camera_rays(built.bounds().unwrap());
+    // Framed on the bunny's box corners through each placement (not on the scene's bounds,
+    // which depend on how tightly the top tree boxes the instances).
+    let corners = |m: [[f64; 4]; 3]| {
+        (0..8).map(move |c| {
+            let p = DVec3::new(
+                if c & 1 == 0 { lo.x } else { hi.x },
+                if c & 2 == 0 { lo.y } else { hi.y },
+                if c & 4 == 0 { lo.z } else { hi.z },
+            );
+            DVec3::from_array(m.map(|r| r[0] * p.x + r[1] * p.y + r[2] * p.z + r[3]))
+        })
+    };
+    let framed = placed
+        .iter()
+        .flat_map(|i| corners(i.transform))
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), p| {
+            (a.min(p), b.max(p))
+        });
+    let field_rays = camera_rays(framed);
     let one_rays = camera_rays(one.bounds().unwrap());
     let mut field_picker = CpuPicker::new(built.clone());
     let mut one_picker = CpuPicker::new(one.clone());
