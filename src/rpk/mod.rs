@@ -244,7 +244,8 @@ pub fn load(path: &Path) -> Result<BuiltScene> {
 /// engine's nodes, whose alignment the file cannot promise, are converted into memory of their
 /// own). The same checks as [`load`]; for processes that pick from a file and exit, like the
 /// command-line tool's one-shot commands. A process that lives on while the file may be
-/// replaced (a server) should [`load`] instead.
+/// replaced (a server) should [`load`] instead. An instanced scene ([`instanced`]) is copied
+/// out of the map, as [`load`] copies it.
 ///
 /// # Safety
 /// Nothing may write into the file in place, or shorten it, while the returned scene or
