@@ -109,6 +109,17 @@ impl BuiltScene {
         }
     }
 
+    /// The scene, its tree and the CPU engine's tree (collapsed now if it was not yet), taken
+    /// apart: a saved instanced scene's meshes become [`crate::instance::MeshTree`]s so.
+    pub(crate) fn into_tree_parts(self) -> Result<(Scene, Bvh, WideBvh)> {
+        let wide = match self.wide.into_inner() {
+            Some(Ok(wide)) => wide,
+            Some(Err(e)) => return Err(crate::error::Error::Invalid(e)),
+            None => WideBvh::collapse(&self.bvh)?,
+        };
+        Ok((self.scene, self.bvh, wide))
+    }
+
     /// The instances, for an instanced scene.
     pub fn instances(&self) -> Option<&Instances> {
         self.instances.as_ref()

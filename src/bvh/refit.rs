@@ -168,7 +168,7 @@ impl<F: Fn(usize, u32) -> Option<GpuTriangle> + Sync> Leaves<'_, F> {
         let at = first.checked_sub(tri_base)?;
         let leaf = triangles.get_mut(at..at + kind)?;
         let ids = self.ids.get(first..first + kind)?;
-        let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        let mut b = (Vec3::INFINITY, Vec3::NEG_INFINITY);
         for (j, (triangle, &id)) in leaf.iter_mut().zip(ids).enumerate() {
             // Bounded from the values written, not read back.
             let t = match (self.moved)(first + j, id) {
@@ -178,13 +178,9 @@ impl<F: Fn(usize, u32) -> Option<GpuTriangle> + Sync> Leaves<'_, F> {
                 }
                 None => *triangle,
             };
-            for p in [t.v0, t.v1, t.v2] {
-                let p = Vec3::from(p);
-                lo = lo.min(p);
-                hi = hi.max(p);
-            }
+            b = grow(b, &t);
         }
-        Some((lo, hi))
+        Some(b)
     }
 }
 
@@ -273,17 +269,22 @@ fn refit_serially<F: Fn(usize, u32) -> Option<GpuTriangle> + Sync>(
     true
 }
 
-/// The min/max of `triangles`' corners (a plain loop: the iterator chain it replaced took a
-/// third of a refit's time).
+/// The min/max of `triangles`' corners.
 #[inline]
 pub(crate) fn bounds(triangles: &[GpuTriangle]) -> (Vec3, Vec3) {
-    let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
-    for t in triangles {
-        for p in [t.v0, t.v1, t.v2] {
-            let p = Vec3::from(p);
-            lo = lo.min(p);
-            hi = hi.max(p);
-        }
+    triangles
+        .iter()
+        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), grow)
+}
+
+/// `(lo, hi)` grown by triangle `t`'s corners, in order (a plain loop: the `flat_map` over
+/// corners it replaced took a third of a refit's time).
+#[inline(always)]
+fn grow((mut lo, mut hi): (Vec3, Vec3), t: &GpuTriangle) -> (Vec3, Vec3) {
+    for p in [t.v0, t.v1, t.v2] {
+        let p = Vec3::from(p);
+        lo = lo.min(p);
+        hi = hi.max(p);
     }
     (lo, hi)
 }

@@ -34,11 +34,7 @@ pub fn run(args: BuildArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             args.out.display(),
             built.world_triangle_count(),
             built.object_count(),
-            built.instances().map_or(String::new(), |i| format!(
-                " (instances of {} mesh{})",
-                i.meshes().len(),
-                if i.meshes().len() == 1 { "" } else { "es" }
-            )),
+            super::scene_args::instances_of(&built).map_or(String::new(), |i| format!(" ({i})")),
             load_s * 1e3,
             build_s * 1e3,
             start.elapsed().as_secs_f64() * 1e3

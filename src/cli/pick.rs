@@ -188,12 +188,8 @@ fn scene_summary(args: &SceneArgs, built: &BuiltScene) -> String {
         if objects == 1 { "" } else { "s" },
         built.world_triangle_count()
     );
-    if let Some(i) = built.instances() {
-        let meshes = i.meshes().len();
-        counts += &format!(
-            "; instances of {meshes} mesh{}",
-            if meshes == 1 { "" } else { "es" }
-        );
+    if let Some(instances) = super::scene_args::instances_of(built) {
+        counts += &format!("; {instances}");
     }
     let files: Vec<String> = match &args.scenes {
         Some(description) => vec![description.display().to_string()],

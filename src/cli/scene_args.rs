@@ -36,6 +36,17 @@ pub struct SceneArgs {
     pub leaf_size: u32,
 }
 
+/// "instances of N mesh(es)" for an instanced scene, as the commands' summary lines say it.
+pub fn instances_of(built: &BuiltScene) -> Option<String> {
+    built.instances().map(|i| {
+        let meshes = i.meshes().len();
+        format!(
+            "instances of {meshes} mesh{}",
+            if meshes == 1 { "" } else { "es" }
+        )
+    })
+}
+
 /// Parses a mask in decimal, hexadecimal (`0x`) or binary (`0b`).
 pub fn parse_mask(text: &str) -> Result<u32, String> {
     let t = text.trim();

@@ -75,13 +75,8 @@ pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         ..ServerConfig::default()
     };
     let built = Arc::new(args.scene.build_instanced(matches, true)?.0);
-    let triangles = match built.instances() {
-        Some(i) => format!(
-            "{} triangles (instances of {} mesh{})",
-            built.world_triangle_count(),
-            i.meshes().len(),
-            if i.meshes().len() == 1 { "" } else { "es" }
-        ),
+    let triangles = match super::scene_args::instances_of(&built) {
+        Some(instances) => format!("{} triangles ({instances})", built.world_triangle_count()),
         None => format!("{} triangles", built.world_triangle_count()),
     };
     let server = Server::new(built, args.backend, config)?;

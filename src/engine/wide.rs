@@ -7,7 +7,7 @@
 
 use crate::bvh::Bvh;
 use crate::error::{Error, Result};
-use crate::layout::{GpuNode, KIND_INNER, MAX_LEAF_SIZE};
+use crate::layout::{GpuNode, GpuTriangle, KIND_INNER, MAX_LEAF_SIZE};
 use crate::store::Store;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -198,11 +198,7 @@ impl WideBvh {
         if self.refit_from_sources(&bvh.nodes) {
             return;
         }
-        let triangles = &bvh.triangles;
-        self.refit_leaves(|first, kind| {
-            let first = first as usize;
-            crate::bvh::bounds(&triangles[first..first + kind as usize])
-        });
+        self.refit_from_triangles(&bvh.triangles);
     }
 
     /// Copies each slot's box from its source node in `binary` (the refitted nodes this tree
@@ -228,9 +224,13 @@ impl WideBvh {
         true
     }
 
-    /// [`WideBvh::refit`] with each leaf child's box from `leaf_box(child, kind)` (an instanced
-    /// scene's top tree, whose leaves are instances).
-    pub fn refit_leaves(&mut self, leaf_box: impl Fn(u32, u8) -> (Vec3, Vec3) + Sync) {
+    /// [`WideBvh::refit`] for a tree without sources: each leaf child's box from its
+    /// leaf-order `triangles`, then each inner child's from its node's, children before parents.
+    fn refit_from_triangles(&mut self, triangles: &[GpuTriangle]) {
+        let leaf_box = |first: u32, kind: u8| {
+            let first = first as usize;
+            crate::bvh::bounds(&triangles[first..first + kind as usize])
+        };
         let nodes = self.nodes.to_mut();
         // Leaf children first, every node in parallel; then the inner children, each from its
         // node's bounds, children before parents.

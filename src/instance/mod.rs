@@ -373,22 +373,17 @@ impl Instances {
         Ok(crate::picker::Refit::Refitted)
     }
 
-    /// The wide top tree's boxes from the binary top tree's leaves in `bvh` (after
-    /// [`Instances::refit_leaf`]).
+    /// The wide top tree's boxes copied from the binary top tree's in `bvh` (after
+    /// [`Instances::refit_leaf`]): the top tree's nodes lead the combined ones, as when
+    /// [`Instances::assemble`] collapsed it (so it has its sources).
     fn refit_top_wide(&mut self, bvh: &Bvh) {
-        // The top tree's nodes lead the combined ones, as when it was collapsed.
-        if self
+        let copied = self
             .top_wide
-            .refit_from_sources(&bvh.nodes[..self.top_nodes as usize])
-        {
-            return;
-        }
-        let nodes = &bvh.nodes;
-        let leaf_of = &self.leaf_of;
-        self.top_wide.refit_leaves(|k, _| {
-            let n = &nodes[leaf_of[k as usize] as usize];
-            (Vec3::from(n.min), Vec3::from(n.max))
-        });
+            .refit_from_sources(&bvh.nodes[..self.top_nodes as usize]);
+        debug_assert!(
+            copied,
+            "the top tree is always collapsed here, with its sources"
+        );
     }
 
     /// Instance `k`'s index, or an error naming it.

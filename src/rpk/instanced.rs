@@ -56,16 +56,6 @@ pub fn is_instanced(bytes: &[u8]) -> bool {
         .is_some_and(|tag| tag == INST.tag)
 }
 
-/// Whether the file at `path` holds an instanced scene (false when it cannot be read).
-pub fn is_instanced_file(path: &Path) -> bool {
-    use std::io::Read;
-    let mut head = [0u8; 64];
-    crate::io::open_regular(path)
-        .ok()
-        .and_then(|(mut file, _)| file.read_exact(&mut head).ok())
-        .is_some_and(|()| is_instanced(&head))
-}
-
 /// Sections' kinds and payloads, in file order.
 pub(crate) type Sections = (Vec<Kind>, Vec<Cow<'static, [u8]>>);
 
@@ -193,8 +183,9 @@ pub(crate) fn decode(path: &Path, bytes: &[u8]) -> Result<BuiltScene> {
                     built.scene.objects().len()
                 )));
             }
-            let wide = built.wide()?.clone();
-            Ok(Arc::new(MeshTree::with_wide(built.scene, built.bvh, wide)))
+            // The wide tree the file held, moved (not copied) into the mesh.
+            let (scene, bvh, wide) = built.into_tree_parts()?;
+            Ok(Arc::new(MeshTree::with_wide(scene, bvh, wide)))
         })
         .collect::<Result<Vec<_>>>()?;
     let (instances, bvh) = Instances::assemble(meshes, instances).map_err(|e| match e {
@@ -202,10 +193,4 @@ pub(crate) fn decode(path: &Path, bytes: &[u8]) -> Result<BuiltScene> {
         other => other,
     })?;
     Ok(BuiltScene::from_instances(instances, bvh))
-}
-
-/// Maps the file at `path` and reads the instanced scene in it.
-pub(crate) fn load(path: &Path) -> Result<BuiltScene> {
-    let map = read::map_file(path)?;
-    decode(path, &map)
 }

@@ -231,10 +231,11 @@ pub fn save(built: &BuiltScene, path: &Path) -> Result<()> {
 /// for another format version, a truncated or corrupted file; [`crate::Error::Invalid`] when it
 /// is larger than the memory budget.
 pub fn load(path: &Path) -> Result<BuiltScene> {
-    if instanced::is_instanced_file(path) {
-        return instanced::load(path);
+    let map = read::map_file(path)?;
+    if instanced::is_instanced(&map) {
+        return instanced::decode(path, &map);
     }
-    let parts = read::read(path)?;
+    let parts = read::read(path, &map)?;
     validate::assemble(path, parts)
 }
 
@@ -257,12 +258,13 @@ pub fn load(path: &Path) -> Result<BuiltScene> {
 /// # Errors
 /// As [`load`]'s.
 pub unsafe fn load_in_place(path: &Path) -> Result<BuiltScene> {
-    if instanced::is_instanced_file(path) {
+    let map = std::sync::Arc::new(read::map_file(path)?);
+    if instanced::is_instanced(&map) {
         // Its meshes are copied out of the map.
-        return instanced::load(path);
+        return instanced::decode(path, &map);
     }
     // SAFETY: passed on to the caller (see above).
-    let parts = unsafe { read::read_in_place(path) }?;
+    let parts = unsafe { read::read_in_place(path, map) }?;
     validate::assemble(path, parts)
 }
 

@@ -91,24 +91,23 @@ pub(crate) fn map_file(path: &Path) -> Result<memmap2::Mmap> {
     unsafe { memmap2::Mmap::map(&file) }.map_err(io)
 }
 
-/// Maps and reads the file at `path`, copying every section (see the module docs).
-pub fn read(path: &Path) -> Result<Parts> {
+/// Reads the file at `path`, mapped as `map` ([`map_file`]), copying every section (see the
+/// module docs).
+pub fn read(path: &Path, map: &memmap2::Mmap) -> Result<Parts> {
     // The map is read only while this function runs and every section is copied out (and
     // checksummed) before use, so nothing acts on bytes that change underneath. A file
     // truncated by another process while it is mapped raises SIGBUS, as for any mapped file.
-    let map = map_file(path)?;
-    parse_from(path, &map, Placement::Copied(Pages(Some(&map))))
+    parse_from(path, map, Placement::Copied(Pages(Some(map))))
 }
 
-/// Maps and reads the file at `path`, viewing every array section in place in the map (see the
-/// module docs).
+/// Reads the file at `path`, mapped as `map` ([`map_file`]), viewing every array section in
+/// place in the map (see the module docs).
 ///
 /// # Safety
 /// Nothing may write into the file, or shorten it, while the returned parts or anything made of
 /// them exist: their arrays are checked once, on load, and then trusted (see
 /// [`super::load_in_place`]).
-pub unsafe fn read_in_place(path: &Path) -> Result<Parts> {
-    let map = Arc::new(map_file(path)?);
+pub unsafe fn read_in_place(path: &Path, map: Arc<memmap2::Mmap>) -> Result<Parts> {
     // The whole file is read at least once (the checksums): fault every page in at once.
     #[cfg(target_os = "linux")]
     let _ = map.advise(memmap2::Advice::PopulateRead);
