@@ -96,12 +96,17 @@ fn run_ray_file(
         rays.len(),
         args.repeat
     );
-    // The CPU paths' tracer alone on the same rays (scene-frame rays made once, in input order,
-    // no reordering, no f64 refinement): what the pick pipeline costs around it.
+    // The tracer alone on the same rays (scene-frame rays made once, in input order, no
+    // reordering, no f64 refinement): what the pick pipeline costs around it. For the GPU, the
+    // kernel's dispatches with their uploads and readbacks.
     let tracer: Option<Box<dyn raypick::picker::Tracer + Send>> = match args.backend {
         raypick::Backend::Cpu => Some(Box::new(raypick::CpuPicker::new(built.clone()))),
         raypick::Backend::Reference => Some(Box::new(raypick::ReferencePicker::new(built.clone()))),
-        _ => None,
+        raypick::Backend::Gpu => Some(Box::new(raypick::gpu::GpuPicker::new(
+            &raypick::gpu::GpuContext::new()?,
+            built.clone(),
+        )?)),
+        raypick::Backend::Auto => None,
     };
     if let Some(mut tracer) = tracer {
         let query = raypick::Query::default();
