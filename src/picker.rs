@@ -616,6 +616,13 @@ pub trait Tracer {
         let _ = settings;
         Ok(None)
     }
+    /// Rays per step when [`pick_through`] overlaps this tracer's work with the pipeline's
+    /// own (`None`: it does not). For a tracer of whole batches that waits on a device (the
+    /// GPU): while it traces one step, the cores refine the step before and convert the step
+    /// after.
+    fn overlap_step(&self) -> Option<usize> {
+        None
+    }
     /// Which path this is, for messages ([`Picker::describe`]).
     fn path_name(&self) -> String;
 }
@@ -686,10 +693,16 @@ pub fn pick_through<T: Tracer + ?Sized>(
     query.validate()?;
     let built = tracer.built().clone();
     let settings = built.settings(query);
-    if query.mode != Mode::All
-        && let Some(chunk) = tracer.chunk_trace(&settings)?
-    {
-        return pick_fused(&built, &chunk, reorder_from, rays, query, answers);
+    if query.mode != Mode::All {
+        if let Some(chunk) = tracer.chunk_trace(&settings)? {
+            return pick_fused(&built, &chunk, reorder_from, rays, query, answers);
+        }
+        if let Some(step) = tracer.overlap_step()
+            && rays.len() > step
+            && rays.len() < reorder_from
+        {
+            return pick_overlapped(tracer, &built, &settings, step, rays, query, answers);
+        }
     }
     *answers = trace_whole(tracer, &built, &settings, reorder_from, rays, query)?;
     Ok(())
@@ -799,37 +812,122 @@ fn pick_fused(
             }
             let mut found = [GpuHit::default(); FUSED_CHUNK];
             chunk(&local[..m], &mut found[..m]);
-            check_found_in(built.prim_count(), &found[..m], |f| f.prim)?;
-            let input = &input[..m];
-            if let Some(instances) = &built.instances {
-                crate::instance::resolve_chunk(
-                    instances,
-                    rays,
-                    input,
-                    &lengths[..m],
-                    &found[..m],
-                    // SAFETY: as below.
-                    |k, hit| unsafe { out.write(input[k], hit) },
-                );
-                return Ok(());
-            }
-            prefetch_hit_triangles(&built.scene, &built.bvh, &found[..m]);
-            resolve_chunk(
-                &built.scene,
-                &built.bvh,
-                rays,
-                input,
-                &lengths[..m],
-                &found[..m],
-                |k, hit| {
-                    // SAFETY: `input` holds each step's slots of a permutation of 0..n (the
-                    // identity, or `RayOrder`), and steps cover disjoint spans of it, so each
-                    // slot of the reserved capacity is written exactly once, by one task.
-                    unsafe { out.write(input[k], hit) };
-                },
-            );
-            Ok(())
+            // SAFETY: `input` holds each step's slots of a permutation of 0..n (the identity, or
+            // `RayOrder`), and steps cover disjoint spans of it, so each slot of the reserved
+            // capacity is written exactly once, by one task.
+            unsafe { refine_into(built, rays, &input[..m], &lengths[..m], &found[..m], &out) }
         })?;
+    // SAFETY: every slot below n was written above (on an error we return before this, and Hit
+    // is Copy, so the vector is dropped empty).
+    unsafe { nearest.set_len(n) };
+    answers.nearest = nearest;
+    Ok(())
+}
+
+/// Checks one chunk's raw results and refines its hits in f64: `found[k]` and `lengths[k]`
+/// belong to `rays[input[k]]`, whose answer is written to slot `input[k]` of `out`.
+///
+/// # Safety
+/// Each slot `input[k]` is within `out`'s reserved capacity and written by no other task.
+unsafe fn refine_into(
+    built: &BuiltScene,
+    rays: &[Ray],
+    input: &[usize],
+    lengths: &[f64],
+    found: &[GpuHit],
+    out: &SlotWriter,
+) -> Result<()> {
+    check_found_in(built.prim_count(), found, |f| f.prim)?;
+    // SAFETY (both writes): the caller's promise.
+    if let Some(instances) = &built.instances {
+        crate::instance::resolve_chunk(instances, rays, input, lengths, found, |k, hit| unsafe {
+            out.write(input[k], hit)
+        });
+        return Ok(());
+    }
+    prefetch_hit_triangles(&built.scene, &built.bvh, found);
+    resolve_chunk(
+        &built.scene,
+        &built.bvh,
+        rays,
+        input,
+        lengths,
+        found,
+        |k, hit| unsafe { out.write(input[k], hit) },
+    );
+    Ok(())
+}
+
+/// [`pick_through`] for a tracer of whole batches with an [`Tracer::overlap_step`] (the GPU), in
+/// closest or any mode, for a batch traced in input order that is longer than one step: the
+/// batch goes through in steps, and while this thread waits on the tracer for one step, the
+/// other cores refine the step before it ([`refine_into`], as the fused path does) and take the
+/// step after it into the scene frame. Every ray is converted, traced, checked and refined as in
+/// [`trace_whole`], so the answers are the same bits; only the host's work and the device's
+/// overlap (on an NVIDIA H200 a 1M-ray pick ran 1.4–2× faster: BENCHMARKS.md, "A real GPU").
+fn pick_overlapped<T: Tracer + ?Sized>(
+    tracer: &mut T,
+    built: &BuiltScene,
+    settings: &TraceSettings<'_>,
+    step: usize,
+    rays: &[Ray],
+    query: &Query,
+    answers: &mut Answers,
+) -> Result<()> {
+    let n = rays.len();
+    let origin = built.bvh.origin;
+    let convert = |span: std::ops::Range<usize>| {
+        let (mut local, lengths) = scene_rays(origin, &rays[span.clone()], query);
+        if built.instances.is_some() {
+            put_origin_lo(origin, &rays[span], &mut local);
+        }
+        (local, lengths)
+    };
+    let mut nearest = std::mem::take(&mut answers.nearest);
+    *answers = Answers::default();
+    nearest.clear();
+    if nearest.capacity() < n {
+        nearest = crate::huge_pages::vec_with_capacity(n);
+    }
+    let out = SlotWriter(nearest.as_mut_ptr());
+    // Refines a traced step (its first ray, direction lengths and raw results) into `out`.
+    let refine = |(start, lengths, found): (usize, Vec<f64>, Vec<GpuHit>)| -> Result<()> {
+        found
+            .par_chunks(FUSED_CHUNK)
+            .zip(lengths.par_chunks(FUSED_CHUNK))
+            .enumerate()
+            .try_for_each(|(c, (found, lengths))| {
+                let first = start + c * FUSED_CHUNK;
+                let mut input = [0usize; FUSED_CHUNK];
+                for (k, slot) in input[..found.len()].iter_mut().enumerate() {
+                    *slot = first + k;
+                }
+                // SAFETY: steps and their chunks cover disjoint spans of 0..n, each slot once.
+                unsafe { refine_into(built, rays, &input[..found.len()], lengths, found, &out) }
+            })
+    };
+    let spans: Vec<_> = (0..n).step_by(step).map(|s| s..(s + step).min(n)).collect();
+    let mut next = Some(convert(spans[0].clone()));
+    let mut traced: Option<(usize, Vec<f64>, Vec<GpuHit>)> = None;
+    for (i, span) in spans.iter().enumerate() {
+        let (local, lengths) = next
+            .take()
+            .expect("each step is converted before it is traced");
+        let (previous, later) = (traced.take(), spans.get(i + 1).cloned());
+        let mut host = None;
+        let found = rayon::in_place_scope(|scope| {
+            scope.spawn(|_| {
+                let refined = previous.map_or(Ok(()), refine);
+                host = Some(refined.map(|()| later.map(convert)));
+            });
+            tracer.trace(&local, settings)
+        });
+        next = host.expect("the scope ends after its task")?;
+        traced = Some((span.start, lengths, found?.0));
+    }
+    if let Some(last) = traced {
+        refine(last)?;
+    }
     // SAFETY: every slot below n was written above (on an error we return before this, and Hit
     // is Copy, so the vector is dropped empty).
     unsafe { nearest.set_len(n) };

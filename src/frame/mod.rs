@@ -110,7 +110,15 @@ pub fn local_rays_for(scene_origin: DVec3, rays: &[Ray], query: &Query) -> Vec<G
 /// length (`t_world = t_local / length`; NaN for an invalid ray), computed once for
 /// [`resolve_with`].
 pub fn scene_rays(scene_origin: DVec3, rays: &[Ray], query: &Query) -> (Vec<GpuRay>, Vec<f64>) {
-    let (mut local, mut lengths) = (vec![NEVER_TRACED; rays.len()], vec![0.0; rays.len()]);
+    // Both vectors are first touched by many threads: `vec![NEVER_TRACED; n]` would write (and
+    // fault in) all of a large batch's rays on this thread alone, which on a 16-core host took
+    // longer than the GPU's trace of them. `vec![0.0; n]` is zeroed memory, touched below.
+    let mut local = Vec::new();
+    rays.par_iter()
+        .with_min_len(4096)
+        .map(|_| NEVER_TRACED)
+        .collect_into_vec(&mut local);
+    let mut lengths = vec![0.0; rays.len()];
     rays.par_chunks(4096)
         .zip(local.par_chunks_mut(4096))
         .zip(lengths.par_chunks_mut(4096))

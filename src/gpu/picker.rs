@@ -31,6 +31,19 @@ const EXACT_ARITHMETIC_CONSTANT: &str = "EXACT_ARITHMETIC";
 pub fn needs_exact_arithmetic(context: &GpuContext) -> bool {
     !(context.is_software() && context.adapter_info.name.starts_with("llvmpipe"))
 }
+/// The batch size from which this adapter's picks trace rays in
+/// [`crate::ray_order::RayOrder`]: [`DEFAULT_REORDER_FROM`] on a software adapter, where the sort
+/// won; never on a hardware GPU, where it did not (an NVIDIA H200 traced the dragon's sorted
+/// incoherent rays no faster, and the sort cost more than the trace: BENCHMARKS.md, "A real
+/// GPU").
+pub fn reorder_from_for(context: &GpuContext) -> usize {
+    if context.is_software() {
+        DEFAULT_REORDER_FROM
+    } else {
+        usize::MAX
+    }
+}
+
 /// Default most rays per dispatch, so that no single dispatch runs long.
 pub const DEFAULT_CHUNK_RAYS: u32 = 1 << 18;
 
@@ -175,7 +188,7 @@ impl GpuPicker {
             batch: None,
             chunk_rays: DEFAULT_CHUNK_RAYS.min(by_binding),
             workgroup_size,
-            reorder_from: DEFAULT_REORDER_FROM,
+            reorder_from: reorder_from_for(context),
         })
     }
 
@@ -532,6 +545,12 @@ impl Tracer for GpuPicker {
 
     fn reorder_from(&self) -> usize {
         self.reorder_from
+    }
+
+    /// One dispatch's rays: a batch of several dispatches overlaps the host's conversion and
+    /// refinement with the GPU's work.
+    fn overlap_step(&self) -> Option<usize> {
+        Some(self.chunk_for(0) as usize)
     }
 
     fn path_name(&self) -> String {
