@@ -15,10 +15,25 @@ use crate::scene::Scene;
 use glam::DVec3;
 use std::sync::Arc;
 
-/// Batches below this many rays run on the CPU path when the GPU is a real one. A software
-/// adapter (lavapipe) runs on the same cores as the CPU path and is slower at every batch size
-/// (BENCHMARKS.md), so with one every batch runs on the CPU.
+/// Batches below this many rays always run on the CPU path when the GPU is a real one. A
+/// software adapter (lavapipe) runs on the same cores as the CPU path and is slower at every
+/// batch size (BENCHMARKS.md), so with one every batch runs on the CPU.
 pub const DEFAULT_CROSSOVER_RAYS: usize = 4096;
+
+/// Rays per CPU thread below which a batch runs on the CPU engine when the GPU is a real one:
+/// the engine's throughput grows with the cores and the GPU's does not. On an NVIDIA H200 with
+/// 16 host cores a GPU pick cost about 0.7 ms plus 15 ns a ray, and the engine picked 4,096 and
+/// 65,536 camera rays 2–4× faster than the GPU, 1M incoherent rays 2.4× slower (BENCHMARKS.md,
+/// "A real GPU"); from 8,192 rays a thread the GPU loses at most about a third on camera rays and
+/// wins on incoherent ones.
+pub const CROSSOVER_RAYS_PER_THREAD: usize = 8192;
+
+/// The batch size from which [`AutoPicker`] picks on a real GPU, with `threads` CPU threads.
+pub fn crossover_for(threads: usize) -> usize {
+    CROSSOVER_RAYS_PER_THREAD
+        .saturating_mul(threads)
+        .max(DEFAULT_CROSSOVER_RAYS)
+}
 
 /// Picks on the CPU or the GPU by batch size, falling back to the CPU when the GPU is missing or
 /// fails.
@@ -49,7 +64,7 @@ impl AutoPicker {
                 ));
                 usize::MAX
             }
-            _ => DEFAULT_CROSSOVER_RAYS,
+            _ => crossover_for(rayon::current_num_threads()),
         };
         Self {
             cpu: CpuPicker::new(built.clone()),
