@@ -43,7 +43,9 @@ pub struct AutoPicker {
     /// The device, until the GPU picker is made from it or fails.
     context: Option<GpuContext>,
     gpu: Option<GpuPicker>,
-    crossover: usize,
+    /// The batch size from which the GPU is used, when fixed (`usize::MAX` on a software
+    /// adapter); `None`: [`crossover_for`] the threads at each pick.
+    crossover: Option<usize>,
     notes: Vec<String>,
 }
 
@@ -62,9 +64,9 @@ impl AutoPicker {
                      (adapter: {})",
                     c.describe()
                 ));
-                usize::MAX
+                Some(usize::MAX)
             }
-            _ => crossover_for(rayon::current_num_threads()),
+            _ => None,
         };
         Self {
             cpu: CpuPicker::new(built.clone()),
@@ -91,12 +93,14 @@ impl AutoPicker {
 
     /// Sets the batch size from which the GPU is used.
     pub fn set_crossover(&mut self, rays: usize) {
-        self.crossover = rays;
+        self.crossover = Some(rays);
     }
 
-    /// The batch size from which the GPU is used (`usize::MAX`: never).
+    /// The batch size from which the GPU is used (`usize::MAX`: never): unless set, on a real
+    /// GPU [`crossover_for`] the threads of the rayon pool the call runs in (a pick's own).
     pub fn crossover(&self) -> usize {
         self.crossover
+            .unwrap_or_else(|| crossover_for(rayon::current_num_threads()))
     }
 }
 
@@ -108,7 +112,7 @@ impl Picker for AutoPicker {
     }
 
     fn query_into(&mut self, rays: &[Ray], query: &Query, answers: &mut Answers) -> Result<()> {
-        if rays.len() >= self.crossover {
+        if rays.len() >= self.crossover() {
             if let Some(gpu) = self.gpu() {
                 match gpu.query_into(rays, query, answers) {
                     Ok(()) => return Ok(()),
@@ -155,9 +159,9 @@ impl Picker for AutoPicker {
             (None, None) => None,
         };
         match device {
-            Some(device) if self.crossover != usize::MAX => format!(
+            Some(device) if self.crossover() != usize::MAX => format!(
                 "auto: cpu below {} rays, gpu {} above",
-                self.crossover,
+                self.crossover(),
                 device.describe()
             ),
             _ => format!("auto: {}", self.cpu.describe()),

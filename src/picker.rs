@@ -489,7 +489,7 @@ pub trait Picker {
     fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers>;
 
     /// [`Picker::query`] into `answers`, reusing its buffers' memory where the backend can (the
-    /// CPU pickers' closest and any modes do): for a caller that picks batch after batch. Each
+    /// CPU pickers' closest and any modes do, and the GPU's batches of several dispatches): for a caller that picks batch after batch. Each
     /// new buffer of a batch of 32k answers is 3.6 MB of fresh memory, and where the C
     /// allocator hands such blocks back to the OS on every free (a Dask worker's
     /// `MALLOC_TRIM_THRESHOLD_`), writing them faulted in every page anew: 23% of a 1M-ray
@@ -573,7 +573,8 @@ pub trait Picker {
 /// Writes hits into distinct slots of a vector's reserved capacity from parallel tasks.
 struct SlotWriter(*mut Hit);
 
-// SAFETY: tasks write disjoint slots (see the one use in `answers_in`).
+// SAFETY: tasks write disjoint slots, each once (its uses: `answers_in`, `pick_fused` and
+// `pick_overlapped`, whose spawned task and the calling thread refine different steps).
 unsafe impl Send for SlotWriter {}
 unsafe impl Sync for SlotWriter {}
 
@@ -617,9 +618,10 @@ pub trait Tracer {
         Ok(None)
     }
     /// Rays per step when [`pick_through`] overlaps this tracer's work with the pipeline's
-    /// own (`None`: it does not). For a tracer of whole batches that waits on a device (the
+    /// own (`None` or 0: it does not). For a tracer of whole batches that waits on a device (the
     /// GPU): while it traces one step, the cores refine the step before and convert the step
-    /// after.
+    /// after. [`Tracer::trace`] must then return one record per ray of each step (a pick fails
+    /// otherwise).
     fn overlap_step(&self) -> Option<usize> {
         None
     }
@@ -682,7 +684,8 @@ impl<T: Tracer> Picker for T {
 
 /// The one pick pipeline: validates `query`, takes `rays` into the scene frame, traces them
 /// through `tracer` (in ray order from `reorder_from` rays), and refines every hit in f64,
-/// into `answers` (whose old contents are replaced; the fused path reuses its memory).
+/// into `answers` (whose old contents are replaced; the fused and overlapped paths reuse its
+/// memory).
 pub fn pick_through<T: Tracer + ?Sized>(
     tracer: &mut T,
     reorder_from: usize,
@@ -698,6 +701,7 @@ pub fn pick_through<T: Tracer + ?Sized>(
             return pick_fused(&built, &chunk, reorder_from, rays, query, answers);
         }
         if let Some(step) = tracer.overlap_step()
+            && step > 0
             && rays.len() > step
             && rays.len() < reorder_from
         {
@@ -708,7 +712,33 @@ pub fn pick_through<T: Tracer + ?Sized>(
     Ok(())
 }
 
-/// [`pick_through`] for whole batches: all-hits mode, and tracers without a [`ChunkTrace`].
+/// `rays` in the scene frame for `query`, with their direction lengths
+/// ([`crate::frame::scene_rays`]), and an instanced scene's origin low parts
+/// ([`put_origin_lo`]).
+fn kernel_rays(built: &BuiltScene, rays: &[Ray], query: &Query) -> (Vec<GpuRay>, Vec<f64>) {
+    let origin = built.bvh.origin;
+    let (mut local, lengths) = scene_rays(origin, rays, query);
+    if built.instances.is_some() {
+        put_origin_lo(origin, rays, &mut local);
+    }
+    (local, lengths)
+}
+
+/// `answers` emptied for a batch of `n` closest or any answers, and its answer vector, empty
+/// with room for `n` (its memory kept when it has room; else fresh, advised onto huge pages).
+fn answer_buffer(answers: &mut Answers, n: usize) -> Vec<Hit> {
+    let mut nearest = std::mem::take(&mut answers.nearest);
+    *answers = Answers::default();
+    nearest.clear();
+    if nearest.capacity() < n {
+        nearest = crate::huge_pages::vec_with_capacity(n);
+    }
+    nearest
+}
+
+/// [`pick_through`] for whole batches: all-hits mode, and tracers that neither trace in chunks
+/// ([`ChunkTrace`]) nor overlap steps ([`Tracer::overlap_step`]), or batches they do not
+/// overlap.
 fn trace_whole<T: Tracer + ?Sized>(
     tracer: &mut T,
     built: &BuiltScene,
@@ -717,10 +747,7 @@ fn trace_whole<T: Tracer + ?Sized>(
     rays: &[Ray],
     query: &Query,
 ) -> Result<Answers> {
-    let (mut local, dir_lengths) = scene_rays(built.bvh.origin, rays, query);
-    if built.instances.is_some() {
-        put_origin_lo(built.bvh.origin, rays, &mut local);
-    }
+    let (local, dir_lengths) = kernel_rays(built, rays, query);
     let reorder = local.len() >= reorder_from;
     if query.mode == Mode::All {
         let (found, lists) = trace_in_order(&local, settings.max_hits, reorder, |rays| {
@@ -763,19 +790,11 @@ fn pick_fused(
     let origin = built.bvh.origin;
     let ordered = (n >= reorder_from)
         .then(|| {
-            let (mut local, lengths) = scene_rays(origin, rays, query);
-            if built.instances.is_some() {
-                put_origin_lo(origin, rays, &mut local);
-            }
+            let (local, lengths) = kernel_rays(built, rays, query);
             RayOrder::new(&local).map(|order| (local, lengths, order))
         })
         .flatten();
-    let mut nearest = std::mem::take(&mut answers.nearest);
-    *answers = Answers::default();
-    nearest.clear();
-    if nearest.capacity() < n {
-        nearest = crate::huge_pages::vec_with_capacity(n);
-    }
+    let mut nearest = answer_buffer(answers, n);
     let out = SlotWriter(nearest.as_mut_ptr());
     (0..n.div_ceil(FUSED_CHUNK))
         .into_par_iter()
@@ -864,7 +883,7 @@ unsafe fn refine_into(
 /// other cores refine the step before it ([`refine_into`], as the fused path does) and take the
 /// step after it into the scene frame. Every ray is converted, traced, checked and refined as in
 /// [`trace_whole`], so the answers are the same bits; only the host's work and the device's
-/// overlap (on an NVIDIA H200 a 1M-ray pick ran 1.4–2× faster: BENCHMARKS.md, "A real GPU").
+/// overlap (on an NVIDIA H200 a 1M-ray pick ran 1.3–1.9× faster: BENCHMARKS.md, "A real GPU").
 fn pick_overlapped<T: Tracer + ?Sized>(
     tracer: &mut T,
     built: &BuiltScene,
@@ -875,20 +894,8 @@ fn pick_overlapped<T: Tracer + ?Sized>(
     answers: &mut Answers,
 ) -> Result<()> {
     let n = rays.len();
-    let origin = built.bvh.origin;
-    let convert = |span: std::ops::Range<usize>| {
-        let (mut local, lengths) = scene_rays(origin, &rays[span.clone()], query);
-        if built.instances.is_some() {
-            put_origin_lo(origin, &rays[span], &mut local);
-        }
-        (local, lengths)
-    };
-    let mut nearest = std::mem::take(&mut answers.nearest);
-    *answers = Answers::default();
-    nearest.clear();
-    if nearest.capacity() < n {
-        nearest = crate::huge_pages::vec_with_capacity(n);
-    }
+    let convert = |span: std::ops::Range<usize>| kernel_rays(built, &rays[span], query);
+    let mut nearest = answer_buffer(answers, n);
     let out = SlotWriter(nearest.as_mut_ptr());
     // Refines a traced step (its first ray, direction lengths and raw results) into `out`.
     let refine = |(start, lengths, found): (usize, Vec<f64>, Vec<GpuHit>)| -> Result<()> {
@@ -902,7 +909,8 @@ fn pick_overlapped<T: Tracer + ?Sized>(
                 for (k, slot) in input[..found.len()].iter_mut().enumerate() {
                     *slot = first + k;
                 }
-                // SAFETY: steps and their chunks cover disjoint spans of 0..n, each slot once.
+                // SAFETY: steps and their chunks cover disjoint spans of 0..n, each slot once
+                // (each step's results were checked to be one per ray).
                 unsafe { refine_into(built, rays, &input[..found.len()], lengths, found, &out) }
             })
     };
@@ -923,12 +931,21 @@ fn pick_overlapped<T: Tracer + ?Sized>(
             tracer.trace(&local, settings)
         });
         next = host.expect("the scope ends after its task")?;
-        traced = Some((span.start, lengths, found?.0));
+        let found = found?.0;
+        if found.len() != span.len() {
+            return Err(crate::error::Error::Invalid(format!(
+                "the tracer returned {} results for a step of {} rays",
+                found.len(),
+                span.len()
+            )));
+        }
+        traced = Some((span.start, lengths, found));
     }
     if let Some(last) = traced {
         refine(last)?;
     }
-    // SAFETY: every slot below n was written above (on an error we return before this, and Hit
+    // SAFETY: every slot below n was written above: the steps cover 0..n, each step's results
+    // were one per ray, and each was refined whole (on an error we return before this, and Hit
     // is Copy, so the vector is dropped empty).
     unsafe { nearest.set_len(n) };
     answers.nearest = nearest;
@@ -968,8 +985,9 @@ pub struct CpuPicker {
 /// The engine traces batches in the order given, however large ([`CpuPicker::set_reorder_from`]
 /// turns [`RayOrder`] on): on the 1M incoherent sets of the bunny, the dragon and the DEM its
 /// pick ran 1.1–1.45× faster unsorted (BENCHMARKS.md, "What changed, each step measured A/B");
-/// the 8-wide walk gains less from sorted rays than the sort costs. The twin and the GPU keep
-/// sorting from [`DEFAULT_REORDER_FROM`].
+/// the 8-wide walk gains less from sorted rays than the sort costs. The twin and a software GPU
+/// keep sorting from [`DEFAULT_REORDER_FROM`] (a hardware GPU does not:
+/// [`crate::gpu::picker::reorder_from_for`]).
 pub const ENGINE_REORDER_FROM: usize = usize::MAX;
 
 impl CpuPicker {

@@ -14,10 +14,11 @@ use crate::layout::{GpuHit, GpuHitEntry, GpuRay};
 use glam::Vec3;
 use rayon::prelude::*;
 
-/// Batches from this many rays are reordered by default on the twin and the GPU; smaller ones
-/// are traced as given (`usize::MAX` turns reordering off). From here on it won on both scenes
-/// and both paths, sort included; below it the gain is within noise (BENCHMARKS.md, "Ray
-/// reordering"). The CPU engine does not sort (`picker::ENGINE_REORDER_FROM`).
+/// Batches from this many rays are reordered by default on the twin and a software GPU
+/// (lavapipe); smaller ones are traced as given (`usize::MAX` turns reordering off). From here
+/// on it won on both scenes and both paths, sort included; below it the gain is within noise
+/// (BENCHMARKS.md, "Ray reordering"). The CPU engine (`picker::ENGINE_REORDER_FROM`) and a
+/// hardware GPU (`gpu::picker::reorder_from_for`) do not sort: neither gained from it.
 pub const DEFAULT_REORDER_FROM: usize = 65_536;
 
 /// Bits per axis of the origin's Morton code.

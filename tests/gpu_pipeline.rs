@@ -1,15 +1,20 @@
 //! Large batches through the GPU picker: rays copied into the GPU's staging memory and results
-//! copied out of the mapped readback on all cores (batches from 1 MiB), and batches of several
-//! dispatches with the host's conversion and refinement overlapped, give the twin's answers.
+//! copied out of the mapped readback by several threads (from 1 MiB), and batches of several
+//! dispatches with the host's conversion and refinement overlapped, give the twin's answers;
+//! the overlapped pipeline refuses a tracer that fails or answers short.
 
 mod common;
 
 use common::gpu;
 use raypick::check::compare::differences;
 use raypick::check::synthetic::mixed_rays;
+use raypick::cpu::TraceSettings;
 use raypick::io::obj::load_obj;
+use raypick::layout::{GpuHit, GpuHitEntry, GpuRay};
+use raypick::picker::Tracer;
 use raypick::{
-    BuildOptions, BuiltScene, GpuPicker, Mode, Picker, Query, Ray, ReferencePicker, Scene,
+    Answers, BuildOptions, BuiltScene, Error, GpuPicker, Mode, Picker, Query, Ray, ReferencePicker,
+    Scene,
 };
 use std::path::Path;
 use std::sync::Arc;
@@ -21,52 +26,154 @@ fn bunny() -> Arc<BuiltScene> {
     Arc::new(BuiltScene::new(scene, &BuildOptions::default()).expect("build"))
 }
 
-#[test]
-fn batches_past_the_parallel_copies_and_in_overlapped_steps_give_the_twins_answers() {
-    let built = bunny();
-    // 40,000 rays: 1.9 MB of kernel rays, past the 1 MiB from which the copies run in parallel.
-    let rays: Vec<Ray> = mixed_rays(&built.scene, 40_000, 9)
+fn rays(built: &BuiltScene, count: usize) -> Vec<Ray> {
+    mixed_rays(&built.scene, count, 9)
         .into_iter()
         .map(|(_, r)| r)
-        .collect();
-    let queries = [
+        .collect()
+}
+
+fn queries() -> [Query; 3] {
+    [
         Query::default(),
         Query {
             mode: Mode::Any,
             ..Query::default()
         },
-        // Lists of four 16-byte entries per ray: 2.5 MB copied out.
+        // Lists of four 16-byte entries per ray.
         Query {
             mode: Mode::All,
             max_hits: 4,
             ..Query::default()
         },
-    ];
+    ]
+}
+
+/// `answers` are the twin's: bit for bit, but only hit or miss in any-hit mode.
+fn assert_twins(what: &str, query: &Query, rays: &[Ray], answers: &Answers, twin: &Answers) {
+    let differ = differences(query.mode, answers, twin);
+    assert!(
+        differ.is_empty(),
+        "{what} {query:?}: {} rays differ from the twin, first {:?}",
+        differ.len(),
+        differ.first().map(|&i| rays[i])
+    );
+    if query.mode != Mode::Any {
+        assert_eq!(
+            format!("{answers:?}"),
+            format!("{twin:?}"),
+            "{what} {query:?}: not the twin's bits"
+        );
+    }
+}
+
+#[test]
+fn batches_past_the_parallel_copies_and_in_overlapped_steps_give_the_twins_answers() {
+    let built = bunny();
+    // 100,000 rays: 4.8 MB of kernel rays, 3.2 MB of results and, in all-hits mode, 6.4 MB of
+    // lists; in steps of 33,000 rays each full step copies 1.58 MB in and 1.06 MB out, past the
+    // 1 MiB from which the copies run on several threads.
+    let rays = rays(&built, 100_000);
     let mut whole = GpuPicker::new(gpu(), built.clone()).expect("gpu");
     whole.set_reorder_from(usize::MAX);
-    // Two steps of 25,000 and 15,000 rays: the first past 1 MiB, the second not.
     let mut stepped = GpuPicker::new(gpu(), built.clone()).expect("gpu");
     stepped.set_reorder_from(usize::MAX);
-    stepped.set_chunk_rays(25_000);
+    stepped.set_chunk_rays(33_000);
     let mut twin = ReferencePicker::new(built);
-    for query in queries {
+    for query in queries() {
         let reference = twin.query(&rays, &query).expect("reference");
-        for (name, picker) in [("one dispatch", &mut whole), ("two steps", &mut stepped)] {
-            let answers = picker.query(&rays, &query).expect("gpu");
-            let differ = differences(query.mode, &answers, &reference);
-            assert!(
-                differ.is_empty(),
-                "{name} {query:?}: {} rays differ from the twin, first {:?}",
-                differ.len(),
-                differ.first().map(|&i| rays[i])
-            );
-            if query.mode != Mode::Any {
-                assert_eq!(
-                    format!("{answers:?}"),
-                    format!("{reference:?}"),
-                    "{name} {query:?}: not the twin's bits"
-                );
+        let one = whole.query(&rays, &query).expect("gpu, one dispatch");
+        assert_twins("one dispatch", &query, &rays, &one, &reference);
+        let steps = stepped.query(&rays, &query).expect("gpu, in steps");
+        assert_twins("in steps", &query, &rays, &steps, &reference);
+        // The same kernel on the same rays: the same bits in every mode, any-hit too.
+        assert_eq!(format!("{steps:?}"), format!("{one:?}"), "{query:?}");
+        // On a pool of one thread the overlapped host work runs after each step: the same.
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .expect("pool");
+        let alone = pool.install(|| stepped.query(&rays, &query).expect("gpu, one thread"));
+        assert_eq!(format!("{alone:?}"), format!("{one:?}"), "{query:?}");
+    }
+}
+
+/// The twin as a tracer that overlaps steps of 1,000 rays, and on its `fail_at`-th step
+/// fails (`short`: false) or answers one ray short (`short`: true).
+struct Flaky {
+    twin: ReferencePicker,
+    steps: usize,
+    fail_at: usize,
+    short: bool,
+}
+
+impl Tracer for Flaky {
+    fn built(&self) -> &Arc<BuiltScene> {
+        Tracer::built(&self.twin)
+    }
+
+    fn built_mut(&mut self) -> &mut Arc<BuiltScene> {
+        self.twin.built_mut()
+    }
+
+    fn trace(
+        &mut self,
+        rays: &[GpuRay],
+        settings: &TraceSettings<'_>,
+    ) -> raypick::Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
+        self.steps += 1;
+        let (mut hits, lists) = self.twin.trace(rays, settings)?;
+        if self.steps == self.fail_at {
+            if !self.short {
+                return Err(Error::Gpu("the device was lost".into()));
             }
+            hits.pop();
+        }
+        Ok((hits, lists))
+    }
+
+    fn reorder_from(&self) -> usize {
+        usize::MAX
+    }
+
+    fn overlap_step(&self) -> Option<usize> {
+        Some(1000)
+    }
+
+    fn path_name(&self) -> String {
+        "flaky".into()
+    }
+}
+
+#[test]
+fn an_overlapping_tracer_that_fails_or_answers_short_fails_the_pick() {
+    let built = bunny();
+    let rays = rays(&built, 4500);
+    let twin = || ReferencePicker::new(built.clone());
+    let reference = twin().query(&rays, &Query::default()).expect("reference");
+    let flaky = |fail_at, short| Flaky {
+        twin: twin(),
+        steps: 0,
+        fail_at,
+        short,
+    };
+    // Healthy: five overlapped steps give the twin's answers.
+    let mut healthy = flaky(0, false);
+    let answers = healthy.query(&rays, &Query::default()).expect("healthy");
+    assert_eq!(healthy.steps, 5);
+    assert_twins("healthy", &Query::default(), &rays, &answers, &reference);
+    for (fail_at, short) in [(1, false), (3, false), (5, false), (2, true), (5, true)] {
+        let mut tracer = flaky(fail_at, short);
+        let mut answers = Answers::default();
+        let result = tracer.query_into(&rays, &Query::default(), &mut answers);
+        assert!(result.is_err(), "step {fail_at}, short {short}: no error");
+        assert!(
+            answers.nearest.is_empty(),
+            "step {fail_at}: answers left behind"
+        );
+        if short {
+            let message = result.unwrap_err().to_string();
+            assert!(message.contains("results for a step of"), "{message}");
         }
     }
 }

@@ -78,17 +78,14 @@ pub fn assert_query_equivalent(
     let cpu = CpuPicker::new(built.clone())
         .query(&plain, query)
         .expect("cpu query");
-    let gpu_answers = GpuPicker::new(gpu(), built.clone())
-        .expect("gpu picker")
-        .query(&plain, query)
-        .expect("gpu query");
+    let mut gpu_picker = GpuPicker::new(gpu(), built.clone()).expect("gpu picker");
+    let gpu_answers = gpu_picker.query(&plain, query).expect("gpu query");
     // The same GPU in steps of a third of the batch, unsorted: closest and any-hit picks then
     // overlap the host's conversion and refinement with the GPU's steps (as a hardware GPU's
     // large batches do), and must give the same bits.
-    let mut stepped = GpuPicker::new(gpu(), built.clone()).expect("gpu picker");
-    stepped.set_reorder_from(usize::MAX);
-    stepped.set_chunk_rays((plain.len() / 3 + 1) as u32);
-    let stepped = stepped.query(&plain, query).expect("gpu query in steps");
+    gpu_picker.set_reorder_from(usize::MAX);
+    gpu_picker.set_chunk_rays((plain.len() / 3 + 1) as u32);
+    let stepped = gpu_picker.query(&plain, query).expect("gpu query in steps");
     assert_eq!(
         format!("{stepped:?}"),
         format!("{gpu_answers:?}"),
