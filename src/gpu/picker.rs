@@ -9,8 +9,9 @@ use crate::error::{Error, Result};
 use crate::layout::{GpuHit, GpuHitEntry, GpuInstance, GpuNode, GpuParams, GpuRay, GpuTriangle};
 use crate::picker::{BuiltScene, Refit, Tracer};
 use crate::ray_order::DEFAULT_REORDER_FROM;
-use std::mem::{MaybeUninit, size_of};
-use std::sync::{Arc, Mutex};
+use rayon::prelude::*;
+use std::mem::size_of;
+use std::sync::Arc;
 use wgpu::util::DeviceExt;
 
 /// The kernel source, compiled into the binary.
@@ -46,51 +47,15 @@ pub fn reorder_from_for(context: &GpuContext) -> usize {
 }
 
 /// Bytes from which a dispatch's rays are copied into the GPU's staging memory, and its
-/// results out of the mapped readback, by several threads: on an NVIDIA H200's 16-core host the
-/// two copies of a 262,144-ray dispatch took 1.1–1.3 and 0.8–1.0 ms on one thread, longer than
-/// the GPU's own upload, trace and readback (1.5–1.7 ms).
+/// results out of the mapped readback, on all cores: on an NVIDIA H200's 16-core host the two
+/// copies of a 262,144-ray dispatch took 1.1–1.3 and 0.8–1.0 ms on one thread, longer than the
+/// GPU's own upload, trace and readback (1.5–1.7 ms). On the rayon pool, though a wait there may
+/// run the overlapped pick's host task (`picker::pick_overlapped`) first: four threads of their
+/// own measured slower (BENCHMARKS.md, "A real GPU").
 const PARALLEL_COPY_BYTES: usize = 1 << 20;
 
-/// Bytes per piece of the parallel copies.
+/// Bytes per task of the parallel copies.
 const COPY_PIECE_BYTES: usize = 256 << 10;
-
-/// Threads that share a large copy, the calling thread among them. Threads of their own, not
-/// the rayon pool's: a rayon wait on the calling thread may run the overlapped pick's host task
-/// (`picker::pick_overlapped`) before the copy is done, and leave the GPU idle meanwhile.
-const COPY_THREADS: usize = 4;
-
-/// Runs `work` on every job of `groups`, each group on a thread of its own where one can be
-/// started; the calling thread runs the first group and any group no thread took.
-fn in_threads<J: Send>(groups: Vec<Vec<J>>, work: impl Fn(J) + Sync) {
-    let slots: Vec<Mutex<Vec<J>>> = groups.into_iter().map(Mutex::new).collect();
-    let run = |slot: &Mutex<Vec<J>>| {
-        let jobs = std::mem::take(&mut *slot.lock().unwrap_or_else(|e| e.into_inner()));
-        jobs.into_iter().for_each(&work);
-    };
-    std::thread::scope(|scope| {
-        for slot in slots.iter().skip(1) {
-            // A thread that cannot be started leaves its group in its slot, for the loop below.
-            let _ = std::thread::Builder::new().spawn_scoped(scope, || run(slot));
-        }
-        slots.iter().for_each(run);
-    });
-}
-
-/// `items` in up to [`COPY_THREADS`] runs of consecutive items.
-fn groups_of<J>(items: impl ExactSizeIterator<Item = J>) -> Vec<Vec<J>> {
-    let per = items.len().div_ceil(COPY_THREADS).max(1);
-    let mut groups: Vec<Vec<J>> = Vec::with_capacity(COPY_THREADS);
-    for (k, item) in items.enumerate() {
-        if k % per == 0 {
-            groups.push(Vec::with_capacity(per));
-        }
-        groups
-            .last_mut()
-            .expect("a group was just started")
-            .push(item);
-    }
-    groups
-}
 
 /// Queues `rays` to be written at the start of `buffer` (which holds at least as many).
 fn write_rays(queue: &wgpu::Queue, buffer: &wgpu::Buffer, rays: &[GpuRay]) -> Result<()> {
@@ -107,36 +72,25 @@ fn write_rays(queue: &wgpu::Queue, buffer: &wgpu::Buffer, rays: &[GpuRay]) -> Re
         .ok_or_else(|| Error::Gpu("the rays could not be staged for the GPU".into()))?;
     // Whole pieces (a write-only view of an array may go to another thread; of a slice not).
     let (pieces, mut tail) = view.slice(..).into_chunks::<COPY_PIECE_BYTES>();
-    let pieces = pieces.into_iter();
+    let pieces: Vec<wgpu::WriteOnly<'_, [u8; COPY_PIECE_BYTES]>> = pieces.into_iter().collect();
     let whole = pieces.len() * COPY_PIECE_BYTES;
-    let jobs = groups_of(pieces.zip(bytes[..whole].chunks_exact(COPY_PIECE_BYTES)));
-    in_threads(jobs, |(piece, source)| {
-        wgpu::WriteOnly::<[u8]>::from(piece).copy_from_slice(source)
-    });
+    pieces
+        .into_par_iter()
+        .zip(bytes[..whole].par_chunks_exact(COPY_PIECE_BYTES))
+        .for_each(|(piece, source)| wgpu::WriteOnly::<[u8]>::from(piece).copy_from_slice(source));
     tail.copy_from_slice(&bytes[whole..]);
     // Dropping the view queues the write.
     Ok(())
 }
 
-/// Appends `source` (mapped GPU results) to `out`, by several threads when it is large.
+/// Appends `source` (mapped GPU results) to `out`, on all cores when it is large.
 fn copy_out<T: Copy + Send + Sync>(out: &mut Vec<T>, source: &[T]) {
     if size_of_val(source) < PARALLEL_COPY_BYTES {
         out.extend_from_slice(source);
         return;
     }
-    let (start, n) = (out.len(), source.len());
-    out.reserve(n);
-    let per_piece = (COPY_PIECE_BYTES / size_of::<T>().max(1)).max(1);
-    let spare = &mut out.spare_capacity_mut()[..n];
-    let jobs = groups_of(spare.chunks_mut(per_piece).zip(source.chunks(per_piece)));
-    in_threads(jobs, |(to, from): (&mut [MaybeUninit<T>], &[T])| {
-        for (to, &from) in to.iter_mut().zip(from) {
-            to.write(from);
-        }
-    });
-    // SAFETY: the `n` slots after `start` were reserved and each written above (the pieces
-    // cover them; `in_threads` runs every group before it returns, or panics).
-    unsafe { out.set_len(start + n) };
+    let per_task = (COPY_PIECE_BYTES / size_of::<T>().max(1)).max(1);
+    out.par_extend(source.par_iter().copied().with_min_len(per_task));
 }
 
 /// Default most rays per dispatch, so that no single dispatch runs long.
