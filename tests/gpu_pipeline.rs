@@ -33,20 +33,9 @@ fn rays(built: &BuiltScene, count: usize) -> Vec<Ray> {
         .collect()
 }
 
+/// Every query mode, all-hits lists of four 16-byte entries per ray.
 fn queries() -> [Query; 3] {
-    [
-        Query::default(),
-        Query {
-            mode: Mode::Any,
-            ..Query::default()
-        },
-        // Lists of four 16-byte entries per ray.
-        Query {
-            mode: Mode::All,
-            max_hits: 4,
-            ..Query::default()
-        },
-    ]
+    common::every_mode(4)
 }
 
 /// `answers` are the twin's: bit for bit, but only hit or miss in any-hit mode.

@@ -158,20 +158,9 @@ fn cpu_traversal_is_identical_in_either_order() {
     }
 }
 
-/// Every query mode: closest, any, and all hits with a short list so that some lists overflow.
+/// Every query mode, with lists of three so that some overflow.
 fn queries() -> [Query; 3] {
-    [
-        Query::default(),
-        Query {
-            mode: Mode::Any,
-            ..Query::default()
-        },
-        Query {
-            mode: Mode::All,
-            max_hits: 3,
-            ..Query::default()
-        },
-    ]
+    common::every_mode(3)
 }
 
 fn assert_same_answers(what: &str, a: &Answers, b: &Answers) {

@@ -27,6 +27,23 @@ pub fn gpu() -> &'static GpuContext {
     })
 }
 
+/// Every query mode: closest, any, and all hits with lists of `max_hits` entries (short ones
+/// overflow).
+pub fn every_mode(max_hits: u32) -> [Query; 3] {
+    [
+        Query::default(),
+        Query {
+            mode: Mode::Any,
+            ..Query::default()
+        },
+        Query {
+            mode: Mode::All,
+            max_hits,
+            ..Query::default()
+        },
+    ]
+}
+
 /// Closest-hit picks of `rays` with both intersectors on the CPU, the GPU and the brute-force
 /// oracle, asserting zero mismatches per ray kind between every pair. Returns the CPU hits of
 /// the default (watertight) intersector.
