@@ -222,6 +222,7 @@ impl<'a> Engine<'a> {
                 RefCell::new(Stacks {
                     single: Vec::new(),
                     packet: Vec::new(),
+                    frustum: Vec::new(),
                     top: Vec::new(),
                     scratch: Vec::new(),
                 })
@@ -231,6 +232,7 @@ impl<'a> Engine<'a> {
             if stacks.packet.len() < self.stack {
                 stacks.single = vec![walk::Entry::default(); self.stack * walk::INTERLEAVED];
                 stacks.packet = vec![walk::PacketEntry::default(); self.stack];
+                stacks.frustum = vec![walk::FrustumEntry::default(); self.stack];
             }
             if let Some(top) = &self.top {
                 if stacks.top.len() < top.top_stack {
@@ -281,6 +283,8 @@ struct Stacks {
     /// [`walk::INTERLEAVED`] stacks, one after another.
     single: Vec<walk::Entry>,
     packet: Vec<walk::PacketEntry>,
+    /// The frustum walk's stack.
+    frustum: Vec<walk::FrustumEntry>,
     /// The instanced walk's top-tree stack and one instance's all-hits list.
     top: Vec<walk::Entry>,
     scratch: Vec<GpuHitEntry>,
@@ -335,7 +339,8 @@ unsafe fn trace_instanced_avx2(
 }
 
 /// Traces a task's rays: each group of [`walk::PACKET`] coherent rays (camera rays, pixel
-/// picks) as one packet, runs of other rays [`walk::INTERLEAVED`] at a time, interleaved (on a
+/// picks) as one packet (from one origin, as one frustum: [`walk::trace_frustum`]), runs of
+/// other rays [`walk::INTERLEAVED`] at a time, interleaved (on a
 /// large tree, `Scene::interleave`) or one by one. Either way each ray gets its single-ray
 /// answer.
 #[inline(always)]
@@ -354,13 +359,23 @@ fn trace_chunk<L: Lanes8>(
     let mut i = 0;
     while i < rays.len() {
         if packet_at(i) {
-            walk::trace_packet::<L>(
-                scene,
-                &rays[i..i + p],
-                &mut lists[i * k..(i + p) * k],
-                &mut stacks.packet,
-                &mut hits[i..i + p],
-            );
+            if walk::frustum_packet(&rays[i..i + p]) {
+                walk::trace_frustum::<L>(
+                    scene,
+                    &rays[i..i + p],
+                    &mut lists[i * k..(i + p) * k],
+                    &mut stacks.frustum,
+                    &mut hits[i..i + p],
+                );
+            } else {
+                walk::trace_packet::<L>(
+                    scene,
+                    &rays[i..i + p],
+                    &mut lists[i * k..(i + p) * k],
+                    &mut stacks.packet,
+                    &mut hits[i..i + p],
+                );
+            }
             i += p;
             continue;
         }
