@@ -1139,7 +1139,12 @@ mod tests {
         let mut stack = vec![Entry::default(); stack_size(wide.depth)];
         let mut frustum_stack = vec![FrustumEntry::default(); stack_size(wide.depth)];
         let mut packets = 0;
-        for flags in [MODE_CLOSEST, MODE_ANY, MODE_ALL, MODE_CLOSEST | (1 << CULL_SHIFT)] {
+        for flags in [
+            MODE_CLOSEST,
+            MODE_ANY,
+            MODE_ALL,
+            MODE_CLOSEST | (1 << CULL_SHIFT),
+        ] {
             let k = if flags & 3 == MODE_ALL { 4 } else { 0 };
             for group in camera.chunks_exact(PACKET) {
                 let group: Vec<GpuRay> = group.iter().map(|r| GpuRay { flags, ..*r }).collect();
@@ -1158,9 +1163,8 @@ mod tests {
                         assert_eq!(a.prim == NO_HIT, b.prim == NO_HIT, "ray {i}");
                         continue;
                     }
-                    let bits = |h: &GpuHit| {
-                        (h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits(), h.count)
-                    };
+                    let bits =
+                        |h: &GpuHit| (h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits(), h.count);
                     assert_eq!(bits(&a), bits(&b), "flags {flags}, ray {ray:?}");
                     let entries = |l: &[GpuHitEntry]| {
                         l.iter()
