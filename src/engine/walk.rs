@@ -455,6 +455,67 @@ fn prefetch(scene: &Scene<'_>, child: u32, kind: u8) {
     crate::prefetch::bytes(start, 129);
 }
 
+/// The children a node's test met, in the order they are walked: the nearest is visited next
+/// (kept out of the stack, so a descent costs no push and pop), the others pushed farthest first.
+struct Order {
+    /// The lanes to push, farthest first (equal distances in lane order).
+    push: [u8; WIDTH],
+    /// How many of `push` are used.
+    count: usize,
+    /// The lane visited next.
+    next: usize,
+}
+
+/// Orders the children met, `met` (lane bits, at least one set), by their `near` distances.
+#[inline(always)]
+fn nearest_first(mut met: u32, near: &[f32; WIDTH]) -> Order {
+    debug_assert!(met != 0 && met < 1 << WIDTH);
+    // Lanes are below `WIDTH`; the masks tell the compiler, so no bounds checks remain.
+    let lane_of = |bits: u32| (bits.trailing_zeros() as usize) & (WIDTH - 1);
+    let mut order = Order {
+        push: [0; WIDTH],
+        count: 0,
+        next: lane_of(met),
+    };
+    met &= met - 1;
+    if met == 0 {
+        // One met: go straight down.
+        return order;
+    }
+    let (first, second) = (order.next, lane_of(met));
+    met &= met - 1;
+    if met == 0 {
+        // Two met, the commonest case after one: what the sort below gives two.
+        (order.push[0], order.next) = if near[first] < near[second] {
+            (second as u8, first)
+        } else {
+            (first as u8, second)
+        };
+        order.count = 1;
+        return order;
+    }
+    // An insertion sort, farthest first; the last is visited next.
+    let mut sorted = [0u8; WIDTH];
+    sorted[0] = first as u8;
+    let mut n = 1;
+    met |= 1 << second;
+    while met != 0 {
+        let lane = lane_of(met);
+        met &= met - 1;
+        let mut j = n;
+        while j > 0 && near[usize::from(sorted[j - 1])] < near[lane] {
+            sorted[j] = sorted[j - 1];
+            j -= 1;
+        }
+        sorted[j] = lane as u8;
+        n += 1;
+    }
+    order.next = usize::from(sorted[n - 1]);
+    order.push = sorted;
+    order.count = n - 1;
+    order
+}
+
 impl<'r, L: Lanes8> Walk<'r, L> {
     /// Visits the next node or leaf and chooses the one after it (prefetched when `AHEAD`: the
     /// interleaved walks visit it a while later); `false` when the walk is over.
@@ -472,40 +533,20 @@ impl<'r, L: Lanes8> Walk<'r, L> {
             let occupied = u32::from(node.occupied);
             st.best.box_tests += occupied.count_ones();
             let (bits, near) = boxes(node, &st.r, st.limit);
-            let mut bits = bits & occupied;
+            let bits = bits & occupied;
             if bits != 0 {
-                let first = bits.trailing_zeros() as usize;
-                bits &= bits - 1;
-                let next = if bits == 0 {
-                    // One child met: go straight down.
-                    first
-                } else {
-                    let near = near.to_array();
-                    // Push the children met farthest first, but for the nearest, visited next.
-                    let mut order = [0usize; WIDTH];
-                    order[0] = first;
-                    let mut n = 1;
-                    while bits != 0 {
-                        let lane = bits.trailing_zeros() as usize;
-                        bits &= bits - 1;
-                        let mut j = n;
-                        while j > 0 && near[order[j - 1]] < near[lane] {
-                            order[j] = order[j - 1];
-                            j -= 1;
-                        }
-                        order[j] = lane;
-                        n += 1;
-                    }
-                    for &lane in &order[..n - 1] {
-                        stack[self.top] = Entry {
-                            child: node.child[lane],
-                            kind: node.kind[lane],
-                            near: near[lane],
-                        };
-                        self.top += 1;
-                    }
-                    order[n - 1]
-                };
+                let near = near.to_array();
+                let order = nearest_first(bits, &near);
+                for &lane in &order.push[..order.count] {
+                    let lane = usize::from(lane);
+                    stack[self.top] = Entry {
+                        child: node.child[lane],
+                        kind: node.kind[lane],
+                        near: near[lane],
+                    };
+                    self.top += 1;
+                }
+                let next = order.next;
                 (self.child, self.kind) = (node.child[next], node.kind[next]);
                 if AHEAD {
                     prefetch(scene, self.child, self.kind);
@@ -1011,11 +1052,10 @@ pub fn trace_frustum<L: Lanes8>(
                 }
             }
             let (bits, near) = frustum_boxes(node, &origin, &inv_lo, &inv_hi, tmin, reach);
-            let mut bits = bits & occupied;
+            let bits = bits & occupied;
             if bits != 0 {
-                let first = bits.trailing_zeros() as usize;
-                bits &= bits - 1;
                 let near = near.to_array();
+                let order = nearest_first(bits, &near);
                 let make = |lane: usize| FrustumEntry {
                     child: node.child[lane],
                     kind: node.kind[lane],
@@ -1023,29 +1063,11 @@ pub fn trace_frustum<L: Lanes8>(
                     node: entry.child,
                     near: near[lane],
                 };
-                let next = if bits == 0 {
-                    first
-                } else {
-                    let mut order = [0usize; WIDTH];
-                    order[0] = first;
-                    let mut n = 1;
-                    while bits != 0 {
-                        let lane = bits.trailing_zeros() as usize;
-                        bits &= bits - 1;
-                        let mut j = n;
-                        while j > 0 && near[order[j - 1]] < near[lane] {
-                            order[j] = order[j - 1];
-                            j -= 1;
-                        }
-                        order[j] = lane;
-                        n += 1;
-                    }
-                    for &lane in &order[..n - 1] {
-                        stack[top] = make(lane);
-                        top += 1;
-                    }
-                    order[n - 1]
-                };
+                for &lane in &order.push[..order.count] {
+                    stack[top] = make(usize::from(lane));
+                    top += 1;
+                }
+                let next = order.next;
                 entry = make(next);
                 continue;
             }
