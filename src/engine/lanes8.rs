@@ -189,7 +189,6 @@ pub use avx::Avx;
 #[cfg(target_arch = "x86_64")]
 mod avx {
     use super::Lanes8;
-    use crate::engine::lanes::Sse;
     use crate::layout::GpuTriangle;
     use std::arch::x86_64::*;
 
@@ -286,17 +285,63 @@ mod avx {
         fn bits(m: __m256) -> u32 {
             unsafe { _mm256_movemask_ps(m) as u32 }
         }
-        /// The SSE gather of each half, joined.
+        /// Each triangle's first eight floats loaded whole, triangles `i` and `i + 4` in one
+        /// register's two halves, transposed four by four within the halves; the ninth float
+        /// (the third vertex's z) lane by lane. With four triangles or fewer each half holds the
+        /// same four.
         #[inline(always)]
         fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Self; 3]; 3] {
-            let (lo, hi) = super::halves::<Sse>(triangles, first, count);
-            let join = |v: usize, a: usize| unsafe {
-                Avx(_mm256_set_m128(hi[v][a].register(), lo[v][a].register()))
-            };
+            let range = &triangles[first..first + count];
+            let last = count - 1;
+            // SAFETY: every pointer is a whole `GpuTriangle` of `range` (nine f32, 36 bytes);
+            // the loads read its floats 0..4, 4..8 and 8.
+            unsafe {
+                let p = |i: usize| range.as_ptr().add(last.min(i)).cast::<f32>();
+                // Written out (not `array::from_fn`, which is not always inlined here).
+                let row = |i: usize, offset: usize| {
+                    let low = _mm_loadu_ps(p(i).add(offset));
+                    let high = if count > 4 {
+                        _mm_loadu_ps(p(i + 4).add(offset))
+                    } else {
+                        low
+                    };
+                    _mm256_set_m128(high, low)
+                };
+                let rows = |offset: usize| {
+                    [
+                        row(0, offset),
+                        row(1, offset),
+                        row(2, offset),
+                        row(3, offset),
+                    ]
+                };
+                let [a0, a1, a2, a3] = transpose_halves(rows(0));
+                let [b0, b1, b2, b3] = transpose_halves(rows(4));
+                let z = |i: usize| *p(i).add(8);
+                let z2 = _mm256_setr_ps(z(0), z(1), z(2), z(3), z(4), z(5), z(6), z(7));
+                [
+                    [Avx(a0), Avx(a1), Avx(a2)],
+                    [Avx(a3), Avx(b0), Avx(b1)],
+                    [Avx(b2), Avx(b3), Avx(z2)],
+                ]
+            }
+        }
+    }
+
+    /// Rows to columns within each 128-bit half: lane `j` of column `i`'s half is lane `i` of
+    /// row `j`'s same half.
+    #[inline(always)]
+    unsafe fn transpose_halves([r0, r1, r2, r3]: [__m256; 4]) -> [__m256; 4] {
+        unsafe {
+            let t0 = _mm256_unpacklo_ps(r0, r1);
+            let t1 = _mm256_unpacklo_ps(r2, r3);
+            let t2 = _mm256_unpackhi_ps(r0, r1);
+            let t3 = _mm256_unpackhi_ps(r2, r3);
             [
-                [join(0, 0), join(0, 1), join(0, 2)],
-                [join(1, 0), join(1, 1), join(1, 2)],
-                [join(2, 0), join(2, 1), join(2, 2)],
+                _mm256_shuffle_ps::<0x44>(t0, t1),
+                _mm256_shuffle_ps::<0xEE>(t0, t1),
+                _mm256_shuffle_ps::<0x44>(t2, t3),
+                _mm256_shuffle_ps::<0xEE>(t2, t3),
             ]
         }
     }
