@@ -346,3 +346,61 @@ mod avx {
         }
     }
 }
+
+#[cfg(all(test, target_arch = "x86_64"))]
+mod tests {
+    use super::*;
+    use crate::engine::lanes::Portable;
+
+    /// The AVX gather, in a function compiled with AVX2 as the engine's walk is.
+    #[target_feature(enable = "avx2")]
+    fn avx_gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[[f32; 8]; 3]; 3] {
+        let g = Avx::gather(triangles, first, count);
+        [0, 1, 2].map(|v| [0, 1, 2].map(|a| g[v][a].to_array()))
+    }
+
+    #[test]
+    fn avx_gather_copies_each_lane_as_the_portable_gather_does() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        // Distinct bits in every float, so a lane or a float out of place shows.
+        let triangles: Vec<GpuTriangle> = (0..20)
+            .map(|t| {
+                let f = |k: usize| (t * 9 + k) as f32 * 1.25 - 7.0;
+                GpuTriangle {
+                    v0: [f(0), f(1), f(2)],
+                    v1: [f(3), f(4), f(5)],
+                    v2: [f(6), f(7), f(8)],
+                }
+            })
+            .collect();
+        for first in [0, 3, 12] {
+            for count in 1..=8 {
+                // SAFETY: AVX2 was detected above.
+                let avx = unsafe { avx_gather(&triangles, first, count) };
+                let portable = Pair::<Portable>::gather(&triangles, first, count);
+                for v in 0..3 {
+                    for a in 0..3 {
+                        let p = portable[v][a].to_array();
+                        for lane in 0..8 {
+                            let got = avx[v][a][lane];
+                            if lane < count {
+                                assert_eq!(got.to_bits(), p[lane].to_bits(), "{first} {count}");
+                            } else {
+                                // Past `count`: a copy of some triangle of the range.
+                                let of = |t: &GpuTriangle| [t.v0, t.v1, t.v2][v][a].to_bits();
+                                assert!(
+                                    triangles[first..first + count]
+                                        .iter()
+                                        .any(|t| of(t) == got.to_bits()),
+                                    "{first} {count} lane {lane}"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
