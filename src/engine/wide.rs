@@ -88,10 +88,13 @@ fn children(index: u32, node: &GpuNode) -> [u32; 2] {
 }
 
 impl WideBvh {
-    /// Collapses `bvh`'s binary tree: each wide node takes a binary inner node's children and
-    /// keeps opening the inner child with the largest surface area until it has eight. O(nodes).
-    /// A corrupted tree (a link out of range, or a cycle: more nodes opened than exist) is an
-    /// error, never a hang.
+    /// Collapses `bvh`'s binary tree: each wide node takes a binary inner node's subtree into up
+    /// to eight slots, opening the inner nodes that the surface-area cost says to open
+    /// ([`plan`]: a dynamic program over the binary tree, as Ylitie, Karras and Laine's for
+    /// compressed wide trees; the binary leaves stay leaves). O(nodes). A tree whose links do
+    /// not all point forward (not made by this crate's builders) keeps opening the inner child
+    /// with the largest surface area instead; a corrupted one (a link out of range, or a cycle:
+    /// more nodes opened than exist) is an error, never a hang.
     ///
     /// A large tree is collapsed on all cores: the root's wide node serially, then the subtrees
     /// below it (up to eight) each into a piece of its own, in parallel; the
@@ -124,12 +127,14 @@ impl WideBvh {
         } else {
             (Collapsed::with_capacity(wide_bound(binary, 0)), usize::MAX)
         };
-        let (mut depth, roots) = collapse_from(binary, 0, &mut nodes, cut)?;
+        let plan = plan(binary);
+        let plan = plan.as_deref();
+        let (mut depth, roots) = collapse_from(binary, plan, 0, &mut nodes, cut)?;
         let pieces = roots
             .par_iter()
             .map(|&(n, _, _)| {
                 let mut piece = Collapsed::with_capacity(wide_bound(binary, n));
-                collapse_from(binary, n, &mut piece, usize::MAX).map(|(d, _)| (piece, d))
+                collapse_from(binary, plan, n, &mut piece, usize::MAX).map(|(d, _)| (piece, d))
             })
             .collect::<Result<Vec<_>>>()?;
         let Collapsed {
@@ -340,6 +345,69 @@ impl WideBvh {
     }
 }
 
+/// Cost of visiting a wide node (its eight box tests), per unit of surface area. The two costs
+/// were measured on this project's machine: a node visit about 80 cycles, a leaf visit (a
+/// gather and one test of up to eight triangles) about 100; the collapse barely changes when
+/// the leaf's cost is halved or doubled (BENCHMARKS.md).
+const C_NODE: f32 = 1.0;
+/// Cost of visiting a leaf (one group of up to eight triangle tests), per unit of surface area.
+const C_LEAF: f32 = 1.2;
+
+/// The surface-area cost of every binary node's subtree taking up to `i` slots of a wide node
+/// (`cost[n][i - 1]`), bottom up; `None` for a tree whose links do not all point forward.
+///
+/// A leaf takes one slot at its area times [`C_LEAF`]. An inner node either takes one slot as
+/// a wide node of its own (its area times [`C_NODE`], plus its two children sharing eight
+/// slots) or, given two slots or more, is opened and its children share them, whichever costs
+/// less. The collapse then opens what this says ([`Opener::distribute`]).
+fn plan(binary: &[GpuNode]) -> Option<Vec<[f32; WIDTH]>> {
+    let len = binary.len();
+    let mut cost = vec![[0.0f32; WIDTH]; len];
+    for n in (0..len).rev() {
+        let node = &binary[n];
+        let area = surface_area(node);
+        if node.is_leaf() {
+            cost[n] = [area * C_LEAF; WIDTH];
+            continue;
+        }
+        let [l, r] = children(n as u32, node).map(|c| c as usize);
+        if l <= n || r <= n || l >= len || r >= len {
+            return None;
+        }
+        let (cl, cr) = (cost[l], cost[r]);
+        let (lo, hi) = (binary[l].is_leaf(), binary[r].is_leaf());
+        let mut dist = [f32::INFINITY; WIDTH];
+        if lo && hi {
+            // Two leaves: two slots or more hold both.
+            dist[1..].fill(cl[0] + cr[0]);
+        } else {
+            // dist[i - 1]: the least cost of the two subtrees sharing i slots (one or more each),
+            // a (min, +) convolution; `right[WIDTH + k]` is the right one's cost in k slots.
+            let mut right = [f32::INFINITY; 2 * WIDTH];
+            right[WIDTH + 1..].copy_from_slice(&cr[..WIDTH - 1]);
+            for j in 1..WIDTH {
+                let a = cl[j - 1];
+                let window = &right[WIDTH + 1 - j..2 * WIDTH + 1 - j];
+                for m in 0..WIDTH {
+                    let v = a + window[m];
+                    if v < dist[m] {
+                        dist[m] = v;
+                    }
+                }
+            }
+        }
+        let own = area * C_NODE + dist[WIDTH - 1];
+        let mut c = [own; WIDTH];
+        for i in 1..WIDTH {
+            if dist[i] < own {
+                c[i] = dist[i];
+            }
+        }
+        cost[n] = c;
+    }
+    Some(cost)
+}
+
 /// Binary trees of at least this many nodes are collapsed in parallel pieces.
 const PARALLEL_FROM: usize = 1 << 14;
 /// Levels of wide nodes collapsed serially above the parallel pieces (up to 8 pieces).
@@ -350,11 +418,51 @@ const TOP_LEVELS: usize = 1;
 struct Opener<'a> {
     binary: &'a [GpuNode],
     opened: usize,
+    plan: Option<&'a [[f32; WIDTH]]>,
 }
 
 impl<'a> Opener<'a> {
-    fn new(binary: &'a [GpuNode]) -> Self {
-        Opener { binary, opened: 0 }
+    fn new(binary: &'a [GpuNode], plan: Option<&'a [[f32; WIDTH]]>) -> Self {
+        Opener {
+            binary,
+            opened: 0,
+            plan,
+        }
+    }
+
+    /// The split of `i` slots between binary inner node `n`'s children that costs least, and
+    /// that cost.
+    fn best_split(&self, plan: &[[f32; WIDTH]], n: u32, i: usize) -> (usize, f32) {
+        let [l, r] = children(n, &self.binary[n as usize]).map(|c| c as usize);
+        (1..i)
+            .map(|j| (j, plan[l][j - 1] + plan[r][i - j - 1]))
+            .fold((1, f32::INFINITY), |a, b| if b.1 < a.1 { b } else { a })
+    }
+
+    /// Puts binary node `n`'s subtree into at most `i` of `slots` (from `len`), as the plan says.
+    fn distribute(
+        &mut self,
+        plan: &[[f32; WIDTH]],
+        n: u32,
+        i: usize,
+        slots: &mut [u32; WIDTH],
+        len: &mut usize,
+    ) -> Result<()> {
+        let node = &self.binary[n as usize];
+        if node.is_leaf() || i == 1 {
+            slots[*len] = n;
+            *len += 1;
+            return Ok(());
+        }
+        let (j, split) = self.best_split(plan, n, i);
+        if plan[n as usize][0] <= split {
+            slots[*len] = n;
+            *len += 1;
+            return Ok(());
+        }
+        let [l, r] = self.open(n)?;
+        self.distribute(plan, l, j, slots, len)?;
+        self.distribute(plan, r, i - j, slots, len)
     }
 
     fn corrupted(&self, why: String) -> Error {
@@ -383,6 +491,15 @@ impl<'a> Opener<'a> {
     /// then, while there are fewer than [`WIDTH`], the inner one with the largest surface area
     /// opened in its place (the order kept). In a fixed array: no allocation per node.
     fn widest_children(&mut self, source: u32) -> Result<([u32; WIDTH], usize)> {
+        if let Some(plan) = self.plan {
+            let (j, _) = self.best_split(plan, source, WIDTH);
+            let [left, right] = self.open(source)?;
+            let mut slots = [0; WIDTH];
+            let mut len = 0;
+            self.distribute(plan, left, j, &mut slots, &mut len)?;
+            self.distribute(plan, right, WIDTH - j, &mut slots, &mut len)?;
+            return Ok((slots, len));
+        }
         let binary = self.binary;
         let [left, right] = self.open(source)?;
         let mut slots = [0; WIDTH];
@@ -456,11 +573,12 @@ type LeftOut = (u32, usize, usize);
 /// caller to fill). Children's indices are within `nodes`.
 fn collapse_from(
     binary: &[GpuNode],
+    plan: Option<&[[f32; WIDTH]]>,
     root: u32,
     out: &mut Collapsed,
     cut: usize,
 ) -> Result<(usize, Vec<LeftOut>)> {
-    let mut opener = Opener::new(binary);
+    let mut opener = Opener::new(binary, plan);
     // (binary node whose children fill the wide node, wide slot to fill, depth)
     let mut pending: Vec<(u32, u32, usize)> = vec![(root, 0, 1)];
     let mut left_out = Vec::new();
@@ -542,6 +660,60 @@ mod tests {
         }
     }
 
+    /// The model cost of a collapsed tree: each wide node below the root at its source's area
+    /// times [`C_NODE`], each leaf slot at its area times [`C_LEAF`], the root at its own.
+    fn model_cost(binary: &[GpuNode], wide: &WideBvh) -> f64 {
+        let mut cost = f64::from(surface_area(&binary[0]) * C_NODE);
+        for (node, sources) in wide.nodes.iter().zip(&wide.sources) {
+            for lane in 0..WIDTH {
+                let area = || f64::from(surface_area(&binary[sources[lane] as usize]));
+                match node.kind[lane] {
+                    EMPTY => {}
+                    INNER => cost += area() * f64::from(C_NODE),
+                    _ => cost += area() * f64::from(C_LEAF),
+                }
+            }
+        }
+        cost
+    }
+
+    /// The collapse builds the tree its plan costs, and no greedy collapse costs less.
+    #[test]
+    fn the_collapse_follows_its_plan_and_beats_the_greedy_one() {
+        use crate::check::synthetic::{hills, terrain};
+        let mesh = terrain(60, 45, 0.0, 0.0, 1.0, hills);
+        let scene = crate::Scene::from_meshes([("hills".to_string(), mesh)]).unwrap();
+        for leaf_size in [1, 4, 8] {
+            let options = BuildOptions {
+                leaf_size,
+                ..BuildOptions::default()
+            };
+            let bvh = Bvh::build(&scene, &options).unwrap();
+            let planned = plan(&bvh.nodes).unwrap();
+            let wide = WideBvh::collapse(&bvh).unwrap();
+            wide.validate(bvh.triangles.len()).unwrap();
+            let got = model_cost(&bvh.nodes, &wide);
+            let want = f64::from(planned[0][0]);
+            assert!(
+                (got - want).abs() <= 1e-4 * want,
+                "{got} against the plan's {want}"
+            );
+            let mut greedy = Collapsed::default();
+            collapse_from(&bvh.nodes, None, 0, &mut greedy, usize::MAX).unwrap();
+            let greedy = WideBvh {
+                nodes: greedy.nodes.into(),
+                depth: 0,
+                sources: greedy.sources,
+            };
+            let greedy_cost = model_cost(&bvh.nodes, &greedy);
+            assert!(
+                got <= greedy_cost * (1.0 + 1e-5),
+                "{got} against greedy {greedy_cost}"
+            );
+            assert!(wide.nodes.len() <= greedy.nodes.len());
+        }
+    }
+
     #[test]
     fn the_parallel_collapse_is_the_serial_one_in_another_order() {
         use crate::check::synthetic::{hills, terrain};
@@ -555,7 +727,14 @@ mod tests {
         );
         let parallel = WideBvh::collapse(&bvh).unwrap();
         let mut serial = Collapsed::default();
-        let (depth, left_out) = collapse_from(&bvh.nodes, 0, &mut serial, usize::MAX).unwrap();
+        let (depth, left_out) = collapse_from(
+            &bvh.nodes,
+            plan(&bvh.nodes).as_deref(),
+            0,
+            &mut serial,
+            usize::MAX,
+        )
+        .unwrap();
         let serial = serial.nodes;
         assert!(left_out.is_empty());
         assert_eq!(
