@@ -487,9 +487,10 @@ impl<'a> Opener<'a> {
         }
     }
 
-    /// The children of the wide node made from binary inner node `source`: its two children,
-    /// then, while there are fewer than [`WIDTH`], the inner one with the largest surface area
-    /// opened in its place (the order kept). In a fixed array: no allocation per node.
+    /// The children of the wide node made from binary inner node `source`, in leaf order: its
+    /// subtree spread over eight slots as the plan says ([`Opener::distribute`]); without a
+    /// plan, its two children, then, while there are fewer than [`WIDTH`], the inner one with
+    /// the largest surface area opened in its place. In a fixed array: no allocation per node.
     fn widest_children(&mut self, source: u32) -> Result<([u32; WIDTH], usize)> {
         if let Some(plan) = self.plan {
             let (j, _) = self.best_split(plan, source, WIDTH);
