@@ -359,7 +359,8 @@ const C_LEAF: f32 = 1.2;
 /// A leaf takes one slot at its area times [`C_LEAF`]. An inner node either takes one slot as
 /// a wide node of its own (its area times [`C_NODE`], plus its two children sharing eight
 /// slots) or, given two slots or more, is opened and its children share them, whichever costs
-/// less. The collapse then opens what this says ([`Opener::distribute`]).
+/// less. The collapse then opens what this says ([`Opener::distribute`]). The table (32 bytes
+/// per binary node, as much as the binary nodes themselves) lives only while the collapse runs.
 fn plan(binary: &[GpuNode]) -> Option<Vec<[f32; WIDTH]>> {
     let len = binary.len();
     let mut cost = vec![[0.0f32; WIDTH]; len];
