@@ -489,8 +489,9 @@ pub trait Picker {
     fn query(&mut self, rays: &[Ray], query: &Query) -> Result<Answers>;
 
     /// [`Picker::query`] into `answers`, reusing its buffers' memory where the backend can (the
-    /// CPU pickers' closest and any modes do, and the GPU's batches of several dispatches): for a caller that picks batch after batch. Each
-    /// new buffer of a batch of 32k answers is 3.6 MB of fresh memory, and where the C
+    /// CPU pickers' closest and any modes do, and the GPU's batches of several dispatches): for
+    /// a caller that picks batch after batch. Each new buffer of a batch of 32k answers is
+    /// 3.6 MB of fresh memory, and where the C
     /// allocator hands such blocks back to the OS on every free (a Dask worker's
     /// `MALLOC_TRIM_THRESHOLD_`), writing them faulted in every page anew: 23% of a 1M-ray
     /// pick's time in one thread (BENCHMARKS.md, Dask).
