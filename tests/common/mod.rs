@@ -21,8 +21,12 @@ pub fn gpu() -> &'static GpuContext {
             GpuContext::new().unwrap_or_else(|e| panic!("GPU tests need a GPU adapter: {e}"));
         eprintln!("gpu adapter: {}", context.describe());
         // Evidence for CI that the GPU tests really ran, and on what.
-        let marker = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("gpu-tests-ran");
-        std::fs::write(&marker, context.describe()).expect("write the GPU marker");
+        // The folder is cargo's, made by `cargo test`; a test binary run by hand (on a lent GPU
+        // machine, say) may find it missing.
+        let folder = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"));
+        std::fs::create_dir_all(folder).expect("make the GPU marker's folder");
+        std::fs::write(folder.join("gpu-tests-ran"), context.describe())
+            .expect("write the GPU marker");
         context
     })
 }
