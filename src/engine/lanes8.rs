@@ -8,6 +8,7 @@
 //! scalar code computes.
 
 use super::lanes::Lanes;
+use super::wide::WideNode;
 use crate::layout::GpuTriangle;
 
 /// Lanes per [`Lanes8`] value.
@@ -61,6 +62,24 @@ pub trait Lanes8: Copy {
     /// `first + i` (`1 <= count <= 8`); the lanes past `count` hold copies of triangles of the
     /// range, for the caller to mask. The values are copies, bit for bit.
     fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Self; 3]; 3];
+    /// Writes a node's eight children in the order a walk's stack wants them, where a sorting
+    /// network does it without branches, and gives the nearest child met: `out[s]` is
+    /// `[child, kind | lane << 8, near's bits, at]` of the `s`-th lane (`walk::Entry`'s
+    /// words; `at` is the node's index), the lanes of `met` first, farthest first; the slots
+    /// after them hold copies of some lane's words, for the walk to overwrite. `None` where there is no network (the walk then sorts the lanes
+    /// itself). Distances within eight representable floats of each other may come in either
+    /// order: the order decides which child is visited first, never an answer.
+    #[inline(always)]
+    fn far_first(
+        near: Self,
+        met: u32,
+        node: &WideNode,
+        at: u32,
+        out: &mut [[u32; 4]; 8],
+    ) -> Option<usize> {
+        let _ = (near, met, node, at, out);
+        None
+    }
 }
 
 /// The two sets of four lanes a gather of up to eight triangles joins (lanes 0–3, 4–7). With
@@ -189,6 +208,7 @@ pub use avx::Avx;
 #[cfg(target_arch = "x86_64")]
 mod avx {
     use super::Lanes8;
+    use crate::engine::wide::WideNode;
     use crate::layout::GpuTriangle;
     use std::arch::x86_64::*;
 
@@ -326,6 +346,90 @@ mod avx {
                 ]
             }
         }
+        /// Each lane's key is its distance's bits mapped to an unsigned order (negative floats
+        /// flipped), the low three bits replaced by the lane; lanes not met get 0 and sort
+        /// last. The nearest is found apart from the sort (the smallest key met), so the next
+        /// node's load need not wait for it.
+        #[inline(always)]
+        fn far_first(
+            near: Self,
+            met: u32,
+            node: &WideNode,
+            at: u32,
+            out: &mut [[u32; 4]; 8],
+        ) -> Option<usize> {
+            // SAFETY: as above; the loads read `node.child` and `node.kind` whole, the stores
+            // write `out` whole.
+            unsafe {
+                let bits = _mm256_castps_si256(near.0);
+                let flip =
+                    _mm256_or_si256(_mm256_srai_epi32::<31>(bits), _mm256_set1_epi32(i32::MIN));
+                let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+                let keys = _mm256_or_si256(
+                    _mm256_and_si256(_mm256_xor_si256(bits, flip), _mm256_set1_epi32(!7)),
+                    lanes,
+                );
+                let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+                let met = _mm256_cmpeq_epi32(
+                    _mm256_and_si256(_mm256_set1_epi32(met as i32), lane_bits),
+                    lane_bits,
+                );
+                let m = _mm256_or_si256(keys, _mm256_andnot_si256(met, _mm256_set1_epi32(-1)));
+                let m = _mm256_min_epu32(m, _mm256_shuffle_epi32::<0xB1>(m));
+                let m = _mm256_min_epu32(m, _mm256_shuffle_epi32::<0x4E>(m));
+                let m = _mm256_min_epu32(m, _mm256_permute2x128_si256::<0x01>(m, m));
+                let next = (_mm256_cvtsi256_si32(m) & 7) as usize;
+                let order = _mm256_and_si256(
+                    sort_descending(_mm256_and_si256(keys, met)),
+                    _mm256_set1_epi32(7),
+                );
+                let children = _mm256_loadu_si256(node.child.as_ptr().cast());
+                let kinds = _mm256_or_si256(
+                    _mm256_cvtepu8_epi32(_mm_loadl_epi64(node.kind.as_ptr().cast())),
+                    _mm256_slli_epi32::<8>(lanes),
+                );
+                let [r0, r1, r2, r3] = transpose_halves([
+                    _mm256_castsi256_ps(_mm256_permutevar8x32_epi32(children, order)),
+                    _mm256_castsi256_ps(_mm256_permutevar8x32_epi32(kinds, order)),
+                    _mm256_permutevar8x32_ps(near.0, order),
+                    _mm256_castsi256_ps(_mm256_set1_epi32(at as i32)),
+                ]);
+                let p = out.as_mut_ptr().cast::<f32>();
+                _mm_storeu_ps(p, _mm256_castps256_ps128(r0));
+                _mm_storeu_ps(p.add(4), _mm256_castps256_ps128(r1));
+                _mm_storeu_ps(p.add(8), _mm256_castps256_ps128(r2));
+                _mm_storeu_ps(p.add(12), _mm256_castps256_ps128(r3));
+                _mm_storeu_ps(p.add(16), _mm256_extractf128_ps::<1>(r0));
+                _mm_storeu_ps(p.add(20), _mm256_extractf128_ps::<1>(r1));
+                _mm_storeu_ps(p.add(24), _mm256_extractf128_ps::<1>(r2));
+                _mm_storeu_ps(p.add(28), _mm256_extractf128_ps::<1>(r3));
+                Some(next)
+            }
+        }
+    }
+
+    /// Bitonic sort of eight u32 keys, largest first: per layer each lane meets its partner
+    /// (`i ^ j`), and keeps the larger or the smaller as its block's direction says.
+    #[inline(always)]
+    unsafe fn sort_descending(mut k: __m256i) -> __m256i {
+        unsafe {
+            macro_rules! layer {
+                ($partner:expr, $take_max:literal) => {{
+                    let p = $partner;
+                    k = _mm256_blend_epi32::<$take_max>(
+                        _mm256_min_epu32(k, p),
+                        _mm256_max_epu32(k, p),
+                    );
+                }};
+            }
+            layer!(_mm256_shuffle_epi32::<0xB1>(k), 0x99);
+            layer!(_mm256_shuffle_epi32::<0x4E>(k), 0xC3);
+            layer!(_mm256_shuffle_epi32::<0xB1>(k), 0xA5);
+            layer!(_mm256_permute2x128_si256::<0x01>(k, k), 0x0F);
+            layer!(_mm256_shuffle_epi32::<0x4E>(k), 0x33);
+            layer!(_mm256_shuffle_epi32::<0xB1>(k), 0x55);
+            k
+        }
     }
 
     /// Rows to columns within each 128-bit half: lane `j` of column `i`'s half is lane `i` of
@@ -401,6 +505,77 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// The AVX ordering, in a function compiled with AVX2 as the engine's walk is.
+    #[target_feature(enable = "avx2")]
+    fn avx_far_first(
+        near: &[f32; 8],
+        met: u32,
+        node: &WideNode,
+        at: u32,
+    ) -> (Option<usize>, [[u32; 4]; 8]) {
+        let mut out = [[0u32; 4]; 8];
+        let next = Avx::far_first(Avx::load(near), met, node, at, &mut out);
+        (next, out)
+    }
+
+    /// A distance's sort key without its lane: the order-preserving unsigned bits, the low three
+    /// cleared.
+    fn bucket(x: f32) -> u32 {
+        let b = x.to_bits();
+        (if b >> 31 == 1 { !b } else { b | 1 << 31 }) & !7
+    }
+
+    #[test]
+    fn avx_far_first_writes_the_met_children_farthest_first_and_finds_the_nearest() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg32::seed_from_u64(13);
+        let mut node: WideNode = bytemuck::Zeroable::zeroed();
+        for case in 0..20_000 {
+            for lane in 0..8 {
+                node.child[lane] = rng.random();
+                node.kind[lane] = rng.random_range(0..=16);
+            }
+            // Distances of every kind: equal ones, neighbours, negative ones, and spread ones.
+            let base: f32 = rng.random_range(-10.0..1000.0);
+            let near: [f32; 8] = std::array::from_fn(|_| match rng.random_range(0..4) {
+                0 => base,
+                1 => f32::from_bits(base.to_bits() + rng.random_range(0..20)),
+                2 => -rng.random_range(0.0..5.0f32),
+                _ => rng.random_range(0.0..1e6f32),
+            });
+            let met: u32 = rng.random_range(1..256);
+            let at: u32 = rng.random();
+            // SAFETY: AVX2 was detected above.
+            let (next, out) = unsafe { avx_far_first(&near, met, &node, at) };
+            let n = met.count_ones() as usize;
+            let lanes: Vec<usize> = out.iter().map(|row| (row[1] >> 8) as usize).collect();
+            for (s, row) in out.iter().enumerate() {
+                let lane = lanes[s];
+                assert!(lane < 8, "case {case}");
+                let want = [
+                    node.child[lane],
+                    u32::from(node.kind[lane]) | (lane as u32) << 8,
+                    near[lane].to_bits(),
+                    at,
+                ];
+                assert_eq!(*row, want, "case {case} slot {s}");
+            }
+            let mut seen = lanes[..n].to_vec();
+            seen.sort_unstable();
+            let want: Vec<usize> = (0..8).filter(|l| met >> l & 1 == 1).collect();
+            assert_eq!(seen, want, "case {case}: the met lanes first, each once");
+            for s in 1..n {
+                let (a, b) = (bucket(near[lanes[s - 1]]), bucket(near[lanes[s]]));
+                assert!(a >= b, "case {case}: farthest first ({near:?}, {lanes:?})");
+            }
+            // The nearest: the last met one written.
+            assert_eq!(next, Some(lanes[n - 1]), "case {case}");
         }
     }
 }

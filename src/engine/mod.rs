@@ -232,7 +232,7 @@ impl<'a> Engine<'a> {
             if stacks.packet.len() < self.stack {
                 stacks.single = vec![walk::Entry::default(); self.stack * walk::INTERLEAVED];
                 stacks.packet = vec![walk::PacketEntry::default(); self.stack];
-                stacks.frustum = vec![walk::FrustumEntry::default(); self.stack];
+                stacks.frustum = vec![walk::Entry::default(); self.stack];
             }
             if let Some(top) = &self.top {
                 if stacks.top.len() < top.top_stack {
@@ -284,7 +284,7 @@ struct Stacks {
     single: Vec<walk::Entry>,
     packet: Vec<walk::PacketEntry>,
     /// The frustum walk's stack.
-    frustum: Vec<walk::FrustumEntry>,
+    frustum: Vec<walk::Entry>,
     /// The instanced walk's top-tree stack and one instance's all-hits list.
     top: Vec<walk::Entry>,
     scratch: Vec<GpuHitEntry>,
