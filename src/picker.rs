@@ -1022,7 +1022,7 @@ impl CpuPicker {
     }
 
     /// Walks incoherent rays interleaved (`Some(true)`), one by one (`Some(false)`), or as the
-    /// tree's size decides (`None`, the default: [`crate::engine::walk::interleave_for`]).
+    /// engine chooses (`None`, the default: interleaved).
     /// Answers are the same either way.
     pub fn set_interleave(&mut self, on: Option<bool>) {
         self.interleave = on;

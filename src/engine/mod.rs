@@ -115,7 +115,7 @@ impl<'a> Engine<'a> {
                 watertight: settings.watertight,
                 packets,
                 size: wide.size(),
-                interleave: walk::interleave_for(wide.nodes.len(), bvh.triangles.len()),
+                interleave: true,
             },
             simd: if simd.is_available() {
                 simd
@@ -187,8 +187,8 @@ impl<'a> Engine<'a> {
         })
     }
 
-    /// Walks incoherent rays interleaved (`true`) or one by one (`false`), instead of as the
-    /// tree's size decides ([`walk::interleave_for`]). Answers are the same either way.
+    /// Walks incoherent rays interleaved (`true`, the default) or one by one (`false`).
+    /// Answers are the same either way.
     pub fn set_interleave(&mut self, on: bool) {
         self.scene.interleave = on;
     }
@@ -340,8 +340,8 @@ unsafe fn trace_instanced_avx2(
 
 /// Traces a task's rays: each group of [`walk::PACKET`] coherent rays (camera rays, pixel
 /// picks) as one packet (from one origin, as one frustum: [`walk::trace_frustum`]), runs of
-/// other rays [`walk::INTERLEAVED`] at a time, interleaved (on a
-/// large tree, `Scene::interleave`) or one by one. Either way each ray gets its single-ray
+/// other rays [`walk::INTERLEAVED`] at a time, interleaved (`Scene::interleave`, the default)
+/// or one by one. Either way each ray gets its single-ray
 /// answer.
 #[inline(always)]
 fn trace_chunk<L: Lanes8>(

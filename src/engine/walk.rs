@@ -38,20 +38,13 @@ pub struct Scene<'a> {
     pub packets: bool,
     /// The largest side of the root's box, for the packet test [`coherent`].
     pub size: f32,
-    /// Whether incoherent rays walk interleaved ([`trace_interleaved`]) rather than one by one
-    /// ([`trace`]): see [`interleave_for`].
+    /// Whether incoherent rays walk interleaved ([`trace_interleaved`], the engine's default)
+    /// rather than one by one ([`trace`]). Interleaved walks were 20–46% faster on the dragon
+    /// and the Jacksboro DEM, whose walks wait on the L3 and memory, and 10% slower on the bunny
+    /// while a node's children were sorted with branches; with the sorting network
+    /// ([`push_children`]) they are faster on every scene measured, the bunny (+11%) and a
+    /// 96 × 96 grid (+20%) included (BENCHMARKS.md).
     pub interleave: bool,
-}
-
-/// Nodes and triangles (bytes) from which incoherent rays walk interleaved. On this project's
-/// machine (1 MiB of L2 per core, 32 MiB of L3) interleaving was 20–46% faster on the dragon
-/// (10 MB) and the Jacksboro DEM (25 MB), whose walks wait on the L3 and memory, and 10% slower
-/// on the bunny (3 MB), whose walks mostly hit the L2 (BENCHMARKS.md, "What changed").
-pub const INTERLEAVE_FROM_BYTES: usize = 6 << 20;
-
-/// Whether a tree of `nodes` wide nodes over `triangles` triangles is walked interleaved.
-pub fn interleave_for(nodes: usize, triangles: usize) -> bool {
-    nodes * size_of::<WideNode>() + triangles * size_of::<GpuTriangle>() >= INTERLEAVE_FROM_BYTES
 }
 
 /// A pushed child: what it is, the node and slot that hold its box (the frustum walk tests a
