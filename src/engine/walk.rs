@@ -519,8 +519,14 @@ fn nearest_first(mut met: u32, near: &[f32; WIDTH]) -> Order {
 /// Pushes the children `met` (lane bits, at least one set) of node `at` onto `stack` above
 /// `top`, farthest first by their `near` distances, all but the nearest, which is returned with
 /// the new top: by a sorting network where the lanes have one ([`Lanes8::far_first`]: no
-/// branches, which traced incoherent rays 20–50% faster on the dragon and the soup, A/B in
-/// BENCHMARKS.md), else by [`nearest_first`]. `stack` has `WIDTH` entries to spare above `top`.
+/// branches), else by [`nearest_first`]. `stack` has `WIDTH` entries to spare above `top`.
+///
+/// With `one_by_branch`, a lone child met goes straight down by a branch first. Measured A/B
+/// (BENCHMARKS.md): the network traced incoherent rays 20–55% faster than the insertion sort on
+/// the dragon and the soup, and the branch costs the interleaved walks of such rays 5–9%, so
+/// they go without it; rays whose branches predict want it: camera rays walked one at a time
+/// through an instanced field were 15% slower with the network alone and are level with it,
+/// and frustum packets trace 3–4% faster with it.
 #[inline(always)]
 fn push_children<L: Lanes8>(
     stack: &mut [Entry],
@@ -529,7 +535,11 @@ fn push_children<L: Lanes8>(
     at: u32,
     met: u32,
     near: L,
+    one_by_branch: bool,
 ) -> (usize, usize) {
+    if one_by_branch && met & (met - 1) == 0 {
+        return (top, (met.trailing_zeros() as usize) & (WIDTH - 1));
+    }
     let spare: &mut [Entry; WIDTH] = (&mut stack[top..top + WIDTH])
         .try_into()
         .expect("WIDTH entries");
@@ -572,7 +582,8 @@ impl<'r, L: Lanes8> Walk<'r, L> {
             let bits = bits & occupied;
             if bits != 0 {
                 let next;
-                (self.top, next) = push_children(stack, self.top, node, self.child, bits, near);
+                (self.top, next) =
+                    push_children(stack, self.top, node, self.child, bits, near, !AHEAD);
                 (self.child, self.kind) = (node.child[next], node.kind[next]);
                 if AHEAD {
                     prefetch(scene, self.child, self.kind);
@@ -1111,7 +1122,7 @@ pub fn trace_frustum<L: Lanes8>(
             let bits = bits & occupied;
             if bits != 0 {
                 let next;
-                (top, next) = push_children(stack, top, node, entry.child, bits, near);
+                (top, next) = push_children(stack, top, node, entry.child, bits, near, true);
                 entry = Entry {
                     child: node.child[next],
                     kind: node.kind[next],
