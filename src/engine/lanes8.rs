@@ -66,9 +66,10 @@ pub trait Lanes8: Copy {
     /// network does it without branches, and gives the nearest child met: `out[s]` is
     /// `[child, kind | lane << 8, near's bits, at]` of the `s`-th lane (`walk::Entry`'s
     /// words; `at` is the node's index), the lanes of `met` first, farthest first; the slots
-    /// after them hold copies of some lane's words, for the walk to overwrite. `None` where there is no network (the walk then sorts the lanes
-    /// itself). Distances within eight representable floats of each other may come in either
-    /// order: the order decides which child is visited first, never an answer.
+    /// after them hold copies of some lane's words, for the walk to overwrite. `None` where
+    /// there is no network (the walk then sorts the lanes itself). Distances within eight
+    /// representable floats of each other may come in either order: the order decides which
+    /// child is visited first, never an answer.
     #[inline(always)]
     fn far_first(
         near: Self,
