@@ -235,8 +235,8 @@ impl<'a> Engine<'a> {
                 stacks.frustum = vec![walk::Entry::default(); self.stack];
             }
             if let Some(top) = &self.top {
-                if stacks.top.len() < top.top_stack {
-                    stacks.top = vec![walk::Entry::default(); top.top_stack];
+                if stacks.top.len() < top.top_stack * walk::INTERLEAVED {
+                    stacks.top = vec![walk::Entry::default(); top.top_stack * walk::INTERLEAVED];
                 }
                 match self.simd {
                     #[cfg(target_arch = "x86_64")]
@@ -285,7 +285,8 @@ struct Stacks {
     packet: Vec<walk::PacketEntry>,
     /// The frustum walk's stack.
     frustum: Vec<walk::Entry>,
-    /// The instanced walk's top-tree stack and one instance's all-hits list.
+    /// The instanced walk's top-tree stacks ([`walk::INTERLEAVED`]) and one instance's all-hits
+    /// list.
     top: Vec<walk::Entry>,
     scratch: Vec<GpuHitEntry>,
 }
@@ -300,7 +301,8 @@ fn list_length(rays: &[GpuRay], lists: &[GpuHitEntry]) -> usize {
     }
 }
 
-/// Traces a task's rays through an instanced scene, one by one ([`instanced::trace`]).
+/// Traces a task's rays through an instanced scene, [`walk::INTERLEAVED`] at a time
+/// ([`instanced::trace_interleaved`]).
 #[inline(always)]
 fn trace_instanced<L: Lanes8>(
     top: &instanced::TopScene<'_>,
@@ -313,14 +315,16 @@ fn trace_instanced<L: Lanes8>(
     if stacks.scratch.len() < k {
         stacks.scratch = vec![GpuHitEntry::default(); k];
     }
-    for (j, ray) in rays.iter().enumerate() {
-        hits[j] = instanced::trace::<L>(
+    for (j, run) in rays.chunks(walk::INTERLEAVED).enumerate() {
+        let i = j * walk::INTERLEAVED;
+        instanced::trace_interleaved::<L>(
             top,
-            ray,
-            &mut lists[j * k..(j + 1) * k],
+            run,
+            &mut lists[i * k..(i + run.len()) * k],
             &mut stacks.scratch[..k],
             &mut stacks.top,
             &mut stacks.single,
+            &mut hits[i..i + run.len()],
         );
     }
 }

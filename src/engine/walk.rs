@@ -415,7 +415,7 @@ pub trait Leaves<L: Lanes8> {
 }
 
 /// The leaves of a triangle tree: each tested eight triangles at a time.
-struct Triangles<'s, 'a>(&'s Scene<'a>);
+pub struct Triangles<'s, 'a>(&'s Scene<'a>);
 
 impl<L: Lanes8> Leaves<L> for Triangles<'_, '_> {
     #[inline(always)]
@@ -572,6 +572,7 @@ impl<'r, L: Lanes8> Walk<'r, L> {
         stack: &mut [Entry],
         hit_list: &mut [GpuHitEntry],
         leaf: &mut impl Leaves<L>,
+        one_by_branch: bool,
     ) -> bool {
         let st = &mut self.st;
         if self.kind == INNER {
@@ -583,7 +584,7 @@ impl<'r, L: Lanes8> Walk<'r, L> {
             if bits != 0 {
                 let next;
                 (self.top, next) =
-                    push_children(stack, self.top, node, self.child, bits, near, !AHEAD);
+                    push_children(stack, self.top, node, self.child, bits, near, one_by_branch);
                 (self.child, self.kind) = (node.child[next], node.kind[next]);
                 if AHEAD {
                     prefetch(scene, self.child, self.kind);
@@ -626,9 +627,9 @@ pub fn trace<L: Lanes8>(
 }
 
 /// [`trace`]'s walk with each leaf met visited by `leaf`, nearest first, which may lower
-/// `state.limit` (pruning what is left), set `state.best` and `state.done`: triangles for
-/// [`trace`], instances for the instanced walk's top tree ([`super::instanced`], which reads no
-/// `scene.triangles`).
+/// `state.limit` (pruning what is left), set `state.best` and `state.done` (triangles for
+/// [`trace`]; the instanced walk's top tree visits instances, interleaved:
+/// [`trace_interleaved_leaves`]).
 #[inline(always)]
 pub fn trace_leaves<L: Lanes8>(
     scene: &Scene<'_>,
@@ -647,7 +648,7 @@ pub fn trace_leaves<L: Lanes8>(
         kind: INNER,
         top: 0,
     };
-    while walk.step::<false>(scene, stack, hit_list, leaf) {}
+    while walk.step::<false>(scene, stack, hit_list, leaf, true) {}
     walk.st.finish(hit_list)
 }
 
@@ -671,6 +672,35 @@ pub fn trace_interleaved<L: Lanes8>(
     lists: &mut [GpuHitEntry],
     stacks: &mut [Entry],
     out: &mut [GpuHit],
+) {
+    let leaf = &mut Triangles(scene);
+    trace_interleaved_leaves::<L>(scene, rays, lists, stacks, out, leaf, false);
+}
+
+/// What an interleaved walk does at a leaf: [`Leaves`] for the ray about to step, `aim`ed at
+/// it first (the walks take turns).
+pub trait RayLeaves<'r, L: Lanes8>: Leaves<L> {
+    /// The walk of `ray` steps next.
+    fn aim(&mut self, ray: &'r GpuRay);
+}
+
+impl<'r, L: Lanes8> RayLeaves<'r, L> for Triangles<'_, '_> {
+    #[inline(always)]
+    fn aim(&mut self, _: &'r GpuRay) {}
+}
+
+/// [`trace_interleaved`] with each leaf met visited by `leaf` (as in [`trace_leaves`]):
+/// triangles, or the instanced walk's instances. `one_by_branch` as in [`push_children`]: for
+/// rays whose branches predict (the instanced walk's).
+#[inline(always)]
+pub fn trace_interleaved_leaves<'r, L: Lanes8>(
+    scene: &Scene<'_>,
+    rays: &'r [GpuRay],
+    lists: &mut [GpuHitEntry],
+    stacks: &mut [Entry],
+    out: &mut [GpuHit],
+    leaf: &mut impl RayLeaves<'r, L>,
+    one_by_branch: bool,
 ) {
     let k = lists.len() / rays.len().max(1);
     let depth = stacks.len() / INTERLEAVED;
@@ -696,8 +726,9 @@ pub fn trace_interleaved<L: Lanes8>(
             left &= left - 1;
             let stack = &mut stacks[i * depth..(i + 1) * depth];
             let list = &mut lists[i * k..(i + 1) * k];
+            leaf.aim(&rays[i]);
             if let Some(walk) = walks[i].as_mut()
-                && !walk.step::<true>(scene, stack, list, &mut Triangles(scene))
+                && !walk.step::<true>(scene, stack, list, leaf, one_by_branch)
             {
                 going &= !(1 << i);
             }
