@@ -34,9 +34,9 @@ pub struct TopScene<'a> {
 /// mesh's walk. Each ray's walk is the one it would walk alone; the field of 10,000 bunnies
 /// picked 6% faster so than ray by ray (BENCHMARKS.md).
 #[inline(always)]
-pub fn trace_interleaved<'r, L: Lanes8>(
+pub fn trace_interleaved<L: Lanes8>(
     scene: &TopScene<'_>,
-    rays: &'r [GpuRay],
+    rays: &[GpuRay],
     lists: &mut [GpuHitEntry],
     scratch: &mut [GpuHitEntry],
     tops: &mut [Entry],
