@@ -2,13 +2,12 @@
 //! first, rays interleaved ([`walk::trace_interleaved_leaves`]); at each instance leaf the ray
 //! is moved into the instance's frame (`cpu::traverse::enter_instance`, the same bits as the
 //! kernel) and traced through the mesh's wide tree ([`walk::trace`]), its limit the best hit
-//! so far. Each
-//! instance's answer is merged under the twin's tie rule (hit ids `prim_base + file-order
-//! triangle` are their own keys), so the answers are the twin's bit for bit in closest and
-//! all-hits mode; any-hit mode, as everywhere, returns some hit when there is one.
+//! so far. Each instance's answer is merged under the twin's tie rule (hit ids `prim_base +
+//! file-order triangle` are their own keys), so the answers are the twin's bit for bit in
+//! closest and all-hits mode; any-hit mode, as everywhere, returns some hit when there is one.
 
 use super::lanes8::Lanes8;
-use super::walk::{self, Entry, Leaves, RayLeaves, RayState};
+use super::walk::{self, Entry, Leaves, RayState};
 use crate::cpu::traverse::{closest_accepts, enter_instance, insert_hit, origin_lo};
 use crate::instance::Instances;
 use crate::layout::{GpuHit, GpuHitEntry, GpuRay, MODE_ALL, MODE_ANY, NO_HIT};
@@ -43,52 +42,33 @@ pub fn trace_interleaved<L: Lanes8>(
     stack: &mut [Entry],
     out: &mut [GpuHit],
 ) {
-    let Some(first) = rays.first() else {
-        return;
-    };
     let mut visit = Visit {
         scene,
-        ray: first,
-        origin: Vec3::ZERO,
-        dir: Vec3::ZERO,
-        lo: Vec3::ZERO,
         scratch,
         stack,
     };
     walk::trace_interleaved_leaves::<L>(&scene.top, rays, lists, tops, out, &mut visit, true);
 }
 
-/// One ray's visit of the instance leaves: into the instance's frame, through its mesh, and the
-/// answer merged.
+/// A ray's visit of an instance leaf: into the instance's frame, through its mesh, and the
+/// answer merged. Its scratch list and mesh stack serve every ray in turn (an instance is
+/// walked whole in its ray's turn).
 struct Visit<'v, 'a> {
     scene: &'v TopScene<'a>,
-    ray: &'v GpuRay,
-    origin: Vec3,
-    dir: Vec3,
-    lo: Vec3,
     scratch: &'v mut [GpuHitEntry],
     stack: &'v mut [Entry],
-}
-
-impl<'v, L: Lanes8> RayLeaves<'v, L> for Visit<'v, '_> {
-    #[inline(always)]
-    fn aim(&mut self, ray: &'v GpuRay) {
-        self.ray = ray;
-        self.origin = Vec3::from(ray.origin);
-        self.dir = Vec3::from(ray.dir);
-        self.lo = origin_lo(ray);
-    }
 }
 
 impl<L: Lanes8> Leaves<L> for Visit<'_, '_> {
     #[inline(always)]
     fn visit(&mut self, st: &mut RayState<'_, L>, k: u32, _: usize, list: &mut [GpuHitEntry]) {
-        let ray = self.ray;
+        let ray = st.ray();
         let r = &self.scene.instances.records()[k as usize];
         if (r.mask & ray.mask) == 0 {
             return;
         }
-        let (o, d) = enter_instance(r, self.origin, self.lo, self.dir);
+        let origin = Vec3::from(ray.origin);
+        let (o, d) = enter_instance(r, origin, origin_lo(ray), Vec3::from(ray.dir));
         let local = GpuRay {
             origin: o.to_array(),
             tmin: ray.tmin,

@@ -293,6 +293,12 @@ impl<'r, L: Lanes8> RayState<'r, L> {
         (best, Some(state))
     }
 
+    /// The ray being walked.
+    #[inline(always)]
+    pub fn ray(&self) -> &'r GpuRay {
+        self.ray
+    }
+
     /// Tests the leaf's `count` triangles from leaf-order `first`, eight at a time, accepting
     /// hits by the twin's rules (ties included).
     #[inline(always)]
@@ -415,7 +421,7 @@ pub trait Leaves<L: Lanes8> {
 }
 
 /// The leaves of a triangle tree: each tested eight triangles at a time.
-pub struct Triangles<'s, 'a>(&'s Scene<'a>);
+struct Triangles<'s, 'a>(&'s Scene<'a>);
 
 impl<L: Lanes8> Leaves<L> for Triangles<'_, '_> {
     #[inline(always)]
@@ -677,29 +683,17 @@ pub fn trace_interleaved<L: Lanes8>(
     trace_interleaved_leaves::<L>(scene, rays, lists, stacks, out, leaf, false);
 }
 
-/// What an interleaved walk does at a leaf: [`Leaves`] for the ray about to step, `aim`ed at
-/// it first (the walks take turns).
-pub trait RayLeaves<'r, L: Lanes8>: Leaves<L> {
-    /// The walk of `ray` steps next.
-    fn aim(&mut self, ray: &'r GpuRay);
-}
-
-impl<'r, L: Lanes8> RayLeaves<'r, L> for Triangles<'_, '_> {
-    #[inline(always)]
-    fn aim(&mut self, _: &'r GpuRay) {}
-}
-
 /// [`trace_interleaved`] with each leaf met visited by `leaf` (as in [`trace_leaves`]):
 /// triangles, or the instanced walk's instances. `one_by_branch` as in [`push_children`]: for
 /// rays whose branches predict (the instanced walk's).
 #[inline(always)]
-pub fn trace_interleaved_leaves<'r, L: Lanes8>(
+pub fn trace_interleaved_leaves<L: Lanes8>(
     scene: &Scene<'_>,
-    rays: &'r [GpuRay],
+    rays: &[GpuRay],
     lists: &mut [GpuHitEntry],
     stacks: &mut [Entry],
     out: &mut [GpuHit],
-    leaf: &mut impl RayLeaves<'r, L>,
+    leaf: &mut impl Leaves<L>,
     one_by_branch: bool,
 ) {
     let k = lists.len() / rays.len().max(1);
@@ -726,7 +720,6 @@ pub fn trace_interleaved_leaves<'r, L: Lanes8>(
             left &= left - 1;
             let stack = &mut stacks[i * depth..(i + 1) * depth];
             let list = &mut lists[i * k..(i + 1) * k];
-            leaf.aim(&rays[i]);
             if let Some(walk) = walks[i].as_mut()
                 && !walk.step::<true>(scene, stack, list, leaf, one_by_branch)
             {
