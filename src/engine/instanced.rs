@@ -31,7 +31,7 @@ pub struct TopScene<'a> {
 /// all-hits mode), `scratch` one list, for one instance's; `tops` holds
 /// [`walk::INTERLEAVED`] stacks of `TopScene::top_stack` entries and `stack` the deepest
 /// mesh's walk. Each ray's walk is the one it would walk alone; the field of 10,000 bunnies
-/// picked 6% faster so than ray by ray (BENCHMARKS.md).
+/// picked 16–17% faster so than ray by ray (BENCHMARKS.md).
 #[inline(always)]
 pub fn trace_interleaved<L: Lanes8>(
     scene: &TopScene<'_>,
