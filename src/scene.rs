@@ -322,10 +322,14 @@ impl Scene {
             )));
         }
         use rayon::prelude::*;
-        let bad = positions
-            .par_iter()
-            .with_min_len(1 << 14)
-            .position_first(|p| !p.is_finite());
+        // Whole chunks checked without a branch per vertex; the first bad one is looked for
+        // only when there is one.
+        let all_finite = positions
+            .par_chunks(1 << 14)
+            .all(|chunk| chunk.iter().fold(true, |ok, p| ok & p.is_finite()));
+        let bad = (!all_finite)
+            .then(|| positions.iter().position(|p| !p.is_finite()))
+            .flatten();
         if let Some((i, p)) = bad.map(|i| (i, positions[i])) {
             return Err(Error::Invalid(format!(
                 "{}: vertex {i} has a non-finite coordinate {p}",
