@@ -267,9 +267,10 @@ fn bad_positions_are_refused_and_change_nothing() {
     let count = built.scene.object_vertices(0).len();
     let mut with_nan = moved(&built.scene, 0, 1.0);
     with_nan[7].y = f64::NAN;
+    with_nan[count - 1].z = f64::INFINITY;
     for (positions, object, says) in [
         (vec![DVec3::ZERO; count - 1], 0, "positions given for its"),
-        (with_nan, 0, "non-finite"),
+        (with_nan, 0, "vertex 7 has a non-finite"),
         (vec![DVec3::ZERO; count], 9, "there is no object 9"),
     ] {
         let error = cpu
