@@ -224,8 +224,9 @@ pub fn resolve_with(scene: &Scene, bvh: &Bvh, ray: &Ray, dir_length: f64, found:
 }
 
 /// [`resolve_with`] for a chunk of results: `emit(k, hit)` for each `k`, with the hit
-/// `resolve_with(scene, bvh, &rays[input[k]], lengths[k], &found[k])`, bit for bit; the hits
-/// are refined four at a time (`four::refine_four`). `found` was checked ([`check_found`]).
+/// `resolve_with(scene, bvh, &rays[input[k]], lengths[k], &found[k])`, bit for bit; in blocks
+/// of [`RESOLVE_BLOCK`], the misses first, then the hits, refined four at a time
+/// (`four::refine_four`). `found` was checked ([`check_found`]).
 pub fn resolve_chunk(
     scene: &Scene,
     bvh: &Bvh,
@@ -235,19 +236,21 @@ pub fn resolve_chunk(
     found: &[GpuHit],
     mut emit: impl FnMut(usize, Hit),
 ) {
-    let mut pending = [0usize; 4];
-    let mut n = 0;
-    for k in 0..found.len() {
-        if lengths[k].is_nan() || found[k].prim == NO_HIT {
+    for start in (0..found.len()).step_by(RESOLVE_BLOCK) {
+        let end = (start + RESOLVE_BLOCK).min(found.len());
+        // The block's hits and the rest, listed without a branch per result (on incoherent
+        // rays hit and miss alternate at random, and a branch on it mispredicted half the time).
+        let (hits, others) = split_hits(&found[start..end], &lengths[start..end]);
+        for &j in others.iter() {
+            let k = start + usize::from(j);
             emit(
                 k,
                 resolve_with(scene, bvh, &rays[input[k]], lengths[k], &found[k]),
             );
-            continue;
         }
-        pending[n] = k;
-        n += 1;
-        if n == 4 {
+        let mut groups = hits.chunks_exact(4);
+        for group in groups.by_ref() {
+            let pending: [usize; 4] = std::array::from_fn(|i| start + usize::from(group[i]));
             let index = pending.map(|k| bvh.triangle_ids[found[k].prim as usize]);
             let refined = four::refine_four(
                 index.map(|i| scene.world_triangle(i as usize)),
@@ -257,14 +260,61 @@ pub fn resolve_chunk(
             for ((k, i), refined) in pending.into_iter().zip(index).zip(refined) {
                 emit(k, hit_of(scene, i, refined, &found[k]));
             }
-            n = 0;
+        }
+        for &j in groups.remainder() {
+            let k = start + usize::from(j);
+            emit(
+                k,
+                resolve_with(scene, bvh, &rays[input[k]], lengths[k], &found[k]),
+            );
         }
     }
-    for &k in &pending[..n] {
-        emit(
-            k,
-            resolve_with(scene, bvh, &rays[input[k]], lengths[k], &found[k]),
-        );
+}
+
+/// Results per block of [`resolve_chunk`] (its lists of hits and misses are on the stack).
+pub(crate) const RESOLVE_BLOCK: usize = 256;
+
+/// The indices of `found`'s hits (a valid ray, a triangle found) and of the rest, in order,
+/// listed without branches; at most [`RESOLVE_BLOCK`] results.
+#[inline]
+pub(crate) fn split_hits(found: &[GpuHit], lengths: &[f64]) -> (HitList, HitList) {
+    let (mut hits, mut others) = (HitList::default(), HitList::default());
+    for (j, (f, length)) in found.iter().zip(lengths).take(RESOLVE_BLOCK).enumerate() {
+        let hit = !length.is_nan() && f.prim != NO_HIT;
+        hits.push_if(j as u16, hit);
+        others.push_if(j as u16, !hit);
+    }
+    (hits, others)
+}
+
+/// Up to [`RESOLVE_BLOCK`] indices of a block's results, filled without branches.
+pub(crate) struct HitList {
+    items: [u16; RESOLVE_BLOCK],
+    len: usize,
+}
+
+impl Default for HitList {
+    fn default() -> Self {
+        Self {
+            items: [0; RESOLVE_BLOCK],
+            len: 0,
+        }
+    }
+}
+
+impl HitList {
+    /// Writes `j` in the next place and keeps it when `keep`.
+    #[inline(always)]
+    fn push_if(&mut self, j: u16, keep: bool) {
+        self.items[self.len.min(RESOLVE_BLOCK - 1)] = j;
+        self.len += usize::from(keep);
+    }
+}
+
+impl std::ops::Deref for HitList {
+    type Target = [u16];
+    fn deref(&self) -> &[u16] {
+        &self.items[..self.len]
     }
 }
 
@@ -340,5 +390,38 @@ fn hit_of(scene: &Scene, scene_index: u32, refined: Refined, found: &GpuHit) -> 
         normal: refined.normal,
         cell,
         ..stats_of(found)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `split_hits` lists a block's hits (a valid ray and a triangle) and the rest, each in
+    /// order, every result once, whatever the pattern.
+    #[test]
+    fn split_hits_lists_hits_and_the_rest_in_order() {
+        let mut seed = 12345u32;
+        for len in [0, 1, 3, 4, 255, RESOLVE_BLOCK] {
+            let mut found = vec![GpuHit::default(); len];
+            let mut lengths = vec![1.0; len];
+            for (f, l) in found.iter_mut().zip(&mut lengths) {
+                seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                f.prim = if seed >> 31 == 1 { NO_HIT } else { seed >> 20 };
+                if seed >> 28 & 7 == 0 {
+                    *l = f64::NAN;
+                }
+            }
+            let (hits, others) = split_hits(&found, &lengths);
+            let want: Vec<u16> = (0..len as u16)
+                .filter(|&j| {
+                    let j = usize::from(j);
+                    !lengths[j].is_nan() && found[j].prim != NO_HIT
+                })
+                .collect();
+            let rest: Vec<u16> = (0..len as u16).filter(|j| !want.contains(j)).collect();
+            assert_eq!(&hits[..], &want[..], "{len} results");
+            assert_eq!(&others[..], &rest[..], "{len} results");
+        }
     }
 }
