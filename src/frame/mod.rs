@@ -176,10 +176,16 @@ pub fn check_found_in<T: Sync>(
     prim: impl Fn(&T) -> u32 + Sync + Send,
 ) -> Result<()> {
     let is_bad = |&p: &u32| p != NO_HIT && (p == CAP_REACHED || p as usize >= count);
-    // A chunk of the fused pick (a few hundred results) is checked in place; a whole batch in
-    // parallel.
+    // A chunk of the fused pick (a few hundred results) is checked in place, first without a
+    // branch per result (hits and misses alternate at random on incoherent rays: a
+    // short-circuit test mispredicted half the time); a whole batch in parallel.
     let bad = if found.len() <= 4096 {
-        found.iter().map(&prim).find(is_bad)
+        let any_bad = found.iter().map(&prim).fold(false, |bad, p| {
+            bad | ((p != NO_HIT) & ((p == CAP_REACHED) | (p as usize >= count)))
+        });
+        any_bad
+            .then(|| found.iter().map(&prim).find(is_bad))
+            .flatten()
     } else {
         found
             .par_iter()
