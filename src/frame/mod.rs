@@ -284,6 +284,7 @@ pub(crate) const RESOLVE_BLOCK: usize = 256;
 /// listed without branches; at most [`RESOLVE_BLOCK`] results.
 #[inline]
 pub(crate) fn split_hits(found: &[GpuHit], lengths: &[f64]) -> (HitList, HitList) {
+    debug_assert!(found.len() <= RESOLVE_BLOCK && lengths.len() == found.len());
     let (mut hits, mut others) = (HitList::default(), HitList::default());
     for (j, (f, length)) in found.iter().zip(lengths).take(RESOLVE_BLOCK).enumerate() {
         let hit = !length.is_nan() && f.prim != NO_HIT;
