@@ -438,12 +438,8 @@ fn plan(binary: &[GpuNode]) -> Option<Vec<[f32; WIDTH]>> {
             }
             top.extend(at..len);
             for &n in top.iter().rev() {
-                let node = &binary[n];
-                if !node.is_leaf() {
-                    let [l, r] = children(n as u32, node).map(|c| c as usize);
-                    if l <= n || r <= n || l >= len || r >= len {
-                        return None;
-                    }
+                if !links_within(binary, n, len) {
+                    return None;
                 }
                 cost[n] = plan_node(binary, n, |c| cost[c]);
             }
@@ -510,16 +506,21 @@ fn subtree_end(binary: &[GpuNode], n: usize) -> usize {
 fn plan_run(binary: &[GpuNode], start: usize, run: &mut [[f32; WIDTH]]) -> bool {
     let end = start + run.len();
     for n in (start..end).rev() {
-        let node = &binary[n];
-        if !node.is_leaf() {
-            let [l, r] = children(n as u32, node).map(|c| c as usize);
-            if l <= n || r <= n || l >= end || r >= end {
-                return false;
-            }
+        if !links_within(binary, n, end) {
+            return false;
         }
         run[n - start] = plan_node(binary, n, |c| run[c - start]);
     }
     true
+}
+
+/// Whether binary node `n` is a leaf, or its children come after it and before `end`.
+fn links_within(binary: &[GpuNode], n: usize, end: usize) -> bool {
+    let node = &binary[n];
+    node.is_leaf()
+        || children(n as u32, node)
+            .iter()
+            .all(|&c| (n + 1..end).contains(&(c as usize)))
 }
 
 /// Binary node `n`'s row of [`plan`], from its children's rows (`row(child)`; their links
@@ -690,16 +691,7 @@ impl<'a> Opener<'a> {
 /// its last node found down the right children) has `(k - 1) / 2` inner ones. Only a capacity:
 /// a corrupted tree gets a smaller or larger one, never a wrong answer.
 fn wide_bound(binary: &[GpuNode], n: u32) -> usize {
-    let mut last = n as usize;
-    for _ in 0..binary.len() {
-        match binary.get(last) {
-            Some(node) if !node.is_leaf() && node.first as usize > last => {
-                last = node.first as usize
-            }
-            _ => break,
-        }
-    }
-    (last + 1 - n as usize) / 2 + 1
+    (subtree_end(binary, n as usize) - n as usize) / 2 + 1
 }
 
 /// Wide nodes being collapsed, with the binary node each slot comes from
