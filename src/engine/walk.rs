@@ -16,7 +16,7 @@
 use super::lanes8::{LANES, Lanes8};
 use super::wide::{EMPTY, INNER, WIDTH, WideNode};
 use crate::cpu::ray_box::{BOX_PAD, HUGE, MIN_DIR, safe_inverse};
-use crate::cpu::ray_triangle::shear_for;
+use crate::cpu::ray_triangle::shear_rows;
 use crate::cpu::traverse::{closest_accepts, facing_allowed, insert_hit};
 use crate::layout::{GpuHit, GpuHitEntry, GpuRay, GpuTriangle, MODE_ALL, MODE_ANY, NO_HIT};
 use glam::Vec3;
@@ -265,8 +265,7 @@ impl<'r, L: Lanes8> RayState<'r, L> {
         // Written out lane by lane (not `array::map`, which is not always inlined here).
         let splat3 = |v: Vec3| [L::splat(v.x), L::splat(v.y), L::splat(v.z)];
         let shear = if scene.watertight {
-            let [x, y, z] = shear_for(dir).rows();
-            [x.to_array(), y.to_array(), z.to_array()]
+            shear_rows(dir)
         } else {
             [[0.0; 3]; 3]
         };
