@@ -137,14 +137,14 @@ pub fn shear_rows(dir: Vec3) -> [[f32; 3]; 3] {
     let q = glam::Vec4::new(d[kx], d[ky], 0.0, 1.0) / dz;
     let (sx, sy) = (q.x, q.y);
     let unit = |k: usize, i: usize| if k == i { 1.0f32 } else { 0.0 };
-    let mut rows = [[0.0f32; 3]; 3];
-    for i in 0..3 {
-        let ez = unit(kz, i);
-        rows[0][i] = unit(kx, i) - sx * ez;
-        rows[1][i] = unit(ky, i) - sy * ez;
-        rows[2][i] = if kz == i { q.w } else { q.z };
-    }
-    rows
+    // Component i of row k: e_k − s·e_kz; of the last row: e_kz / d_kz.
+    let row = |k: usize, s: f32, i: usize| unit(k, i) - s * unit(kz, i);
+    let z = |i: usize| if kz == i { q.w } else { q.z };
+    [
+        [row(kx, sx, 0), row(kx, sx, 1), row(kx, sx, 2)],
+        [row(ky, sy, 0), row(ky, sy, 1), row(ky, sy, 2)],
+        [z(0), z(1), z(2)],
+    ]
 }
 
 /// Watertight ray/triangle test (Woop, Benthin, Wald, JCGT 2013): edge functions in a sheared
