@@ -233,6 +233,26 @@ fn a_triangle_becoming_degenerate_or_not_rebuilds_the_tree() {
         assert_eq!(picker.set_positions(0, &flattened).unwrap(), Refit::Rebuilt);
     }
     check_rebuilt(&mut cpu, &mut gpu, &options, 9);
+    // Moved while it stays a point: the tree, which holds every triangle but that one, is
+    // refitted (the refit counts the traceable ones in scene order first), and answers as a
+    // new picker over it and the oracle do.
+    let held = cpu.built().bvh.triangles.len();
+    let shifted: Vec<DVec3> = flattened
+        .iter()
+        .map(|&p| p + DVec3::new(0.0, 0.0, 0.125))
+        .collect();
+    for picker in [&mut cpu as &mut dyn Picker, &mut gpu] {
+        assert_eq!(picker.set_positions(0, &shifted).unwrap(), Refit::Refitted);
+    }
+    let refitted = cpu.built().clone();
+    assert_eq!(refitted.bvh.triangles.len(), held);
+    refitted.bvh.validate().unwrap();
+    let rays = mixed_rays(&refitted.scene, 1000, 11);
+    let plain_rays = plain(&rays);
+    let mut new_reference = ReferencePicker::new(refitted.clone());
+    assert_same("cpu", &mut cpu, &mut new_reference, &plain_rays);
+    assert_same("gpu", &mut gpu, &mut new_reference, &plain_rays);
+    common::assert_equivalent("refitted around a flat triangle", refitted, &rays);
     // And back: the triangle is traceable again, so the tree is built again.
     let original = two_objects();
     let restored: Vec<DVec3> = original

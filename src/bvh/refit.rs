@@ -66,44 +66,54 @@ impl Bvh {
                 .triangle_vertices(first as usize + k)
                 .map(|v| (v - first_vertex) as usize)
         };
-        // Scene order (the vertices read in the order they lie): whether each of the object's
-        // triangles may be traced at its new place (not zero area in f64 or in f32). The tree
-        // must hold as many of them as it holds now...
-        let traceable: Vec<bool> = (0..count)
-            .into_par_iter()
-            .with_min_len(4096)
-            .map(|k| {
-                let v = vertices(k);
-                traceable_corners(v.map(|v| positions[v]), v.map(|v| local[v]))
-            })
-            .collect();
-        let wanted = traceable.par_iter().filter(|&&t| t).count();
+        // The tree must hold as many of the object's triangles as are traceable at their new
+        // places (not zero area in f64 or in f32), and each one it holds must be traceable (then
+        // they are the same ones).
         let held = self
             .triangle_ids
             .par_iter()
             .with_min_len(4096)
             .filter(|&&id| (id.wrapping_sub(first) as usize) < count)
             .count();
-        if held != wanted {
-            return false;
-        }
-        // ...and each one it holds must still be traceable (then they are the same ones).
+        // When it holds them all (none was left out as degenerate: the common case), each is
+        // checked where the tree pass rewrites it, from the corners it gathers there anyway.
+        // Else, first in scene order (the vertices read in the order they lie), counted.
+        let traceable: Option<Vec<bool>> = if held == count {
+            None
+        } else {
+            let traceable: Vec<bool> = (0..count)
+                .into_par_iter()
+                .with_min_len(4096)
+                .map(|k| {
+                    let v = vertices(k);
+                    traceable_corners(v.map(|v| positions[v]), v.map(|v| local[v]))
+                })
+                .collect();
+            if traceable.par_iter().filter(|&&t| t).count() != held {
+                return false;
+            }
+            Some(traceable)
+        };
         let lost = AtomicBool::new(false);
         let moved = |j: usize, id: u32| {
             let k = id.wrapping_sub(first) as usize;
             if k >= count {
                 return None;
             }
-            if !traceable[k] {
-                lost.store(true, Ordering::Relaxed);
-            }
-            let corners =
-                leaf_vertices[j].map(|v| local.get(v.wrapping_sub(first_vertex) as usize));
+            let at = leaf_vertices[j].map(|v| v.wrapping_sub(first_vertex) as usize);
+            let corners = at.map(|v| local.get(v));
             let [Some(&a), Some(&b), Some(&c)] = corners else {
                 // Not this tree's vertices (a caller's mistake): rebuild rather than guess.
                 lost.store(true, Ordering::Relaxed);
                 return None;
             };
+            let still = match &traceable {
+                Some(traceable) => traceable[k],
+                None => traceable_corners(at.map(|v| positions[v]), [a, b, c]),
+            };
+            if !still {
+                lost.store(true, Ordering::Relaxed);
+            }
             let [v0, v1, v2] = [a, b, c].map(<[f32; 3]>::from);
             Some(GpuTriangle { v0, v1, v2 })
         };
