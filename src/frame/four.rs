@@ -41,10 +41,13 @@ pub fn local_rays_into(
     scalar(scene_origin, rays, query, local, lengths);
 }
 
-/// `refine(triangles[i], rays[i], traced[i])` for the four hits, bit for bit.
+/// `refine(triangles[i], rays[i], traced[i])` for the four hits, bit for bit. The corners are
+/// read where they lie (the scene's positions): the lanes load them straight into registers,
+/// where whole triangles passed by value went through the stack, and loads that straddled
+/// the stores made there stalled (a fifth of the refinement's time on the bunny).
 #[inline]
 pub fn refine_four(
-    triangles: [[DVec3; 3]; 4],
+    triangles: [[&DVec3; 3]; 4],
     rays: [&Ray; 4],
     traced: [[f64; 3]; 4],
 ) -> [Refined; 4] {
@@ -53,7 +56,7 @@ pub fn refine_four(
         // SAFETY: the CPU has AVX (checked just above).
         return unsafe { avx::refine_four(triangles, rays, traced) };
     }
-    [0, 1, 2, 3].map(|i| refine(triangles[i], rays[i], traced[i]))
+    [0, 1, 2, 3].map(|i| refine(triangles[i].map(|v| *v), rays[i], traced[i]))
 }
 
 /// [`local_rays_into`] one ray at a time.
@@ -133,13 +136,27 @@ mod avx {
     /// Three f64 lanes sets: x, y and z of four vectors.
     type V3 = [__m256d; 3];
 
-    #[inline(always)]
-    fn v3(v: [DVec3; 4]) -> V3 {
-        [
-            lanes(v.map(|v| v.x)),
-            lanes(v.map(|v| v.y)),
-            lanes(v.map(|v| v.z)),
-        ]
+    /// x, y and z of four points, loaded where they lie and transposed in registers: each
+    /// point's x and y as one pair, its z alone.
+    #[inline]
+    #[target_feature(enable = "avx")]
+    fn points([p0, p1, p2, p3]: [&DVec3; 4]) -> V3 {
+        // SAFETY: each pointer is a whole DVec3 (three f64: x, y, z in order); the pair loads
+        // read x and y, the single loads z.
+        unsafe {
+            let xy = |p: &DVec3| _mm_loadu_pd(&p.x);
+            let z = |p: &DVec3| _mm_load_sd(&p.z);
+            // [x0 y0 | x2 y2] and [x1 y1 | x3 y3]: unpacking within the halves gives x and y.
+            let even = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(xy(p0)), xy(p2));
+            let odd = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(xy(p1)), xy(p3));
+            let z01 = _mm_unpacklo_pd(z(p0), z(p1));
+            let z23 = _mm_unpacklo_pd(z(p2), z(p3));
+            [
+                _mm256_unpacklo_pd(even, odd),
+                _mm256_unpackhi_pd(even, odd),
+                _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(z01), z23),
+            ]
+        }
     }
 
     #[inline]
@@ -179,15 +196,17 @@ mod avx {
     /// The CPU has AVX.
     #[target_feature(enable = "avx")]
     pub unsafe fn refine_four(
-        triangles: [[DVec3; 3]; 4],
+        triangles: [[&DVec3; 3]; 4],
         rays: [&Ray; 4],
         traced: [[f64; 3]; 4],
     ) -> [Refined; 4] {
-        let v0 = v3(triangles.map(|t| t[0]));
-        let v1 = v3(triangles.map(|t| t[1]));
-        let v2 = v3(triangles.map(|t| t[2]));
-        let origin = v3(rays.map(|r| r.origin));
-        let dir = v3(rays.map(|r| r.dir));
+        let [a, b, c, d] = triangles;
+        let v0 = points([a[0], b[0], c[0], d[0]]);
+        let v1 = points([a[1], b[1], c[1], d[1]]);
+        let v2 = points([a[2], b[2], c[2], d[2]]);
+        let [a, b, c, d] = rays;
+        let origin = points([&a.origin, &b.origin, &c.origin, &d.origin]);
+        let dir = points([&a.dir, &b.dir, &c.dir, &d.dir]);
         // ray_triangle_f64.
         let e1 = sub(v1, v0);
         let e2 = sub(v2, v0);
@@ -467,7 +486,11 @@ mod tests {
                     let [a, b, c] = triangles[i];
                     if degenerate[i] { [a, b, a] } else { [a, b, c] }
                 });
-            let refined = refine_four(triangles, [&rays[0], &rays[1], &rays[2], &rays[3]], traced);
+            let corners = [0, 1, 2, 3].map(|i| {
+                let [a, b, c] = &triangles[i];
+                [a, b, c]
+            });
+            let refined = refine_four(corners, [&rays[0], &rays[1], &rays[2], &rays[3]], traced);
             for i in 0..4 {
                 let want = refine(triangles[i], &rays[i], traced[i]);
                 // Every NaN as one (x86 makes a new NaN negative; which NaN a scalar operation

@@ -258,8 +258,13 @@ pub fn resolve_chunk(
         for group in groups.by_ref() {
             let pending: [usize; 4] = std::array::from_fn(|i| start + usize::from(group[i]));
             let index = pending.map(|k| bvh.triangle_ids[found[k].prim as usize]);
+            let positions = scene.positions();
             let refined = four::refine_four(
-                index.map(|i| scene.world_triangle(i as usize)),
+                index.map(|i| {
+                    scene
+                        .triangle_vertices(i as usize)
+                        .map(|v| &positions[v as usize])
+                }),
                 pending.map(|k| &rays[input[k]]),
                 pending.map(|k| traced(&found[k], lengths[k])),
             );

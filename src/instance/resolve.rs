@@ -49,7 +49,10 @@ pub fn resolve_chunk(
             let located = pending.map(|k| instances.locate(found[k].prim));
             let world = located.map(|(i, t)| instances.world_triangle(i, t));
             let refined = refine_four(
-                world.map(|w| w.0),
+                [0, 1, 2, 3].map(|j| {
+                    let [a, b, c] = &world[j].0;
+                    [a, b, c]
+                }),
                 pending.map(|k| &rays[input[k]]),
                 pending.map(|k| traced(&found[k], lengths[k])),
             );
