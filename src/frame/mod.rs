@@ -259,14 +259,22 @@ pub fn resolve_chunk(
             let pending: [usize; 4] = std::array::from_fn(|i| start + usize::from(group[i]));
             let index = pending.map(|k| bvh.triangle_ids[found[k].prim as usize]);
             let positions = scene.positions();
+            // Written out (not `array::map`, which was left as a call here, and the loads of
+            // what it returned through the stack stalled).
+            let corners = |j: usize| {
+                let [a, b, c] = scene.triangle_vertices(index[j] as usize);
+                [
+                    &positions[a as usize],
+                    &positions[b as usize],
+                    &positions[c as usize],
+                ]
+            };
+            let ray = |j: usize| &rays[input[pending[j]]];
+            let traced_at = |j: usize| traced(&found[pending[j]], lengths[pending[j]]);
             let refined = four::refine_four(
-                index.map(|i| {
-                    scene
-                        .triangle_vertices(i as usize)
-                        .map(|v| &positions[v as usize])
-                }),
-                pending.map(|k| &rays[input[k]]),
-                pending.map(|k| traced(&found[k], lengths[k])),
+                [corners(0), corners(1), corners(2), corners(3)],
+                [ray(0), ray(1), ray(2), ray(3)],
+                [traced_at(0), traced_at(1), traced_at(2), traced_at(3)],
             );
             for ((k, i), refined) in pending.into_iter().zip(index).zip(refined) {
                 emit(k, hit_of(scene, i, refined, &found[k]));
