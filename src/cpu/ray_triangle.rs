@@ -9,7 +9,7 @@
 //! In all of them `det > 0` means the triangle is counter-clockwise as seen from the ray.
 
 use crate::layout::GpuTriangle;
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 
 /// What one ray/triangle test found: `hit` says whether the ray's line crosses the triangle
 /// (edges inclusive); `t`, `u`, `v` are only meaningful when it does.
@@ -135,16 +135,15 @@ pub fn shear_rows(dir: Vec3) -> [[f32; 3]; 3] {
         std::mem::swap(&mut kx, &mut ky);
     }
     let q = glam::Vec4::new(d[kx], d[ky], 0.0, 1.0) / dz;
-    let (sx, sy) = (q.x, q.y);
-    let unit = |k: usize, i: usize| if k == i { 1.0f32 } else { 0.0 };
-    // Component i of row k: e_k − s·e_kz; of the last row: e_kz / d_kz.
-    let row = |k: usize, s: f32, i: usize| unit(k, i) - s * unit(kz, i);
-    let z = |i: usize| if kz == i { q.w } else { q.z };
-    [
-        [row(kx, sx, 0), row(kx, sx, 1), row(kx, sx, 2)],
-        [row(ky, sy, 0), row(ky, sy, 1), row(ky, sy, 2)],
-        [z(0), z(1), z(2)],
-    ]
+    // The unit axes as lane masks, and the rows in four-lane vectors: e_k − s·e_kz per lane.
+    let lane = Vec3A::new(0.0, 1.0, 2.0);
+    let axis = |k: usize| lane.cmpeq(Vec3A::splat(k as f32));
+    let unit = |k: usize| Vec3A::select(axis(k), Vec3A::ONE, Vec3A::ZERO);
+    let ez = unit(kz);
+    let x = unit(kx) - Vec3A::splat(q.x) * ez;
+    let y = unit(ky) - Vec3A::splat(q.y) * ez;
+    let z = Vec3A::select(axis(kz), Vec3A::splat(q.w), Vec3A::splat(q.z));
+    [x.to_array(), y.to_array(), z.to_array()]
 }
 
 /// Watertight ray/triangle test (Woop, Benthin, Wald, JCGT 2013): edge functions in a sheared
