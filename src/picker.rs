@@ -815,6 +815,15 @@ fn pick_fused(
                 }
                 None => {
                     let start = span.start;
+                    // The next step's rays asked for now: read at the start of each step, they
+                    // came from memory one miss after another.
+                    let next = (span.end..(span.end + FUSED_CHUNK).min(n)).len();
+                    if next > 0 {
+                        crate::prefetch::bytes(
+                            rays[span.end..].as_ptr().cast(),
+                            next * std::mem::size_of::<Ray>(),
+                        );
+                    }
                     local_rays_into(
                         origin,
                         &rays[span.clone()],
