@@ -308,14 +308,14 @@ mod avx {
         }
         /// Each triangle's first eight floats loaded whole, triangles `i` and `i + 4` in one
         /// register's two halves, transposed four by four within the halves; the ninth float
-        /// (the third vertex's z) lane by lane. With four triangles or fewer each half holds the
-        /// same four.
+        /// (the third vertex's z) as the last column of floats 5..9 loaded the same way. With
+        /// four triangles or fewer each half holds the same four.
         #[inline(always)]
         fn gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[Self; 3]; 3] {
             let range = &triangles[first..first + count];
             let last = count - 1;
             // SAFETY: every pointer is a whole `GpuTriangle` of `range` (nine f32, 36 bytes);
-            // the loads read its floats 0..4, 4..8 and 8.
+            // the loads read its floats 0..4, 4..8 and 5..9.
             unsafe {
                 let p = |i: usize| range.as_ptr().add(last.min(i)).cast::<f32>();
                 // Written out (not `array::from_fn`, which is not always inlined here).
@@ -338,8 +338,13 @@ mod avx {
                 };
                 let [a0, a1, a2, a3] = transpose_halves(rows(0));
                 let [b0, b1, b2, b3] = transpose_halves(rows(4));
-                let z = |i: usize| *p(i).add(8);
-                let z2 = _mm256_setr_ps(z(0), z(1), z(2), z(3), z(4), z(5), z(6), z(7));
+                // The ninth float: the last column of floats 5..9 (loads within the same
+                // lines), three shuffles instead of eight single loads and inserts.
+                let [c0, c1, c2, c3] = rows(5);
+                let z2 = _mm256_shuffle_ps::<0xEE>(
+                    _mm256_unpackhi_ps(c0, c1),
+                    _mm256_unpackhi_ps(c2, c3),
+                );
                 [
                     [Avx(a0), Avx(a1), Avx(a2)],
                     [Avx(a3), Avx(b0), Avx(b1)],
