@@ -136,16 +136,24 @@ mod avx {
     /// Three f64 lanes sets: x, y and z of four vectors.
     type V3 = [__m256d; 3];
 
+    const _: () = assert!(
+        size_of::<DVec3>() == 24
+            && std::mem::offset_of!(DVec3, y) == 8
+            && std::mem::offset_of!(DVec3, z) == 16,
+        "points() reads a DVec3 as three f64 in a row"
+    );
+
     /// x, y and z of four points, loaded where they lie and transposed in registers: each
     /// point's x and y as one pair, its z alone.
     #[inline]
     #[target_feature(enable = "avx")]
     fn points([p0, p1, p2, p3]: [&DVec3; 4]) -> V3 {
-        // SAFETY: each pointer is a whole DVec3 (three f64: x, y, z in order); the pair loads
-        // read x and y, the single loads z.
+        // SAFETY: each pointer is a whole DVec3, three f64 x, y, z in order (asserted below);
+        // the pair loads read x and y, the single loads z.
         unsafe {
-            let xy = |p: &DVec3| _mm_loadu_pd(&p.x);
-            let z = |p: &DVec3| _mm_load_sd(&p.z);
+            let at = |p: &DVec3| (p as *const DVec3).cast::<f64>();
+            let xy = |p: &DVec3| _mm_loadu_pd(at(p));
+            let z = |p: &DVec3| _mm_load_sd(at(p).add(2));
             // [x0 y0 | x2 y2] and [x1 y1 | x3 y3]: unpacking within the halves gives x and y.
             let even = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(xy(p0)), xy(p2));
             let odd = _mm256_insertf128_pd::<1>(_mm256_castpd128_pd256(xy(p1)), xy(p3));
