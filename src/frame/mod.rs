@@ -175,14 +175,17 @@ pub fn check_found_in<T: Sync>(
     found: &[T],
     prim: impl Fn(&T) -> u32 + Sync + Send,
 ) -> Result<()> {
-    let is_bad = |&p: &u32| p != NO_HIT && (p == CAP_REACHED || p as usize >= count);
-    // A chunk of the fused pick (a few hundred results) is checked in place, first without a
-    // branch per result (hits and misses alternate at random on incoherent rays: a
-    // short-circuit test mispredicted half the time); a whole batch in parallel.
+    // Without short-circuits: hits and misses alternate at random on incoherent rays, and a
+    // branch per result mispredicted half the time.
+    let is_bad = |&p: &u32| (p != NO_HIT) & ((p == CAP_REACHED) | (p as usize >= count));
+    // A chunk of the fused pick (a few hundred results) is checked in place, first folded
+    // without a branch per result, then searched only when one is bad; a whole batch in
+    // parallel.
     let bad = if found.len() <= 4096 {
-        let any_bad = found.iter().map(&prim).fold(false, |bad, p| {
-            bad | ((p != NO_HIT) & ((p == CAP_REACHED) | (p as usize >= count)))
-        });
+        let any_bad = found
+            .iter()
+            .map(&prim)
+            .fold(false, |bad, p| bad | is_bad(&p));
         any_bad
             .then(|| found.iter().map(&prim).find(is_bad))
             .flatten()
@@ -242,6 +245,7 @@ pub fn resolve_chunk(
     found: &[GpuHit],
     mut emit: impl FnMut(usize, Hit),
 ) {
+    let positions = scene.positions();
     for start in (0..found.len()).step_by(RESOLVE_BLOCK) {
         let end = (start + RESOLVE_BLOCK).min(found.len());
         // The block's hits and the rest, listed without a branch per result (on incoherent
@@ -258,7 +262,6 @@ pub fn resolve_chunk(
         for group in groups.by_ref() {
             let pending: [usize; 4] = std::array::from_fn(|i| start + usize::from(group[i]));
             let index = pending.map(|k| bvh.triangle_ids[found[k].prim as usize]);
-            let positions = scene.positions();
             // Written out (not `array::map`, which was left as a call here, and the loads of
             // what it returned through the stack stalled).
             let corners = |j: usize| {
