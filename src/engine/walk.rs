@@ -279,11 +279,7 @@ impl<'r, L: Lanes8> RayState<'r, L> {
             *slot = None;
             return best;
         }
-        let origin = Vec3::from(ray.origin);
         let dir = Vec3::from(ray.dir);
-        let inv = safe_inverse(dir);
-        // Written out lane by lane (not `array::map`, which is not always inlined here).
-        let splat3 = |v: Vec3| [L::splat(v.x), L::splat(v.y), L::splat(v.z)];
         let shear = if !scene.watertight {
             [[0.0; 3]; 3]
         } else if coherent {
@@ -292,6 +288,23 @@ impl<'r, L: Lanes8> RayState<'r, L> {
         } else {
             shear_rows(dir)
         };
+        Self::fill(ray, safe_inverse(dir), shear, best, slot);
+        best
+    }
+
+    /// Writes the state of `ray`, whose inverse direction and shear rows are made, into `slot`.
+    #[inline(always)]
+    fn fill(
+        ray: &'r GpuRay,
+        inv: Vec3,
+        shear: [[f32; 3]; 3],
+        best: GpuHit,
+        slot: &mut Option<Self>,
+    ) {
+        let origin = Vec3::from(ray.origin);
+        let dir = Vec3::from(ray.dir);
+        // Written out lane by lane (not `array::map`, which is not always inlined here).
+        let splat3 = |v: Vec3| [L::splat(v.x), L::splat(v.y), L::splat(v.z)];
         *slot = Some(Self {
             ray,
             r: RayLanes {
@@ -312,7 +325,107 @@ impl<'r, L: Lanes8> RayState<'r, L> {
             limit: ray.tmax,
             done: false,
         });
-        best
+    }
+
+    /// [`RayState::new_in`] for eight rays at once, into `slots`, their answers so far into
+    /// `out`; returns the rays traced (bit `i`: ray `i`) and their inverse directions by axis.
+    /// The inverses and the shear rows are made in lanes, one ray a lane: `safe_inverse`'s and
+    /// `shear_for`'s operations, lane for lane, so bit for bit theirs (the choice of axes by
+    /// selects, as in [`shear_rows`]), with one eight-lane division where each ray took its
+    /// own. Measured A/B (BENCHMARKS.md): the divisions and `shear_for` were half of a camera
+    /// packet's set-up.
+    #[inline(always)]
+    #[allow(
+        clippy::neg_cmp_op_on_partial_ord,
+        reason = "as in the twin: `!(tmin <= tmax)` also rejects NaN"
+    )]
+    pub fn new_eight(
+        scene: &Scene<'_>,
+        rays: &'r [GpuRay],
+        slots: &mut [Option<Self>; LANES],
+        out: &mut [GpuHit],
+    ) -> (u32, [[f32; LANES]; 3]) {
+        let mut d = [[0.0f32; LANES]; 3];
+        for (i, ray) in rays[..LANES].iter().enumerate() {
+            for (a, axis) in d.iter_mut().enumerate() {
+                axis[i] = ray.dir[a];
+            }
+        }
+        let d = [L::load(&d[0]), L::load(&d[1]), L::load(&d[2])];
+        let (zero, one) = (L::splat(0.0), L::splat(1.0));
+        // `safe_inverse`: sign / max(|d|, MIN_DIR).
+        let inverse = |d: L| {
+            let sign = L::select(d.ge(zero), one, L::splat(-1.0));
+            sign.div(d.abs().max(L::splat(MIN_DIR))).to_array()
+        };
+        let inv = [inverse(d[0]), inverse(d[1]), inverse(d[2])];
+        let mut rows = [[[0.0f32; LANES]; 3]; 3];
+        if scene.watertight {
+            let [ax, ay, az] = [d[0].abs(), d[1].abs(), d[2].abs()];
+            // `shear_for`'s axis: x when |x| is at least |y| and |z|, else y when |y| >= |z|.
+            let x_first = L::and(ax.ge(ay), ax.ge(az));
+            let y_first = L::andnot(ay.ge(az), x_first);
+            let pick = |x: L, y: L, z: L| L::select(x_first, x, L::select(y_first, y, z));
+            let dz = pick(d[0], d[1], d[2]);
+            // The next two axes after it, cyclically; swapped when `d[kz] < 0`.
+            let negative = dz.lt(zero);
+            let (dx0, dy0) = (pick(d[1], d[2], d[0]), pick(d[2], d[0], d[1]));
+            let qx = L::select(negative, dy0, dx0).div(dz);
+            let qy = L::select(negative, dx0, dy0).div(dz);
+            let (q0, q1) = (zero.div(dz), one.div(dz));
+            // Per component j: whether it is kz, and the unit vectors e_kz, e_kx, e_ky.
+            let all = zero.eq(zero);
+            let is_kz = [
+                x_first,
+                y_first,
+                L::andnot(L::andnot(all, x_first), y_first),
+            ];
+            let ez = [
+                L::select(is_kz[0], one, zero),
+                L::select(is_kz[1], one, zero),
+                L::select(is_kz[2], one, zero),
+            ];
+            // kx follows kz cyclically and ky follows kx, unless swapped.
+            let ex = [
+                L::select(negative, ez[1], ez[2]),
+                L::select(negative, ez[2], ez[0]),
+                L::select(negative, ez[0], ez[1]),
+            ];
+            let ey = [
+                L::select(negative, ez[2], ez[1]),
+                L::select(negative, ez[0], ez[2]),
+                L::select(negative, ez[1], ez[0]),
+            ];
+            for j in 0..3 {
+                rows[0][j] = ex[j].sub(qx.mul(ez[j])).to_array();
+                rows[1][j] = ey[j].sub(qy.mul(ez[j])).to_array();
+                rows[2][j] = L::select(is_kz[j], q1, q0).to_array();
+            }
+        }
+        let mut alive = 0;
+        for (i, ray) in rays[..LANES].iter().enumerate() {
+            let best = GpuHit {
+                t: ray.tmax,
+                prim: NO_HIT,
+                ..GpuHit::default()
+            };
+            out[i] = best;
+            if scene.nodes.is_empty() || !(ray.tmin <= ray.tmax) {
+                slots[i] = None;
+                continue;
+            }
+            let at = |row: &[[f32; LANES]; 3]| [row[0][i], row[1][i], row[2][i]];
+            let inv_i = Vec3::new(inv[0][i], inv[1][i], inv[2][i]);
+            Self::fill(
+                ray,
+                inv_i,
+                [at(&rows[0]), at(&rows[1]), at(&rows[2])],
+                best,
+                &mut slots[i],
+            );
+            alive |= 1 << i;
+        }
+        (alive, inv)
     }
 
     /// The ray being walked.
@@ -796,7 +909,7 @@ impl<'r, 'l, L: Lanes8> PacketRays<'r, 'l, L> {
 
     /// Sets the [`PACKET`] `rays` up in place, with `lists` holding each one's all-hits list
     /// in turn; a ray that is never traced gets its miss in `out` now. Returns the rays traced
-    /// (bit `i`: ray `i`). In place, not built and returned: a packet's states are a few KiB,
+    /// (bit `i`: ray `i`) and their inverse directions by axis. In place, not built and returned: a packet's states are a few KiB,
     /// and returning them was a `memmove` of 3% of a camera trace's samples.
     #[inline(always)]
     fn start(
@@ -805,18 +918,14 @@ impl<'r, 'l, L: Lanes8> PacketRays<'r, 'l, L> {
         rays: &'r [GpuRay],
         lists: &'l mut [GpuHitEntry],
         out: &mut [GpuHit],
-    ) -> u32 {
+    ) -> (u32, [[f32; PACKET]; 3]) {
         let k = lists.len() / PACKET;
-        let mut list_parts = lists.chunks_mut(k.max(1));
-        let mut alive = 0;
-        for i in 0..PACKET {
-            if k > 0 {
-                self.lists[i] = list_parts.next().expect("a list per ray");
+        if k > 0 {
+            for (slot, part) in self.lists.iter_mut().zip(lists.chunks_mut(k)) {
+                *slot = part;
             }
-            out[i] = RayState::<L>::new_in(scene, &rays[i], true, &mut self.states[i]);
-            alive |= u32::from(self.states[i].is_some()) << i;
         }
-        alive
+        RayState::<L>::new_eight(scene, rays, &mut self.states, out)
     }
 
     /// Tests the leaf's `count` triangles from leaf-order `first` for the rays in `testing`
@@ -911,7 +1020,7 @@ pub fn trace_packet<L: Lanes8>(
     out: &mut [GpuHit],
 ) {
     let mut packet = PacketRays::<L>::empty();
-    let mut alive = packet.start(scene, rays, lists, out);
+    let (mut alive, _) = packet.start(scene, rays, lists, out);
     if alive == 0 {
         return;
     }
@@ -1105,25 +1214,21 @@ pub fn trace_frustum<L: Lanes8>(
     out: &mut [GpuHit],
 ) {
     let mut packet = PacketRays::<L>::empty();
-    let mut alive = packet.start(scene, rays, lists, out);
+    let (mut alive, inv_rays) = packet.start(scene, rays, lists, out);
     if alive == 0 {
         return;
     }
     let (mut inv_lo, mut inv_hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
     let mut tmin = f32::INFINITY;
-    let mut inv_rays = [[1.0f32; PACKET]; 3];
     let mut tmin_rays = [0.0f32; PACKET];
     let mut walking = alive;
     while walking != 0 {
         let i = walking.trailing_zeros() as usize;
         walking &= walking - 1;
-        let inv = safe_inverse(Vec3::from(rays[i].dir));
+        let inv = Vec3::new(inv_rays[0][i], inv_rays[1][i], inv_rays[2][i]);
         inv_lo = inv_lo.min(inv);
         inv_hi = inv_hi.max(inv);
         tmin = tmin.min(rays[i].tmin);
-        for a in 0..3 {
-            inv_rays[a][i] = inv[a];
-        }
         tmin_rays[i] = rays[i].tmin;
     }
     let splat3 = |v: Vec3| [L::splat(v.x), L::splat(v.y), L::splat(v.z)];
@@ -1234,6 +1339,125 @@ mod tests {
     use crate::engine::lanes8::Pair;
     use crate::engine::wide::WideBvh;
     use crate::layout::{CULL_SHIFT, MODE_CLOSEST};
+
+    /// Eight rays set up together are each set up as alone, bit for bit: inverse, shear rows
+    /// (the watertight test's and Möller–Trumbore's zeros), flags, range and first answer, over
+    /// directions of special components (signed zeros, subnormals, huge, infinite, NaN) and
+    /// random ones, on the portable lanes and on AVX where the CPU has it.
+    fn eight_rays_set_up_as_one<L: Lanes8>() {
+        let mesh = terrain(4, 4, 0.0, 0.0, 1.0, hills);
+        let scene = crate::Scene::from_meshes([("hills".to_string(), mesh)]).unwrap();
+        let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
+        let wide = WideBvh::collapse(&bvh).unwrap();
+        let special = [
+            0.0,
+            -0.0,
+            1.0,
+            -1.0,
+            0.5,
+            -0.5,
+            1e-30,
+            -1e-30,
+            1e-40,
+            -1e-40,
+            3e38,
+            -3e38,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            0.577_350_26,
+            -0.577_350_26,
+        ];
+        let mut dirs = Vec::new();
+        for &x in &special {
+            for &y in &special {
+                for &z in &special {
+                    dirs.push([x, y, z]);
+                }
+            }
+        }
+        let mut seed = 0x2545_f491_u32;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            (seed as f32 / u32::MAX as f32) * 2.0 - 1.0
+        };
+        for _ in 0..20_000 {
+            dirs.push([next(), next(), next()]);
+        }
+        let lane0 = |v: &[L; 3]| v.map(|l| l.to_array()[0].to_bits());
+        for watertight in [true, false] {
+            let walk = Scene {
+                nodes: &wide.nodes,
+                triangles: &bvh.triangles,
+                triangle_ids: &bvh.triangle_ids,
+                triangle_masks: &[],
+                watertight,
+                packets: true,
+                size: wide.size(),
+                interleave: false,
+            };
+            for (g, group) in dirs.chunks(LANES).enumerate() {
+                let rays: Vec<GpuRay> = (0..LANES)
+                    .map(|i| GpuRay {
+                        origin: [0.25 * i as f32, -1.5, 2.0],
+                        dir: group[i % group.len()],
+                        tmin: if i == 3 { 2.0 } else { 0.0 },
+                        tmax: if i == 5 && g % 2 == 0 { 1.0 } else { 1e30 },
+                        flags: (i as u32 % 3) | ((i as u32 % 2) << CULL_SHIFT),
+                        mask: u32::MAX,
+                        ..GpuRay::default()
+                    })
+                    .collect();
+                let mut slots: [Option<RayState<'_, L>>; LANES] = Default::default();
+                let mut out = [GpuHit::default(); LANES];
+                let (alive, inv) = RayState::<L>::new_eight(&walk, &rays, &mut slots, &mut out);
+                for (i, ray) in rays.iter().enumerate() {
+                    let mut alone = None;
+                    let first = RayState::<L>::new_in(&walk, ray, true, &mut alone);
+                    assert_eq!(bytemuck::bytes_of(&out[i]), bytemuck::bytes_of(&first));
+                    assert_eq!(alive >> i & 1 == 1, alone.is_some());
+                    let (Some(a), Some(b)) = (&slots[i], &alone) else {
+                        continue;
+                    };
+                    let why = format!("ray {ray:?}");
+                    assert_eq!(lane0(&a.r.inv), lane0(&b.r.inv), "{why}");
+                    assert_eq!(
+                        lane0(&a.r.inv),
+                        [0, 1, 2].map(|k| inv[k][i].to_bits()),
+                        "{why}"
+                    );
+                    assert_eq!(lane0(&a.r.origin), lane0(&b.r.origin), "{why}");
+                    let rows = |s: &RayState<'_, L>| s.shear.map(|r| r.map(f32::to_bits));
+                    assert_eq!(rows(a), rows(b), "{why}");
+                    assert_eq!(a.r.parallel, b.r.parallel, "{why}");
+                    assert_eq!(a.r.tmin.to_bits(), b.r.tmin.to_bits(), "{why}");
+                    assert_eq!(a.dir.map(f32::to_bits), b.dir.map(f32::to_bits), "{why}");
+                    assert_eq!(
+                        (a.mode, a.cull, a.limit.to_bits()),
+                        (b.mode, b.cull, b.limit.to_bits())
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn eight_rays_set_up_together_are_set_up_as_alone() {
+        eight_rays_set_up_as_one::<Pair<Portable>>();
+        #[cfg(target_arch = "x86_64")]
+        if crate::engine::Simd::Avx2.is_available() {
+            // SAFETY: the CPU has AVX2 (checked just above).
+            unsafe { eight_avx() };
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn eight_avx() {
+        eight_rays_set_up_as_one::<crate::engine::lanes8::Avx>();
+    }
 
     /// Every camera packet that walks as one frustum gives each ray its single-ray answer, bit
     /// for bit (b and i aside: the walks differ), in every mode and with culling.
