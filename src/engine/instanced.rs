@@ -7,7 +7,7 @@
 //! closest and all-hits mode; any-hit mode, as everywhere, returns some hit when there is one.
 
 use super::lanes8::Lanes8;
-use super::walk::{self, Entry, Leaves, RayState};
+use super::walk::{self, Leaves, Pushed, RayState};
 use crate::cpu::traverse::{closest_accepts, enter_instance, insert_hit, origin_lo};
 use crate::instance::Instances;
 use crate::layout::{GpuHit, GpuHitEntry, GpuRay, MODE_ALL, MODE_ANY, NO_HIT};
@@ -38,8 +38,8 @@ pub fn trace_interleaved<L: Lanes8>(
     rays: &[GpuRay],
     lists: &mut [GpuHitEntry],
     scratch: &mut [GpuHitEntry],
-    tops: &mut [Entry],
-    stack: &mut [Entry],
+    tops: &mut [Pushed],
+    stack: &mut [Pushed],
     out: &mut [GpuHit],
 ) {
     let mut visit = Visit {
@@ -56,7 +56,7 @@ pub fn trace_interleaved<L: Lanes8>(
 struct Visit<'v, 'a> {
     scene: &'v TopScene<'a>,
     scratch: &'v mut [GpuHitEntry],
-    stack: &'v mut [Entry],
+    stack: &'v mut [Pushed],
 }
 
 impl<L: Lanes8> Leaves<L> for Visit<'_, '_> {

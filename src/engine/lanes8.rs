@@ -81,6 +81,19 @@ pub trait Lanes8: Copy {
         let _ = (near, met, node, at, out);
         None
     }
+    /// [`Lanes8::far_first`] for the single-ray walks' eight-byte entries: `out[s]` is
+    /// `[child << 4 | kind & 15, near's bits]` of the `s`-th lane (`walk::Pushed`'s words), in
+    /// the same order. `None` where there is no network.
+    #[inline(always)]
+    fn far_first_packed(
+        near: Self,
+        met: u32,
+        node: &WideNode,
+        out: &mut [[u32; 2]; 8],
+    ) -> Option<usize> {
+        let _ = (near, met, node, out);
+        None
+    }
 }
 
 /// The two sets of four lanes a gather of up to eight triangles joins (lanes 0–3, 4–7). With
@@ -367,28 +380,8 @@ mod avx {
             // SAFETY: as above; the loads read `node.child` and `node.kind` whole, the stores
             // write `out` whole.
             unsafe {
-                let bits = _mm256_castps_si256(near.0);
-                let flip =
-                    _mm256_or_si256(_mm256_srai_epi32::<31>(bits), _mm256_set1_epi32(i32::MIN));
+                let (next, order) = far_order(near.0, met);
                 let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-                let keys = _mm256_or_si256(
-                    _mm256_and_si256(_mm256_xor_si256(bits, flip), _mm256_set1_epi32(!7)),
-                    lanes,
-                );
-                let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
-                let met = _mm256_cmpeq_epi32(
-                    _mm256_and_si256(_mm256_set1_epi32(met as i32), lane_bits),
-                    lane_bits,
-                );
-                let m = _mm256_or_si256(keys, _mm256_andnot_si256(met, _mm256_set1_epi32(-1)));
-                let m = _mm256_min_epu32(m, _mm256_shuffle_epi32::<0xB1>(m));
-                let m = _mm256_min_epu32(m, _mm256_shuffle_epi32::<0x4E>(m));
-                let m = _mm256_min_epu32(m, _mm256_permute2x128_si256::<0x01>(m, m));
-                let next = (_mm256_cvtsi256_si32(m) & 7) as usize;
-                let order = _mm256_and_si256(
-                    sort_descending(_mm256_and_si256(keys, met)),
-                    _mm256_set1_epi32(7),
-                );
                 let children = _mm256_loadu_si256(node.child.as_ptr().cast());
                 let kinds = _mm256_or_si256(
                     _mm256_cvtepu8_epi32(_mm_loadl_epi64(node.kind.as_ptr().cast())),
@@ -411,6 +404,69 @@ mod avx {
                 _mm_storeu_ps(p.add(28), _mm256_extractf128_ps::<1>(r3));
                 Some(next)
             }
+        }
+        /// The entries as `[child << 4 | kind & 15, near]` pairs: one shift and one mask
+        /// where the sixteen-byte entries take four-by-four transposes, and two stores of
+        /// 32 bytes where they take eight of 16.
+        #[inline(always)]
+        fn far_first_packed(
+            near: Self,
+            met: u32,
+            node: &WideNode,
+            out: &mut [[u32; 2]; 8],
+        ) -> Option<usize> {
+            // SAFETY: as above; the loads read `node.child` and `node.kind` whole, the stores
+            // write `out` whole (64 bytes).
+            unsafe {
+                let (next, order) = far_order(near.0, met);
+                let children = _mm256_loadu_si256(node.child.as_ptr().cast());
+                let kinds = _mm256_cvtepu8_epi32(_mm_loadl_epi64(node.kind.as_ptr().cast()));
+                let words = _mm256_or_si256(
+                    _mm256_slli_epi32::<4>(children),
+                    _mm256_and_si256(kinds, _mm256_set1_epi32(15)),
+                );
+                let w = _mm256_permutevar8x32_epi32(words, order);
+                let n = _mm256_castps_si256(_mm256_permutevar8x32_ps(near.0, order));
+                // [w0 n0 w1 n1 | w4 n4 w5 n5] and [w2 n2 w3 n3 | w6 n6 w7 n7].
+                let (lo, hi) = (_mm256_unpacklo_epi32(w, n), _mm256_unpackhi_epi32(w, n));
+                let p = out.as_mut_ptr().cast::<__m256i>();
+                _mm256_storeu_si256(p, _mm256_permute2x128_si256::<0x20>(lo, hi));
+                _mm256_storeu_si256(p.add(1), _mm256_permute2x128_si256::<0x31>(lo, hi));
+                Some(next)
+            }
+        }
+    }
+
+    /// The nearest lane met and the lanes in the order the walk's stack wants them (met lanes
+    /// first, farthest first): each lane's key is its distance's bits mapped to an unsigned
+    /// order (negative floats flipped), the low three bits replaced by the lane; lanes not met
+    /// get 0 and sort last. The nearest is found apart from the sort (the smallest key met),
+    /// so the next node's load need not wait for it.
+    #[inline(always)]
+    unsafe fn far_order(near: __m256, met: u32) -> (usize, __m256i) {
+        unsafe {
+            let bits = _mm256_castps_si256(near);
+            let flip = _mm256_or_si256(_mm256_srai_epi32::<31>(bits), _mm256_set1_epi32(i32::MIN));
+            let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+            let keys = _mm256_or_si256(
+                _mm256_and_si256(_mm256_xor_si256(bits, flip), _mm256_set1_epi32(!7)),
+                lanes,
+            );
+            let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+            let met = _mm256_cmpeq_epi32(
+                _mm256_and_si256(_mm256_set1_epi32(met as i32), lane_bits),
+                lane_bits,
+            );
+            let m = _mm256_or_si256(keys, _mm256_andnot_si256(met, _mm256_set1_epi32(-1)));
+            let m = _mm256_min_epu32(m, _mm256_shuffle_epi32::<0xB1>(m));
+            let m = _mm256_min_epu32(m, _mm256_shuffle_epi32::<0x4E>(m));
+            let m = _mm256_min_epu32(m, _mm256_permute2x128_si256::<0x01>(m, m));
+            let next = (_mm256_cvtsi256_si32(m) & 7) as usize;
+            let order = _mm256_and_si256(
+                sort_descending(_mm256_and_si256(keys, met)),
+                _mm256_set1_epi32(7),
+            );
+            (next, order)
         }
     }
 
@@ -527,6 +583,18 @@ mod tests {
         (next, out)
     }
 
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn avx_far_first_packed(
+        near: &[f32; 8],
+        met: u32,
+        node: &WideNode,
+    ) -> (Option<usize>, [[u32; 2]; 8]) {
+        let mut out = [[0u32; 2]; 8];
+        let next = Avx::far_first_packed(Avx::load(near), met, node, &mut out);
+        (next, out)
+    }
+
     /// A distance's sort key without its lane: the order-preserving unsigned bits, the low three
     /// cleared.
     fn bucket(x: f32) -> u32 {
@@ -582,6 +650,17 @@ mod tests {
             }
             // The nearest: the last met one written.
             assert_eq!(next, Some(lanes[n - 1]), "case {case}");
+            // The packed entries: the same children in the same order, kind in four bits.
+            // SAFETY: AVX2 was detected above.
+            let (packed_next, packed) = unsafe { avx_far_first_packed(&near, met, &node) };
+            assert_eq!(packed_next, next, "case {case}");
+            for (s, (p, row)) in packed.iter().zip(&out).enumerate() {
+                assert_eq!(
+                    *p,
+                    [row[0] << 4 | (row[1] & 15), row[2]],
+                    "case {case} slot {s}"
+                );
+            }
         }
     }
 }

@@ -230,13 +230,13 @@ impl<'a> Engine<'a> {
         }
         STACKS.with_borrow_mut(|stacks| {
             if stacks.packet.len() < self.stack {
-                stacks.single = vec![walk::Entry::default(); self.stack * walk::INTERLEAVED];
+                stacks.single = vec![walk::Pushed::default(); self.stack * walk::INTERLEAVED];
                 stacks.packet = vec![walk::PacketEntry::default(); self.stack];
                 stacks.frustum = vec![walk::Entry::default(); self.stack];
             }
             if let Some(top) = &self.top {
                 if stacks.top.len() < top.top_stack * walk::INTERLEAVED {
-                    stacks.top = vec![walk::Entry::default(); top.top_stack * walk::INTERLEAVED];
+                    stacks.top = vec![walk::Pushed::default(); top.top_stack * walk::INTERLEAVED];
                 }
                 match self.simd {
                     #[cfg(target_arch = "x86_64")]
@@ -281,13 +281,13 @@ pub fn trace_batch(
 /// One task's stacks, for the interleaved single-ray walks and the packet walk.
 struct Stacks {
     /// [`walk::INTERLEAVED`] stacks, one after another.
-    single: Vec<walk::Entry>,
+    single: Vec<walk::Pushed>,
     packet: Vec<walk::PacketEntry>,
     /// The frustum walk's stack.
     frustum: Vec<walk::Entry>,
     /// The instanced walk's top-tree stacks ([`walk::INTERLEAVED`]) and one instance's all-hits
     /// list.
-    top: Vec<walk::Entry>,
+    top: Vec<walk::Pushed>,
     scratch: Vec<GpuHitEntry>,
 }
 

@@ -106,6 +106,13 @@ impl WideBvh {
         if binary.is_empty() {
             return Ok(WideBvh::default());
         }
+        if bvh.triangles.len() as u64 >= super::walk::MAX_CHILDREN {
+            return Err(crate::error::Error::Invalid(format!(
+                "the CPU engine holds fewer than 2^28 triangles per tree, and this one has {} \
+                 (`--backend reference` or `gpu` pick it)",
+                bvh.triangles.len()
+            )));
+        }
         if binary[0].is_leaf() {
             // A one-leaf tree: the root holds that leaf alone.
             let mut root = WideNode::EMPTY_NODE;
@@ -328,6 +335,11 @@ impl WideBvh {
     /// For a tree made elsewhere (a saved scene) before it is walked; [`WideBvh::collapse`]'s
     /// trees pass.
     pub fn validate(&self, triangle_count: usize) -> std::result::Result<(), String> {
+        if triangle_count as u64 >= super::walk::MAX_CHILDREN {
+            return Err(format!(
+                "{triangle_count} triangles: the CPU engine's trees hold fewer than 2^28"
+            ));
+        }
         let n = self.nodes.len();
         if n == 0 {
             return match self.depth {

@@ -224,6 +224,12 @@ impl Instances {
             }
         }
         let bvh = this.combined(top);
+        if this.records.len() as u64 >= crate::engine::walk::MAX_CHILDREN {
+            return Err(crate::error::Error::Invalid(format!(
+                "{} instances: the CPU engine's top tree holds fewer than 2^28",
+                this.records.len()
+            )));
+        }
         this.top_wide = WideBvh::collapse(&Bvh {
             nodes: bvh.nodes[..this.top_nodes as usize].to_vec().into(),
             ..Bvh::default()
