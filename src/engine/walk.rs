@@ -285,6 +285,83 @@ pub struct RayState<'r, L: Lanes8> {
     pub done: bool,
 }
 
+/// Eight rays' inverse directions and watertight shear rows, one ray a lane, made in lanes:
+/// `safe_inverse`'s and `shear_for`'s operations, lane for lane, so bit for bit theirs (the
+/// choice of axes by selects, as in [`shear_rows`]), with one eight-lane division where each
+/// ray took its own. Measured A/B (BENCHMARKS.md): the divisions and `shear_for` were half of
+/// a camera packet's set-up.
+pub struct Eight {
+    /// Per axis, each ray's inverse direction.
+    inv: [[f32; LANES]; 3],
+    /// Per shear row and component, each ray's value (zero for Möller–Trumbore).
+    rows: [[[f32; LANES]; 3]; 3],
+}
+
+impl Eight {
+    /// Sets up the first [`LANES`] of `rays`.
+    #[inline(always)]
+    fn new<L: Lanes8>(scene: &Scene<'_>, rays: &[GpuRay]) -> Self {
+        let mut d = [[0.0f32; LANES]; 3];
+        for (i, ray) in rays[..LANES].iter().enumerate() {
+            for (a, axis) in d.iter_mut().enumerate() {
+                axis[i] = ray.dir[a];
+            }
+        }
+        let d = [L::load(&d[0]), L::load(&d[1]), L::load(&d[2])];
+        let (zero, one) = (L::splat(0.0), L::splat(1.0));
+        // `safe_inverse`: sign / max(|d|, MIN_DIR).
+        let inverse = |d: L| {
+            let sign = L::select(d.ge(zero), one, L::splat(-1.0));
+            sign.div(d.abs().max(L::splat(MIN_DIR))).to_array()
+        };
+        let inv = [inverse(d[0]), inverse(d[1]), inverse(d[2])];
+        let mut rows = [[[0.0f32; LANES]; 3]; 3];
+        if scene.watertight {
+            let [ax, ay, az] = [d[0].abs(), d[1].abs(), d[2].abs()];
+            // `shear_for`'s axis: x when |x| is at least |y| and |z|, else y when |y| >= |z|.
+            let x_first = L::and(ax.ge(ay), ax.ge(az));
+            let y_first = L::andnot(ay.ge(az), x_first);
+            let pick = |x: L, y: L, z: L| L::select(x_first, x, L::select(y_first, y, z));
+            let dz = pick(d[0], d[1], d[2]);
+            // The next two axes after it, cyclically; swapped when `d[kz] < 0`.
+            let negative = dz.lt(zero);
+            let (dx0, dy0) = (pick(d[1], d[2], d[0]), pick(d[2], d[0], d[1]));
+            let qx = L::select(negative, dy0, dx0).div(dz);
+            let qy = L::select(negative, dx0, dy0).div(dz);
+            let (q0, q1) = (zero.div(dz), one.div(dz));
+            // Per component j: whether it is kz, and the unit vectors e_kz, e_kx, e_ky.
+            let all = zero.eq(zero);
+            let is_kz = [
+                x_first,
+                y_first,
+                L::andnot(L::andnot(all, x_first), y_first),
+            ];
+            let ez = [
+                L::select(is_kz[0], one, zero),
+                L::select(is_kz[1], one, zero),
+                L::select(is_kz[2], one, zero),
+            ];
+            // kx follows kz cyclically and ky follows kx, unless swapped.
+            let ex = [
+                L::select(negative, ez[1], ez[2]),
+                L::select(negative, ez[2], ez[0]),
+                L::select(negative, ez[0], ez[1]),
+            ];
+            let ey = [
+                L::select(negative, ez[2], ez[1]),
+                L::select(negative, ez[0], ez[2]),
+                L::select(negative, ez[1], ez[0]),
+            ];
+            for j in 0..3 {
+                rows[0][j] = ex[j].sub(qx.mul(ez[j])).to_array();
+                rows[1][j] = ey[j].sub(qy.mul(ez[j])).to_array();
+                rows[2][j] = L::select(is_kz[j], q1, q0).to_array();
+            }
+        }
+        Eight { inv, rows }
+    }
+}
+
 impl<'r, L: Lanes8> RayState<'r, L> {
     /// Sets `ray` up; `None` when it is never traced (an empty scene, an empty range).
     /// `coherent`: the ray is one of a group whose branches predict (packets, camera rays),
@@ -370,104 +447,57 @@ impl<'r, L: Lanes8> RayState<'r, L> {
     }
 
     /// [`RayState::new_in`] for eight rays at once, into `slots`, their answers so far into
-    /// `out`; returns the rays traced (bit `i`: ray `i`) and their inverse directions by axis.
-    /// The inverses and the shear rows are made in lanes, one ray a lane: `safe_inverse`'s and
-    /// `shear_for`'s operations, lane for lane, so bit for bit theirs (the choice of axes by
-    /// selects, as in [`shear_rows`]), with one eight-lane division where each ray took its
-    /// own. Measured A/B (BENCHMARKS.md): the divisions and `shear_for` were half of a camera
-    /// packet's set-up.
+    /// `out`; returns the rays traced (bit `i`: ray `i`) and their inverse directions by axis
+    /// (set up by [`Eight`]).
     #[inline(always)]
-    #[allow(
-        clippy::neg_cmp_op_on_partial_ord,
-        reason = "as in the twin: `!(tmin <= tmax)` also rejects NaN"
-    )]
     pub fn new_eight(
         scene: &Scene<'_>,
         rays: &'r [GpuRay],
         slots: &mut [Option<Self>; LANES],
         out: &mut [GpuHit],
     ) -> (u32, [[f32; LANES]; 3]) {
-        let mut d = [[0.0f32; LANES]; 3];
-        for (i, ray) in rays[..LANES].iter().enumerate() {
-            for (a, axis) in d.iter_mut().enumerate() {
-                axis[i] = ray.dir[a];
-            }
-        }
-        let d = [L::load(&d[0]), L::load(&d[1]), L::load(&d[2])];
-        let (zero, one) = (L::splat(0.0), L::splat(1.0));
-        // `safe_inverse`: sign / max(|d|, MIN_DIR).
-        let inverse = |d: L| {
-            let sign = L::select(d.ge(zero), one, L::splat(-1.0));
-            sign.div(d.abs().max(L::splat(MIN_DIR))).to_array()
-        };
-        let inv = [inverse(d[0]), inverse(d[1]), inverse(d[2])];
-        let mut rows = [[[0.0f32; LANES]; 3]; 3];
-        if scene.watertight {
-            let [ax, ay, az] = [d[0].abs(), d[1].abs(), d[2].abs()];
-            // `shear_for`'s axis: x when |x| is at least |y| and |z|, else y when |y| >= |z|.
-            let x_first = L::and(ax.ge(ay), ax.ge(az));
-            let y_first = L::andnot(ay.ge(az), x_first);
-            let pick = |x: L, y: L, z: L| L::select(x_first, x, L::select(y_first, y, z));
-            let dz = pick(d[0], d[1], d[2]);
-            // The next two axes after it, cyclically; swapped when `d[kz] < 0`.
-            let negative = dz.lt(zero);
-            let (dx0, dy0) = (pick(d[1], d[2], d[0]), pick(d[2], d[0], d[1]));
-            let qx = L::select(negative, dy0, dx0).div(dz);
-            let qy = L::select(negative, dx0, dy0).div(dz);
-            let (q0, q1) = (zero.div(dz), one.div(dz));
-            // Per component j: whether it is kz, and the unit vectors e_kz, e_kx, e_ky.
-            let all = zero.eq(zero);
-            let is_kz = [
-                x_first,
-                y_first,
-                L::andnot(L::andnot(all, x_first), y_first),
-            ];
-            let ez = [
-                L::select(is_kz[0], one, zero),
-                L::select(is_kz[1], one, zero),
-                L::select(is_kz[2], one, zero),
-            ];
-            // kx follows kz cyclically and ky follows kx, unless swapped.
-            let ex = [
-                L::select(negative, ez[1], ez[2]),
-                L::select(negative, ez[2], ez[0]),
-                L::select(negative, ez[0], ez[1]),
-            ];
-            let ey = [
-                L::select(negative, ez[2], ez[1]),
-                L::select(negative, ez[0], ez[2]),
-                L::select(negative, ez[1], ez[0]),
-            ];
-            for j in 0..3 {
-                rows[0][j] = ex[j].sub(qx.mul(ez[j])).to_array();
-                rows[1][j] = ey[j].sub(qy.mul(ez[j])).to_array();
-                rows[2][j] = L::select(is_kz[j], q1, q0).to_array();
-            }
-        }
+        let eight = Eight::new::<L>(scene, rays);
         let mut alive = 0;
         for (i, ray) in rays[..LANES].iter().enumerate() {
-            let best = GpuHit {
-                t: ray.tmax,
-                prim: NO_HIT,
-                ..GpuHit::default()
-            };
-            out[i] = best;
-            if scene.nodes.is_empty() || !(ray.tmin <= ray.tmax) {
-                slots[i] = None;
-                continue;
-            }
-            let at = |row: &[[f32; LANES]; 3]| [row[0][i], row[1][i], row[2][i]];
-            let inv_i = Vec3::new(inv[0][i], inv[1][i], inv[2][i]);
-            Self::fill(
-                ray,
-                inv_i,
-                [at(&rows[0]), at(&rows[1]), at(&rows[2])],
-                best,
-                &mut slots[i],
-            );
-            alive |= 1 << i;
+            out[i] = Self::from_eight(scene, ray, &eight, i, &mut slots[i]);
+            alive |= u32::from(slots[i].is_some()) << i;
         }
-        (alive, inv)
+        (alive, eight.inv)
+    }
+
+    /// [`RayState::new_in`] for lane `i` of `eight`, which set `ray` up.
+    #[inline(always)]
+    #[allow(
+        clippy::neg_cmp_op_on_partial_ord,
+        reason = "as in the twin: `!(tmin <= tmax)` also rejects NaN"
+    )]
+    fn from_eight(
+        scene: &Scene<'_>,
+        ray: &'r GpuRay,
+        eight: &Eight,
+        i: usize,
+        slot: &mut Option<Self>,
+    ) -> GpuHit {
+        let best = GpuHit {
+            t: ray.tmax,
+            prim: NO_HIT,
+            ..GpuHit::default()
+        };
+        if scene.nodes.is_empty() || !(ray.tmin <= ray.tmax) {
+            *slot = None;
+            return best;
+        }
+        let (inv, rows) = (&eight.inv, &eight.rows);
+        let at = |row: &[[f32; LANES]; 3]| [row[0][i], row[1][i], row[2][i]];
+        let inv_i = Vec3::new(inv[0][i], inv[1][i], inv[2][i]);
+        Self::fill(
+            ray,
+            inv_i,
+            [at(&rows[0]), at(&rows[1]), at(&rows[2])],
+            best,
+            slot,
+        );
+        best
     }
 
     /// The ray being walked.
@@ -904,18 +934,29 @@ pub fn trace_interleaved_leaves<L: Lanes8>(
     let depth = stacks.len() / INTERLEAVED;
     let mut walks: [Option<Walk<'_, L>>; INTERLEAVED] = Default::default();
     let mut going = 0u32;
-    for (i, ray) in rays.iter().enumerate().take(INTERLEAVED) {
-        let (miss, state) = RayState::<L>::new(scene, ray, one_by_branch);
-        out[i] = miss;
-        if let Some(st) = state {
-            walks[i] = Some(Walk {
-                st,
-                child: 0,
-                kind: INNER,
-                top: 0,
-            });
-            going |= 1 << i;
+    // Set up eight at a time ([`Eight`]), the last few one by one.
+    let n = rays.len().min(INTERLEAVED);
+    let mut i = 0;
+    while i < n {
+        let eight = (i + LANES <= n).then(|| Eight::new::<L>(scene, &rays[i..i + LANES]));
+        let group = if eight.is_some() { LANES } else { 1 };
+        for k in i..i + group {
+            let mut state = None;
+            out[k] = match &eight {
+                Some(eight) => RayState::from_eight(scene, &rays[k], eight, k - i, &mut state),
+                None => RayState::<L>::new_in(scene, &rays[k], one_by_branch, &mut state),
+            };
+            if let Some(st) = state {
+                walks[k] = Some(Walk {
+                    st,
+                    child: 0,
+                    kind: INNER,
+                    top: 0,
+                });
+                going |= 1 << k;
+            }
         }
+        i += group;
     }
     while going != 0 {
         let mut left = going;
