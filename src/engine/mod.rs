@@ -357,13 +357,16 @@ fn trace_chunk<L: Lanes8>(
 ) {
     let k = list_length(rays, lists);
     let p = walk::PACKET;
-    let packet_at = |i: usize| {
-        scene.packets && i + p <= rays.len() && walk::coherent(&rays[i..i + p], scene.size)
-    };
+    // The group at `i`, when the run before it already looked.
+    let mut known = None;
     let mut i = 0;
     while i < rays.len() {
-        if packet_at(i) {
-            if walk::frustum_packet(&rays[i..i + p]) {
+        let group = match known.take() {
+            Some(group) => group,
+            None => group_at::<L>(scene, rays, i),
+        };
+        if group != walk::Group::Single {
+            if group == walk::Group::Frustum {
                 walk::trace_frustum::<L>(
                     scene,
                     &rays[i..i + p],
@@ -394,7 +397,12 @@ fn trace_chunk<L: Lanes8>(
         }
         // A run of groups that are not packets, up to `INTERLEAVED` rays.
         let mut end = (i + p).min(rays.len());
-        while end < rays.len() && end - i < walk::INTERLEAVED && !packet_at(end) {
+        while end < rays.len() && end - i < walk::INTERLEAVED {
+            let next = group_at::<L>(scene, rays, end);
+            if next != walk::Group::Single {
+                known = Some(next);
+                break;
+            }
             end = (end + p).min(rays.len()).min(i + walk::INTERLEAVED);
         }
         walk::trace_interleaved::<L>(
@@ -405,6 +413,17 @@ fn trace_chunk<L: Lanes8>(
             &mut hits[i..end],
         );
         i = end;
+    }
+}
+
+/// How the [`walk::PACKET`] rays from `i` are traced (a function, not a closure: a closure
+/// is not compiled with its caller's AVX2, and its lanes were calls).
+#[inline(always)]
+fn group_at<L: Lanes8>(scene: &walk::Scene<'_>, rays: &[GpuRay], i: usize) -> walk::Group {
+    if scene.packets && i + walk::PACKET <= rays.len() {
+        walk::group_of::<L>(&rays[i..i + walk::PACKET], scene.size)
+    } else {
+        walk::Group::Single
     }
 }
 

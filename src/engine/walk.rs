@@ -1019,8 +1019,9 @@ impl<'r, 'l, L: Lanes8> PacketRays<'r, 'l, L> {
 
     /// Sets the [`PACKET`] `rays` up in place, with `lists` holding each one's all-hits list
     /// in turn; a ray that is never traced gets its miss in `out` now. Returns the rays traced
-    /// (bit `i`: ray `i`) and their inverse directions by axis. In place, not built and returned: a packet's states are a few KiB,
-    /// and returning them was a `memmove` of 3% of a camera trace's samples.
+    /// (bit `i`: ray `i`) and their inverse directions by axis. In place, not built and
+    /// returned: a packet's states are a few KiB, and returning them was a `memmove` of 3% of a
+    /// camera trace's samples.
     #[inline(always)]
     fn start(
         &mut self,
@@ -1274,6 +1275,81 @@ pub fn frustum_packet(rays: &[GpuRay]) -> bool {
     })
 }
 
+/// How a group of [`PACKET`] rays is traced.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Group {
+    /// Ray by ray (interleaved with other such rays).
+    Single,
+    /// As one packet ([`trace_packet`]): [`coherent`].
+    Packet,
+    /// As one frustum ([`trace_frustum`]): [`coherent`] and [`frustum_packet`].
+    Frustum,
+}
+
+/// [`coherent`] and [`frustum_packet`] of the first [`PACKET`] of `rays` at once, the eight
+/// rays in lanes: the same comparisons of the same values (the dot products in `glam`'s
+/// order), made for all eight rays together where each was tested in turn (the two were 5% of
+/// a camera trace's samples).
+#[inline(always)]
+pub fn group_of<L: Lanes8>(rays: &[GpuRay], scene_size: f32) -> Group {
+    let rays = &rays[..PACKET];
+    let first = &rays[0];
+    let (mut same, mut same_origin) = (true, true);
+    let (mut o, mut d) = ([[0.0f32; PACKET]; 3], [[0.0f32; PACKET]; 3]);
+    for (i, r) in rays.iter().enumerate() {
+        same &= (r.flags == first.flags) & (r.mask == first.mask);
+        for a in 0..3 {
+            o[a][i] = r.origin[a];
+            d[a][i] = r.dir[a];
+            same_origin &= r.origin[a].to_bits() == first.origin[a].to_bits();
+        }
+    }
+    if !same {
+        return Group::Single;
+    }
+    let load3 = |v: &[[f32; PACKET]; 3]| [L::load(&v[0]), L::load(&v[1]), L::load(&v[2])];
+    let (o, d) = (load3(&o), load3(&d));
+    let d0 = Vec3::from(first.dir);
+    let dot = d[0]
+        .mul(L::splat(d0.x))
+        .add(d[1].mul(L::splat(d0.y)))
+        .add(d[2].mul(L::splat(d0.z)));
+    // [`coherent`]: directions within about 6°, origins within 1% of the scene's size.
+    let reach = L::splat(0.01 * scene_size);
+    let near = |a: usize| o[a].sub(L::splat(first.origin[a])).abs().le(reach);
+    let coherent = L::and(
+        L::and(dot.ge(L::splat(0.995)), near(0)),
+        L::and(near(1), near(2)),
+    );
+    if L::bits(coherent) != (1 << PACKET) - 1 {
+        return Group::Single;
+    }
+    if !same_origin {
+        return Group::Packet;
+    }
+    // [`frustum_packet`]: each component of the first ray's sign and not below `MIN_DIR`, and
+    // within `FRUSTUM_COS` of the first.
+    let zero = L::splat(0.0);
+    let mut frustum = (1u32 << PACKET) - 1;
+    for (a, d) in d.iter().enumerate() {
+        let negative = L::bits(d.lt(zero));
+        frustum &= L::bits(d.abs().ge(L::splat(MIN_DIR)));
+        frustum &= if first.dir[a] < 0.0 {
+            negative
+        } else {
+            !negative
+        };
+    }
+    let length = d[0].mul(d[0]).add(d[1].mul(d[1])).add(d[2].mul(d[2]));
+    let reach = L::splat(FRUSTUM_COS * FRUSTUM_COS * d0.length_squared());
+    frustum &= L::bits(L::and(dot.gt(zero), dot.mul(dot).ge(reach.mul(length))));
+    if frustum == (1 << PACKET) - 1 {
+        Group::Frustum
+    } else {
+        Group::Packet
+    }
+}
+
 /// The cosine of the widest angle between a frustum packet's first ray and another: about
 /// 0.57°. A wider packet's frustum takes in nodes none of its rays meet: eight adjacent rays of
 /// a 64 × 64 view (about 4.4° apart) traced several times slower as a frustum than ray by ray,
@@ -1456,6 +1532,71 @@ mod tests {
     use crate::engine::lanes8::Pair;
     use crate::engine::wide::WideBvh;
     use crate::layout::{CULL_SHIFT, MODE_CLOSEST};
+
+    /// `group_of` in lanes decides as `coherent` and `frustum_packet` do, on camera groups (a
+    /// narrow view and a wide one), random rays and groups with one ray changed.
+    #[test]
+    fn groups_in_lanes_are_the_scalar_tests() {
+        let mesh = terrain(40, 30, 0.0, 0.0, 1.0, hills);
+        let scene = crate::Scene::from_meshes([("hills".to_string(), mesh)]).unwrap();
+        let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
+        let size = WideBvh::collapse(&bvh).unwrap().size();
+        let local = |kind, n| crate::frame::local_rays(bvh.origin, &rays(&scene, kind, n, 7));
+        let mut sets = vec![
+            local(RayKind::Camera, 1 << 16),
+            local(RayKind::Camera, 4096),
+        ];
+        sets.push(local(RayKind::Random, 4096));
+        // A narrow view (drawn to a twentieth of its angle), whose groups walk as frustums.
+        let mut narrow = local(RayKind::Camera, 1 << 16);
+        let mean = narrow
+            .iter()
+            .fold(Vec3::ZERO, |m, r| m + Vec3::from(r.dir).normalize())
+            .normalize();
+        for r in &mut narrow {
+            let d = Vec3::from(r.dir).normalize();
+            r.dir = (mean + (d - mean) * 0.05).normalize().to_array();
+        }
+        sets.push(narrow.clone());
+        let mut changed = narrow;
+        for (j, group) in changed.chunks_exact_mut(PACKET).enumerate() {
+            let r = &mut group[j % PACKET];
+            match j % 5 {
+                0 => r.flags ^= 1,
+                1 => r.origin[j % 3] += 1e-3,
+                2 => r.dir[j % 3] = -r.dir[j % 3],
+                3 => r.mask = 2,
+                _ => {}
+            }
+        }
+        sets.push(changed);
+        let mut seen = [0; 3];
+        for set in &sets {
+            for group in set.chunks_exact(PACKET) {
+                let want = if !coherent(group, size) {
+                    Group::Single
+                } else if frustum_packet(group) {
+                    Group::Frustum
+                } else {
+                    Group::Packet
+                };
+                assert_eq!(group_of::<Pair<Portable>>(group, size), want, "{group:?}");
+                #[cfg(target_arch = "x86_64")]
+                if crate::engine::Simd::Avx2.is_available() {
+                    // SAFETY: the CPU has AVX2 (checked just above).
+                    assert_eq!(unsafe { group_avx(group, size) }, want);
+                }
+                seen[want as usize] += 1;
+            }
+        }
+        assert!(seen.iter().all(|&n| n > 100), "each kind met: {seen:?}");
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn group_avx(group: &[GpuRay], size: f32) -> Group {
+        group_of::<crate::engine::lanes8::Avx>(group, size)
+    }
 
     /// A pushed word gives back its child and kind: every kind a child slot holds (leaf
     /// counts 1–15 and `INNER`), children up to the largest below [`MAX_CHILDREN`], and the
