@@ -179,6 +179,43 @@ pub fn ray_triangle_watertight(tri: &GpuTriangle, origin: Vec3, sh: &Shear) -> T
     }
 }
 
+/// Direction components that test a set-up's edge cases: signed zeros, a subnormal, tiny and
+/// huge magnitudes, infinities, NaN, and ties between axes.
+#[cfg(test)]
+pub(crate) const SPECIAL_COMPONENTS: [f32; 17] = [
+    0.0,
+    -0.0,
+    1.0,
+    -1.0,
+    0.5,
+    -0.5,
+    1e-30,
+    -1e-30,
+    1e-40,
+    -1e-40,
+    3e38,
+    -3e38,
+    f32::INFINITY,
+    f32::NEG_INFINITY,
+    f32::NAN,
+    0.577_350_26,
+    -0.577_350_26,
+];
+
+/// `n` directions with components uniform in [−1, 1] (xorshift, fixed seed): the same ones on
+/// every run.
+#[cfg(test)]
+pub(crate) fn random_directions(n: usize) -> Vec<[f32; 3]> {
+    let mut seed = 0x2545_f491_u32;
+    let mut next = || {
+        seed ^= seed << 13;
+        seed ^= seed >> 17;
+        seed ^= seed << 5;
+        (seed as f32 / u32::MAX as f32) * 2.0 - 1.0
+    };
+    (0..n).map(|_| [next(), next(), next()]).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -191,25 +228,7 @@ mod tests {
     /// signed zeros, tiny and huge components, infinities and NaN included.
     #[test]
     fn the_engines_shear_rows_are_shear_fors() {
-        let special = [
-            0.0,
-            -0.0,
-            1.0,
-            -1.0,
-            0.5,
-            -0.5,
-            1e-30,
-            -1e-30,
-            1e-40,
-            -1e-40,
-            3e38,
-            -3e38,
-            f32::INFINITY,
-            f32::NEG_INFINITY,
-            f32::NAN,
-            0.577_350_26,
-            -0.577_350_26,
-        ];
+        let special = SPECIAL_COMPONENTS;
         let mut checked = 0;
         for &x in &special {
             for &y in &special {
@@ -222,15 +241,8 @@ mod tests {
                 }
             }
         }
-        let mut seed = 0x2545_f491_u32;
-        let mut next = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 17;
-            seed ^= seed << 5;
-            (seed as f32 / u32::MAX as f32) * 2.0 - 1.0
-        };
-        for _ in 0..100_000 {
-            let dir = Vec3::new(next(), next(), next());
+        for dir in random_directions(100_000) {
+            let dir = Vec3::from(dir);
             let [a, b, c] = shear_for(dir).rows();
             let want = [a.to_array(), b.to_array(), c.to_array()];
             assert_eq!(bits(shear_rows(dir)), bits(want), "{dir:?}");

@@ -375,26 +375,30 @@ impl<'r, L: Lanes8> RayState<'r, L> {
         (miss, state)
     }
 
+    /// The answer `ray` starts with (a miss at its `tmax`), and whether it is traced at all
+    /// (not in an empty scene, nor with an empty range: `tmin <= tmax` also rejects NaN).
+    #[inline(always)]
+    fn first_answer(scene: &Scene<'_>, ray: &GpuRay) -> (GpuHit, bool) {
+        let best = GpuHit {
+            t: ray.tmax,
+            prim: NO_HIT,
+            ..GpuHit::default()
+        };
+        (best, !scene.nodes.is_empty() && ray.tmin <= ray.tmax)
+    }
+
     /// [`RayState::new`] written into `slot` (left `None` for a ray never traced), returning
     /// the ray's answer so far: made in its place, where a returned state was built aside and
     /// copied (a packet's eight: `memmove` was 3% of a camera pick's samples).
     #[inline(always)]
-    #[allow(
-        clippy::neg_cmp_op_on_partial_ord,
-        reason = "as in the twin: `!(tmin <= tmax)` also rejects NaN"
-    )]
     pub fn new_in(
         scene: &Scene<'_>,
         ray: &'r GpuRay,
         coherent: bool,
         slot: &mut Option<Self>,
     ) -> GpuHit {
-        let best = GpuHit {
-            t: ray.tmax,
-            prim: NO_HIT,
-            ..GpuHit::default()
-        };
-        if scene.nodes.is_empty() || !(ray.tmin <= ray.tmax) {
+        let (best, traced) = Self::first_answer(scene, ray);
+        if !traced {
             *slot = None;
             return best;
         }
@@ -467,10 +471,6 @@ impl<'r, L: Lanes8> RayState<'r, L> {
 
     /// [`RayState::new_in`] for lane `i` of `eight`, which set `ray` up.
     #[inline(always)]
-    #[allow(
-        clippy::neg_cmp_op_on_partial_ord,
-        reason = "as in the twin: `!(tmin <= tmax)` also rejects NaN"
-    )]
     fn from_eight(
         scene: &Scene<'_>,
         ray: &'r GpuRay,
@@ -478,12 +478,8 @@ impl<'r, L: Lanes8> RayState<'r, L> {
         i: usize,
         slot: &mut Option<Self>,
     ) -> GpuHit {
-        let best = GpuHit {
-            t: ray.tmax,
-            prim: NO_HIT,
-            ..GpuHit::default()
-        };
-        if scene.nodes.is_empty() || !(ray.tmin <= ray.tmax) {
+        let (best, traced) = Self::first_answer(scene, ray);
+        if !traced {
             *slot = None;
             return best;
         }
@@ -741,8 +737,8 @@ fn nearest_first(mut met: u32, near: &[f32; WIDTH]) -> Order {
 /// through an instanced field were 15% slower with the network alone and are level with it,
 /// and frustum packets trace 3–4% faster with it.
 #[inline(always)]
-fn push_entries<L: Lanes8>(
-    stack: &mut [Entry],
+fn push_children<L: Lanes8, E: StackEntry>(
+    stack: &mut [E],
     top: usize,
     node: &WideNode,
     at: u32,
@@ -753,54 +749,76 @@ fn push_entries<L: Lanes8>(
     if one_by_branch && met & (met - 1) == 0 {
         return (top, (met.trailing_zeros() as usize) & (WIDTH - 1));
     }
-    let spare: &mut [Entry; WIDTH] = (&mut stack[top..top + WIDTH])
+    let spare: &mut [E; WIDTH] = (&mut stack[top..top + WIDTH])
         .try_into()
         .expect("WIDTH entries");
-    if let Some(next) = L::far_first(near, met, node, at, bytemuck::cast_mut(spare)) {
+    if let Some(next) = E::far_first(near, met, node, at, spare) {
         return (top + met.count_ones() as usize - 1, next);
     }
     let near = near.to_array();
     let order = nearest_first(met, &near);
     for (slot, &lane) in spare.iter_mut().zip(&order.push[..order.count]) {
         let lane = usize::from(lane);
-        *slot = Entry {
-            child: node.child[lane],
-            kind: node.kind[lane],
-            lane: lane as u8,
-            reserved: 0,
-            near: near[lane],
-            node: at,
-        };
+        *slot = E::of(node, lane, near[lane], at);
     }
     (top + order.count, order.next)
 }
 
-/// [`push_entries`] for the single-ray walks, onto their eight-byte [`Pushed`] stacks.
-#[inline(always)]
-fn push_children<L: Lanes8>(
-    stack: &mut [Pushed],
-    top: usize,
-    node: &WideNode,
-    met: u32,
-    near: L,
-    one_by_branch: bool,
-) -> (usize, usize) {
-    if one_by_branch && met & (met - 1) == 0 {
-        return (top, (met.trailing_zeros() as usize) & (WIDTH - 1));
+/// What a walk's stack holds: the frustum walk's [`Entry`] or the single-ray walks' [`Pushed`].
+trait StackEntry: Copy {
+    /// Child slot `lane` of `node` (node index `at`), met at `near`.
+    fn of(node: &WideNode, lane: usize, near: f32, at: u32) -> Self;
+    /// [`Lanes8::far_first`] or [`Lanes8::far_first_packed`], into these entries.
+    fn far_first<L: Lanes8>(
+        near: L,
+        met: u32,
+        node: &WideNode,
+        at: u32,
+        out: &mut [Self; WIDTH],
+    ) -> Option<usize>;
+}
+
+impl StackEntry for Entry {
+    #[inline(always)]
+    fn of(node: &WideNode, lane: usize, near: f32, at: u32) -> Self {
+        Entry {
+            child: node.child[lane],
+            kind: node.kind[lane],
+            lane: lane as u8,
+            reserved: 0,
+            near,
+            node: at,
+        }
     }
-    let spare: &mut [Pushed; WIDTH] = (&mut stack[top..top + WIDTH])
-        .try_into()
-        .expect("WIDTH entries");
-    if let Some(next) = L::far_first_packed(near, met, node, bytemuck::cast_mut(spare)) {
-        return (top + met.count_ones() as usize - 1, next);
+
+    #[inline(always)]
+    fn far_first<L: Lanes8>(
+        near: L,
+        met: u32,
+        node: &WideNode,
+        at: u32,
+        out: &mut [Self; WIDTH],
+    ) -> Option<usize> {
+        L::far_first(near, met, node, at, bytemuck::cast_mut(out))
     }
-    let near = near.to_array();
-    let order = nearest_first(met, &near);
-    for (slot, &lane) in spare.iter_mut().zip(&order.push[..order.count]) {
-        let lane = usize::from(lane);
-        *slot = Pushed::new(node.child[lane], node.kind[lane], near[lane]);
+}
+
+impl StackEntry for Pushed {
+    #[inline(always)]
+    fn of(node: &WideNode, lane: usize, near: f32, _: u32) -> Self {
+        Pushed::new(node.child[lane], node.kind[lane], near)
     }
-    (top + order.count, order.next)
+
+    #[inline(always)]
+    fn far_first<L: Lanes8>(
+        near: L,
+        met: u32,
+        node: &WideNode,
+        _: u32,
+        out: &mut [Self; WIDTH],
+    ) -> Option<usize> {
+        L::far_first_packed(near, met, node, bytemuck::cast_mut(out))
+    }
 }
 
 impl<'r, L: Lanes8> Walk<'r, L> {
@@ -824,7 +842,8 @@ impl<'r, L: Lanes8> Walk<'r, L> {
             let bits = bits & occupied;
             if bits != 0 {
                 let next;
-                (self.top, next) = push_children(stack, self.top, node, bits, near, one_by_branch);
+                (self.top, next) =
+                    push_children(stack, self.top, node, self.child, bits, near, one_by_branch);
                 (self.child, self.kind) = (node.child[next], node.kind[next]);
                 if AHEAD {
                     prefetch(scene, self.child, self.kind);
@@ -1471,7 +1490,7 @@ pub fn trace_frustum<L: Lanes8>(
             let bits = bits & occupied;
             if bits != 0 {
                 let next;
-                (top, next) = push_entries(stack, top, node, entry.child, bits, near, true);
+                (top, next) = push_children(stack, top, node, entry.child, bits, near, true);
                 entry = Entry {
                     child: node.child[next],
                     kind: node.kind[next],
@@ -1624,25 +1643,7 @@ mod tests {
         let scene = crate::Scene::from_meshes([("hills".to_string(), mesh)]).unwrap();
         let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
         let wide = WideBvh::collapse(&bvh).unwrap();
-        let special = [
-            0.0,
-            -0.0,
-            1.0,
-            -1.0,
-            0.5,
-            -0.5,
-            1e-30,
-            -1e-30,
-            1e-40,
-            -1e-40,
-            3e38,
-            -3e38,
-            f32::INFINITY,
-            f32::NEG_INFINITY,
-            f32::NAN,
-            0.577_350_26,
-            -0.577_350_26,
-        ];
+        let special = crate::cpu::ray_triangle::SPECIAL_COMPONENTS;
         let mut dirs = Vec::new();
         for &x in &special {
             for &y in &special {
@@ -1651,16 +1652,7 @@ mod tests {
                 }
             }
         }
-        let mut seed = 0x2545_f491_u32;
-        let mut next = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 17;
-            seed ^= seed << 5;
-            (seed as f32 / u32::MAX as f32) * 2.0 - 1.0
-        };
-        for _ in 0..20_000 {
-            dirs.push([next(), next(), next()]);
-        }
+        dirs.extend(crate::cpu::ray_triangle::random_directions(20_000));
         let lane0 = |v: &[L; 3]| v.map(|l| l.to_array()[0].to_bits());
         for watertight in [true, false] {
             let walk = Scene {
