@@ -911,8 +911,11 @@ pub fn trace_leaves<L: Lanes8>(
     walk.st.finish(hit_list)
 }
 
-/// Rays walked in turn by [`trace_interleaved`].
-pub const INTERLEAVED: usize = 32;
+/// Rays walked in turn by [`trace_interleaved`]. Sixteen, measured A/B against 32 and 24
+/// (BENCHMARKS.md): level on the bunny and the soup, +3–5% on the dragon, +4–7% on the DEM and
+/// +15–19% on the 2M terrain, whose walks miss the caches most (32 stacks, states and prefetched
+/// lines crowd the 48 KiB L1 out of what they prefetched).
+pub const INTERLEAVED: usize = 16;
 
 const _: () = assert!(
     PACKET <= INTERLEAVED && INTERLEAVED <= 32,
