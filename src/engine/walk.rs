@@ -36,7 +36,7 @@ pub struct Scene<'a> {
     pub watertight: bool,
     /// Whether coherent groups of rays are traced as packets.
     pub packets: bool,
-    /// The largest side of the root's box, for the packet test [`coherent`].
+    /// The largest side of the root's box, for the packet test ([`group_of`]).
     pub size: f32,
     /// Whether incoherent rays walk interleaved ([`trace_interleaved`], the engine's default)
     /// rather than one by one ([`trace`]). Interleaved walks were 20–46% faster on the dragon
@@ -1120,23 +1120,6 @@ pub struct PacketEntry {
     near: [f32; PACKET],
 }
 
-/// Whether [`PACKET`] rays are worth one packet walk: the same flags and mask, directions within
-/// about 6° of the first's, origins within 1% of the scene's size of the first's.
-#[inline(always)]
-pub fn coherent(rays: &[GpuRay], scene_size: f32) -> bool {
-    let first = &rays[0];
-    let d0 = Vec3::from(first.dir);
-    let o0 = Vec3::from(first.origin);
-    let reach = 0.01 * scene_size;
-    rays.len() == PACKET
-        && rays[1..].iter().all(|r| {
-            r.flags == first.flags
-                && r.mask == first.mask
-                && Vec3::from(r.dir).dot(d0) >= 0.995
-                && (Vec3::from(r.origin) - o0).abs().max_element() <= reach
-        })
-}
-
 /// Traces [`PACKET`] coherent rays down the tree together, on one stack: at each node every ray
 /// still in the packet tests the node's boxes in its own lanes (the single-ray test, bit for
 /// bit), the children met by any ray are visited nearest first (by the nearest ray), and a leaf
@@ -1270,48 +1253,28 @@ pub fn trace_packet<L: Lanes8>(
     packet.finish(out);
 }
 
-/// Whether a coherent packet walks as one frustum ([`trace_frustum`]): every ray from the same
-/// origin (the same bits: a pinhole camera's), and each direction component of one sign across
-/// the packet and not parallel to an axis plane (`MIN_DIR`). Where a component changes sign
-/// inside the packet (near a view's centre lines) the interval of its inverse has no bound,
-/// and the packet walks ray by ray ([`trace_packet`]) instead.
-#[inline(always)]
-pub fn frustum_packet(rays: &[GpuRay]) -> bool {
-    let o = rays[0].origin.map(f32::to_bits);
-    let signs = rays[0].dir.map(|d| d < 0.0);
-    let d0 = Vec3::from(rays[0].dir);
-    // The angle's test without square roots or divisions: cos >= FRUSTUM_COS as
-    // (d · d0)² >= FRUSTUM_COS² |d|² |d0|² with d · d0 > 0 (normalising each direction was a
-    // third of a camera packet's set-up).
-    let reach = FRUSTUM_COS * FRUSTUM_COS * d0.length_squared();
-    rays.iter().all(|r| {
-        let d = Vec3::from(r.dir);
-        let cos = d.dot(d0);
-        r.origin.map(f32::to_bits) == o
-            && r.dir
-                .iter()
-                .zip(signs)
-                .all(|(d, neg)| d.abs() >= MIN_DIR && (*d < 0.0) == neg)
-            && cos > 0.0
-            && cos * cos >= reach * d.length_squared()
-    })
-}
-
 /// How a group of [`PACKET`] rays is traced.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Group {
     /// Ray by ray (interleaved with other such rays).
     Single,
-    /// As one packet ([`trace_packet`]): [`coherent`].
+    /// As one packet ([`trace_packet`]): the same flags and mask, directions within about 6° of
+    /// the first's, origins within 1% of the scene's size of the first's.
     Packet,
-    /// As one frustum ([`trace_frustum`]): [`coherent`] and [`frustum_packet`].
+    /// As one frustum ([`trace_frustum`]): a packet whose rays also share their origin (the
+    /// same bits: a pinhole camera's), whose direction components each keep one sign across the
+    /// packet and are not parallel to an axis plane (`MIN_DIR`), within `FRUSTUM_COS` of the
+    /// first. Where a component changes sign inside the packet (near a view's centre lines) the
+    /// interval of its inverse has no bound, and the packet walks ray by ray instead.
     Frustum,
 }
 
-/// [`coherent`] and [`frustum_packet`] of the first [`PACKET`] of `rays` at once, the eight
-/// rays in lanes: the same comparisons of the same values (the dot products in `glam`'s
-/// order), made for all eight rays together where each was tested in turn (the two were 5% of
-/// a camera trace's samples).
+/// How the first [`PACKET`] of `rays` are traced ([`Group`]), decided for the eight rays at
+/// once in lanes, where each was tested in turn (that was 5% of a camera trace's samples). The
+/// angle's tests go without square roots or divisions: cos ≥ c as (d·d₀)² ≥ c²·|d|²·|d₀|² with
+/// d·d₀ > 0 (normalising each direction was a third of a camera packet's set-up). The tests'
+/// one-ray-at-a-time definitions give the same decisions (`tests::coherent`,
+/// `tests::frustum_packet`).
 #[inline(always)]
 pub fn group_of<L: Lanes8>(rays: &[GpuRay], scene_size: f32) -> Group {
     let rays = &rays[..PACKET];
@@ -1336,7 +1299,7 @@ pub fn group_of<L: Lanes8>(rays: &[GpuRay], scene_size: f32) -> Group {
         .mul(L::splat(d0.x))
         .add(d[1].mul(L::splat(d0.y)))
         .add(d[2].mul(L::splat(d0.z)));
-    // [`coherent`]: directions within about 6°, origins within 1% of the scene's size.
+    // A packet: directions within about 6°, origins within 1% of the scene's size.
     let reach = L::splat(0.01 * scene_size);
     let near = |a: usize| o[a].sub(L::splat(first.origin[a])).abs().le(reach);
     let coherent = L::and(
@@ -1349,8 +1312,8 @@ pub fn group_of<L: Lanes8>(rays: &[GpuRay], scene_size: f32) -> Group {
     if !same_origin {
         return Group::Packet;
     }
-    // [`frustum_packet`]: each component of the first ray's sign and not below `MIN_DIR`, and
-    // within `FRUSTUM_COS` of the first.
+    // A frustum: each component of the first ray's sign and not below `MIN_DIR`, and within
+    // `FRUSTUM_COS` of the first.
     let zero = L::splat(0.0);
     let mut frustum = (1u32 << PACKET) - 1;
     for (a, d) in d.iter().enumerate() {
@@ -1411,7 +1374,7 @@ fn frustum_boxes<L: Lanes8>(
     (L::bits(lo.le(hi)), lo)
 }
 
-/// Traces [`PACKET`] rays from one origin ([`frustum_packet`]) as one frustum: each node's eight
+/// Traces [`PACKET`] rays from one origin ([`Group::Frustum`]) as one frustum: each node's eight
 /// boxes are tested once for the whole packet ([`frustum_boxes`], conservative), children
 /// nearest first; at each leaf every ray still walking tests the leaf's box by its own test (the
 /// eight rays in lanes, bit for bit [`boxes_met`]'s), and those that meet it test its
@@ -1554,6 +1517,43 @@ mod tests {
     use crate::engine::lanes8::Pair;
     use crate::engine::wide::WideBvh;
     use crate::layout::{CULL_SHIFT, MODE_CLOSEST};
+
+    /// [`Group::Packet`]'s test, one ray at a time: the definition [`group_of`] is checked against.
+    fn coherent(rays: &[GpuRay], scene_size: f32) -> bool {
+        let first = &rays[0];
+        let d0 = Vec3::from(first.dir);
+        let o0 = Vec3::from(first.origin);
+        let reach = 0.01 * scene_size;
+        rays.len() == PACKET
+            && rays[1..].iter().all(|r| {
+                r.flags == first.flags
+                    && r.mask == first.mask
+                    && Vec3::from(r.dir).dot(d0) >= 0.995
+                    && (Vec3::from(r.origin) - o0).abs().max_element() <= reach
+            })
+    }
+
+    /// [`Group::Frustum`]'s test beyond [`Group::Packet`]'s, one ray at a time.
+    fn frustum_packet(rays: &[GpuRay]) -> bool {
+        let o = rays[0].origin.map(f32::to_bits);
+        let signs = rays[0].dir.map(|d| d < 0.0);
+        let d0 = Vec3::from(rays[0].dir);
+        // The angle's test without square roots or divisions: cos >= FRUSTUM_COS as
+        // (d · d0)² >= FRUSTUM_COS² |d|² |d0|² with d · d0 > 0 (normalising each direction was a
+        // third of a camera packet's set-up).
+        let reach = FRUSTUM_COS * FRUSTUM_COS * d0.length_squared();
+        rays.iter().all(|r| {
+            let d = Vec3::from(r.dir);
+            let cos = d.dot(d0);
+            r.origin.map(f32::to_bits) == o
+                && r.dir
+                    .iter()
+                    .zip(signs)
+                    .all(|(d, neg)| d.abs() >= MIN_DIR && (*d < 0.0) == neg)
+                && cos > 0.0
+                && cos * cos >= reach * d.length_squared()
+        })
+    }
 
     /// `group_of` in lanes decides as `coherent` and `frustum_packet` do, on camera groups (a
     /// narrow view and a wide one), random rays and groups with one ray changed.
