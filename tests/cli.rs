@@ -326,6 +326,53 @@ fn ray_files_take_tmax_comments_and_obj_scenes() {
     assert_eq!(parsed[1]["triangle"], 1);
 }
 
+/// `bench --ray-file` (issue 13): a user's own rays timed in-process on the chosen backend and
+/// thread count, ending with the machine-readable `pick_rays_per_s=<number>`; a file with no
+/// rays is refused (exit 2, naming it) rather than timed as zero.
+#[test]
+fn bench_on_a_ray_file_ends_with_its_rate() {
+    let obj = temp_file(
+        "bench-quad.obj",
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n",
+    );
+    let rays = temp_file(
+        "bench-rays.txt",
+        "0.75 0.25 1 0 0 -1\n0.25 0.75 1 0 0 -1\n5 5 1 0 0 -1\n",
+    );
+    for backend in ["cpu", "reference"] {
+        let args = [
+            "bench",
+            "--scene",
+            &obj,
+            "--ray-file",
+            &rays,
+            "--backend",
+            backend,
+            "--threads",
+            "1",
+            "--repeat",
+            "2",
+        ];
+        let (code, out, err) = raypick(&args);
+        assert_eq!(code, 0, "{backend}: {err}");
+        assert!(out.contains("hits: 2 of 3 rays"), "{backend}: {out}");
+        let last = out.trim_end().lines().last().unwrap();
+        let rate: f64 = last
+            .strip_prefix("pick_rays_per_s=")
+            .unwrap_or_else(|| panic!("{backend}: last line {last:?}"))
+            .parse()
+            .unwrap();
+        assert!(rate.is_finite() && rate > 0.0, "{backend}: {last}");
+    }
+    let empty = temp_file("bench-no-rays.txt", "# no rays here\n");
+    let (code, out, err) = raypick(&["bench", "--scene", &obj, "--ray-file", &empty]);
+    assert_eq!(code, 2, "{out}");
+    assert!(
+        err.contains("bench-no-rays.txt") && err.contains("no rays"),
+        "{err}"
+    );
+}
+
 #[test]
 fn bad_input_names_the_file_and_line_and_exits_2() {
     let rays = temp_file("bad.txt", "0 0 1 0 0 -1\n0 0 1 0 zero -1\n");

@@ -53,6 +53,12 @@ fn run_ray_file(
     matches: &ArgMatches,
 ) -> Result<ExitCode, Error> {
     let rays = super::read_rays(path, 0.0, f64::INFINITY, u32::MAX)?;
+    if rays.is_empty() {
+        return Err(Error::Invalid(format!(
+            "{}: no rays to time (the file holds no ray lines)",
+            path.display()
+        )));
+    }
     let (built, load_s, build_s) = args.scene.build_timed(matches)?;
     let built = Arc::new(built);
     let threads = args
