@@ -55,12 +55,10 @@ impl Bvh {
         let (first, count) = (o.first_triangle, o.triangle_count as usize);
         let first_vertex = o.first_vertex;
         let origin = self.origin;
-        // Each vertex rounded once, as `bvh::local_positions` rounds it.
-        let local: Vec<Vec3> = positions
-            .par_iter()
-            .with_min_len(4096)
-            .map(|&p| (p - origin).as_vec3())
-            .collect();
+        // A vertex's f32 offset, rounded as `bvh::local_positions` rounds it (the same bits at
+        // each corner it is), made where a triangle needs it: an array of them, made first,
+        // was a third more memory for the gathers to wait on.
+        let local = |p: DVec3| (p - origin).as_vec3();
         let vertices = |k: usize| {
             scene
                 .triangle_vertices(first as usize + k)
@@ -85,8 +83,8 @@ impl Bvh {
                 .into_par_iter()
                 .with_min_len(4096)
                 .map(|k| {
-                    let v = vertices(k);
-                    traceable_corners(v.map(|v| positions[v]), v.map(|v| local[v]))
+                    let world = vertices(k).map(|v| positions[v]);
+                    traceable_corners(world, world.map(local))
                 })
                 .collect();
             if traceable.par_iter().filter(|&&t| t).count() != held {
@@ -101,15 +99,17 @@ impl Bvh {
                 return None;
             }
             let at = leaf_vertices[j].map(|v| v.wrapping_sub(first_vertex) as usize);
-            let corners = at.map(|v| local.get(v));
-            let [Some(&a), Some(&b), Some(&c)] = corners else {
+            let corners = at.map(|v| positions.get(v));
+            let [Some(&pa), Some(&pb), Some(&pc)] = corners else {
                 // Not this tree's vertices (a caller's mistake): rebuild rather than guess.
                 lost.store(true, Ordering::Relaxed);
                 return None;
             };
+            let world = [pa, pb, pc];
+            let [a, b, c] = world.map(local);
             let still = match &traceable {
                 Some(traceable) => traceable[k],
-                None => traceable_corners(at.map(|v| positions[v]), [a, b, c]),
+                None => traceable_corners(world, [a, b, c]),
             };
             if !still {
                 lost.store(true, Ordering::Relaxed);
