@@ -98,6 +98,13 @@ impl Bvh {
             if k >= count {
                 return None;
             }
+            // The corners of a triangle a few leaves on (leaves go in reverse order) asked for
+            // now: the gathers below waited on memory one triangle after another.
+            if let Some(ahead) = j.checked_sub(AHEAD) {
+                for v in leaf_vertices[ahead] {
+                    crate::prefetch::item(positions, v.wrapping_sub(first_vertex) as usize);
+                }
+            }
             let at = leaf_vertices[j].map(|v| v.wrapping_sub(first_vertex) as usize);
             let corners = at.map(|v| positions.get(v));
             let [Some(&pa), Some(&pb), Some(&pc)] = corners else {
@@ -193,6 +200,12 @@ impl<F: Fn(usize, u32) -> Option<GpuTriangle> + Sync> Leaves<'_, F> {
         Some(b)
     }
 }
+
+/// How many leaf-order triangles back the refit's tree pass asks for a triangle's corners
+/// (it walks the leaves last first). Dragon refit, medians of 15, alternated: none 1.90 / 1.83 /
+/// 1.94 / 1.84 ms; 12 back 1.73 / 1.69 / 1.75; 24 back 1.64 / 1.72 / 1.64 / 1.61; 48 and 96
+/// back 1.59–1.67 (BENCHMARKS.md).
+const AHEAD: usize = 64;
 
 /// Subtrees smaller than this are refitted by one task.
 const SERIAL_NODES: usize = 4096;
