@@ -195,7 +195,8 @@ impl Engine for RaypickCpu {
     }
 
     fn trace(&self, rays: &[GpuRay]) -> Vec<Option<f32>> {
-        self.trace_hits(rays).into_iter().map(closest).collect()
+        // In parallel, as the peers' adapters collect theirs.
+        self.trace_hits(rays).into_par_iter().map(closest).collect()
     }
 
     fn api_pick(&self, world: &[Ray]) -> bool {
@@ -229,7 +230,7 @@ impl Engine for RaypickReference {
 
     fn trace(&self, rays: &[GpuRay]) -> Vec<Option<f32>> {
         cpu::trace_all(&self.built.bvh, rays)
-            .into_iter()
+            .into_par_iter()
             .map(closest)
             .collect()
     }
@@ -260,7 +261,7 @@ impl Engine for RaypickGpu {
     }
 
     fn trace(&self, rays: &[GpuRay]) -> Vec<Option<f32>> {
-        self.trace_hits(rays).into_iter().map(closest).collect()
+        self.trace_hits(rays).into_par_iter().map(closest).collect()
     }
 
     fn api_pick(&self, world: &[Ray]) -> bool {
