@@ -2,12 +2,14 @@
 //! ([`local_rays_into`]) and hits refined ([`refine_four`]), each giving the very bits of the
 //! one-ray functions, with the divisions and square roots in f64 lanes where the CPU has AVX.
 //!
-//! Converting a ray costs six divisions and a square root in f64, which was about a tenth of
-//! the whole pick of 1M camera rays (BENCHMARKS.md). The lanes do the same IEEE operations in
-//! the same order as the scalar function (no fused multiply-add, the same comparisons for the
-//! clamps), so each is rounded the same. A ray off the common path (not finite, a zero
-//! direction or one too short to invert, `tmin >= tmax` once in f32, a range cap that needs
-//! stepping down, an origin beyond f32, layer mask 0) is handed to the scalar function.
+//! Converting a ray costs two divisions (by a power of two, then by the scaled length) and a
+//! square root in f64; with six divisions it was about a tenth of the whole pick of 1M camera
+//! rays (BENCHMARKS.md). The lanes do the same IEEE operations in the same order as the scalar
+//! function (no fused multiply-add, the same comparisons for the clamps; a division by a
+//! power of two as a product with its exact inverse), so each is rounded the same. A ray off
+//! the common path (not finite, a subnormal or zero direction or one shorter than 2^-800,
+//! `tmin >= tmax` once in f32, an origin beyond f32, layer mask 0) is handed to the scalar
+//! function.
 //!
 //! The hits' f64 refinement goes four at a time too ([`refine_four`], bit for bit
 //! [`super::refine`] on each hit): three divisions, a square root and one more division each.
@@ -258,6 +260,10 @@ mod avx {
         })
     }
 
+    /// The shortest direction the lanes convert: `1 / length` is finite from it up, and so is
+    /// `cap / length` for any finite f32 range cap (below 2^128), so neither needs a division.
+    const SHORTEST_ON_LANES: f64 = f64::from_bits((1023 - 800) << 52);
+
     /// Converts four rays on the common path of [`super::super::local_ray`]; a ray off it is
     /// marked by a nonzero `pad[0]` (the scalar function then overwrites it).
     #[target_feature(enable = "avx")]
@@ -293,13 +299,18 @@ mod avx {
                 _mm256_cmp_pd::<_CMP_LE_OQ>(tmin, tmax),
             ),
         );
-        // `dir.abs().max_element()`: glam's max is `if a > b { a } else { b }`, as maxpd is.
-        let scale = _mm256_max_pd(abs(dx), _mm256_max_pd(abs(dy), abs(dz)));
-        ok = and(ok, _mm256_cmp_pd::<_CMP_GT_OQ>(scale, splat(0.0)));
+        // `direction_scale`: `dir.abs().max_element()` (glam's max is `if a > b { a } else
+        // { b }`, as maxpd is) cut to its power of two; a subnormal largest component (or
+        // none) is left to the scalar function.
+        let max = _mm256_max_pd(abs(dx), _mm256_max_pd(abs(dy), abs(dz)));
+        ok = and(ok, _mm256_cmp_pd::<_CMP_GE_OQ>(max, splat(f64::MIN_POSITIVE)));
+        let scale = and(max, splat(f64::from_bits(crate::ray::EXPONENT_BITS)));
+        // The inverse of a power of two is exact, so these products are the quotients.
+        let inverse_scale = _mm256_div_pd(splat(1.0), scale);
         let (sx, sy, sz) = (
-            _mm256_div_pd(dx, scale),
-            _mm256_div_pd(dy, scale),
-            _mm256_div_pd(dz, scale),
+            _mm256_mul_pd(dx, inverse_scale),
+            _mm256_mul_pd(dy, inverse_scale),
+            _mm256_mul_pd(dz, inverse_scale),
         );
         // `scaled.length()`: sqrt((x * x + y * y) + z * z).
         let squares = _mm256_add_pd(
@@ -308,23 +319,21 @@ mod avx {
         );
         let scaled_length = _mm256_sqrt_pd(squares);
         let dir_length = _mm256_mul_pd(scaled_length, scale);
-        // A finite length whose inverse is finite too (when it is below 1).
-        let short = _mm256_cmp_pd::<_CMP_LT_OQ>(dir_length, splat(1.0));
-        let inverse = _mm256_div_pd(splat(1.0), dir_length);
+        // A finite length whose inverse is finite too. From 2^-800 up both that and the range
+        // cap's check below hold without a division (a finite f32 cap over such a length stays
+        // below 2^928); shorter lengths are left to the scalar function.
         ok = and(
             ok,
             and(
                 finite(dir_length),
-                _mm256_or_pd(
-                    _mm256_andnot_pd(short, splat(f64::from_bits(!0))),
-                    finite(inverse),
-                ),
+                _mm256_cmp_pd::<_CMP_GE_OQ>(dir_length, splat(SHORTEST_ON_LANES)),
             ),
         );
+        let inverse_length = _mm256_div_pd(splat(1.0), scaled_length);
         let unit = [
-            _mm256_cvtpd_ps(_mm256_div_pd(sx, scaled_length)),
-            _mm256_cvtpd_ps(_mm256_div_pd(sy, scaled_length)),
-            _mm256_cvtpd_ps(_mm256_div_pd(sz, scaled_length)),
+            _mm256_cvtpd_ps(_mm256_mul_pd(sx, inverse_length)),
+            _mm256_cvtpd_ps(_mm256_mul_pd(sy, inverse_length)),
+            _mm256_cvtpd_ps(_mm256_mul_pd(sz, inverse_length)),
         ];
         let origin = [
             _mm256_cvtpd_ps(_mm256_sub_pd(ox, splat(scene_origin.x))),
@@ -344,20 +353,9 @@ mod avx {
                 f32::MAX as f64,
             ))
         };
-        let (tmin32, tmax32) = (to_f32(tmin), to_f32(tmax));
         // A direction shorter than 1 whose range cap would carry a hit's world t past f64::MAX
-        // needs the cap stepped down: the scalar function does that.
-        let steps = and(
-            and(
-                short,
-                _mm256_cmp_pd::<_CMP_GT_OQ>(_mm256_cvtps_pd(tmax32), splat(0.0)),
-            ),
-            _mm256_xor_pd(
-                finite(_mm256_div_pd(_mm256_cvtps_pd(tmax32), dir_length)),
-                splat(f64::from_bits(!0)),
-            ),
-        );
-        ok = _mm256_andnot_pd(steps, ok);
+        // needs the cap stepped down; none on the lanes does (`SHORTEST_ON_LANES`).
+        let (tmin32, tmax32) = (to_f32(tmin), to_f32(tmax));
         let finite32 = |v: __m128| {
             _mm_cmplt_ps(
                 _mm_andnot_ps(_mm_set1_ps(-0.0), v),

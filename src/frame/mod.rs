@@ -49,7 +49,7 @@ pub fn local_ray(scene_origin: DVec3, ray: &Ray, query: &Query) -> Option<(GpuRa
     {
         return None;
     }
-    let scale = ray.dir.abs().max_element();
+    let scale = crate::ray::direction_scale(ray.dir);
     if scale == 0.0 {
         return None;
     }
@@ -59,7 +59,9 @@ pub fn local_ray(scene_origin: DVec3, ray: &Ray, query: &Query) -> Option<(GpuRa
     if !(dir_length.is_finite() && (dir_length >= 1.0 || (1.0 / dir_length).is_finite())) {
         return None;
     }
-    let unit = (scaled / scaled_length).as_vec3();
+    // One division for the three components (the lanes' three took as long as the rest of
+    // the conversion).
+    let unit = (scaled * (1.0 / scaled_length)).as_vec3();
     let origin = (ray.origin - scene_origin).as_vec3();
     let to_f32 = |t: f64| (t * dir_length).clamp(f32::MIN as f64, f32::MAX as f64) as f32;
     let finite = |t: f64| t.clamp(-f64::MAX, f64::MAX);
