@@ -303,7 +303,10 @@ mod avx {
         // { b }`, as maxpd is) cut to its power of two; a subnormal largest component (or
         // none) is left to the scalar function.
         let max = _mm256_max_pd(abs(dx), _mm256_max_pd(abs(dy), abs(dz)));
-        ok = and(ok, _mm256_cmp_pd::<_CMP_GE_OQ>(max, splat(f64::MIN_POSITIVE)));
+        ok = and(
+            ok,
+            _mm256_cmp_pd::<_CMP_GE_OQ>(max, splat(f64::MIN_POSITIVE)),
+        );
         let scale = and(max, splat(f64::from_bits(crate::ray::EXPONENT_BITS)));
         // The inverse of a power of two is exact, so these products are the quotients.
         let inverse_scale = _mm256_div_pd(splat(1.0), scale);
