@@ -797,8 +797,13 @@ fn pick_fused(
         .flatten();
     let mut nearest = answer_buffer(answers, n);
     let out = SlotWriter(nearest.as_mut_ptr());
+    // Each step its own stealable job. Left to rayon's adaptive splitting, a thread ran one
+    // sequential run of steps to its end while the other, done with its own, had nothing left
+    // to steal: where steps cost unevenly (the soup's camera rays: one half of the picture
+    // costs 1.4 times the other) the two threads were idle 13% of a trace (BENCHMARKS.md).
     (0..n.div_ceil(FUSED_CHUNK))
         .into_par_iter()
+        .with_max_len(1)
         .try_for_each(|c| -> Result<()> {
             let span = c * FUSED_CHUNK..((c + 1) * FUSED_CHUNK).min(n);
             let m = span.len();

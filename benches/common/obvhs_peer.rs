@@ -36,6 +36,7 @@ pub fn obvhs_intersect(bvh: &CwBvh, triangles: &[Triangle], ray: obvhs::ray::Ray
 pub fn obvhs_trace(bvh: &CwBvh, triangles: &[Triangle], rays: &[obvhs::ray::Ray]) -> Vec<RayHit> {
     rays.par_iter()
         .with_min_len(256)
+        .with_max_len(256)
         .map(|ray| obvhs_intersect(bvh, triangles, *ray))
         .collect()
 }

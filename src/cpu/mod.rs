@@ -55,14 +55,17 @@ pub fn trace_batch(
     let k = settings.max_hits as usize;
     let mut lists = vec![GpuHitEntry::default(); rays.len() * k];
     let hits = if k == 0 {
+        // Runs of 256 rays, each its own stealable job (as the engine's: `picker::pick_fused`).
         rays.par_iter()
             .with_min_len(256)
+            .with_max_len(256)
             .map(|ray| traverse::trace(buffers, ray, &mut []))
             .collect()
     } else {
         rays.par_iter()
             .zip(lists.par_chunks_mut(k))
             .with_min_len(256)
+            .with_max_len(256)
             .map(|(ray, list)| traverse::trace(buffers, ray, list))
             .collect()
     };

@@ -203,15 +203,19 @@ impl<'a> Engine<'a> {
         let mut hits: Vec<GpuHit> = crate::huge_pages::vec_with_capacity(n);
         let mut lists: Vec<GpuHitEntry> = crate::huge_pages::vec_with_capacity(n * k);
         let hit_slots = &mut hits.spare_capacity_mut()[..n];
+        // Every task its own stealable job (`with_max_len(1)`), as in the pick pipeline's loop:
+        // see `picker::pick_fused`.
         if k == 0 {
             rays.par_chunks(RAYS_PER_TASK)
                 .zip(hit_slots.par_chunks_mut(RAYS_PER_TASK))
+                .with_max_len(1)
                 .for_each(|(r, h)| self.trace_chunk(r, filled(h), &mut []));
         } else {
             let list_slots = &mut lists.spare_capacity_mut()[..n * k];
             rays.par_chunks(RAYS_PER_TASK)
                 .zip(hit_slots.par_chunks_mut(RAYS_PER_TASK))
                 .zip(list_slots.par_chunks_mut(RAYS_PER_TASK * k))
+                .with_max_len(1)
                 .for_each(|((r, h), l)| self.trace_chunk(r, filled(h), filled(l)));
         }
         // SAFETY: the tasks' runs cover the first `n` (and `n * k`) slots, and each task set all
