@@ -81,8 +81,18 @@ impl Simd {
     }
 }
 
-/// Rays handed to one rayon task at a time.
+/// Rays handed to one rayon task at a time, at most.
 pub const RAYS_PER_TASK: usize = 512;
+
+/// Rays per task for a batch of `n` on `threads` threads: [`RAYS_PER_TASK`], or fewer (whole
+/// packets, at least 64) for a batch too small to give each thread eight tasks, so that the
+/// last tasks still balance the threads (4,096 of the soup's rays in tasks of 512 kept the
+/// second thread idle a fifth of the time; in tasks of 256, 1%: BENCHMARKS.md).
+pub fn rays_per_task(n: usize, threads: usize) -> usize {
+    n.div_ceil(threads.max(1) * 8)
+        .next_multiple_of(walk::PACKET)
+        .clamp(64, RAYS_PER_TASK)
+}
 
 /// The engine bound to one tree and one batch's settings: traces chunks of rays from any thread
 /// ([`Engine::trace_chunk`]); [`trace_batch`] and the pick pipeline's fused loop
@@ -203,18 +213,19 @@ impl<'a> Engine<'a> {
         let mut hits: Vec<GpuHit> = crate::huge_pages::vec_with_capacity(n);
         let mut lists: Vec<GpuHitEntry> = crate::huge_pages::vec_with_capacity(n * k);
         let hit_slots = &mut hits.spare_capacity_mut()[..n];
+        let per_task = rays_per_task(n, rayon::current_num_threads());
         // Every task its own stealable job (`with_max_len(1)`), as in the pick pipeline's loop:
         // see `picker::pick_fused`.
         if k == 0 {
-            rays.par_chunks(RAYS_PER_TASK)
-                .zip(hit_slots.par_chunks_mut(RAYS_PER_TASK))
+            rays.par_chunks(per_task)
+                .zip(hit_slots.par_chunks_mut(per_task))
                 .with_max_len(1)
                 .for_each(|(r, h)| self.trace_chunk(r, filled(h), &mut []));
         } else {
             let list_slots = &mut lists.spare_capacity_mut()[..n * k];
-            rays.par_chunks(RAYS_PER_TASK)
-                .zip(hit_slots.par_chunks_mut(RAYS_PER_TASK))
-                .zip(list_slots.par_chunks_mut(RAYS_PER_TASK * k))
+            rays.par_chunks(per_task)
+                .zip(hit_slots.par_chunks_mut(per_task))
+                .zip(list_slots.par_chunks_mut(per_task * k))
                 .with_max_len(1)
                 .for_each(|((r, h), l)| self.trace_chunk(r, filled(h), filled(l)));
         }
@@ -464,4 +475,29 @@ unsafe fn trace_chunk_avx2(
     stacks: &mut Stacks,
 ) {
     trace_chunk::<lanes8::Avx>(scene, rays, hits, lists, stacks);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Tasks are whole packets from 64 rays up to `RAYS_PER_TASK`, and a batch too small for
+    /// eight full tasks a thread is cut finer.
+    #[test]
+    fn task_sizes_are_whole_packets_and_balance_small_batches() {
+        for threads in [1, 2, 3, 16] {
+            for n in [0, 1, 100, 4096, 10_000, 1 << 20] {
+                let k = rays_per_task(n, threads);
+                assert!(k % walk::PACKET == 0 && (64..=RAYS_PER_TASK).contains(&k));
+                if k > 64 && k < RAYS_PER_TASK {
+                    assert!(
+                        n.div_ceil(k) >= threads * 8 - threads,
+                        "{n} rays, {threads}: {k}"
+                    );
+                }
+            }
+        }
+        assert_eq!(rays_per_task(4096, 2), 256);
+        assert_eq!(rays_per_task(1 << 20, 2), RAYS_PER_TASK);
+    }
 }
