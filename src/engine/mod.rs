@@ -488,7 +488,7 @@ mod tests {
         for threads in [1, 2, 3, 16] {
             for n in [0, 1, 100, 4096, 10_000, 1 << 20] {
                 let k = rays_per_task(n, threads);
-                assert!(k % walk::PACKET == 0 && (64..=RAYS_PER_TASK).contains(&k));
+                assert!(k.is_multiple_of(walk::PACKET) && (64..=RAYS_PER_TASK).contains(&k));
                 if k > 64 && k < RAYS_PER_TASK {
                     assert!(
                         n.div_ceil(k) >= threads * 8 - threads,
