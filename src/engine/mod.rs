@@ -86,8 +86,8 @@ pub const RAYS_PER_TASK: usize = 512;
 
 /// Rays per task for a batch of `n` on `threads` threads: [`RAYS_PER_TASK`], or fewer (whole
 /// packets, at least 64) for a batch too small to give each thread eight tasks, so that the
-/// last tasks still balance the threads (4,096 of the soup's rays in tasks of 512 kept the
-/// second thread idle a fifth of the time; in tasks of 256, 1%: BENCHMARKS.md).
+/// last tasks still balance the threads (4,096 of the soup's rays in tasks of 512 left the
+/// threads idle 18% of the time; in tasks of 256, 1%: BENCHMARKS.md).
 pub fn rays_per_task(n: usize, threads: usize) -> usize {
     n.div_ceil(threads.max(1) * 8)
         .next_multiple_of(walk::PACKET)

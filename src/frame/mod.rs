@@ -59,8 +59,7 @@ pub fn local_ray(scene_origin: DVec3, ray: &Ray, query: &Query) -> Option<(GpuRa
     if !(dir_length.is_finite() && (dir_length >= 1.0 || (1.0 / dir_length).is_finite())) {
         return None;
     }
-    // One division for the three components (the lanes' three took as long as the rest of
-    // the conversion).
+    // One division for the three components (the lanes do the same: `four::local_rays_into`).
     let unit = (scaled * (1.0 / scaled_length)).as_vec3();
     let origin = (ray.origin - scene_origin).as_vec3();
     let to_f32 = |t: f64| (t * dir_length).clamp(f32::MIN as f64, f32::MAX as f64) as f32;
