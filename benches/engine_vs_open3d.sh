@@ -11,7 +11,9 @@
 # SCENES="path ..." picks other scene files, e.g. the peers bench's 2M terrain and soup:
 #   cargo run --release --example write_peer_scenes -- target/peer-scenes
 #   SCENES="target/peer-scenes/terrain_2m.asc target/peer-scenes/soup_200k.obj" benches/engine_vs_open3d.sh
-set -euo pipefail
+set -Eeuo pipefail
+# A step that fails says which, instead of ending the table without a word.
+trap 'echo "engine_vs_open3d.sh: line $LINENO failed (exit $?): $BASH_COMMAND" >&2' ERR
 cd "$(dirname "$0")/.."
 python="${1:-/work/venv-open3d/bin/python}"
 dir="${2:-target/ray-sets}"
