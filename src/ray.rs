@@ -79,7 +79,7 @@ pub fn direction_length(dir: DVec3) -> Option<f64> {
 /// or below its largest component's magnitude, or that magnitude itself when it is below
 /// `f64::MIN_POSITIVE` (zero for a zero direction). Dividing by a power of two is exact (bar
 /// underflow, which division and multiplication round alike), so the scaled direction is also
-/// `dir * (1 / scale)`: the frame's lanes multiply where a division took five times as long.
+/// `dir * (1 / scale)`, which is how the frame's lanes compute it (`frame::four`).
 pub(crate) fn direction_scale(dir: DVec3) -> f64 {
     let max = dir.abs().max_element();
     if max >= f64::MIN_POSITIVE {
