@@ -398,6 +398,14 @@ fn trace_chunk<L: Lanes8>(
     let mut known = None;
     let mut i = 0;
     while i < rays.len() {
+        // The rays two packets ahead, so that reading a batch streams instead of stalling on
+        // each packet's first loads.
+        if i + 3 * p <= rays.len() {
+            crate::prefetch::bytes(
+                rays[i + 2 * p..].as_ptr() as *const u8,
+                p * size_of::<GpuRay>(),
+            );
+        }
         let group = match known.take() {
             Some(group) => group,
             None => group_at::<L>(scene, rays, i),
