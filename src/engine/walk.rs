@@ -1052,31 +1052,13 @@ impl<'r, 'l, L: Lanes8> PacketRays<'r, 'l, L> {
         }
     }
 
-    /// Sets the [`PACKET`] `rays` up in place, with `lists` holding each one's all-hits list
-    /// in turn; a ray that is never traced gets its miss in `out` now. Returns the rays traced
-    /// (bit `i`: ray `i`) and their inverse directions by axis. In place, not built and
-    /// returned: a packet's states are a few KiB, and returning them was a `memmove` of 3% of a
-    /// camera trace's samples.
+    /// Sets the [`PACKET`] `rays`, whose [`Eight`] is made, up in place, with `lists` holding
+    /// each one's all-hits list in turn; a ray that is never traced gets its miss in `out` now.
+    /// Returns the rays traced (bit `i`: ray `i`). In place, not built and returned: a packet's
+    /// states are a few KiB, and returning them was a `memmove` of 3% of a camera trace's
+    /// samples.
     #[inline(always)]
     fn start(
-        &mut self,
-        scene: &Scene<'_>,
-        rays: &'r [GpuRay],
-        lists: &'l mut [GpuHitEntry],
-        out: &mut [GpuHit],
-    ) -> (u32, [[f32; PACKET]; 3]) {
-        let k = lists.len() / PACKET;
-        if k > 0 {
-            for (slot, part) in self.lists.iter_mut().zip(lists.chunks_mut(k)) {
-                *slot = part;
-            }
-        }
-        RayState::<L>::new_eight(scene, rays, &mut self.states, out)
-    }
-
-    /// [`PacketRays::start`] with the rays' [`Eight`] already made; returns the rays traced.
-    #[inline(always)]
-    fn start_with(
         &mut self,
         scene: &Scene<'_>,
         rays: &'r [GpuRay],
@@ -1158,7 +1140,8 @@ pub struct PacketEntry {
 /// is tested for each ray that still needs it by that ray's own leaf test. Answers are each
 /// ray's single-ray answer, bit for bit; what the rays share is the walk's bookkeeping (one
 /// stack, one order). `lists` holds each ray's all-hits list in turn; `stack` holds at least
-/// [`stack_size`] entries.
+/// [`stack_size`] entries. The root's boxes are tested before any ray's state is made, so a
+/// packet of sky ends there (an orthographic view of sky traced 1.57× faster: BENCHMARKS.md).
 #[inline(always)]
 pub fn trace_packet<L: Lanes8>(
     scene: &Scene<'_>,
@@ -1167,8 +1150,64 @@ pub fn trace_packet<L: Lanes8>(
     stack: &mut [PacketEntry],
     out: &mut [GpuHit],
 ) {
+    // The root's boxes first, each traced ray by its own test (the walk's first step, made
+    // from the same inverse direction and origin its state would hold), before any ray's state:
+    // a packet that meets none of them (a view's sky) ends here with each ray's first answer
+    // (the root's boxes counted as tested); otherwise the walk starts from these results.
+    let eight = Eight::new::<L>(scene, rays);
+    let mut traced = 0u32;
+    for (i, ray) in rays[..PACKET].iter().enumerate() {
+        traced |= u32::from(RayState::<L>::first_answer(scene, ray).1) << i;
+    }
+    let mut root = None;
+    if traced != 0 {
+        let node = &scene.nodes[0];
+        let occupied = u32::from(node.occupied);
+        let (mut met, mut union) = (0u64, 0u32);
+        let mut key = L::splat(f32::INFINITY);
+        let mut near = [[0.0f32; WIDTH]; PACKET];
+        let mut rays_left = traced;
+        while rays_left != 0 {
+            let i = rays_left.trailing_zeros() as usize;
+            rays_left &= rays_left - 1;
+            let ray = &rays[i];
+            // Written out lane by lane (not `array::map`, which is not always inlined here).
+            let (o, inv, d) = (&ray.origin, &eight.inv, &ray.dir);
+            let r = RayLanes {
+                origin: [L::splat(o[0]), L::splat(o[1]), L::splat(o[2])],
+                inv: [
+                    L::splat(inv[0][i]),
+                    L::splat(inv[1][i]),
+                    L::splat(inv[2][i]),
+                ],
+                parallel: [
+                    d[0].abs() < MIN_DIR,
+                    d[1].abs() < MIN_DIR,
+                    d[2].abs() < MIN_DIR,
+                ],
+                tmin: ray.tmin,
+            };
+            let (hit, lo) = boxes_met(node, &r, ray.tmax);
+            let bits = L::bits(hit) & occupied;
+            met |= u64::from(bits) << (8 * i);
+            union |= bits;
+            key = key.min(L::select(hit, lo, L::splat(f32::INFINITY)));
+            near[i] = lo.to_array();
+        }
+        if union == 0 {
+            for (i, (ray, out)) in rays[..PACKET].iter().zip(out.iter_mut()).enumerate() {
+                *out = RayState::<L>::first_answer(scene, ray).0;
+                if traced >> i & 1 == 1 {
+                    out.box_tests = occupied.count_ones();
+                }
+            }
+            return;
+        }
+        root = Some((met, union, key, near));
+    }
     let mut packet = PacketRays::<L>::empty();
-    let (mut alive, _) = packet.start(scene, rays, lists, out);
+    let mut alive = packet.start(scene, rays, &eight, lists, out);
+    debug_assert_eq!(alive, traced, "the rays set up are those traced");
     if alive == 0 {
         return;
     }
@@ -1190,24 +1229,35 @@ pub fn trace_packet<L: Lanes8>(
             let tested = occupied.count_ones();
             // Byte i of `met`: the children ray i meets; `key`: per child, the nearest near
             // distance among the rays that meet it.
-            let mut met = 0u64;
-            let mut union = 0u32;
-            let mut key = L::splat(f32::INFINITY);
-            let mut near = [[0.0f32; WIDTH]; PACKET];
-            let mut rays_left = active;
-            while rays_left != 0 {
-                let i = rays_left.trailing_zeros() as usize;
-                rays_left &= rays_left - 1;
-                if let Some(s) = packet.states[i].as_mut() {
-                    s.best.box_tests += tested;
-                    let (hit, lo) = boxes_met(node, &s.r, s.limit);
-                    let bits = L::bits(hit) & occupied;
-                    met |= u64::from(bits) << (8 * i);
-                    union |= bits;
-                    key = key.min(L::select(hit, lo, L::splat(f32::INFINITY)));
-                    near[i] = lo.to_array();
+            let (met, mut union, key, near) = match root.take() {
+                Some(root) => {
+                    for s in packet.states.iter_mut().flatten() {
+                        s.best.box_tests += tested;
+                    }
+                    root
                 }
-            }
+                None => {
+                    let mut met = 0u64;
+                    let mut union = 0u32;
+                    let mut key = L::splat(f32::INFINITY);
+                    let mut near = [[0.0f32; WIDTH]; PACKET];
+                    let mut rays_left = active;
+                    while rays_left != 0 {
+                        let i = rays_left.trailing_zeros() as usize;
+                        rays_left &= rays_left - 1;
+                        if let Some(s) = packet.states[i].as_mut() {
+                            s.best.box_tests += tested;
+                            let (hit, lo) = boxes_met(node, &s.r, s.limit);
+                            let bits = L::bits(hit) & occupied;
+                            met |= u64::from(bits) << (8 * i);
+                            union |= bits;
+                            key = key.min(L::select(hit, lo, L::splat(f32::INFINITY)));
+                            near[i] = lo.to_array();
+                        }
+                    }
+                    (met, union, key, near)
+                }
+            };
             if union != 0 {
                 // Byte c: the rays that meet child c.
                 let rays_of = transpose_bits(met);
@@ -1464,7 +1514,7 @@ pub fn trace_frustum<L: Lanes8>(
         }
     }
     let mut packet = PacketRays::<L>::empty();
-    let mut alive = packet.start_with(scene, rays, &eight, lists, out);
+    let mut alive = packet.start(scene, rays, &eight, lists, out);
     debug_assert_eq!(alive, traced, "the rays set up are those traced");
     if alive == 0 {
         return;
@@ -1900,6 +1950,117 @@ mod tests {
             }
         }
         assert!(ended > 500, "only {ended} packets that meet nothing");
+    }
+
+    /// Every packet of parallel rays (an orthographic view, straight down and tilted, over the
+    /// terrain and beside it) gives each ray its single-ray answer, bit for bit, in every mode;
+    /// packets that meet none of the root's boxes (beside the terrain, stopped short of it, or
+    /// with some rays not traced) end before their states are made, with b and i as well.
+    #[test]
+    fn packets_give_each_ray_its_single_ray_answer() {
+        type L = Pair<Portable>;
+        let mesh = terrain(40, 30, 0.0, 0.0, 1.0, hills);
+        let scene = crate::Scene::from_meshes([("hills".to_string(), mesh)]).unwrap();
+        let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
+        let wide = WideBvh::collapse(&bvh).unwrap();
+        let walk = Scene {
+            nodes: &wide.nodes,
+            triangles: &bvh.triangles,
+            triangle_ids: &bvh.triangle_ids,
+            triangle_masks: &[],
+            watertight: true,
+            packets: true,
+            size: wide.size(),
+            interleave: false,
+        };
+        let o = bvh.origin;
+        let mut stack = vec![Pushed::default(); stack_size(wide.depth)];
+        let mut packet_stack = vec![PacketEntry::default(); stack_size(wide.depth)];
+        let (mut packets, mut ended) = (0, 0);
+        for dir in [[0.0, 0.0, -1.0], [0.3, 0.2, -1.0]] {
+            // Rows of 64 rays 0.05 apart (a packet's origins within 1% of the scene's size),
+            // starting at x = -2 to 36 (beside the terrain's edge, and over it), every third row
+            // off the terrain altogether.
+            let mut world = Vec::new();
+            for row in 0..120 {
+                let x0 = if row % 3 == 2 {
+                    -40.0
+                } else {
+                    -2.0 + (row % 20) as f64 * 2.0
+                };
+                for i in 0..64 {
+                    let y = 0.25 * row as f64;
+                    let origin = glam::DVec3::new(x0 + 0.05 * i as f64, y, 30.0);
+                    world.push(crate::Ray::new(origin, glam::DVec3::from_array(dir)));
+                }
+            }
+            let local = crate::frame::local_rays(o, &world);
+            for flags in [
+                MODE_CLOSEST,
+                MODE_ANY,
+                MODE_ALL,
+                MODE_CLOSEST | (1 << CULL_SHIFT),
+            ] {
+                let k = if flags & 3 == MODE_ALL { 4 } else { 0 };
+                for (g, group) in local.chunks_exact(PACKET).enumerate() {
+                    let group: Vec<GpuRay> = group
+                        .iter()
+                        .enumerate()
+                        .map(|(i, r)| {
+                            let mut r = GpuRay { flags, ..*r };
+                            match g % 5 {
+                                3 => r.tmax = 1e-3,
+                                4 if i % 3 == 0 => (r.tmin, r.tmax) = (2.0, 1.0),
+                                _ => {}
+                            }
+                            r
+                        })
+                        .collect();
+                    if group_of::<L>(&group, walk.size) != Group::Packet {
+                        continue;
+                    }
+                    packets += 1;
+                    let mut lists = vec![GpuHitEntry::default(); PACKET * k];
+                    let mut out = [GpuHit::default(); PACKET];
+                    trace_packet::<L>(&walk, &group, &mut lists, &mut packet_stack, &mut out);
+                    let mut misses = 0;
+                    for (i, ray) in group.iter().enumerate() {
+                        let mut list = vec![GpuHitEntry::default(); k];
+                        let alone = trace::<L>(&walk, ray, &mut list, &mut stack);
+                        let (a, b) = (out[i], alone);
+                        let root = u32::from(wide.nodes[0].occupied).count_ones();
+                        let only_root = b.box_tests == 0 || b.box_tests == root;
+                        misses += usize::from(b.triangle_tests == 0 && only_root);
+                        if flags & 3 == MODE_ANY {
+                            assert_eq!(a.prim == NO_HIT, b.prim == NO_HIT, "ray {i}");
+                            continue;
+                        }
+                        let bits = |h: &GpuHit| {
+                            (h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits(), h.count)
+                        };
+                        assert_eq!(bits(&a), bits(&b), "flags {flags}, ray {ray:?}");
+                        let entries = |l: &[GpuHitEntry]| {
+                            l.iter()
+                                .map(|e| (e.t.to_bits(), e.prim, e.u.to_bits(), e.v.to_bits()))
+                                .collect::<Vec<_>>()
+                        };
+                        assert_eq!(entries(&lists[i * k..(i + 1) * k]), entries(&list));
+                    }
+                    // A packet none of whose rays went past the root: b and i too.
+                    if misses == PACKET {
+                        ended += 1;
+                        for (i, ray) in group.iter().enumerate() {
+                            let mut list = vec![GpuHitEntry::default(); k];
+                            let alone = trace::<L>(&walk, ray, &mut list, &mut stack);
+                            let stats = |h: &GpuHit| (h.box_tests, h.triangle_tests);
+                            assert_eq!(stats(&out[i]), stats(&alone), "ray {ray:?}");
+                        }
+                    }
+                }
+            }
+        }
+        assert!(packets > 500, "only {packets} packets");
+        assert!(ended > 100, "only {ended} packets that meet nothing");
     }
 
     #[test]
