@@ -1835,29 +1835,109 @@ mod tests {
         eight_rays_set_up_as_one::<crate::engine::lanes8::Avx>();
     }
 
+    /// The hills terrain and its trees, for the packet walks' tests.
+    struct Hills {
+        scene: crate::Scene,
+        bvh: Bvh,
+        wide: WideBvh,
+    }
+
+    impl Hills {
+        fn new() -> Self {
+            let mesh = terrain(40, 30, 0.0, 0.0, 1.0, hills);
+            let scene = crate::Scene::from_meshes([("hills".to_string(), mesh)]).unwrap();
+            let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
+            let wide = WideBvh::collapse(&bvh).unwrap();
+            Hills { scene, bvh, wide }
+        }
+
+        fn walk(&self) -> Scene<'_> {
+            Scene {
+                nodes: &self.wide.nodes,
+                triangles: &self.bvh.triangles,
+                triangle_ids: &self.bvh.triangle_ids,
+                triangle_masks: &[],
+                watertight: true,
+                packets: true,
+                size: self.wide.size(),
+                interleave: false,
+            }
+        }
+    }
+
+    /// `group` (the `g`-th) with each ray's flags set; the 4th of every five stopped short
+    /// (`tmax` 0.001), the 5th with a third of its rays not traced (an empty range).
+    fn altered(group: &[GpuRay], g: usize, flags: u32) -> Vec<GpuRay> {
+        let mut group: Vec<GpuRay> = group.iter().map(|r| GpuRay { flags, ..*r }).collect();
+        for (i, r) in group.iter_mut().enumerate() {
+            match g % 5 {
+                3 => r.tmax = 1e-3,
+                4 if i % 3 == 0 => (r.tmin, r.tmax) = (2.0, 1.0),
+                _ => {}
+            }
+        }
+        group
+    }
+
+    /// Checks `group`'s answers `out` (and all-hits `lists`, `k` entries a ray) against each
+    /// ray's single walk: hit or miss in any-hit mode, else every bit; with `stats`, b and i
+    /// too. Returns whether every single walk tested the root's boxes at most (a packet of sky).
+    fn assert_single_ray_answers(
+        walk: &Scene<'_>,
+        group: &[GpuRay],
+        (out, lists, k): (&[GpuHit], &[GpuHitEntry], usize),
+        stack: &mut [Pushed],
+        stats: bool,
+    ) -> bool {
+        let root = u32::from(walk.nodes[0].occupied).count_ones();
+        let mut sky = true;
+        for (i, ray) in group.iter().enumerate() {
+            let mut list = vec![GpuHitEntry::default(); k];
+            let (a, b) = (out[i], trace::<L8>(walk, ray, &mut list, stack));
+            sky &= b.triangle_tests == 0 && (b.box_tests == 0 || b.box_tests == root);
+            if stats {
+                let stats = |h: &GpuHit| (h.box_tests, h.triangle_tests);
+                assert_eq!(stats(&a), stats(&b), "ray {ray:?}");
+            }
+            if ray.flags & 3 == MODE_ANY {
+                assert_eq!(a.prim == NO_HIT, b.prim == NO_HIT, "ray {ray:?}");
+                continue;
+            }
+            let bits = |h: &GpuHit| (h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits(), h.count);
+            assert_eq!(bits(&a), bits(&b), "flags {}, ray {ray:?}", ray.flags);
+            let entries = |l: &[GpuHitEntry]| {
+                l.iter()
+                    .map(|e| (e.t.to_bits(), e.prim, e.u.to_bits(), e.v.to_bits()))
+                    .collect::<Vec<_>>()
+            };
+            assert_eq!(entries(&lists[i * k..(i + 1) * k]), entries(&list));
+        }
+        sky
+    }
+
+    /// The lanes the packet walks' tests run on.
+    type L8 = Pair<Portable>;
+
+    const FLAGS: [u32; 4] = [
+        MODE_CLOSEST,
+        MODE_ANY,
+        MODE_ALL,
+        MODE_CLOSEST | (1 << CULL_SHIFT),
+    ];
+
     /// Every camera packet that walks as one frustum gives each ray its single-ray answer, bit
-    /// for bit (b and i aside: the walks differ), in every mode and with culling.
+    /// for bit (b and i aside: the walks differ), in every mode and with culling; turned away
+    /// from the scene, stopped short of it, or with some rays not traced, packets that meet
+    /// none of the root's boxes end before any ray's state is made, b and i included (the
+    /// single walk too tests the root's boxes and nothing else).
     #[test]
     fn frustum_packets_give_each_ray_its_single_ray_answer() {
-        type L = Pair<Portable>;
-        let mesh = terrain(40, 30, 0.0, 0.0, 1.0, hills);
-        let scene = crate::Scene::from_meshes([("hills".to_string(), mesh)]).unwrap();
-        let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
-        let wide = WideBvh::collapse(&bvh).unwrap();
-        let walk = Scene {
-            nodes: &wide.nodes,
-            triangles: &bvh.triangles,
-            triangle_ids: &bvh.triangle_ids,
-            triangle_masks: &[],
-            watertight: true,
-            packets: true,
-            size: wide.size(),
-            interleave: false,
-        };
+        let hills = Hills::new();
+        let walk = hills.walk();
         // A narrow view (the camera's rays drawn to a twentieth of their angle from the mean),
         // so that packets of eight are within the frustum's cone.
-        let mut camera =
-            crate::frame::local_rays(bvh.origin, &rays(&scene, RayKind::Camera, 4096, 5));
+        let rays = rays(&hills.scene, RayKind::Camera, 4096, 5);
+        let mut camera = crate::frame::local_rays(hills.bvh.origin, &rays);
         let mean = camera
             .iter()
             .fold(Vec3::ZERO, |m, r| m + Vec3::from(r.dir).normalize())
@@ -1866,89 +1946,38 @@ mod tests {
             let d = Vec3::from(r.dir).normalize();
             r.dir = (mean + (d - mean) * 0.05).normalize().to_array();
         }
-        let mut stack = vec![Pushed::default(); stack_size(wide.depth)];
-        let mut frustum_stack = vec![Entry::default(); stack_size(wide.depth)];
-        let mut packets = 0;
-        for flags in [
-            MODE_CLOSEST,
-            MODE_ANY,
-            MODE_ALL,
-            MODE_CLOSEST | (1 << CULL_SHIFT),
-        ] {
+        let depth = stack_size(hills.wide.depth);
+        let mut stack = vec![Pushed::default(); depth];
+        let mut frustum_stack = vec![Entry::default(); depth];
+        let (mut packets, mut ended) = (0, 0);
+        for flags in FLAGS {
             let k = if flags & 3 == MODE_ALL { 4 } else { 0 };
-            for group in camera.chunks_exact(PACKET) {
-                let group: Vec<GpuRay> = group.iter().map(|r| GpuRay { flags, ..*r }).collect();
-                if !frustum_packet(&group) {
-                    continue;
-                }
-                packets += 1;
-                let mut lists = vec![GpuHitEntry::default(); PACKET * k];
-                let mut out = [GpuHit::default(); PACKET];
-                trace_frustum::<L>(&walk, &group, &mut lists, &mut frustum_stack, &mut out);
-                for (i, ray) in group.iter().enumerate() {
-                    let mut list = vec![GpuHitEntry::default(); k];
-                    let alone = trace::<L>(&walk, ray, &mut list, &mut stack);
-                    let (a, b) = (out[i], alone);
-                    if flags & 3 == MODE_ANY {
-                        assert_eq!(a.prim == NO_HIT, b.prim == NO_HIT, "ray {i}");
+            for (g, group) in camera.chunks_exact(PACKET).enumerate() {
+                for away in [false, true] {
+                    let mut group = altered(group, if away { g } else { 0 }, flags);
+                    if away && g % 5 != 3 {
+                        for r in &mut group {
+                            r.dir = (-Vec3::from(r.dir)).to_array();
+                        }
+                    }
+                    if !frustum_packet(&group) {
                         continue;
                     }
-                    let bits =
-                        |h: &GpuHit| (h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits(), h.count);
-                    assert_eq!(bits(&a), bits(&b), "flags {flags}, ray {ray:?}");
-                    let entries = |l: &[GpuHitEntry]| {
-                        l.iter()
-                            .map(|e| (e.t.to_bits(), e.prim, e.u.to_bits(), e.v.to_bits()))
-                            .collect::<Vec<_>>()
-                    };
-                    assert_eq!(entries(&lists[i * k..(i + 1) * k]), entries(&list));
+                    let mut lists = vec![GpuHitEntry::default(); PACKET * k];
+                    let mut out = [GpuHit::default(); PACKET];
+                    trace_frustum::<L8>(&walk, &group, &mut lists, &mut frustum_stack, &mut out);
+                    let answers = (&out[..], &lists[..], k);
+                    let sky = assert_single_ray_answers(&walk, &group, answers, &mut stack, away);
+                    if away {
+                        assert!(sky, "a packet turned away meets nothing");
+                        ended += 1;
+                    } else {
+                        packets += 1;
+                    }
                 }
             }
         }
         assert!(packets > 1000, "only {packets} frustum packets");
-        // Turned away from the scene, or stopped short of it, or with some rays not traced
-        // (an empty range): packets that meet none of the root's boxes end before any ray's
-        // state is made, with each ray's single-ray answer, b and i included (the single walk
-        // too tests the root's boxes and nothing else).
-        let mut ended = 0;
-        for flags in [MODE_CLOSEST, MODE_ANY, MODE_ALL] {
-            let k = if flags & 3 == MODE_ALL { 4 } else { 0 };
-            for (g, group) in camera.chunks_exact(PACKET).enumerate() {
-                let group: Vec<GpuRay> = group
-                    .iter()
-                    .enumerate()
-                    .map(|(i, r)| {
-                        let mut r = GpuRay { flags, ..*r };
-                        if g % 3 == 1 {
-                            r.tmax = 1e-3;
-                        } else {
-                            r.dir = (-Vec3::from(r.dir)).to_array();
-                        }
-                        if g % 3 == 2 && i % 3 == 0 {
-                            (r.tmin, r.tmax) = (2.0, 1.0);
-                        }
-                        r
-                    })
-                    .collect();
-                if !frustum_packet(&group) {
-                    continue;
-                }
-                ended += 1;
-                let mut lists = vec![GpuHitEntry::default(); PACKET * k];
-                let mut out = [GpuHit::default(); PACKET];
-                trace_frustum::<L>(&walk, &group, &mut lists, &mut frustum_stack, &mut out);
-                for (i, ray) in group.iter().enumerate() {
-                    let mut list = vec![GpuHitEntry::default(); k];
-                    let alone = trace::<L>(&walk, ray, &mut list, &mut stack);
-                    assert_eq!(alone.prim, NO_HIT, "ray {ray:?} meets nothing");
-                    let all = |h: &GpuHit| {
-                        let bits = (h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits());
-                        (bits, h.count, h.box_tests, h.triangle_tests)
-                    };
-                    assert_eq!(all(&out[i]), all(&alone), "flags {flags}, ray {ray:?}");
-                }
-            }
-        }
         assert!(ended > 500, "only {ended} packets that meet nothing");
     }
 
@@ -1958,24 +1987,11 @@ mod tests {
     /// with some rays not traced) end before their states are made, with b and i as well.
     #[test]
     fn packets_give_each_ray_its_single_ray_answer() {
-        type L = Pair<Portable>;
-        let mesh = terrain(40, 30, 0.0, 0.0, 1.0, hills);
-        let scene = crate::Scene::from_meshes([("hills".to_string(), mesh)]).unwrap();
-        let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
-        let wide = WideBvh::collapse(&bvh).unwrap();
-        let walk = Scene {
-            nodes: &wide.nodes,
-            triangles: &bvh.triangles,
-            triangle_ids: &bvh.triangle_ids,
-            triangle_masks: &[],
-            watertight: true,
-            packets: true,
-            size: wide.size(),
-            interleave: false,
-        };
-        let o = bvh.origin;
-        let mut stack = vec![Pushed::default(); stack_size(wide.depth)];
-        let mut packet_stack = vec![PacketEntry::default(); stack_size(wide.depth)];
+        let hills = Hills::new();
+        let walk = hills.walk();
+        let depth = stack_size(hills.wide.depth);
+        let mut stack = vec![Pushed::default(); depth];
+        let mut packet_stack = vec![PacketEntry::default(); depth];
         let (mut packets, mut ended) = (0, 0);
         for dir in [[0.0, 0.0, -1.0], [0.3, 0.2, -1.0]] {
             // Rows of 64 rays 0.05 apart (a packet's origins within 1% of the scene's size),
@@ -1994,67 +2010,23 @@ mod tests {
                     world.push(crate::Ray::new(origin, glam::DVec3::from_array(dir)));
                 }
             }
-            let local = crate::frame::local_rays(o, &world);
-            for flags in [
-                MODE_CLOSEST,
-                MODE_ANY,
-                MODE_ALL,
-                MODE_CLOSEST | (1 << CULL_SHIFT),
-            ] {
+            let local = crate::frame::local_rays(hills.bvh.origin, &world);
+            for flags in FLAGS {
                 let k = if flags & 3 == MODE_ALL { 4 } else { 0 };
                 for (g, group) in local.chunks_exact(PACKET).enumerate() {
-                    let group: Vec<GpuRay> = group
-                        .iter()
-                        .enumerate()
-                        .map(|(i, r)| {
-                            let mut r = GpuRay { flags, ..*r };
-                            match g % 5 {
-                                3 => r.tmax = 1e-3,
-                                4 if i % 3 == 0 => (r.tmin, r.tmax) = (2.0, 1.0),
-                                _ => {}
-                            }
-                            r
-                        })
-                        .collect();
-                    if group_of::<L>(&group, walk.size) != Group::Packet {
+                    let group = altered(group, g, flags);
+                    if group_of::<L8>(&group, walk.size) != Group::Packet {
                         continue;
                     }
                     packets += 1;
                     let mut lists = vec![GpuHitEntry::default(); PACKET * k];
                     let mut out = [GpuHit::default(); PACKET];
-                    trace_packet::<L>(&walk, &group, &mut lists, &mut packet_stack, &mut out);
-                    let mut misses = 0;
-                    for (i, ray) in group.iter().enumerate() {
-                        let mut list = vec![GpuHitEntry::default(); k];
-                        let alone = trace::<L>(&walk, ray, &mut list, &mut stack);
-                        let (a, b) = (out[i], alone);
-                        let root = u32::from(wide.nodes[0].occupied).count_ones();
-                        let only_root = b.box_tests == 0 || b.box_tests == root;
-                        misses += usize::from(b.triangle_tests == 0 && only_root);
-                        if flags & 3 == MODE_ANY {
-                            assert_eq!(a.prim == NO_HIT, b.prim == NO_HIT, "ray {i}");
-                            continue;
-                        }
-                        let bits = |h: &GpuHit| {
-                            (h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits(), h.count)
-                        };
-                        assert_eq!(bits(&a), bits(&b), "flags {flags}, ray {ray:?}");
-                        let entries = |l: &[GpuHitEntry]| {
-                            l.iter()
-                                .map(|e| (e.t.to_bits(), e.prim, e.u.to_bits(), e.v.to_bits()))
-                                .collect::<Vec<_>>()
-                        };
-                        assert_eq!(entries(&lists[i * k..(i + 1) * k]), entries(&list));
-                    }
-                    // A packet none of whose rays went past the root: b and i too.
-                    if misses == PACKET {
+                    trace_packet::<L8>(&walk, &group, &mut lists, &mut packet_stack, &mut out);
+                    let answers = (&out[..], &lists[..], k);
+                    if assert_single_ray_answers(&walk, &group, answers, &mut stack, false) {
+                        // A packet none of whose rays went past the root: b and i too.
+                        assert_single_ray_answers(&walk, &group, answers, &mut stack, true);
                         ended += 1;
-                        for (i, ray) in group.iter().enumerate() {
-                            let mut list = vec![GpuHitEntry::default(); k];
-                            let alone = trace::<L>(&walk, ray, &mut list, &mut stack);
-                            let stats = |h: &GpuHit| (h.box_tests, h.triangle_tests);
-                            assert_eq!(stats(&out[i]), stats(&alone), "ray {ray:?}");
-                        }
                     }
                 }
             }
