@@ -1125,6 +1125,38 @@ impl<'r, 'l, L: Lanes8> PacketRays<'r, 'l, L> {
     }
 }
 
+/// What a packet's rays made of one node's boxes, each by its own test: byte `i` of `met` the
+/// children ray `i` meets, `union` the children any ray meets, per child in `key` the nearest
+/// near distance among the rays that meet it, and each ray's near distances.
+struct PacketNode<L: Lanes8> {
+    met: u64,
+    union: u32,
+    key: L,
+    near: [[f32; WIDTH]; PACKET],
+}
+
+impl<L: Lanes8> PacketNode<L> {
+    #[inline(always)]
+    fn new() -> Self {
+        PacketNode {
+            met: 0,
+            union: 0,
+            key: L::splat(f32::INFINITY),
+            near: [[0.0; WIDTH]; PACKET],
+        }
+    }
+
+    /// Adds ray `i`'s test of the node's boxes (`hit`, at `lo`; `occupied` children).
+    #[inline(always)]
+    fn add(&mut self, i: usize, (hit, lo): (L::Mask, L), occupied: u32) {
+        let bits = L::bits(hit) & occupied;
+        self.met |= u64::from(bits) << (8 * i);
+        self.union |= bits;
+        self.key = self.key.min(L::select(hit, lo, L::splat(f32::INFINITY)));
+        self.near[i] = lo.to_array();
+    }
+}
+
 /// A pushed child of the packet walk: which rays still need it and each one's near distance.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PacketEntry {
@@ -1163,9 +1195,7 @@ pub fn trace_packet<L: Lanes8>(
     if traced != 0 {
         let node = &scene.nodes[0];
         let occupied = u32::from(node.occupied);
-        let (mut met, mut union) = (0u64, 0u32);
-        let mut key = L::splat(f32::INFINITY);
-        let mut near = [[0.0f32; WIDTH]; PACKET];
+        let mut visit = PacketNode::<L>::new();
         let mut rays_left = traced;
         while rays_left != 0 {
             let i = rays_left.trailing_zeros() as usize;
@@ -1187,14 +1217,9 @@ pub fn trace_packet<L: Lanes8>(
                 ],
                 tmin: ray.tmin,
             };
-            let (hit, lo) = boxes_met(node, &r, ray.tmax);
-            let bits = L::bits(hit) & occupied;
-            met |= u64::from(bits) << (8 * i);
-            union |= bits;
-            key = key.min(L::select(hit, lo, L::splat(f32::INFINITY)));
-            near[i] = lo.to_array();
+            visit.add(i, boxes_met(node, &r, ray.tmax), occupied);
         }
-        if union == 0 {
+        if visit.union == 0 {
             for (i, (ray, out)) in rays[..PACKET].iter().zip(out.iter_mut()).enumerate() {
                 *out = RayState::<L>::first_answer(scene, ray).0;
                 if traced >> i & 1 == 1 {
@@ -1203,7 +1228,7 @@ pub fn trace_packet<L: Lanes8>(
             }
             return;
         }
-        root = Some((met, union, key, near));
+        root = Some(visit);
     }
     let mut packet = PacketRays::<L>::empty();
     let mut alive = packet.start(scene, rays, &eight, lists, out);
@@ -1227,9 +1252,8 @@ pub fn trace_packet<L: Lanes8>(
             let node = &scene.nodes[entry.child as usize];
             let occupied = u32::from(node.occupied);
             let tested = occupied.count_ones();
-            // Byte i of `met`: the children ray i meets; `key`: per child, the nearest near
-            // distance among the rays that meet it.
-            let (met, mut union, key, near) = match root.take() {
+            // The rays' tests of the node's boxes (the root's made before the states).
+            let visit = match root.take() {
                 Some(root) => {
                     for s in packet.states.iter_mut().flatten() {
                         s.best.box_tests += tested;
@@ -1237,27 +1261,25 @@ pub fn trace_packet<L: Lanes8>(
                     root
                 }
                 None => {
-                    let mut met = 0u64;
-                    let mut union = 0u32;
-                    let mut key = L::splat(f32::INFINITY);
-                    let mut near = [[0.0f32; WIDTH]; PACKET];
+                    let mut visit = PacketNode::<L>::new();
                     let mut rays_left = active;
                     while rays_left != 0 {
                         let i = rays_left.trailing_zeros() as usize;
                         rays_left &= rays_left - 1;
                         if let Some(s) = packet.states[i].as_mut() {
                             s.best.box_tests += tested;
-                            let (hit, lo) = boxes_met(node, &s.r, s.limit);
-                            let bits = L::bits(hit) & occupied;
-                            met |= u64::from(bits) << (8 * i);
-                            union |= bits;
-                            key = key.min(L::select(hit, lo, L::splat(f32::INFINITY)));
-                            near[i] = lo.to_array();
+                            visit.add(i, boxes_met(node, &s.r, s.limit), occupied);
                         }
                     }
-                    (met, union, key, near)
+                    visit
                 }
             };
+            let PacketNode {
+                met,
+                mut union,
+                key,
+                near,
+            } = visit;
             if union != 0 {
                 // Byte c: the rays that meet child c.
                 let rays_of = transpose_bits(met);
