@@ -450,24 +450,10 @@ impl<'r, L: Lanes8> RayState<'r, L> {
         });
     }
 
-    /// [`RayState::new_in`] for eight rays at once, into `slots`, their answers so far into
-    /// `out`; returns the rays traced (bit `i`: ray `i`) and their inverse directions by axis
-    /// (set up by [`Eight`]).
+    /// [`RayState::new_in`] for eight rays at once, whose [`Eight`] is made, into `slots`,
+    /// their answers so far into `out`; returns the rays traced (bit `i`: ray `i`).
     #[inline(always)]
-    pub fn new_eight(
-        scene: &Scene<'_>,
-        rays: &'r [GpuRay],
-        slots: &mut [Option<Self>; LANES],
-        out: &mut [GpuHit],
-    ) -> (u32, [[f32; LANES]; 3]) {
-        let eight = Eight::new::<L>(scene, rays);
-        (Self::fill_eight(scene, rays, &eight, slots, out), eight.inv)
-    }
-
-    /// [`RayState::new_eight`] with the eight rays' [`Eight`] already made; returns the rays
-    /// traced.
-    #[inline(always)]
-    fn fill_eight(
+    fn new_eight(
         scene: &Scene<'_>,
         rays: &'r [GpuRay],
         eight: &Eight,
@@ -1072,7 +1058,7 @@ impl<'r, 'l, L: Lanes8> PacketRays<'r, 'l, L> {
                 *slot = part;
             }
         }
-        RayState::<L>::fill_eight(scene, rays, eight, &mut self.states, out)
+        RayState::<L>::new_eight(scene, rays, eight, &mut self.states, out)
     }
 
     /// Tests the leaf's `count` triangles from leaf-order `first` for the rays in `testing`
@@ -1121,6 +1107,25 @@ impl<'r, 'l, L: Lanes8> PacketRays<'r, 'l, L> {
             if let Some(s) = state.take() {
                 *out = s.finish(list);
             }
+        }
+    }
+}
+
+/// Answers a packet none of whose rays meets the root's boxes (`root_boxes` of them tested)
+/// without walking it: each ray's first answer, with the root's boxes counted for the rays
+/// `traced` (the single walk's b and i: it too tests the root and stops).
+#[inline(always)]
+fn answer_at_root<L: Lanes8>(
+    scene: &Scene<'_>,
+    rays: &[GpuRay],
+    traced: u32,
+    root_boxes: u32,
+    out: &mut [GpuHit],
+) {
+    for (i, (ray, out)) in rays[..PACKET].iter().zip(out.iter_mut()).enumerate() {
+        *out = RayState::<L>::first_answer(scene, ray).0;
+        if traced >> i & 1 == 1 {
+            out.box_tests = root_boxes;
         }
     }
 }
@@ -1220,12 +1225,7 @@ pub fn trace_packet<L: Lanes8>(
             visit.add(i, boxes_met(node, &r, ray.tmax), occupied);
         }
         if visit.union == 0 {
-            for (i, (ray, out)) in rays[..PACKET].iter().zip(out.iter_mut()).enumerate() {
-                *out = RayState::<L>::first_answer(scene, ray).0;
-                if traced >> i & 1 == 1 {
-                    out.box_tests = occupied.count_ones();
-                }
-            }
+            answer_at_root::<L>(scene, rays, traced, occupied.count_ones(), out);
             return;
         }
         root = Some(visit);
@@ -1526,12 +1526,7 @@ pub fn trace_frustum<L: Lanes8>(
         let root = &scene.nodes[0];
         let occupied = u32::from(root.occupied);
         if frustum_boxes(root, &origin, &inv_lo, &inv_hi, tmin, reach).0 & occupied == 0 {
-            for (i, (ray, out)) in rays[..PACKET].iter().zip(out.iter_mut()).enumerate() {
-                *out = RayState::<L>::first_answer(scene, ray).0;
-                if traced >> i & 1 == 1 {
-                    out.box_tests = occupied.count_ones();
-                }
-            }
+            answer_at_root::<L>(scene, rays, traced, occupied.count_ones(), out);
             return;
         }
     }
@@ -1810,7 +1805,9 @@ mod tests {
                     .collect();
                 let mut slots: [Option<RayState<'_, L>>; LANES] = Default::default();
                 let mut out = [GpuHit::default(); LANES];
-                let (alive, inv) = RayState::<L>::new_eight(&walk, &rays, &mut slots, &mut out);
+                let eight = Eight::new::<L>(&walk, &rays);
+                let alive = RayState::<L>::new_eight(&walk, &rays, &eight, &mut slots, &mut out);
+                let inv = eight.inv;
                 for (i, ray) in rays.iter().enumerate() {
                     let mut alone = None;
                     let first = RayState::<L>::new_in(&walk, ray, true, &mut alone);
