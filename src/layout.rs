@@ -195,8 +195,9 @@ pub struct GpuInstance {
     pub mask: u32,
     /// [`INSTANCE_MIRRORED`].
     pub flags: u32,
-    /// Padding to 16 bytes.
-    pub pad: u32,
+    /// The mesh it places (an index into the scene's meshes): the CPU engine walks that mesh's
+    /// wide tree from it. The kernel and the twin start from `root` instead.
+    pub mesh: u32,
 }
 
 /// One shared struct's name, size and `(member, offset)` list.
@@ -291,7 +292,7 @@ pub const SHARED_LAYOUTS: &[StructLayout] = &[
             ("prim_base", offset_of!(GpuInstance, prim_base)),
             ("mask", offset_of!(GpuInstance, mask)),
             ("flags", offset_of!(GpuInstance, flags)),
-            ("pad", offset_of!(GpuInstance, pad)),
+            ("mesh", offset_of!(GpuInstance, mesh)),
         ],
     ),
 ];

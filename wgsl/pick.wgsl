@@ -74,7 +74,7 @@ struct GpuInstance {
     prim_base: u32,
     mask: u32,
     flags: u32,
-    pad: u32,
+    mesh: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: GpuParams;

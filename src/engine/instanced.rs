@@ -78,7 +78,8 @@ impl<L: Lanes8> Leaves<L> for Visit<'_, '_> {
             flags: ray.flags,
             origin_lo: [0; 2],
         };
-        let mesh = &self.scene.meshes[self.scene.instances.instances()[k as usize].mesh as usize];
+        // From the record, read already (not the instance's own, another line elsewhere).
+        let mesh = &self.scene.meshes[r.mesh as usize];
         let h = walk::trace::<L>(mesh, &local, self.scratch, self.stack);
         st.best.box_tests += h.box_tests;
         st.best.triangle_tests += h.triangle_tests;

@@ -10,6 +10,7 @@
 //! twin, the engine) -> hits whose `prim` is `prim_base + file-order triangle` -> [`resolve`]
 //! (the world triangle in f64, refined as every hit is).
 
+pub mod locate;
 pub mod resolve;
 pub mod top;
 
@@ -94,6 +95,8 @@ pub struct Instances {
     instances: Vec<Instance>,
     /// One record per instance, in instance order.
     records: Vec<GpuInstance>,
+    /// From a hit id to its instance ([`Instances::locate`]).
+    hits: locate::HitIndex,
     /// Where each mesh's nodes and triangles start in the combined buffers.
     mesh_nodes: Vec<u32>,
     mesh_triangles: Vec<u32>,
@@ -167,6 +170,7 @@ impl Instances {
             meshes,
             instances,
             records: Vec::new(),
+            hits: locate::HitIndex::default(),
             mesh_nodes: Vec::new(),
             mesh_triangles: mesh_triangles.iter().map(|&t| t as u32).collect(),
             top_nodes: 0,
@@ -217,6 +221,7 @@ impl Instances {
                 .scene
                 .triangle_count() as u32;
         }
+        this.hits = locate::HitIndex::new(&this.records, u64::from(prim_base));
         this.leaf_of = vec![NO_LEAF; this.instances.len()];
         for (n, node) in top.iter().enumerate() {
             if node.is_leaf() {
@@ -482,19 +487,22 @@ impl Instances {
         })
     }
 
-    /// Bytes the instancing adds beyond the meshes: instance records (f64 and kernel) and the
-    /// top tree.
+    /// Bytes the instancing adds beyond the meshes: the instances (f64, with their names' text)
+    /// and kernel records, the top tree (binary, and the engine's wide collapse of it), each
+    /// instance's top leaf and the hit ids' block table.
     pub fn instance_bytes(&self) -> u64 {
+        let names: usize = self.instances.iter().map(|i| i.name.capacity()).sum();
         (self.instances.len() * (size_of::<Instance>() + size_of::<GpuInstance>())
-            + self.top_nodes as usize * size_of::<GpuNode>()) as u64
+            + names
+            + self.top_nodes as usize * size_of::<GpuNode>()
+            + size_of_val(&self.leaf_of[..])) as u64
+            + self.top_wide.bytes()
+            + self.hits.bytes()
     }
 
     /// Where hit id `prim` lands: the instance, and the mesh's file-order triangle.
     pub fn locate(&self, prim: u32) -> (u32, u32) {
-        let k = self
-            .records
-            .partition_point(|r| r.prim_base <= prim)
-            .saturating_sub(1);
+        let k = self.hits.instance(&self.records, prim);
         (k as u32, prim - self.records[k].prim_base)
     }
 
@@ -505,9 +513,13 @@ impl Instances {
     pub fn world_triangle(&self, instance: u32, triangle: u32) -> ([DVec3; 3], bool) {
         let i = &self.instances[instance as usize];
         let mesh = &self.meshes[i.mesh as usize].scene;
-        let [a, b, c] = mesh
-            .world_triangle(triangle as usize)
-            .map(|p| apply_transform(&i.transform, p));
+        // Written out (not `array::map`, whose closure was left as a call in the refinement).
+        let [a, b, c] = mesh.world_triangle(triangle as usize);
+        let (a, b, c) = (
+            apply_transform(&i.transform, a),
+            apply_transform(&i.transform, b),
+            apply_transform(&i.transform, c),
+        );
         let mirrored = self.records[instance as usize].flags & INSTANCE_MIRRORED != 0;
         let swapped = mesh.objects()[0].mirrored != mirrored;
         if mirrored {
@@ -644,7 +656,7 @@ impl Instances {
             } else {
                 0
             },
-            pad: 0,
+            mesh: i.mesh,
         }
     }
 

@@ -4,9 +4,10 @@
 //! ([`crate::frame::refine`]). The twin of `frame::resolve_with` / `frame::resolve_chunk`.
 
 use super::Instances;
-use crate::frame::{Refined, refine, refine_four, stats_of, traced};
+use crate::frame::{RESOLVE_BLOCK, Refined, refine, refine_four, split_hits, stats_of, traced};
 use crate::layout::{GpuHit, NO_HIT};
 use crate::ray::{Hit, Ray};
+use glam::DVec3;
 
 /// The public hit for a checked traversal result on an instanced scene (see
 /// `frame::resolve_with`; `dir_length` NaN: an invalid ray).
@@ -24,7 +25,10 @@ pub fn resolve_with(instances: &Instances, ray: &Ray, dir_length: f64, found: &G
 }
 
 /// [`resolve_with`] for a chunk of results, refined four at a time, bit for bit the same:
-/// `emit(k, hit)` for `found[k]`, which answers `rays[input[k]]`.
+/// `emit(k, hit)` for `found[k]`, which answers `rays[input[k]]`. In blocks of
+/// [`RESOLVE_BLOCK`] as `frame::resolve_chunk`: the block's hits listed without a branch per
+/// result, their instances located and asked for (records scattered over the instances),
+/// the rest answered, then the hits refined.
 pub fn resolve_chunk(
     instances: &Instances,
     rays: &[Ray],
@@ -33,45 +37,66 @@ pub fn resolve_chunk(
     found: &[GpuHit],
     mut emit: impl FnMut(usize, Hit),
 ) {
-    let mut pending = [0usize; 4];
-    let mut n = 0;
-    for k in 0..found.len() {
-        if lengths[k].is_nan() || found[k].prim == NO_HIT {
+    for start in (0..found.len()).step_by(RESOLVE_BLOCK) {
+        let end = (start + RESOLVE_BLOCK).min(found.len());
+        let (hits, others) = split_hits(&found[start..end], &lengths[start..end]);
+        let mut located = [(0u32, 0u32); RESOLVE_BLOCK];
+        for (slot, &j) in located.iter_mut().zip(hits.iter()) {
+            let (i, t) = instances.locate(found[start + usize::from(j)].prim);
+            crate::prefetch::item(instances.instances(), i as usize);
+            crate::prefetch::item(instances.records(), i as usize);
+            *slot = (i, t);
+        }
+        for &j in others.iter() {
+            let k = start + usize::from(j);
             emit(
                 k,
                 resolve_with(instances, &rays[input[k]], lengths[k], &found[k]),
             );
-            continue;
         }
-        pending[n] = k;
-        n += 1;
-        if n == 4 {
-            let located = pending.map(|k| instances.locate(found[k].prim));
-            let world = located.map(|(i, t)| instances.world_triangle(i, t));
+        let whole = hits.len() / 4 * 4;
+        for g in (0..whole).step_by(4) {
+            let k = |n: usize| start + usize::from(hits[g + n]);
+            // Written out (not `array::map`, whose closures were left as calls here).
+            let w0 = instances.world_triangle(located[g].0, located[g].1);
+            let w1 = instances.world_triangle(located[g + 1].0, located[g + 1].1);
+            let w2 = instances.world_triangle(located[g + 2].0, located[g + 2].1);
+            let w3 = instances.world_triangle(located[g + 3].0, located[g + 3].1);
+            let ray = |n: usize| &rays[input[k(n)]];
+            let traced_at = |n: usize| traced(&found[k(n)], lengths[k(n)]);
             let refined = refine_four(
-                [0, 1, 2, 3].map(|j| {
-                    let [a, b, c] = &world[j].0;
-                    [a, b, c]
-                }),
-                pending.map(|k| &rays[input[k]]),
-                pending.map(|k| traced(&found[k], lengths[k])),
+                [
+                    corners(&w0.0),
+                    corners(&w1.0),
+                    corners(&w2.0),
+                    corners(&w3.0),
+                ],
+                [ray(0), ray(1), ray(2), ray(3)],
+                [traced_at(0), traced_at(1), traced_at(2), traced_at(3)],
             );
-            for j in 0..4 {
-                let (i, t) = located[j];
-                emit(
-                    pending[j],
-                    hit_of(instances, i, t, world[j].1, refined[j], &found[pending[j]]),
-                );
+            for (n, (w, refined)) in [w0.1, w1.1, w2.1, w3.1]
+                .into_iter()
+                .zip(refined)
+                .enumerate()
+            {
+                let (i, t) = located[g + n];
+                emit(k(n), hit_of(instances, i, t, w, refined, &found[k(n)]));
             }
-            n = 0;
+        }
+        for &j in &hits[whole..] {
+            let k = start + usize::from(j);
+            emit(
+                k,
+                resolve_with(instances, &rays[input[k]], lengths[k], &found[k]),
+            );
         }
     }
-    for &k in &pending[..n] {
-        emit(
-            k,
-            resolve_with(instances, &rays[input[k]], lengths[k], &found[k]),
-        );
-    }
+}
+
+/// The three corners of a triangle, where they lie.
+#[inline(always)]
+fn corners(w: &[DVec3; 3]) -> [&DVec3; 3] {
+    [&w[0], &w[1], &w[2]]
 }
 
 /// The public hit on `instance`'s file-order `triangle`, refined.
