@@ -52,13 +52,24 @@ fn sibling(index: u32, parent: u32, parent_node: &GpuNode) -> u32 {
 /// The rest of the ray's origin after rounding to f32 ([`GpuRay::origin_lo`]): three half
 /// floats, each normal or 0 (`frame::put_origin_lo`), decoded exactly (the kernel's
 /// `half_to_f32`).
+#[inline]
 pub fn origin_lo(ray: &GpuRay) -> Vec3 {
-    let half = |bits: u32| half::f16::from_bits(bits as u16).to_f32();
     Vec3::new(
-        half(ray.origin_lo[0]),
-        half(ray.origin_lo[0] >> 16),
-        half(ray.origin_lo[1]),
+        half_to_f32(ray.origin_lo[0] & 0xffff),
+        half_to_f32(ray.origin_lo[0] >> 16),
+        half_to_f32(ray.origin_lo[1] & 0xffff),
     )
+}
+
+/// A half float that is normal or 0 (what `frame::put_origin_lo` writes), exactly in f32: the
+/// kernel's `half_to_f32`, line for line.
+#[inline]
+fn half_to_f32(h: u32) -> f32 {
+    let e = (h >> 10) & 31;
+    if e == 0 {
+        return 0.0;
+    }
+    f32::from_bits(((h & 0x8000) << 16) | ((e + 112) << 23) | ((h & 0x3ff) << 13))
 }
 
 /// `dot(a, b)` as the kernel writes it.
@@ -398,4 +409,26 @@ pub(crate) fn insert_hit(
         return list[max_hits - 1].t;
     }
     tmax
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The kernel's decoding gives every half float `put_origin_lo` can write (normal, or
+    /// zero) exactly, the same bits as a general decoder.
+    #[test]
+    fn half_decoding_is_exact_for_normal_halves_and_zero() {
+        for bits in 0..=u16::MAX {
+            let h = half::f16::from_bits(bits);
+            if h.is_normal() {
+                assert_eq!(
+                    half_to_f32(u32::from(bits)).to_bits(),
+                    h.to_f32().to_bits(),
+                    "{bits:#06x}"
+                );
+            }
+        }
+        assert_eq!(half_to_f32(0).to_bits(), 0.0f32.to_bits());
+    }
 }

@@ -131,11 +131,12 @@ pub fn scene_rays(scene_origin: DVec3, rays: &[Ray], query: &Query) -> (Vec<GpuR
 
 /// Fills each traced ray's [`GpuRay::origin_lo`] (an instanced scene's kernels read it): what
 /// rounding `rays[i]`'s origin to the f32 offset `local[i].origin` left off, in f64, as three
-/// half floats. A rest too small for a normal half float is 0, so every decoder reads the same
-/// bits; a ray never traced keeps zeros.
+/// half floats, each rounded once from f64 (to nearest, ties to even), the same bits on every
+/// CPU. A rest too small for a normal half float is 0, so every decoder reads the same bits; a
+/// ray never traced keeps zeros.
 pub fn put_origin_lo(scene_origin: DVec3, rays: &[Ray], local: &mut [GpuRay]) {
     let half = |x: f64| -> u32 {
-        let h = half::f16::from_f64(x);
+        let h = half::f16::from_bits(half_bits(x));
         if h.is_normal() {
             u32::from(h.to_bits())
         } else {
@@ -158,6 +159,30 @@ pub fn put_origin_lo(scene_origin: DVec3, rays: &[Ray], local: &mut [GpuRay]) {
             .with_min_len(4096)
             .for_each(fill);
     }
+}
+
+/// `x` rounded once to the nearest half float (ties to even), as its bits. Not `half`'s
+/// `f16::from_f64`: where the CPU has F16C it rounds to f32 first and then to half, and
+/// elsewhere it drops the last 32 bits of `x` before rounding, so a value just past the midpoint
+/// of two half floats can go either way, depending on the CPU.
+fn half_bits(x: f64) -> u16 {
+    // The spacing of half floats at x (2^-24 below the normal range): the rounding is then
+    // exact in f64 (products by powers of two and an exact rounding to an integer), and the
+    // result a half float, or past the largest: `from_f64` then holds it exactly (or makes it
+    // infinite) on every CPU, whichever way it converts.
+    let exponent = ((x.to_bits() >> 52) & 0x7ff) as i64 - 1023;
+    let power = |e: i64| f64::from_bits(((e + 1023) as u64) << 52);
+    let e = exponent.clamp(-14, 15) - 10;
+    // |x| in units of the spacing is below 2^11 (or x is past the half floats, or not a
+    // number): adding and taking away 2^52 rounds it to an integer, ties to even, exactly
+    // (`round_ties_even` without SSE4.1 is a call).
+    let units = (x * power(-e)).abs();
+    const TWO_52: f64 = 4_503_599_627_370_496.0;
+    let rounded = f64::copysign((units + TWO_52) - TWO_52, x) * power(e);
+    if x.is_nan() {
+        return half::f16::NAN.to_bits();
+    }
+    half::f16::from_f64(rounded).to_bits()
 }
 
 /// Checks that every traversal result names a triangle of the tree (or none): a result past the
@@ -420,6 +445,73 @@ fn hit_of(scene: &Scene, scene_index: u32, refined: Refined, found: &GpuHit) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An origin's rest is rounded to a half float once, from f64: a rest just past the
+    /// midpoint between two half floats, which rounds to that midpoint in f32 (and from there
+    /// to the even neighbour below), goes up to the neighbour above.
+    #[test]
+    fn origin_rest_is_rounded_once() {
+        // Half floats from 2^-14 are 2^-24 apart: the midpoint is 2^-14 + 2^-25, and 2^-39 past
+        // it is below f32's resolution there (2^-37). At 2048 the f32 origin keeps none of it.
+        let rest = 2f64.powi(-14) + 2f64.powi(-25) + 2f64.powi(-39);
+        let origin = DVec3::new(2048.0 + rest, 1.0, 1.0);
+        assert_eq!(origin.x - 2048.0, rest, "the rest is exact in f64");
+        let ray = Ray::new(origin, DVec3::X);
+        let (mut local, _) = scene_rays(DVec3::ZERO, &[ray], &Query::default());
+        assert_eq!(local[0].origin[0], 2048.0);
+        put_origin_lo(DVec3::ZERO, &[ray], &mut local);
+        let (below, above) = (0x0400, 0x0401);
+        assert_eq!(half::f16::from_bits(below).to_f64(), 2f64.powi(-14));
+        assert_eq!(
+            half::f16::from_bits(above).to_f64(),
+            2f64.powi(-14) + 2f64.powi(-24)
+        );
+        assert_eq!(local[0].origin_lo[0] & 0xffff, u32::from(above));
+        assert_eq!(local[0].origin_lo[0] >> 16, 0, "y's rest is 0");
+    }
+
+    /// `half_bits` gives the nearest half float (ties to even) for values all over the range,
+    /// checked against both neighbours in exact f64 arithmetic.
+    #[test]
+    fn half_bits_rounds_to_the_nearest_half() {
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        for n in 0..200_000 {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            // Exponents from 2^-30 to 2^17, any mantissa, either sign; every 7th just past or
+            // on a midpoint.
+            let exponent = (seed >> 58) as i32 % 48 - 30;
+            let mantissa = 1.0 + (seed & ((1 << 52) - 1)) as f64 / (1u64 << 52) as f64;
+            let mut x = mantissa * 2f64.powi(exponent);
+            if n % 7 == 0 {
+                let spacing = 2f64.powi(exponent.clamp(-14, 15) - 10);
+                x = ((x / spacing).floor() + 0.5) * spacing
+                    + [0.0, spacing * 2f64.powi(-30)][n % 2];
+            }
+            if seed & (1 << 57) != 0 {
+                x = -x;
+            }
+            let h = half::f16::from_bits(half_bits(x));
+            let value = h.to_f64();
+            if value.is_infinite() {
+                assert!(x.abs() >= 65520.0, "{x:e}");
+                continue;
+            }
+            for step in [-1i32, 1] {
+                let next = half::f16::from_bits(h.to_bits().wrapping_add_signed(step as i16));
+                let other = next.to_f64();
+                if !other.is_finite() || other.signum() != value.signum() && value != 0.0 {
+                    continue;
+                }
+                let (mine, theirs) = ((x - value).abs(), (x - other).abs());
+                assert!(
+                    mine < theirs || mine == theirs && h.to_bits() & 1 == 0,
+                    "{x:e} -> {value:e}, but {other:e} is nearer or an even tie"
+                );
+            }
+        }
+    }
 
     /// `split_hits` lists a block's hits (a valid ray and a triangle) and the rest, each in
     /// order, every result once, whatever the pattern.
