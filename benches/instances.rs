@@ -6,7 +6,8 @@
 //!   (`Instances::assemble`: world boxes, median cut, records, the combined node buffer);
 //!   target ≤ 50 ms;
 //! - bytes per instance beyond one bunny (`Instances::instance_bytes` ÷ instances: the f64
-//!   instance, its kernel record and its share of the top tree); target ≤ 100;
+//!   instance with its name, its kernel record, its share of the top tree, binary and wide,
+//!   its top leaf's index and its share of the hit ids' block table); target ≤ 100;
 //! - `instances/pick_field` and `instances/pick_one`: CPU engine picks of 512 × 512 camera rays
 //!   looking down on the field, and on one bunny alone (a scene of one bunny, no instances);
 //!   target: the field ≥ 0.5× one bunny's rays per second;
