@@ -239,7 +239,8 @@ impl BuiltScene {
     pub fn set_positions(&mut self, object: u32, positions: &[DVec3]) -> Result<Refit> {
         if self.instances.is_some() {
             return Err(crate::error::Error::Invalid(
-                "an instanced scene's objects are instances: move one with                  set_instance_transform, or its mesh's vertices with set_mesh_positions"
+                "an instanced scene's objects are instances: move one with \
+                 set_instance_transform, or its mesh's vertices with set_mesh_positions"
                     .into(),
             ));
         }

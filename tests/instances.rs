@@ -255,6 +255,19 @@ fn bad_instances_are_refused_naming_them() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("instance 2") && e.contains("mesh 9"), "{e}");
+    // An instanced scene's objects move as instances, which the sentence names (in one line,
+    // its words one space apart).
+    let mut built = BuiltScene::instanced(
+        meshes(),
+        random_instances(3, DVec3::ZERO, 5.0, 1),
+        &BuildOptions::default(),
+    )
+    .unwrap();
+    let e = built.set_positions(0, &[]).unwrap_err().to_string();
+    assert!(
+        e.contains("move one with set_instance_transform") && !e.contains("  "),
+        "{e}"
+    );
 }
 
 #[test]
