@@ -61,6 +61,24 @@ pub fn refine_four(
     [0, 1, 2, 3].map(|i| refine(triangles[i].map(|v| *v), rays[i], traced[i]))
 }
 
+/// [`super::put_origin_lo`] over `rays` and their scene-frame rays `local` (the same length),
+/// four rays at a time in f64 lanes where the CPU has AVX2 and F16C: each rest rounded as
+/// `half_bits` rounds it (the same products by powers of two and the same exact rounding to an
+/// integer), the result, a half float already, converted exactly by F16C.
+pub(super) fn put_origin_lo_into(scene_origin: DVec3, rays: &[Ray], local: &mut [GpuRay]) {
+    assert_eq!(rays.len(), local.len(), "one scene-frame ray per ray");
+    let mut done = 0;
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("f16c") {
+        done = rays.len() / 4 * 4;
+        // SAFETY: the CPU has AVX2 and F16C (checked just above).
+        unsafe { avx::put_origin_lo_into(scene_origin, &rays[..done], &mut local[..done]) };
+    }
+    for (ray, l) in rays[done..].iter().zip(&mut local[done..]) {
+        super::origin_lo_of(scene_origin, ray, l);
+    }
+}
+
 /// [`local_rays_into`] one ray at a time.
 fn scalar(
     scene_origin: DVec3,
@@ -258,6 +276,95 @@ mod avx {
             position: DVec3::new(position[0][i], position[1][i], position[2][i]),
             normal: DVec3::new(normal[0][i], normal[1][i], normal[2][i]),
         })
+    }
+
+    /// [`super::put_origin_lo_into`] on lanes, four rays at a time (`rays.len()` a multiple
+    /// of four).
+    ///
+    /// # Safety
+    /// The CPU has AVX2 and F16C.
+    #[target_feature(enable = "avx2,f16c")]
+    pub(super) unsafe fn put_origin_lo_into(
+        scene_origin: DVec3,
+        rays: &[Ray],
+        local: &mut [GpuRay],
+    ) {
+        let so = [
+            _mm256_set1_pd(scene_origin.x),
+            _mm256_set1_pd(scene_origin.y),
+            _mm256_set1_pd(scene_origin.z),
+        ];
+        for (r, l) in rays.chunks_exact(4).zip(local.chunks_exact_mut(4)) {
+            let origin = points([&r[0].origin, &r[1].origin, &r[2].origin, &r[3].origin]);
+            let column = |a: usize| {
+                _mm256_cvtps_pd(_mm_set_ps(
+                    l[3].origin[a],
+                    l[2].origin[a],
+                    l[1].origin[a],
+                    l[0].origin[a],
+                ))
+            };
+            // `(ray.origin - scene_origin) - l.origin as f64`.
+            let rest = [0, 1, 2].map(|a| _mm256_sub_pd(_mm256_sub_pd(origin[a], so[a]), column(a)));
+            let mut halves = [[0u16; 8]; 3];
+            for (h, x) in halves.iter_mut().zip(rest) {
+                // SAFETY: `h` is eight u16s; storeu has no alignment need.
+                unsafe { _mm_storeu_si128(h.as_mut_ptr().cast(), half_lanes(x)) };
+            }
+            for (i, l) in l.iter_mut().enumerate() {
+                #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN: never traced")]
+                if !(l.tmin <= l.tmax) || l.mask == 0 {
+                    continue;
+                }
+                let [x, y, z] = [0, 1, 2].map(|a| u32::from(halves[a][i]));
+                l.origin_lo = [x | y << 16, z];
+            }
+        }
+    }
+
+    /// `half_bits` on four lanes, kept when normal (else 0), in the low four u16s: the
+    /// spacing of half floats at each value, a product by its inverse, the exact rounding to
+    /// an integer by adding and taking away 2^52, the product back (all powers of two, made
+    /// from exponent bits), then F16C's conversion of what is a half float already.
+    #[inline]
+    #[target_feature(enable = "avx2,f16c")]
+    pub(super) fn half_lanes(x: __m256d) -> __m128i {
+        let bias = _mm256_set1_epi64x(1023);
+        let exponent = _mm256_sub_epi64(
+            _mm256_and_si256(
+                _mm256_srli_epi64::<52>(_mm256_castpd_si256(x)),
+                _mm256_set1_epi64x(0x7ff),
+            ),
+            bias,
+        );
+        // clamp(-14, 15) - 10, in 64-bit lanes (no 64-bit min and max before AVX-512).
+        let lo = _mm256_set1_epi64x(-14);
+        let hi = _mm256_set1_epi64x(15);
+        let e = _mm256_blendv_epi8(exponent, lo, _mm256_cmpgt_epi64(lo, exponent));
+        let e = _mm256_blendv_epi8(e, hi, _mm256_cmpgt_epi64(e, hi));
+        let e = _mm256_sub_epi64(e, _mm256_set1_epi64x(10));
+        let power =
+            |e: __m256i| _mm256_castsi256_pd(_mm256_slli_epi64::<52>(_mm256_add_epi64(e, bias)));
+        let up = power(e);
+        let down = power(_mm256_sub_epi64(_mm256_setzero_si256(), e));
+        let sign = _mm256_set1_pd(-0.0);
+        let units = _mm256_andnot_pd(sign, _mm256_mul_pd(x, down));
+        let two_52 = _mm256_set1_pd(4_503_599_627_370_496.0);
+        let integer = _mm256_sub_pd(_mm256_add_pd(units, two_52), two_52);
+        // copysign(integer, x): integer is not negative, so its sign bit is clear.
+        let signed = _mm256_or_pd(integer, _mm256_and_pd(sign, x));
+        let rounded = _mm256_mul_pd(signed, up);
+        let h = _mm_cvtps_ph::<_MM_FROUND_TO_NEAREST_INT>(_mm256_cvtpd_ps(rounded));
+        // Normal: an exponent field neither 0 nor 31.
+        let field = _mm_and_si128(_mm_srli_epi16::<10>(h), _mm_set1_epi16(31));
+        let normal = _mm_andnot_si128(
+            _mm_or_si128(
+                _mm_cmpeq_epi16(field, _mm_setzero_si128()),
+                _mm_cmpeq_epi16(field, _mm_set1_epi16(31)),
+            ),
+            _mm_set1_epi16(-1),
+        );
+        _mm_and_si128(h, normal)
     }
 
     /// The shortest direction the lanes convert: `1 / length` is finite from it up, and so is
@@ -468,6 +575,87 @@ mod tests {
                     local_ray(origin, ray, &query).unwrap_or((NEVER_TRACED, f64::NAN));
                 prop_assert!(same(&local[i], &want), "ray {i} {ray:?}: {:?} vs {want:?}", local[i]);
                 prop_assert_eq!(lengths[i].to_bits(), want_length.to_bits(), "ray {}", i);
+            }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2000))]
+        /// The origins' rests four at a time give each ray the one-at-a-time bits (rays far
+        /// out, near the scene origin, special, never traced, with mask 0).
+        #[test]
+        fn origin_rests_four_at_a_time_give_the_scalar_bits(
+            rays in prop::collection::vec(ray(), 0..11),
+            far in prop::collection::vec([-1e7..1e7f64, -1e7..1e7f64, -1e3..1e3f64], 0..11),
+            origin in [-1e6..1e6f64, -1e6..1e6f64, -1e6..1e6f64],
+        ) {
+            let origin = DVec3::from(origin);
+            let mut rays = rays;
+            rays.extend(far.iter().map(|&p| Ray::new(DVec3::from(p), DVec3::NEG_Z)));
+            let mut local = vec![NEVER_TRACED; rays.len()];
+            let mut lengths = vec![0.0; rays.len()];
+            local_rays_into(origin, &rays, &Query::default(), &mut local, &mut lengths);
+            let mut want = local.clone();
+            for (ray, l) in rays.iter().zip(&mut want) {
+                super::super::origin_lo_of(origin, ray, l);
+            }
+            put_origin_lo_into(origin, &rays, &mut local);
+            for i in 0..rays.len() {
+                prop_assert!(same(&local[i], &want[i]), "ray {i} {:?}: {:?} vs {:?}", rays[i], local[i], want[i]);
+            }
+        }
+    }
+
+    /// The lanes' half floats are `half_bits`' where those are normal, and 0 elsewhere, over
+    /// values of every magnitude, midpoints, zeros, infinities and NaN.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn half_lanes_match_half_bits() {
+        if !(std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("f16c"))
+        {
+            return;
+        }
+        use std::arch::x86_64::*;
+        let mut values = vec![
+            0.0,
+            -0.0,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            f64::MIN_POSITIVE,
+            5e-324,
+            65504.0,
+            65519.9,
+            65520.0,
+            1e300,
+            2f64.powi(-14),
+            2f64.powi(-14) - 2f64.powi(-25),
+            2f64.powi(-14) + 2f64.powi(-25) + 2f64.powi(-39),
+        ];
+        let mut seed = 0x1234_5678_9abc_def1u64;
+        for n in 0..100_000 {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            let exponent = (seed >> 56) as i32 % 64 - 40;
+            let mantissa = 1.0 + (seed & ((1 << 52) - 1)) as f64 / (1u64 << 52) as f64;
+            let x = mantissa * 2f64.powi(exponent);
+            values.push(if n % 2 == 0 { x } else { -x });
+        }
+        for four in values.chunks(4) {
+            let mut v = [0.0; 4];
+            v[..four.len()].copy_from_slice(four);
+            let mut got = [0u16; 8];
+            // SAFETY: the CPU has AVX2 and F16C (checked above); `got` is eight u16s.
+            unsafe {
+                let h = avx::half_lanes(_mm256_loadu_pd(v.as_ptr()));
+                _mm_storeu_si128(got.as_mut_ptr().cast(), h);
+            }
+            for (x, got) in v.iter().zip(got) {
+                let h = half::f16::from_bits(super::super::half_bits(*x));
+                let want = if h.is_normal() { h.to_bits() } else { 0 };
+                assert_eq!(got, want, "{x:e}");
             }
         }
     }

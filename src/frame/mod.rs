@@ -135,6 +135,22 @@ pub fn scene_rays(scene_origin: DVec3, rays: &[Ray], query: &Query) -> (Vec<GpuR
 /// CPU. A rest too small for a normal half float is 0, so every decoder reads the same bits; a
 /// ray never traced keeps zeros.
 pub fn put_origin_lo(scene_origin: DVec3, rays: &[Ray], local: &mut [GpuRay]) {
+    if rays.len() <= 4096 {
+        four::put_origin_lo_into(scene_origin, rays, local);
+    } else {
+        rays.par_chunks(4096)
+            .zip(local.par_chunks_mut(4096))
+            .for_each(|(rays, local)| four::put_origin_lo_into(scene_origin, rays, local));
+    }
+}
+
+/// [`put_origin_lo`] for one ray.
+#[inline]
+fn origin_lo_of(scene_origin: DVec3, ray: &Ray, l: &mut GpuRay) {
+    #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN: never traced")]
+    if !(l.tmin <= l.tmax) || l.mask == 0 {
+        return;
+    }
     let half = |x: f64| -> u32 {
         let h = half::f16::from_bits(half_bits(x));
         if h.is_normal() {
@@ -143,22 +159,8 @@ pub fn put_origin_lo(scene_origin: DVec3, rays: &[Ray], local: &mut [GpuRay]) {
             0
         }
     };
-    let fill = |(ray, l): (&Ray, &mut GpuRay)| {
-        #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN: never traced")]
-        if !(l.tmin <= l.tmax) || l.mask == 0 {
-            return;
-        }
-        let rest = (ray.origin - scene_origin) - glam::Vec3::from(l.origin).as_dvec3();
-        l.origin_lo = [half(rest.x) | half(rest.y) << 16, half(rest.z)];
-    };
-    if rays.len() <= 4096 {
-        rays.iter().zip(local.iter_mut()).for_each(fill);
-    } else {
-        rays.par_iter()
-            .zip(local.par_iter_mut())
-            .with_min_len(4096)
-            .for_each(fill);
-    }
+    let rest = (ray.origin - scene_origin) - glam::Vec3::from(l.origin).as_dvec3();
+    l.origin_lo = [half(rest.x) | half(rest.y) << 16, half(rest.z)];
 }
 
 /// `x` rounded once to the nearest half float (ties to even), as its bits. Not `half`'s
