@@ -513,13 +513,13 @@ impl Instances {
     pub fn world_triangle(&self, instance: u32, triangle: u32) -> ([DVec3; 3], bool) {
         let i = &self.instances[instance as usize];
         let mesh = &self.meshes[i.mesh as usize].scene;
-        // Written out (not `array::map`, whose closure was left as a call in the refinement).
-        let [a, b, c] = mesh.world_triangle(triangle as usize);
-        let (a, b, c) = (
-            apply_transform(&i.transform, a),
-            apply_transform(&i.transform, b),
-            apply_transform(&i.transform, c),
-        );
+        // Written out (not `array::map`, whose closure was left as a call in the refinement),
+        // each corner read where it lies: the mesh's `world_triangle`, left as a call, returned
+        // its corners through the stack, and reading them back across the stores stalled (half
+        // of this function's samples on the field of bunnies).
+        let [a, b, c] = mesh.triangle_vertices(triangle as usize);
+        let corner = |v: u32| apply_transform(&i.transform, mesh.position(v as usize));
+        let (a, b, c) = (corner(a), corner(b), corner(c));
         let mirrored = self.records[instance as usize].flags & INSTANCE_MIRRORED != 0;
         let swapped = mesh.objects()[0].mirrored != mirrored;
         if mirrored {
