@@ -633,14 +633,10 @@ mod tests {
             2f64.powi(-14) - 2f64.powi(-25),
             2f64.powi(-14) + 2f64.powi(-25) + 2f64.powi(-39),
         ];
-        let mut seed = 0x1234_5678_9abc_def1u64;
+        use rand::Rng;
+        let mut g = crate::check::synthetic::rng(12);
         for n in 0..100_000 {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            let exponent = (seed >> 56) as i32 % 64 - 40;
-            let mantissa = 1.0 + (seed & ((1 << 52) - 1)) as f64 / (1u64 << 52) as f64;
-            let x = mantissa * 2f64.powi(exponent);
+            let x = g.random_range(1.0..2.0) * 2f64.powi(g.random_range(-40..24));
             values.push(if n % 2 == 0 { x } else { -x });
         }
         for four in values.chunks(4) {

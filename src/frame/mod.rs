@@ -476,22 +476,19 @@ mod tests {
     /// checked against both neighbours in exact f64 arithmetic.
     #[test]
     fn half_bits_rounds_to_the_nearest_half() {
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        use rand::Rng;
+        let mut g = crate::check::synthetic::rng(11);
         for n in 0..200_000 {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
             // Exponents from 2^-30 to 2^17, any mantissa, either sign; every 7th just past or
             // on a midpoint.
-            let exponent = (seed >> 58) as i32 % 48 - 30;
-            let mantissa = 1.0 + (seed & ((1 << 52) - 1)) as f64 / (1u64 << 52) as f64;
-            let mut x = mantissa * 2f64.powi(exponent);
+            let exponent = g.random_range(-30..18);
+            let mut x = g.random_range(1.0..2.0) * 2f64.powi(exponent);
             if n % 7 == 0 {
                 let spacing = 2f64.powi(exponent.clamp(-14, 15) - 10);
                 x = ((x / spacing).floor() + 0.5) * spacing
                     + [0.0, spacing * 2f64.powi(-30)][n % 2];
             }
-            if seed & (1 << 57) != 0 {
+            if g.random::<bool>() {
                 x = -x;
             }
             let h = half::f16::from_bits(half_bits(x));
