@@ -41,7 +41,8 @@ impl HitIndex {
     /// over; `prim` is below their `total`.
     #[inline]
     pub fn instance(&self, records: &[GpuInstance], prim: u32) -> usize {
-        let b = (prim >> self.shift) as usize;
+        // In u64: one instance of over 2^31 ids makes blocks of 2^32.
+        let b = (u64::from(prim) >> self.shift) as usize;
         match (self.first.get(b), self.first.get(b + 1)) {
             (Some(&lo), Some(&hi)) => {
                 let (lo, hi) = (lo as usize, (hi as usize).min(records.len() - 1));
@@ -98,6 +99,12 @@ mod tests {
             [1; 300].into_iter().chain([100_000, 2, 0]).collect(),
             vec![0, 0, 9, 0],
         ];
+        // One instance holding nearly every id: blocks of 2^32 (sampled ids only).
+        let (huge, total) = records(&[u32::MAX - 2]);
+        let index = HitIndex::new(&huge, total);
+        for prim in [0, 1, 1 << 31, u32::MAX - 3] {
+            assert_eq!(index.instance(&huge, prim), 0);
+        }
         for sizes in cases {
             let (records, total) = records(&sizes);
             let index = HitIndex::new(&records, total);
