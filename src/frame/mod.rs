@@ -246,7 +246,10 @@ pub fn resolve(scene: &Scene, bvh: &Bvh, ray: &Ray, found: &GpuHit) -> Result<Hi
 }
 
 /// [`resolve`] for a result already checked by [`check_found`], with the ray's direction length
-/// from [`scene_rays`] (NaN: an invalid ray).
+/// from [`scene_rays`] (NaN: an invalid ray). Always inlined: left as a call (which other code
+/// in this module tipped the compiler into), a camera pick of 1M rays on the bunny was 5–7%
+/// slower, each miss's 104-byte answer returned through the stack (BENCHMARKS.md).
+#[inline(always)]
 pub fn resolve_with(scene: &Scene, bvh: &Bvh, ray: &Ray, dir_length: f64, found: &GpuHit) -> Hit {
     if dir_length.is_nan() {
         return Hit::INVALID;
