@@ -509,7 +509,7 @@ impl Instances {
     /// The world corners of instance `instance`'s triangle `triangle` (file order), in the
     /// winding the world sees (swapped once more for a mirroring transform), and whether u and v
     /// come out swapped against the file's vertex order.
-    #[inline]
+    #[inline(always)]
     pub fn world_triangle(&self, instance: u32, triangle: u32) -> ([DVec3; 3], bool) {
         let i = &self.instances[instance as usize];
         let mesh = &self.meshes[i.mesh as usize].scene;

@@ -10,7 +10,8 @@ use crate::ray::{Hit, Ray};
 use glam::DVec3;
 
 /// The public hit for a checked traversal result on an instanced scene (see
-/// `frame::resolve_with`; `dir_length` NaN: an invalid ray).
+/// `frame::resolve_with`; `dir_length` NaN: an invalid ray). Always inlined, as that one is.
+#[inline(always)]
 pub fn resolve_with(instances: &Instances, ray: &Ray, dir_length: f64, found: &GpuHit) -> Hit {
     if dir_length.is_nan() {
         return Hit::INVALID;
