@@ -3,7 +3,7 @@
 //! [`Instances`]), the two-level layout the tracers walk (a top tree over the instances' boxes,
 //! built by median cut in [`top`], in front of every mesh's bottom tree, in one node buffer),
 //! the per-instance records the kernel reads ([`GpuInstance`]), and the way back from a hit to
-//! the world ([`Instances::locate`]).
+//! the world ([`Instances::locate`], through [`locate::HitIndex`]).
 //!
 //! Data flow: meshes ([`Scene`]s of one object, in file coordinates) + instances
 //! -> [`Instances::build`] -> (`Instances`, the combined [`Bvh`]) -> the tracers (the kernel, its
