@@ -121,6 +121,29 @@ struct RayLanes<L: Lanes8> {
     tmin: f32,
 }
 
+impl<L: Lanes8> RayLanes<L> {
+    /// `ray`'s box-test set-up, with its inverse direction `inv` (`safe_inverse`'s, or
+    /// [`Eight`]'s lanes of it): what its walk state holds, and the packet walk's root test
+    /// made before the states (the same bits either way).
+    #[inline(always)]
+    fn new(ray: &GpuRay, inv: Vec3) -> Self {
+        let origin = Vec3::from(ray.origin);
+        let dir = Vec3::from(ray.dir);
+        // Written out lane by lane (not `array::map`, which is not always inlined here).
+        let splat3 = |v: Vec3| [L::splat(v.x), L::splat(v.y), L::splat(v.z)];
+        RayLanes {
+            origin: splat3(origin),
+            inv: splat3(inv),
+            parallel: [
+                dir.x.abs() < MIN_DIR,
+                dir.y.abs() < MIN_DIR,
+                dir.z.abs() < MIN_DIR,
+            ],
+            tmin: ray.tmin,
+        }
+    }
+}
+
 /// The twin's `ray_box` for a node's eight boxes: which children the ray meets within
 /// `[tmin, limit]`, and each one's padded near distance.
 #[inline(always)]
@@ -424,23 +447,10 @@ impl<'r, L: Lanes8> RayState<'r, L> {
         best: GpuHit,
         slot: &mut Option<Self>,
     ) {
-        let origin = Vec3::from(ray.origin);
-        let dir = Vec3::from(ray.dir);
-        // Written out lane by lane (not `array::map`, which is not always inlined here).
-        let splat3 = |v: Vec3| [L::splat(v.x), L::splat(v.y), L::splat(v.z)];
         *slot = Some(Self {
             ray,
-            r: RayLanes {
-                origin: splat3(origin),
-                inv: splat3(inv),
-                parallel: [
-                    dir.x.abs() < MIN_DIR,
-                    dir.y.abs() < MIN_DIR,
-                    dir.z.abs() < MIN_DIR,
-                ],
-                tmin: ray.tmin,
-            },
-            dir: dir.to_array(),
+            r: RayLanes::new(ray, inv),
+            dir: Vec3::from(ray.dir).to_array(),
             shear,
             mode: ray.flags & 3,
             cull: (ray.flags >> crate::layout::CULL_SHIFT) & 3,
@@ -1206,22 +1216,8 @@ pub fn trace_packet<L: Lanes8>(
             let i = rays_left.trailing_zeros() as usize;
             rays_left &= rays_left - 1;
             let ray = &rays[i];
-            // Written out lane by lane (not `array::map`, which is not always inlined here).
-            let (o, inv, d) = (&ray.origin, &eight.inv, &ray.dir);
-            let r = RayLanes {
-                origin: [L::splat(o[0]), L::splat(o[1]), L::splat(o[2])],
-                inv: [
-                    L::splat(inv[0][i]),
-                    L::splat(inv[1][i]),
-                    L::splat(inv[2][i]),
-                ],
-                parallel: [
-                    d[0].abs() < MIN_DIR,
-                    d[1].abs() < MIN_DIR,
-                    d[2].abs() < MIN_DIR,
-                ],
-                tmin: ray.tmin,
-            };
+            let inv = Vec3::new(eight.inv[0][i], eight.inv[1][i], eight.inv[2][i]);
+            let r = RayLanes::new(ray, inv);
             visit.add(i, boxes_met(node, &r, ray.tmax), occupied);
         }
         if visit.union == 0 {

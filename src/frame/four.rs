@@ -312,8 +312,7 @@ mod avx {
                 unsafe { _mm_storeu_si128(h.as_mut_ptr().cast(), half_lanes(x)) };
             }
             for (i, l) in l.iter_mut().enumerate() {
-                #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN: never traced")]
-                if !(l.tmin <= l.tmax) || l.mask == 0 {
+                if !super::super::gets_origin_rest(l) {
                     continue;
                 }
                 let [x, y, z] = [0, 1, 2].map(|a| u32::from(halves[a][i]));

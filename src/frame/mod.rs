@@ -144,11 +144,18 @@ pub fn put_origin_lo(scene_origin: DVec3, rays: &[Ray], local: &mut [GpuRay]) {
     }
 }
 
+/// Whether scene-frame ray `l` is traced (not [`NEVER_TRACED`], nor of layer mask 0): only
+/// those get an origin rest ([`put_origin_lo`]).
+#[inline(always)]
+fn gets_origin_rest(l: &GpuRay) -> bool {
+    // `tmin <= tmax` also rejects NaN.
+    l.tmin <= l.tmax && l.mask != 0
+}
+
 /// [`put_origin_lo`] for one ray.
 #[inline]
 fn origin_lo_of(scene_origin: DVec3, ray: &Ray, l: &mut GpuRay) {
-    #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN: never traced")]
-    if !(l.tmin <= l.tmax) || l.mask == 0 {
+    if !gets_origin_rest(l) {
         return;
     }
     let half = |x: f64| -> u32 {
@@ -172,18 +179,17 @@ fn half_bits(x: f64) -> u16 {
     // exact in f64 (products by powers of two and an exact rounding to an integer), and the
     // result a half float, or past the largest: `from_f64` then holds it exactly (or makes it
     // infinite) on every CPU, whichever way it converts.
+    if x.is_nan() {
+        return half::f16::NAN.to_bits();
+    }
     let exponent = ((x.to_bits() >> 52) & 0x7ff) as i64 - 1023;
     let power = |e: i64| f64::from_bits(((e + 1023) as u64) << 52);
     let e = exponent.clamp(-14, 15) - 10;
-    // |x| in units of the spacing is below 2^11 (or x is past the half floats, or not a
-    // number): adding and taking away 2^52 rounds it to an integer, ties to even, exactly
+    // |x| in units of the spacing is below 2^11 (or x is past the half floats): adding and taking away 2^52 rounds it to an integer, ties to even, exactly
     // (`round_ties_even` without SSE4.1 is a call).
     let units = (x * power(-e)).abs();
     const TWO_52: f64 = 4_503_599_627_370_496.0;
     let rounded = f64::copysign((units + TWO_52) - TWO_52, x) * power(e);
-    if x.is_nan() {
-        return half::f16::NAN.to_bits();
-    }
     half::f16::from_f64(rounded).to_bits()
 }
 

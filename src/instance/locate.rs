@@ -45,9 +45,11 @@ impl HitIndex {
         let b = (u64::from(prim) >> self.shift) as usize;
         match (self.first.get(b), self.first.get(b + 1)) {
             (Some(&lo), Some(&hi)) => {
-                let (lo, hi) = (lo as usize, (hi as usize).min(records.len() - 1));
-                // records[lo] starts at or below the block's first id, so at or below `prim`.
-                lo + records[lo + 1..=hi.max(lo)].partition_point(|r| r.prim_base <= prim)
+                // records[lo] starts at or below the block's first id, so at or below `prim`;
+                // records[hi] is the last that starts at or below the next block's (an index
+                // of `records`, and not before `lo`).
+                let (lo, hi) = (lo as usize, hi as usize);
+                lo + records[lo + 1..=hi].partition_point(|r| r.prim_base <= prim)
             }
             _ => last_at_or_below(records, prim),
         }
