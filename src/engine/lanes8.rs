@@ -9,7 +9,7 @@
 
 use super::lanes::Lanes;
 use super::wide::WideNode;
-use crate::layout::GpuTriangle;
+use crate::layout::{GpuRay, GpuTriangle};
 
 /// Lanes per [`Lanes8`] value.
 pub const LANES: usize = 8;
@@ -58,6 +58,49 @@ pub trait Lanes8: Copy {
     fn andnot(a: Self::Mask, b: Self::Mask) -> Self::Mask;
     /// Bit `i` set when lane `i` is set.
     fn bits(m: Self::Mask) -> u32;
+    /// The first eight floats of each of eight rays, one ray a lane: `[origin x, y, z, tmin,
+    /// dir x, y, z, tmax]` (`GpuRay`'s first 32 bytes), copies bit for bit. `rays` holds at
+    /// least eight.
+    #[inline(always)]
+    fn rays(rays: &[GpuRay]) -> [Self; 8] {
+        let mut columns = [[0.0f32; 8]; 8];
+        for (i, r) in rays[..8].iter().enumerate() {
+            let row = [
+                r.origin[0],
+                r.origin[1],
+                r.origin[2],
+                r.tmin,
+                r.dir[0],
+                r.dir[1],
+                r.dir[2],
+                r.tmax,
+            ];
+            for (column, value) in columns.iter_mut().zip(row) {
+                column[i] = value;
+            }
+        }
+        [
+            Self::load(&columns[0]),
+            Self::load(&columns[1]),
+            Self::load(&columns[2]),
+            Self::load(&columns[3]),
+            Self::load(&columns[4]),
+            Self::load(&columns[5]),
+            Self::load(&columns[6]),
+            Self::load(&columns[7]),
+        ]
+    }
+    /// Bit `i` set when lane `i` of `self` and of `o` have the same bits (not `==`: 0.0 and
+    /// -0.0 differ, a NaN equals its own bits).
+    #[inline(always)]
+    fn same_bits(self, o: Self) -> u32 {
+        let (a, b) = (self.to_array(), o.to_array());
+        let mut bits = 0;
+        for i in 0..8 {
+            bits |= u32::from(a[i].to_bits() == b[i].to_bits()) << i;
+        }
+        bits
+    }
     /// Up to eight triangles' vertices as `[vertex][axis]` lanes, lane `i < count` from triangle
     /// `first + i` (`1 <= count <= 8`); the lanes past `count` hold copies of triangles of the
     /// range, for the caller to mask. The values are copies, bit for bit.
@@ -223,7 +266,7 @@ pub use avx::Avx;
 mod avx {
     use super::Lanes8;
     use crate::engine::wide::WideNode;
-    use crate::layout::GpuTriangle;
+    use crate::layout::{GpuRay, GpuTriangle};
     use std::arch::x86_64::*;
 
     /// One 256-bit AVX register. Only for code compiled with AVX enabled and run where the CPU
@@ -318,6 +361,40 @@ mod avx {
         #[inline(always)]
         fn bits(m: __m256) -> u32 {
             unsafe { _mm256_movemask_ps(m) as u32 }
+        }
+        /// Each ray's first 32 bytes loaded whole and the eight rows transposed: four by four
+        /// within the halves, then the halves exchanged.
+        #[inline(always)]
+        fn rays(rays: &[GpuRay]) -> [Self; 8] {
+            let rays = &rays[..8];
+            // SAFETY: each load reads the first 32 bytes of a whole `GpuRay` of `rays` (48
+            // bytes each).
+            unsafe {
+                let row = |i: usize| _mm256_loadu_ps(rays.as_ptr().add(i).cast::<f32>());
+                let [a0, a1, a2, a3] = transpose_halves([row(0), row(1), row(2), row(3)]);
+                let [b0, b1, b2, b3] = transpose_halves([row(4), row(5), row(6), row(7)]);
+                let low = |a, b| Avx(_mm256_permute2f128_ps::<0x20>(a, b));
+                let high = |a, b| Avx(_mm256_permute2f128_ps::<0x31>(a, b));
+                [
+                    low(a0, b0),
+                    low(a1, b1),
+                    low(a2, b2),
+                    low(a3, b3),
+                    high(a0, b0),
+                    high(a1, b1),
+                    high(a2, b2),
+                    high(a3, b3),
+                ]
+            }
+        }
+        #[inline(always)]
+        fn same_bits(self, o: Self) -> u32 {
+            // SAFETY: as above.
+            unsafe {
+                let same =
+                    _mm256_cmpeq_epi32(_mm256_castps_si256(self.0), _mm256_castps_si256(o.0));
+                _mm256_movemask_ps(_mm256_castsi256_ps(same)) as u32
+            }
         }
         /// Each triangle's first eight floats loaded whole, triangles `i` and `i + 4` in one
         /// register's two halves, transposed four by four within the halves; the ninth float
@@ -580,6 +657,66 @@ mod tests {
     fn avx_gather(triangles: &[GpuTriangle], first: usize, count: usize) -> [[[f32; 8]; 3]; 3] {
         let g = Avx::gather(triangles, first, count);
         [0, 1, 2].map(|v| [0, 1, 2].map(|a| g[v][a].to_array()))
+    }
+
+    /// The AVX rays' columns and bit comparison, in a function compiled with AVX2.
+    #[target_feature(enable = "avx2")]
+    fn avx_rays(rays: &[GpuRay]) -> ([[f32; 8]; 8], u32, u32) {
+        let c = Avx::rays(rays);
+        (
+            c.map(|l| l.to_array()),
+            c[0].same_bits(Avx::splat(rays[0].origin[0])),
+            c[3].same_bits(c[7]),
+        )
+    }
+
+    #[test]
+    fn avx_rays_are_the_portable_columns_bit_for_bit() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        // Distinct bits in every float, and zeros of both signs and NaNs among them.
+        let rays: Vec<GpuRay> = (0..11)
+            .map(|r| {
+                let f = |k: usize| (r * 12 + k) as f32 * 1.5 - 40.0;
+                GpuRay {
+                    origin: [if r % 3 == 0 { -0.0 } else { 0.0 }, f(1), f(2)],
+                    tmin: if r == 4 { f32::NAN } else { f(3) },
+                    dir: [f(4), f(5), f(6)],
+                    tmax: if r % 2 == 0 { f(3) } else { -0.0 },
+                    mask: r as u32,
+                    flags: 7,
+                    origin_lo: [9, 9],
+                }
+            })
+            .collect();
+        for first in [0, 1, 3] {
+            let rays = &rays[first..];
+            // SAFETY: AVX2 was detected above.
+            let (avx, same_origin, same_range) = unsafe { avx_rays(rays) };
+            let portable = Pair::<Portable>::rays(rays);
+            for (column, (a, p)) in avx.iter().zip(&portable).enumerate() {
+                let p = p.to_array();
+                for lane in 0..8 {
+                    assert_eq!(
+                        a[lane].to_bits(),
+                        p[lane].to_bits(),
+                        "{first} {column} {lane}"
+                    );
+                }
+            }
+            let p_origin = portable[0].same_bits(Pair::<Portable>::splat(rays[0].origin[0]));
+            assert_eq!(same_origin, p_origin);
+            assert_eq!(same_range, portable[3].same_bits(portable[7]));
+            for (lane, r) in rays[..8].iter().enumerate() {
+                let same = r.origin[0].to_bits() == rays[0].origin[0].to_bits();
+                assert_eq!(same_origin >> lane & 1 == 1, same, "{first} {lane}");
+                assert_eq!(
+                    same_range >> lane & 1 == 1,
+                    r.tmin.to_bits() == r.tmax.to_bits()
+                );
+            }
+        }
     }
 
     #[test]
