@@ -46,8 +46,12 @@ pub fn local_rays_into(
 /// `refine(triangles[i], rays[i], traced[i])` for the four hits, bit for bit. The corners are
 /// read where they lie (the scene's positions): the lanes load them straight into registers,
 /// where whole triangles passed by value went through the stack, and loads that straddled
-/// the stores made there stalled (a fifth of the refinement's time on the bunny).
-#[inline]
+/// the stores made there stalled (a fifth of the refinement's time on the bunny). Never
+/// inlined: inlined into `picker::refine_into` (as a change elsewhere in the crate once made
+/// the compiler choose), its two paths' results met in a temporary copied out by `memmove`,
+/// and the bunny's incoherent picks were 1–2% slower; out of line, the lanes write the answer
+/// straight into the caller's slot.
+#[inline(never)]
 pub fn refine_four(
     triangles: [[&DVec3; 3]; 4],
     rays: [&Ray; 4],
