@@ -406,15 +406,18 @@ fn trace_chunk<L: Lanes8>(
                 p * size_of::<GpuRay>(),
             );
         }
-        let group = match known.take() {
-            Some(group) => group,
+        let grouped = match known.take() {
+            Some(grouped) => Some(grouped),
             None => group_at::<L>(scene, rays, i),
         };
-        if group != walk::Group::Single {
+        if let Some((group, columns)) = grouped
+            && group != walk::Group::Single
+        {
             if group == walk::Group::Frustum {
                 walk::trace_frustum::<L>(
                     scene,
                     &rays[i..i + p],
+                    &columns,
                     &mut lists[i * k..(i + p) * k],
                     &mut stacks.frustum,
                     &mut hits[i..i + p],
@@ -423,6 +426,7 @@ fn trace_chunk<L: Lanes8>(
                 walk::trace_packet::<L>(
                     scene,
                     &rays[i..i + p],
+                    &columns,
                     &mut lists[i * k..(i + p) * k],
                     &mut stacks.packet,
                     &mut hits[i..i + p],
@@ -444,8 +448,10 @@ fn trace_chunk<L: Lanes8>(
         let mut end = (i + p).min(rays.len());
         while end < rays.len() && end - i < walk::INTERLEAVED {
             let next = group_at::<L>(scene, rays, end);
-            if next != walk::Group::Single {
-                known = Some(next);
+            if let Some((group, _)) = next
+                && group != walk::Group::Single
+            {
+                known = next;
                 break;
             }
             end = (end + p).min(rays.len()).min(i + walk::INTERLEAVED);
@@ -461,14 +467,20 @@ fn trace_chunk<L: Lanes8>(
     }
 }
 
-/// How the [`walk::PACKET`] rays from `i` are traced (a function, not a closure: a closure
-/// is not compiled with its caller's AVX2, and its lanes were calls).
+/// How the [`walk::PACKET`] rays from `i` are traced, with the rays in lanes
+/// ([`walk::group_of`]); `None` where they are not grouped (fewer left, packets off). A
+/// function, not a closure: a closure is not compiled with its caller's AVX2, and its lanes
+/// were calls.
 #[inline(always)]
-fn group_at<L: Lanes8>(scene: &walk::Scene<'_>, rays: &[GpuRay], i: usize) -> walk::Group {
+fn group_at<L: Lanes8>(
+    scene: &walk::Scene<'_>,
+    rays: &[GpuRay],
+    i: usize,
+) -> Option<(walk::Group, [L; 8])> {
     if scene.packets && i + walk::PACKET <= rays.len() {
-        walk::group_of::<L>(&rays[i..i + walk::PACKET], scene.size)
+        Some(walk::group_of::<L>(&rays[i..i + walk::PACKET], scene.size))
     } else {
-        walk::Group::Single
+        None
     }
 }
 

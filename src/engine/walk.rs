@@ -1201,13 +1201,14 @@ pub struct PacketEntry {
 /// bit), the children met by any ray are visited nearest first (by the nearest ray), and a leaf
 /// is tested for each ray that still needs it by that ray's own leaf test. Answers are each
 /// ray's single-ray answer, bit for bit; what the rays share is the walk's bookkeeping (one
-/// stack, one order). `lists` holds each ray's all-hits list in turn; `stack` holds at least
-/// [`stack_size`] entries. The root's boxes are tested before any ray's state is made, so a
+/// stack, one order). `columns` holds the rays in lanes ([`group_of`]'s); `lists` holds each
+/// ray's all-hits list in turn; `stack` holds at least [`stack_size`] entries. The root's boxes are tested before any ray's state is made, so a
 /// packet of sky ends there (an orthographic view of sky traced 1.57× faster: BENCHMARKS.md).
 #[inline(always)]
 pub fn trace_packet<L: Lanes8>(
     scene: &Scene<'_>,
     rays: &[GpuRay],
+    columns: &[L; 8],
     lists: &mut [GpuHitEntry],
     stack: &mut [PacketEntry],
     out: &mut [GpuHit],
@@ -1216,7 +1217,7 @@ pub fn trace_packet<L: Lanes8>(
     // from the same inverse direction and origin its state would hold), before any ray's state:
     // a packet that meets none of them (a view's sky) ends here with each ray's first answer
     // (the root's boxes counted as tested); otherwise the walk starts from these results.
-    let eight = Eight::of_columns::<L>(scene, &L::rays(rays));
+    let eight = Eight::of_columns::<L>(scene, columns);
     let mut traced = 0u32;
     for (i, ray) in rays[..PACKET].iter().enumerate() {
         traced |= u32::from(RayState::<L>::first_answer(scene, ray).1) << i;
@@ -1391,10 +1392,18 @@ pub enum Group {
 /// angle's tests go without square roots or divisions: cos ≥ c as (d·d₀)² ≥ c²·|d|²·|d₀|² with
 /// d·d₀ > 0 (normalising each direction was a third of a camera packet's set-up). The tests'
 /// one-ray-at-a-time definitions give the same decisions (`tests::coherent`,
-/// `tests::frustum_packet`).
+/// `tests::frustum_packet`). Returns the rays in lanes too, for the packet walks' set-up, which
+/// would read them in again.
 #[inline(always)]
-pub fn group_of<L: Lanes8>(rays: &[GpuRay], scene_size: f32) -> Group {
+pub fn group_of<L: Lanes8>(rays: &[GpuRay], scene_size: f32) -> (Group, [L; 8]) {
     let rays = &rays[..PACKET];
+    let columns = L::rays(rays);
+    (group_in_lanes(rays, &columns, scene_size), columns)
+}
+
+/// [`group_of`]'s decision, the rays read in (`columns`).
+#[inline(always)]
+fn group_in_lanes<L: Lanes8>(rays: &[GpuRay], columns: &[L; 8], scene_size: f32) -> Group {
     let first = &rays[0];
     let mut same = true;
     for r in rays {
@@ -1403,7 +1412,6 @@ pub fn group_of<L: Lanes8>(rays: &[GpuRay], scene_size: f32) -> Group {
     if !same {
         return Group::Single;
     }
-    let columns = L::rays(rays);
     let o = [columns[0], columns[1], columns[2]];
     let d = [columns[4], columns[5], columns[6]];
     let d0 = Vec3::from(first.dir);
@@ -1505,6 +1513,7 @@ fn frustum_boxes<L: Lanes8>(
 pub fn trace_frustum<L: Lanes8>(
     scene: &Scene<'_>,
     rays: &[GpuRay],
+    columns: &[L; 8],
     lists: &mut [GpuHitEntry],
     stack: &mut [Entry],
     out: &mut [GpuHit],
@@ -1513,8 +1522,7 @@ pub fn trace_frustum<L: Lanes8>(
     // directions over the rays that are traced (`RayState::first_answer`), made before any
     // ray's state: a packet whose frustum meets none of the root's boxes ends here with each
     // ray's first answer (the root's boxes counted as tested), its states never made.
-    let columns = L::rays(rays);
-    let eight = Eight::of_columns::<L>(scene, &columns);
+    let eight = Eight::of_columns::<L>(scene, columns);
     let inv_rays = &eight.inv;
     let (mut inv_lo, mut inv_hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
     let (mut tmin, mut reach) = (f32::INFINITY, f32::NEG_INFINITY);
@@ -1738,7 +1746,7 @@ mod tests {
                 } else {
                     Group::Packet
                 };
-                assert_eq!(group_of::<Pair<Portable>>(group, size), want, "{group:?}");
+                assert_eq!(group_of::<Pair<Portable>>(group, size).0, want, "{group:?}");
                 #[cfg(target_arch = "x86_64")]
                 if crate::engine::Simd::Avx2.is_available() {
                     // SAFETY: the CPU has AVX2 (checked just above).
@@ -1753,7 +1761,7 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn group_avx(group: &[GpuRay], size: f32) -> Group {
-        group_of::<crate::engine::lanes8::Avx>(group, size)
+        group_of::<crate::engine::lanes8::Avx>(group, size).0
     }
 
     /// A pushed word gives back its child and kind: every kind a child slot holds (leaf
@@ -1997,7 +2005,14 @@ mod tests {
                     }
                     let mut lists = vec![GpuHitEntry::default(); PACKET * k];
                     let mut out = [GpuHit::default(); PACKET];
-                    trace_frustum::<L8>(&walk, &group, &mut lists, &mut frustum_stack, &mut out);
+                    trace_frustum::<L8>(
+                        &walk,
+                        &group,
+                        &L8::rays(&group),
+                        &mut lists,
+                        &mut frustum_stack,
+                        &mut out,
+                    );
                     let answers = (&out[..], &lists[..], k);
                     let sky = assert_single_ray_answers(&walk, &group, answers, &mut stack, away);
                     if away {
@@ -2047,13 +2062,20 @@ mod tests {
                 let k = if flags & 3 == MODE_ALL { 4 } else { 0 };
                 for (g, group) in local.chunks_exact(PACKET).enumerate() {
                     let group = altered(group, g, flags);
-                    if group_of::<L8>(&group, walk.size) != Group::Packet {
+                    if group_of::<L8>(&group, walk.size).0 != Group::Packet {
                         continue;
                     }
                     packets += 1;
                     let mut lists = vec![GpuHitEntry::default(); PACKET * k];
                     let mut out = [GpuHit::default(); PACKET];
-                    trace_packet::<L8>(&walk, &group, &mut lists, &mut packet_stack, &mut out);
+                    trace_packet::<L8>(
+                        &walk,
+                        &group,
+                        &L8::rays(&group),
+                        &mut lists,
+                        &mut packet_stack,
+                        &mut out,
+                    );
                     let answers = (&out[..], &lists[..], k);
                     if assert_single_ray_answers(&walk, &group, answers, &mut stack, false) {
                         // A packet none of whose rays went past the root: b and i too.
