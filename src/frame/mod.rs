@@ -185,8 +185,9 @@ fn half_bits(x: f64) -> u16 {
     let exponent = ((x.to_bits() >> 52) & 0x7ff) as i64 - 1023;
     let power = |e: i64| f64::from_bits(((e + 1023) as u64) << 52);
     let e = exponent.clamp(-14, 15) - 10;
-    // |x| in units of the spacing is below 2^11 (or x is past the half floats): adding and taking away 2^52 rounds it to an integer, ties to even, exactly
-    // (`round_ties_even` without SSE4.1 is a call).
+    // |x| in units of the spacing is below 2^11 (or x is past the half floats): adding and
+    // taking away 2^52 rounds it to an integer, ties to even, exactly (`round_ties_even`
+    // without SSE4.1 is a call).
     let units = (x * power(-e)).abs();
     const TWO_52: f64 = 4_503_599_627_370_496.0;
     let rounded = f64::copysign((units + TWO_52) - TWO_52, x) * power(e);
