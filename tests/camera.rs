@@ -839,3 +839,21 @@ fn camera_file_numbers_round_trip_bit_for_bit() {
         }
     }
 }
+
+/// The batch made on all cores is `pixel_center_rays` with the mask, ray for ray.
+#[test]
+fn pixel_center_ray_batch_is_pixel_center_rays() {
+    let camera = Camera::frame_bounds(
+        DVec3::new(-3.0, -2.0, 0.0),
+        DVec3::new(5.0, 4.0, 2.0),
+        131,
+        67,
+    );
+    let batch = camera.pixel_center_ray_batch(0b101);
+    let rows: Vec<_> = camera
+        .pixel_center_rays()
+        .map(|r| r.with_mask(0b101))
+        .collect();
+    assert_eq!(batch.len(), 131 * 67);
+    assert_eq!(batch, rows);
+}

@@ -308,3 +308,29 @@ fn malformed_images_and_unwritable_paths_are_errors() {
         other => panic!("expected an I/O error, got {other:?}"),
     }
 }
+
+/// The image and the id buffer (their rays made on all cores) show each pixel's own answer, in
+/// rows: object shading and the id buffer against the hits of `pixel_center_rays` picked row by
+/// row, on a view of odd sides.
+#[test]
+fn each_pixel_shows_its_own_rays_answer() {
+    use raypick::apps::select::{NO_OBJECT, object_id_buffer};
+    let (width, height) = (37, 23);
+    let camera = framing_camera(width, height);
+    let mut picker = cpu();
+    let rows: Vec<_> = camera.pixel_center_rays().collect();
+    let hits = picker.pick(&rows).expect("pick");
+    assert!(hits.iter().any(|h| h.hit) && hits.iter().any(|h| !h.hit));
+    let image = render(&mut picker, &camera, Shade::Object).expect("render");
+    let expected: Vec<u8> = hits
+        .iter()
+        .flat_map(|h| if h.hit { object_color(h.object) } else { SKY })
+        .collect();
+    assert_eq!(image.rgba, expected);
+    let ids = object_id_buffer(&mut picker, &camera, u32::MAX).expect("id buffer");
+    let expected: Vec<u32> = hits
+        .iter()
+        .map(|h| if h.hit { h.object } else { NO_OBJECT })
+        .collect();
+    assert_eq!(ids, expected);
+}

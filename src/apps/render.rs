@@ -140,12 +140,13 @@ impl Image {
 
 /// One ray per pixel through the picker (closest hit), shaded.
 ///
-/// The rays are [`Camera::pixel_center_rays`], traced with the picker's default query (closest
-/// hit, no culling, all layers) in one batch; pixel `(i, j)` of the image shows ray
+/// The rays are [`Camera::pixel_center_rays`] (made on all cores:
+/// [`Camera::pixel_center_ray_batch`]), traced with the picker's default query (closest hit,
+/// no culling, all layers) in one batch; pixel `(i, j)` of the image shows ray
 /// `j * width + i`. Misses (and invalid rays) are [`SKY`]. Errors are the picker's.
 pub fn render(picker: &mut dyn Picker, camera: &Camera, shade: Shade) -> Result<Image> {
     check_size(camera.width(), camera.height())?;
-    let rays: Vec<Ray> = camera.pixel_center_rays().collect();
+    let rays: Vec<Ray> = camera.pixel_center_ray_batch(u32::MAX);
     let hits = picker.pick(&rays)?;
     if hits.len() != rays.len() {
         return Err(Error::Invalid(format!(

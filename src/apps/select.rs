@@ -98,10 +98,7 @@ pub fn check_id_buffer_size(width: u32, height: u32) -> Result<()> {
 /// nothing is hit.
 pub fn object_id_buffer(picker: &mut dyn Picker, camera: &Camera, mask: u32) -> Result<Vec<u32>> {
     check_id_buffer_size(camera.width(), camera.height())?;
-    let rays: Vec<Ray> = camera
-        .pixel_center_rays()
-        .map(|r| r.with_mask(mask))
-        .collect();
+    let rays: Vec<Ray> = camera.pixel_center_ray_batch(mask);
     Ok(picker
         .pick(&rays)?
         .iter()
