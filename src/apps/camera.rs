@@ -354,7 +354,7 @@ impl Camera {
     }
 
     /// [`Camera::pixel_center_rays`] with layer mask `mask`, made on all cores (rayon) into one
-    /// vector: what `render`, `idbuffer` and `select` trace. A ray costs tens of nanoseconds
+    /// vector: what `render` and `idbuffer` trace. A ray costs tens of nanoseconds
     /// to make (two divisions and a normalisation in f64), so for a 1000 × 1000 view one core
     /// took about as long as the engine's pick of the rays on two (BENCHMARKS.md).
     pub fn pixel_center_ray_batch(&self, mask: u32) -> Vec<Ray> {
