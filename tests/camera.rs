@@ -857,3 +857,20 @@ fn pixel_center_ray_batch_is_pixel_center_rays() {
     assert_eq!(batch.len(), 131 * 67);
     assert_eq!(batch, rows);
 }
+
+/// A lattice of every `step`-th pixel is the rays of those pixels, row by row; one of step 1
+/// over the view is the whole batch.
+#[test]
+fn pixel_center_ray_lattice_is_the_pixels_rays() {
+    let camera = Camera::frame_bounds(DVec3::ZERO, DVec3::new(4.0, 3.0, 1.0), 40, 30);
+    let lattice = camera.pixel_center_ray_lattice((5, 7), (4, 3), 3, 9);
+    let expected: Vec<_> = (0..3)
+        .flat_map(|b| (0..4).map(move |a| (5 + 3 * a, 7 + 3 * b)))
+        .map(|(i, j)| camera.pixel_center_ray(i, j).with_mask(9))
+        .collect();
+    assert_eq!(lattice, expected);
+    assert_eq!(
+        camera.pixel_center_ray_lattice((0, 0), (40, 30), 1, 9),
+        camera.pixel_center_ray_batch(9)
+    );
+}

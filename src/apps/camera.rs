@@ -358,14 +358,30 @@ impl Camera {
     /// to make (two divisions and a normalisation in f64), so for a 1000 × 1000 view one core
     /// took about as long as the engine's pick of the rays on two (BENCHMARKS.md).
     pub fn pixel_center_ray_batch(&self, mask: u32) -> Vec<Ray> {
+        self.pixel_center_ray_lattice((0, 0), (self.width(), self.height()), 1, mask)
+    }
+
+    /// The rays through the centres of `columns × rows` pixels `step` apart from pixel
+    /// `(x0, y0)`, row by row (item `b * columns + a` is pixel `(x0 + a * step, y0 + b *
+    /// step)`), with layer mask `mask`, made on all cores: a marquee's rays
+    /// ([`super::select::marquee`]), or the whole view's ([`Camera::pixel_center_ray_batch`]).
+    /// The pixels' coordinates must fit `u32` (the callers' rectangles lie in the view).
+    pub fn pixel_center_ray_lattice(
+        &self,
+        (x0, y0): (u32, u32),
+        (columns, rows): (u32, u32),
+        step: u32,
+        mask: u32,
+    ) -> Vec<Ray> {
         use rayon::prelude::*;
-        let width = self.width();
-        (0..width as usize * self.height() as usize)
+        let columns = columns as usize;
+        (0..columns * rows as usize)
             .into_par_iter()
             .with_min_len(4096)
             .map(|k| {
-                let (i, j) = ((k % width as usize) as u32, (k / width as usize) as u32);
-                self.pixel_center_ray(i, j).with_mask(mask)
+                let (a, b) = ((k % columns) as u32, (k / columns) as u32);
+                self.pixel_center_ray(x0 + a * step, y0 + b * step)
+                    .with_mask(mask)
             })
             .collect()
     }

@@ -62,15 +62,13 @@ pub fn marquee(
         columns * rows,
         Query::default().bytes_per_ray(),
     )?;
-    let rays: Vec<Ray> = (rect.y0..rect.y1)
-        .step_by(step as usize)
-        .flat_map(|j| {
-            (rect.x0..rect.x1)
-                .step_by(step as usize)
-                .map(move |i| (i, j))
-        })
-        .map(|(i, j)| camera.pixel_center_ray(i, j).with_mask(mask))
-        .collect();
+    // `columns` and `rows` are at most the view's sides (u32), checked above.
+    let rays: Vec<Ray> = camera.pixel_center_ray_lattice(
+        (rect.x0, rect.y0),
+        (columns as u32, rows as u32),
+        step,
+        mask,
+    );
     let mut counts: BTreeMap<u32, u32> = BTreeMap::new();
     for hit in picker.pick(&rays)? {
         if hit.hit {
