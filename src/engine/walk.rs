@@ -1202,8 +1202,9 @@ pub struct PacketEntry {
 /// is tested for each ray that still needs it by that ray's own leaf test. Answers are each
 /// ray's single-ray answer, bit for bit; what the rays share is the walk's bookkeeping (one
 /// stack, one order). `columns` holds the rays in lanes ([`group_of`]'s); `lists` holds each
-/// ray's all-hits list in turn; `stack` holds at least [`stack_size`] entries. The root's boxes are tested before any ray's state is made, so a
-/// packet of sky ends there (an orthographic view of sky traced 1.57× faster: BENCHMARKS.md).
+/// ray's all-hits list in turn; `stack` holds at least [`stack_size`] entries. The root's boxes
+/// are tested before any ray's state is made, so a packet of sky ends there (an orthographic
+/// view of sky traced 1.57× faster: BENCHMARKS.md).
 #[inline(always)]
 pub fn trace_packet<L: Lanes8>(
     scene: &Scene<'_>,
