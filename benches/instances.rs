@@ -206,7 +206,7 @@ fn instances(c: &mut Criterion) {
          top tree build {top_ms:.2} ms (target ≤ 50 ms, medians of 15)\n\
          bytes per instance beyond one bunny {per_instance:.0} (target ≤ 100)\n\
          pick, {} camera rays, {} threads: field {:.2} M rays/s ({field_hits} hits), one bunny \
-         {:.2} M rays/s ({one_hits} hits): field ÷ one = {:.2} (target ≥ 0.5, medians of 7)\n\
+         {:.2} M rays/s ({one_hits} hits): field ÷ one = {:.3} (target ≥ 0.5, medians of 7)\n\
          move one of 10,000 and pick a click again: cpu {move_cpu_ms:.3} ms (target ≤ 1 ms, \
          median of 101); gpu {gpu_line}",
         placed.len(),
