@@ -1,15 +1,16 @@
 //! Instanced scenes: each mesh stored and built once, in its own f32 frame, and placed any
 //! number of times by f64 affine transforms. Owns the instance model ([`Instance`],
-//! [`Instances`]), the two-level layout the tracers walk (a top tree over the instances' boxes,
-//! built by median cut in [`top`], in front of every mesh's bottom tree, in one node buffer),
-//! the per-instance records the kernel reads ([`GpuInstance`]), and the way back from a hit to
-//! the world ([`Instances::locate`], through [`locate::HitIndex`]).
+//! [`Instances`]), the two-level layout the tracers walk (a top tree over the instances' exact
+//! world boxes, [`extent`], built by median cut in [`top`], in front of every mesh's bottom
+//! tree, in one node buffer), the per-instance records the kernel reads ([`GpuInstance`]), and
+//! the way back from a hit to the world ([`Instances::locate`], through [`locate::HitIndex`]).
 //!
 //! Data flow: meshes ([`Scene`]s of one object, in file coordinates) + instances
 //! -> [`Instances::build`] -> (`Instances`, the combined [`Bvh`]) -> the tracers (the kernel, its
 //! twin, the engine) -> hits whose `prim` is `prim_base + file-order triangle` -> [`resolve`]
 //! (the world triangle in f64, refined as every hit is).
 
+pub mod extent;
 pub mod locate;
 pub mod resolve;
 pub mod top;
@@ -58,6 +59,8 @@ pub struct MeshTree {
     /// `bvh`'s leaf-order vertex indices ([`Bvh::leaf_vertices`]), made by the mesh's first
     /// refit and passed on to the refitted tree.
     leaf_vertices: OnceLock<Arc<Vec<[u32; 3]>>>,
+    /// The vertices in chunks for its instances' exact world boxes, made on first use.
+    extent: OnceLock<extent::Extent>,
 }
 
 impl MeshTree {
@@ -68,6 +71,7 @@ impl MeshTree {
             bvh,
             wide: OnceLock::new(),
             leaf_vertices: OnceLock::new(),
+            extent: OnceLock::new(),
         }
     }
 
@@ -77,6 +81,18 @@ impl MeshTree {
         let tree = Self::new(scene, bvh);
         let _ = tree.wide.set(Ok(wide));
         tree
+    }
+
+    /// The box of the mesh's vertices through `transform` ([`extent::Extent`]), exactly the
+    /// box of every vertex its triangles use, each through `apply_transform`; `None` for a mesh
+    /// with nothing to hit.
+    pub fn world_box(&self, transform: &[[f64; 4]; 3]) -> Option<(DVec3, DVec3)> {
+        if self.bvh.nodes.is_empty() {
+            return None;
+        }
+        self.extent
+            .get_or_init(|| extent::Extent::new(&self.scene, &self.bvh))
+            .world_box(self.scene.positions(), transform)
     }
 
     /// The CPU engine's wide tree (an error for a corrupted tree).
@@ -557,32 +573,21 @@ impl Instances {
         Ok(scene)
     }
 
-    /// Each instance's world box in f64 (`None` for a mesh with nothing to hit).
+    /// Each instance's world box in f64 (`None` for a mesh with nothing to hit), on all cores.
     fn world_boxes(&self) -> Vec<Option<(DVec3, DVec3)>> {
+        use rayon::prelude::*;
         (0..self.instances.len())
+            .into_par_iter()
+            .with_min_len(256)
             .map(|k| self.world_box(k))
             .collect()
     }
 
-    /// Instance `k`'s world box: its mesh's box corners through its transform.
+    /// Instance `k`'s world box: the exact box of its mesh's vertices through its transform
+    /// ([`MeshTree::world_box`]).
     fn world_box(&self, k: usize) -> Option<(DVec3, DVec3)> {
         let i = &self.instances[k];
-        let m = &self.meshes[i.mesh as usize];
-        if m.bvh.nodes.is_empty() {
-            return None;
-        }
-        let (lo, hi) = m.scene.bounds()?;
-        let mut b = (DVec3::INFINITY, DVec3::NEG_INFINITY);
-        for c in 0..8 {
-            let corner = DVec3::new(
-                if c & 1 == 0 { lo.x } else { hi.x },
-                if c & 2 == 0 { lo.y } else { hi.y },
-                if c & 4 == 0 { lo.z } else { hi.z },
-            );
-            let p = apply_transform(&i.transform, corner);
-            b = (b.0.min(p), b.1.max(p));
-        }
-        Some(b)
+        self.meshes[i.mesh as usize].world_box(&i.transform)
     }
 
     /// The boxes in the scene frame, rounded outward to f32 and widened by a few units in the
