@@ -273,13 +273,34 @@ mod avx {
         let (t, u, v) = (values(t), values(u), values(v));
         let position = position.map(values);
         let normal = normal.map(values);
-        [0, 1, 2, 3].map(|i| Refined {
+        // Written out (not `[0, 1, 2, 3].map`, whose closure a build of the instances bench
+        // left as a call, four per refinement, with its results through memory: the
+        // one-bunny pick there 6% slower than where it was inlined).
+        [
+            refined_at(&t, &u, &v, &position, &normal, 0),
+            refined_at(&t, &u, &v, &position, &normal, 1),
+            refined_at(&t, &u, &v, &position, &normal, 2),
+            refined_at(&t, &u, &v, &position, &normal, 3),
+        ]
+    }
+
+    /// Hit `i`'s [`Refined`] from the four hits' lanes, as values.
+    #[inline(always)]
+    fn refined_at(
+        t: &[f64; 4],
+        u: &[f64; 4],
+        v: &[f64; 4],
+        position: &[[f64; 4]; 3],
+        normal: &[[f64; 4]; 3],
+        i: usize,
+    ) -> Refined {
+        Refined {
             t: t[i],
             u: u[i],
             v: v[i],
             position: DVec3::new(position[0][i], position[1][i], position[2][i]),
             normal: DVec3::new(normal[0][i], normal[1][i], normal[2][i]),
-        })
+        }
     }
 
     /// [`super::put_origin_lo_into`] on lanes, four rays at a time (`rays.len()` a multiple
