@@ -8,8 +8,8 @@ use crate::cpu::{TraceSettings, trace_batch};
 use crate::engine::{Simd, WideBvh};
 use crate::error::Result;
 use crate::frame::{
-    NEVER_TRACED, check_found_in, local_rays_into, put_origin_lo, resolve_chunk, resolve_with,
-    scene_rays, split_hits,
+    NEVER_TRACED, check_found_in, local_rays_into, local_rays_with_rests_into, put_origin_lo,
+    resolve_chunk, resolve_with, scene_rays, split_hits,
 };
 use crate::instance::{Instance, Instances};
 use crate::layout::{GpuHit, GpuHitEntry, GpuRay, NO_HIT};
@@ -830,15 +830,13 @@ fn pick_fused(
                             next * std::mem::size_of::<Ray>(),
                         );
                     }
-                    local_rays_into(
-                        origin,
-                        &rays[span.clone()],
-                        query,
-                        &mut local[..m],
-                        &mut lengths[..m],
-                    );
+                    // An instanced scene's rays carry their origins' rests too, made in the
+                    // same pass.
+                    let (rays, local, lengths) = (&rays[span], &mut local[..m], &mut lengths[..m]);
                     if built.instances.is_some() {
-                        put_origin_lo(origin, &rays[span], &mut local[..m]);
+                        local_rays_with_rests_into(origin, rays, query, local, lengths);
+                    } else {
+                        local_rays_into(origin, rays, query, local, lengths);
                     }
                     for (k, slot) in input[..m].iter_mut().enumerate() {
                         *slot = start + k;

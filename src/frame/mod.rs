@@ -13,8 +13,8 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 mod four;
-pub use four::local_rays_into;
 pub(crate) use four::refine_four;
+pub use four::{local_rays_into, local_rays_with_rests_into};
 
 /// The kernel input for an invalid ray: `tmax < tmin`, so traversal returns at once.
 pub const NEVER_TRACED: GpuRay = GpuRay {
