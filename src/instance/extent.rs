@@ -89,6 +89,13 @@ impl Extent {
         }
     }
 
+    /// Bytes this takes: about 5.5 a used vertex (an index, and a box per 32).
+    pub fn bytes(&self) -> u64 {
+        (size_of_val(&self.vertices[..])
+            + size_of_val(&self.chunks[..])
+            + size_of_val(&self.groups[..])) as u64
+    }
+
     /// The box of `positions` (the mesh's, as [`Extent::new`] saw them) through `transform`:
     /// per axis the least and the most of that row over the vertices. `None` for a mesh whose
     /// triangles use no vertex.
