@@ -243,4 +243,37 @@ mod tests {
         }
         assert!(checked > 1000, "only {checked} boxes compared");
     }
+
+    /// A transform that carries the mesh past f64's range gives a box that is not finite (the
+    /// caller's error), from the mesh box's corners before any search: here one vertex's row is
+    /// NaN (inf − inf), which a search's `max` would pass over, leaving a finite box. One that
+    /// keeps the mesh in range gives the exact box.
+    #[test]
+    fn a_mesh_carried_past_the_range_gets_a_box_that_is_not_finite() {
+        let mut scene = Scene::new();
+        let positions = vec![
+            DVec3::new(2.0, 2.0, 0.0),
+            DVec3::new(1.0, 1.0, 0.0),
+            DVec3::new(1.0, 1.5, 1.0),
+        ];
+        scene
+            .add_mesh(
+                "m",
+                crate::scene::Mesh {
+                    positions: positions.clone(),
+                    triangles: vec![[0, 1, 2]],
+                },
+            )
+            .unwrap();
+        let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
+        let tree = crate::instance::MeshTree::new(scene, bvh);
+        let mut transform = crate::instance::IDENTITY;
+        transform[0] = [1e308, -1e308, 0.0, 0.0];
+        assert!(apply_transform(&transform, positions[0]).x.is_nan());
+        let (lo, hi) = tree.world_box(&transform).expect("a mesh with a triangle");
+        assert!(!(lo.is_finite() && hi.is_finite()), "{lo} {hi}");
+        transform[0] = [1e307, -1e307, 0.0, 0.0];
+        let want = box_of(positions.iter().map(|&p| apply_transform(&transform, p)));
+        assert_eq!(tree.world_box(&transform), Some(want));
+    }
 }

@@ -90,6 +90,22 @@ impl MeshTree {
         if self.bvh.nodes.is_empty() {
             return None;
         }
+        // The mesh box's corners first: where they leave the finite range that box is the
+        // answer (and the caller's error). Where they stay in it, so does every vertex's and
+        // every chunk bound's row, term by term (each lies between two corners' and the
+        // operations are monotone), and the search meets no infinity or NaN.
+        let (lo, hi) = self.scene.bounds()?;
+        for c in 0..8 {
+            let corner = DVec3::new(
+                if c & 1 == 0 { lo.x } else { hi.x },
+                if c & 2 == 0 { lo.y } else { hi.y },
+                if c & 4 == 0 { lo.z } else { hi.z },
+            );
+            let p = apply_transform(transform, corner);
+            if !p.is_finite() {
+                return Some((p, p));
+            }
+        }
         self.extent
             .get_or_init(|| extent::Extent::new(&self.scene, &self.bvh))
             .world_box(self.scene.positions(), transform)
