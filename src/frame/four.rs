@@ -43,10 +43,11 @@ pub fn local_rays_into(
     scalar(scene_origin, rays, query, local, lengths);
 }
 
-/// [`local_rays_into`] followed by [`put_origin_lo_into`] (what an instanced scene's rays
-/// need), in one pass where the CPU has AVX2 and F16C: each origin's rest is taken from the
-/// lanes that just rounded it to f32, instead of from the rays read and gathered again (that
-/// second pass was 3% of a pick of the field of 10,000 bunnies). The same bits as the two passes.
+/// [`local_rays_into`] followed by [`put_origin_lo`](super::put_origin_lo) (what an instanced
+/// scene's rays need), in one pass where the CPU has AVX2 and F16C: each origin's rest is taken
+/// from the lanes that just rounded it to f32, instead of from the rays read and gathered again
+/// (that second pass was 3% of a pick of the field of 10,000 bunnies). The same bits as the two
+/// passes.
 pub fn local_rays_with_rests_into(
     scene_origin: DVec3,
     rays: &[Ray],
