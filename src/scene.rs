@@ -59,10 +59,21 @@ impl GridShape {
     }
 }
 
-/// `transform` (3 × 4, row-major) applied to `p`: each row `(a·x + b·y) + c·z + t`, in f64.
+/// `transform` (3 × 4, row-major) applied to `p`: each row by [`transform_row`], in f64.
 pub fn apply_transform(transform: &[[f64; 4]; 3], p: DVec3) -> DVec3 {
-    let row = |r: &[f64; 4]| r[0] * p.x + r[1] * p.y + r[2] * p.z + r[3];
-    DVec3::new(row(&transform[0]), row(&transform[1]), row(&transform[2]))
+    DVec3::new(
+        transform_row(&transform[0], p),
+        transform_row(&transform[1], p),
+        transform_row(&transform[2], p),
+    )
+}
+
+/// One row `r` of a transform applied to `p`: `((a·x + b·y) + c·z) + t`, in f64, the one
+/// expression every world coordinate of a transformed point comes from (instances' exact boxes
+/// search it too: `instance::extent`).
+#[inline(always)]
+pub fn transform_row(r: &[f64; 4], p: DVec3) -> f64 {
+    r[0] * p.x + r[1] * p.y + r[2] * p.z + r[3]
 }
 
 /// The determinant of `transform`'s 3 × 3 part, or why the transform cannot place an object: a

@@ -2,20 +2,21 @@
 //! by branch and bound over the vertices in chunks with f64 boxes ([`Extent`]), instead of the
 //! mesh box's eight corners through the transform.
 //!
-//! Why: the corners' box is up to √2 wider per turned axis than the mesh itself (a bunny turned
-//! 45° about the vertical fills about half of it), and every ray through the difference enters
-//! the instance for nothing. In the field of 10,000 turned bunnies (`benches/instances.rs`)
-//! half the instance entries met none of the bunny root's boxes; the exact boxes made a pick
-//! 4–5% faster (BENCHMARKS.md).
+//! Why: a turn widens the corners' box by up to √2 per turned axis, and every ray through the
+//! slack enters the instance for nothing. In the field of 10,000 turned bunnies
+//! (`benches/instances.rs`) half the instance entries met none of the bunny root's boxes; with
+//! the exact boxes a quarter do, entries fell from 1.10 to 0.74 a ray, and a pick was 2–6%
+//! faster (BENCHMARKS.md).
 //!
-//! Exact: each side is the largest (or least) of `apply_transform`'s own row expression over
-//! the vertices, evaluated as it evaluates it, so the box is the brute force's, bit for bit. A
+//! Exact: each side is the largest (or least) of [`transform_row`](crate::scene::transform_row)
+//! over the vertices, the expression `apply_transform` evaluates, so the box is the brute
+//! force's, bit for bit. A
 //! chunk's bound is that expression at the chunk box's corner that each coefficient's sign
 //! picks; IEEE products and sums are monotone, so no vertex of the chunk exceeds it and the
 //! search may skip a chunk whose bound does not beat the best found.
 
 use crate::bvh::Bvh;
-use crate::scene::Scene;
+use crate::scene::{Scene, transform_row as row};
 use glam::DVec3;
 
 /// Vertices per chunk.
@@ -33,12 +34,6 @@ pub struct Extent {
     chunks: Vec<(DVec3, DVec3)>,
     /// Each group's box.
     groups: Vec<(DVec3, DVec3)>,
-}
-
-/// `transform` row `r` applied to `p`: `apply_transform`'s expression, operation for operation.
-#[inline(always)]
-fn row(r: &[f64; 4], p: DVec3) -> f64 {
-    r[0] * p.x + r[1] * p.y + r[2] * p.z + r[3]
 }
 
 /// The most [`row`] can be over the box `(lo, hi)`: at the corner whose every coordinate's
