@@ -252,10 +252,17 @@ impl BuiltScene {
             .bvh
             .refit_with(&self.scene, object, positions, leaf_vertices)
         {
-            self.scene.put_object_positions(object, positions);
-            if let Some(Ok(wide)) = self.wide.get_mut() {
-                wide.refit(&self.bvh);
-            }
+            // The positions go in while the engine's wide tree takes the refitted boxes: the
+            // two read and write nothing in common.
+            let (scene, bvh, wide) = (&mut self.scene, &self.bvh, self.wide.get_mut());
+            rayon::join(
+                || scene.put_object_positions(object, positions),
+                || {
+                    if let Some(Ok(wide)) = wide {
+                        wide.refit(bvh);
+                    }
+                },
+            );
             return Ok(Refit::Refitted);
         }
         // Built again on a copy of the scene, so a failed build leaves it as it was.

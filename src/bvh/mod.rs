@@ -129,7 +129,7 @@ pub(crate) fn is_traceable(scene: &Scene, index: usize, local: [Vec3; 3]) -> boo
 #[inline]
 pub(crate) fn traceable_corners(world: [DVec3; 3], [a, b, c]: [Vec3; 3]) -> bool {
     // The edges are f32 differences, as the kernel forms them, widened for the cross product.
-    let f32_area_zero = (b - a).as_dvec3().cross((c - a).as_dvec3()) == DVec3::ZERO;
+    let f32_area_zero = crate::scene::cross_is_zero((b - a).as_dvec3(), (c - a).as_dvec3());
     !f32_area_zero && !crate::scene::zero_area(world)
 }
 
