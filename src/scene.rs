@@ -102,6 +102,15 @@ pub fn check_transform(transform: &[[f64; 4]; 3]) -> std::result::Result<f64, St
     Ok(det)
 }
 
+/// The box of `points` (empty: from +∞ to −∞).
+pub(crate) fn box_of(points: impl IntoIterator<Item = DVec3>) -> (DVec3, DVec3) {
+    points
+        .into_iter()
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(p), hi.max(p))
+        })
+}
+
 /// Whether the triangle `[a, b, c]` has exactly zero area in f64 (such triangles are never hit).
 #[inline]
 pub fn zero_area([a, b, c]: [DVec3; 3]) -> bool {
@@ -312,13 +321,9 @@ impl Scene {
         use rayon::prelude::*;
         const CHUNK: usize = 1 << 14;
         let range = self.object_vertices(object);
-        let empty = || (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        let empty = || box_of([]);
         let join = |a: (DVec3, DVec3), b: (DVec3, DVec3)| (a.0.min(b.0), a.1.max(b.1));
-        let bounds_of = |points: &[DVec3]| {
-            points
-                .iter()
-                .fold(empty(), |(lo, hi), p| (lo.min(*p), hi.max(*p)))
-        };
+        let bounds_of = |points: &[DVec3]| box_of(points.iter().copied());
         let all = self.positions.to_mut();
         let (before, rest) = all.split_at_mut(range.start);
         let (moved, after) = rest.split_at_mut(range.len());

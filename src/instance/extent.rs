@@ -16,7 +16,7 @@
 //! search may skip a chunk whose bound does not beat the best found.
 
 use crate::bvh::Bvh;
-use crate::scene::{Scene, transform_row as row};
+use crate::scene::{Scene, box_of, transform_row as row};
 use glam::DVec3;
 
 /// Vertices per chunk.
@@ -47,13 +47,6 @@ fn upper(r: &[f64; 4], (lo, hi): &(DVec3, DVec3)) -> f64 {
         pick(r[2], lo.z, hi.z),
     );
     row(r, corner)
-}
-
-/// The box of `points`.
-fn box_of(points: impl Iterator<Item = DVec3>) -> (DVec3, DVec3) {
-    points.fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
-        (lo.min(p), hi.max(p))
-    })
 }
 
 impl Extent {
