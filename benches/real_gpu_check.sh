@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The checks a real GPU gets when a session is lent one (BENCHMARKS.md, "A real GPU at …"): the
-# test binaries that compare the GPU with the other paths, `raypick verify --random 1000000` on
+# test modules that compare the GPU with the other paths, `raypick verify --random 1000000` on
 # the bunny, the dragon and the Jacksboro DEM, byte-identical `pick` CSV across the GPU, the
 # engine and the twin on 1M camera and incoherent rays, and the GPU's and the engine's
 # throughput there. Two halves, because the GPU's machine has no Rust toolchain and no network:
@@ -15,6 +15,7 @@
 # with `apt-get download` (NVIDIA's Vulkan driver needs glvnd's libraries beside the loader).
 set -uo pipefail
 cd "$(dirname "$0")/.."
+# Modules of the one integration-test binary (tests/suite), run one by one.
 tests="csv_identity engine equivalence instances modes precision refit semantics transforms watertight gpu_pipeline render"
 scenes="tests/data/bunny.obj d/dragon_res2.obj tests/data/jacksboro_fault_dem_utm.asc"
 
@@ -28,9 +29,7 @@ for line in sys.stdin:
     m = json.loads(line)
     if m.get("reason") == "compiler-artifact" and m.get("executable") and m["target"]["kind"] == ["test"]:
         print(m["target"]["name"], m["executable"])' >"$dir/tests.txt"
-    for t in $tests; do
-        strip -o "$dir/$t" "$(awk -v t="$t" '$1 == t {print $2}' "$dir/tests.txt")"
-    done
+    strip -o "$dir/suite" "$(awk '$1 == "suite" {print $2}' "$dir/tests.txt")"
     cargo build --release --quiet
     strip -o "$dir/raypick" target/release/raypick
     cp ../shared/data/dragon_res2.obj "$dir/"
@@ -65,7 +64,7 @@ run() {
     done; touch /tmp/rs.done) >$logs/raysets.log 2>&1 &
     for t in $tests; do
         local start=$SECONDS
-        (cd /work/main && timeout 100 "d/$t" >"$logs/$t.log" 2>&1)
+        (cd /work/main && timeout 100 d/suite "$t::" >"$logs/$t.log" 2>&1)
         say "$t rc=$? $((SECONDS - start))s $(grep -E '^test result' "$logs/$t.log" | tail -1)"
     done
     say "marker: $(cat target/tmp/gpu-tests-ran)"

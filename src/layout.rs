@@ -2,7 +2,7 @@
 //!
 //! These `#[repr(C)]` Pod structs are the only way bytes reach the GPU. Each one has a WGSL twin
 //! with the same name; the asserts below pin sizes and offsets at compile time, and
-//! `tests/layout.rs` parses the shader with naga and checks the WGSL side against the same numbers.
+//! `tests/suite/layout.rs` parses the shader with naga and checks the WGSL side against the same numbers.
 
 use bytemuck::{Pod, Zeroable};
 use std::mem::{offset_of, size_of};
@@ -203,7 +203,7 @@ pub struct GpuInstance {
 /// One shared struct's name, size and `(member, offset)` list.
 pub type StructLayout = (&'static str, usize, &'static [(&'static str, usize)]);
 
-/// Expected layout of each shared struct; `tests/layout.rs` checks the WGSL against it.
+/// Expected layout of each shared struct; `tests/suite/layout.rs` checks the WGSL against it.
 pub const SHARED_LAYOUTS: &[StructLayout] = &[
     (
         "GpuNode",

@@ -98,7 +98,7 @@ pub enum CameraSpec {
 ///
 /// Serializes as its [`CameraSpec`], and deserializing checks it like [`Camera::from_spec`].
 /// Numbers read back bit for bit: this crate enables serde_json's `float_roundtrip`
-/// (`tests/camera.rs` holds it to that).
+/// (`tests/suite/camera.rs` holds it to that).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(into = "CameraSpec", try_from = "CameraSpec")]
 pub struct Camera {

@@ -21,7 +21,7 @@
 //! file order. Numbers follow Rust's `f64` syntax and are read correctly rounded. A piece with
 //! anything unusual in it (an error, a NaN or infinite value, non-ASCII text) is read again a
 //! line at a time with `str::parse`, which finds the first error and its line, so the rules and
-//! messages are those of the sequential reader this one replaced (`tests/asc_reader.rs` checks).
+//! messages are those of the sequential reader this one replaced (`tests/suite/asc_reader.rs` checks).
 
 use std::io::{BufRead, BufReader, Read};
 use std::ops::Range;

@@ -3,7 +3,7 @@
 //! time in eight f32 lanes ([`lanes8`]: one AVX register, or two sets of four [`lanes`]).
 //!
 //! It answers exactly what the kernel and its twin (`cpu::traverse`, `--backend reference`)
-//! answer, bit for bit, in every mode; `tests/engine.rs` holds it to that on every scene, ray
+//! answer, bit for bit, in every mode; `tests/suite/engine.rs` holds it to that on every scene, ray
 //! kind and mode, with SIMD and with the portable lanes.
 
 pub mod instanced;

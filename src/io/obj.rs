@@ -9,7 +9,7 @@
 //! (`mtllib`, `usemtl`), smoothing groups, vertex colours, `l` (polyline) and `p` (point)
 //! elements are ignored. The rules are those of the `tobj`-based reader this one replaced (on
 //! every file that reader read, the vertex values and triangles are the same, bit for bit, and
-//! so are the errors; `tests/obj_reader.rs` checks), plus line continuations:
+//! so are the errors; `tests/suite/obj_reader.rs` checks), plus line continuations:
 //!
 //! - A `#` starts a comment, to the end of the line; a byte-order mark at the start is skipped;
 //!   lines end with `\n` or `\r\n`.

@@ -9,7 +9,7 @@
 //! change an error, so the geometric invariants of [`Bvh::validate`] (boxes nested, leaf
 //! triangles inside their boxes) and the leaf triangles' equality with the scene's are not
 //! checked again on every load: they cost more than the rest of the load together, and a box
-//! that breaks them changes answers, never safety. `tests/rpk.rs` checks them on saved files.
+//! that breaks them changes answers, never safety. `tests/suite/rpk.rs` checks them on saved files.
 
 use super::read::{Parts, problem};
 use super::records::{ObjectRecord, Summary};

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Writes the hostile corpus of tests/hostile_files.rs into this folder (standard library only).
+"""Writes the hostile corpus of tests/suite/hostile_files.rs into this folder (standard library only).
 
 Each file is small (under 100 KB) and named for what it tries; README.md lists them. Run it from
 anywhere: `python3 tests/data/hostile/make_corpus.py`. The output is deterministic.

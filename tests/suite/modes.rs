@@ -1,7 +1,7 @@
 //! Every query mode and option agrees on GPU, CPU and brute force: closest, any and all hits;
 //! back- and front-face culling; layer masks; the watertight intersector.
 
-mod common;
+use crate::common;
 
 use common::assert_query_equivalent;
 use raypick::check::synthetic::{example_scene, hills, mixed_rays, terrain, triangle_soup};

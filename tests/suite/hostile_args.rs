@@ -6,7 +6,7 @@
 //! named as a format the command does not write.
 //!
 //! Every refusal is exit code 2 with one sentence on standard error that names the value, never
-//! a panic or an abort. This file owns those checks; `tests/cli.rs` owns ordinary CLI behaviour.
+//! a panic or an abort. This file owns those checks; `tests/suite/cli.rs` owns ordinary CLI behaviour.
 
 use glam::DVec3;
 use raypick::check::oracle::brute_force_query;

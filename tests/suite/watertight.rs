@@ -1,7 +1,7 @@
 //! Watertightness: probes aimed exactly at shared edges and interior vertices of a closed sphere
 //! and of a terrain never slip through with the watertight intersector, on either path.
 
-mod common;
+use crate::common;
 
 use glam::DVec3;
 use raypick::check::probe::{edge_probes, leaks};

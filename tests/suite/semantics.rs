@@ -1,7 +1,7 @@
 //! The documented hit semantics, on both backends: t in (tmin, tmax], inclusive edges, zero-area
 //! triangles never hit, invalid rays flagged, huge batches chunked, exact f64 positions.
 
-mod common;
+use crate::common;
 
 use glam::DVec3;
 use raypick::check::synthetic::{single_triangle, terrain};

@@ -1,6 +1,6 @@
 //! GPU, CPU and brute force agree on every scene and ray kind: zero mismatches.
 
-mod common;
+use crate::common;
 
 use common::check_scene;
 use raypick::check::synthetic::{

@@ -2,7 +2,7 @@
 //! the same raw records bit for bit on a software adapter such as lavapipe, which rounds like
 //! the CPU), and sizes the adapter cannot run are refused with `Error::WorkgroupSize`.
 
-mod common;
+use crate::common;
 
 use common::gpu;
 use raypick::check::compare::compare_answers;

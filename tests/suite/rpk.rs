@@ -6,7 +6,7 @@
 //! the same answers), never a panic or a hang; a file whose flips are checksummed again is
 //! refused by the structural checks or picks without error.
 
-mod common;
+use crate::common;
 
 use raypick::check::synthetic::{
     box_mesh, example_scene, hills, mixed_rays, terrain, thin_and_degenerate, triangle_soup,
@@ -616,7 +616,7 @@ fn resealed_flips_are_refused_by_the_checks_or_pick_safely() {
 /// What a saved scene holds, and how fast it loads: the dragon (`RPK_BENCH` names another OBJ)
 /// and four copies of it side by side (about the 871k-triangle dragon's size).
 #[test]
-#[ignore = "a measurement: cargo test --release --test rpk -- --ignored --nocapture"]
+#[ignore = "a measurement: cargo test --release --test suite -- --ignored --nocapture rpk::"]
 fn loading_a_saved_dragon_is_fast() {
     let obj = std::env::var_os("RPK_BENCH").map_or_else(
         || Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/dragon_res2.obj"),
@@ -686,7 +686,7 @@ fn loading_a_saved_dragon_is_fast() {
 /// One load of the file `RPK_FILE` in a process that does nothing else (the first load of a
 /// process pays for fresh memory): `RPK_KEEP=1` keeps the files of the measurement above.
 #[test]
-#[ignore = "a measurement: RPK_FILE=x.rpk cargo test --release --test rpk -- --ignored --nocapture one_load"]
+#[ignore = "a measurement: RPK_FILE=x.rpk cargo test --release --test suite -- --ignored --nocapture rpk::one_load"]
 fn one_load_in_a_fresh_process() {
     let path = PathBuf::from(std::env::var_os("RPK_FILE").expect("RPK_FILE names a .rpk file"));
     let start = Instant::now();

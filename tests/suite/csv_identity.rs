@@ -3,7 +3,7 @@
 //! `grid` for a DEM) answers, on a test mesh and a test DEM, edge and vertex rays included. The
 //! tie rule is what makes this hold.
 
-mod common;
+use crate::common;
 
 use raypick::check::synthetic::mixed_rays;
 use raypick::io::scene_files::{SceneFile, load_scene};

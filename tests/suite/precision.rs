@@ -2,7 +2,7 @@
 //! y ≈ 4·10^6 m) and geocentric ones (≈ 6.4·10^6 m), each pick lands within 1 mm of the exact
 //! f64 intersection with the same triangle, and rays aimed at known DEM samples return them.
 
-mod common;
+use crate::common;
 
 use glam::{DMat3, DVec3};
 use raypick::apps::camera::Camera;

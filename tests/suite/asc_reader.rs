@@ -6,7 +6,7 @@
 //!
 //! Throughput, old against new (median of 5 loads of a generated 2049 × 2049 grid), and the
 //! GeoTIFF load rates:
-//! `cargo test --release --test asc_reader -- --ignored --nocapture`.
+//! `cargo test --release --test suite -- --ignored --nocapture asc_reader::`.
 
 use std::io::{BufReader, Read};
 use std::path::{Path, PathBuf};

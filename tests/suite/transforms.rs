@@ -4,7 +4,7 @@
 //! and reports u and v for the file's vertex order; a file listed twice is two objects; bad
 //! matrices are refused with a sentence naming the object; mirrored scenes survive `.rpk`.
 
-mod common;
+use crate::common;
 
 use glam::DVec3;
 use raypick::check::synthetic::{box_mesh, icosphere, mixed_rays};

@@ -298,7 +298,7 @@ fn ply_bytes(mesh: &Mesh, style: PlyStyle) -> Vec<u8> {
     };
     let c = style.coordinate;
     let mut header =
-        format!("ply\nformat {format} 1.0\ncomment written by tests/mesh_formats.rs\n");
+        format!("ply\nformat {format} 1.0\ncomment written by tests/suite/mesh_formats.rs\n");
     if style.extras {
         header += "obj_info an element before the vertices, to skip\n\
                    element material 2\nproperty uchar id\nproperty list uchar float params\n";
@@ -386,7 +386,7 @@ fn ply_bytes(mesh: &Mesh, style: PlyStyle) -> Vec<u8> {
 
 /// `mesh` as an ascii STL, numbers written as the shortest text of their f64 values.
 fn stl_ascii(mesh: &Mesh) -> Vec<u8> {
-    let mut out = String::from("solid bunny written by tests/mesh_formats.rs\n");
+    let mut out = String::from("solid bunny written by tests/suite/mesh_formats.rs\n");
     for [a, b, c] in corners(mesh) {
         let n = (b - a).cross(c - a).normalize_or_zero();
         out += &format!(
@@ -1289,7 +1289,7 @@ fn loading_peaks_within_one_and_a_half_times_the_scene() {
         let out = Command::new(std::env::current_exe().unwrap())
             .args([
                 "--exact",
-                "child_loads_one_scene_file",
+                &crate::child_test_name(module_path!(), "child_loads_one_scene_file"),
                 "--ignored",
                 "--nocapture",
             ])

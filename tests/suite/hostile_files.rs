@@ -516,10 +516,11 @@ fn child(name: &str) -> String {
     } else {
         Command::new(std::env::current_exe().unwrap())
     };
+    let exact = crate::child_test_name(module_path!(), name);
     let out = command
         .args([
             "--exact",
-            name,
+            &exact,
             "--ignored",
             "--nocapture",
             "--test-threads=1",

@@ -7,7 +7,7 @@
 //! becomes degenerate, or stops being so, makes the tree build again; bad positions change
 //! nothing.
 
-mod common;
+use crate::common;
 
 use glam::{DMat3, DVec3, Vec3};
 use raypick::auto::AutoPicker;

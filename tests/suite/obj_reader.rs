@@ -5,7 +5,7 @@
 //! not have.
 //!
 //! Throughput, old against new (median of 5 reads after one warm-up):
-//! `OBJ_BENCH=path/to/big.obj cargo test --release --test obj_reader -- --ignored --nocapture`
+//! `OBJ_BENCH=path/to/big.obj cargo test --release --test suite -- --ignored --nocapture obj_reader::`
 //! (default: `../shared/data/dragon_res2.obj`).
 
 use std::path::{Path, PathBuf};

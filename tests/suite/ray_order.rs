@@ -1,7 +1,7 @@
 //! Ray reordering never changes an answer: the permutation round-trips, and both pickers give
 //! the same answers (bit for bit) with and without it, in every query mode.
 
-mod common;
+use crate::common;
 
 use common::gpu;
 use proptest::prelude::*;

@@ -3,7 +3,7 @@
 //! answer exactly like the median-cut tree and the f64 oracle on the CPU path, and on the GPU.
 //! `sah_cost` scores trees by hand-checkable numbers.
 
-mod common;
+use crate::common;
 
 use glam::DVec3;
 use proptest::prelude::*;

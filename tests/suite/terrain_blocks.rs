@@ -2,7 +2,7 @@
 //! over them. Its trees are valid, identical on any thread count, cover every block exactly once,
 //! and give the same answers as the median-cut tree, the GPU and the brute-force oracle.
 
-mod common;
+use crate::common;
 
 use common::assert_equivalent;
 use raypick::bvh::terrain_blocks::BLOCK_CELLS;

@@ -4,7 +4,7 @@
 //! brute-force oracle answers the instances baked into world triangles, with 0 mismatches; the
 //! twin and the GPU agree bit for bit; hits report the instance and the mesh's own triangle.
 
-mod common;
+use crate::common;
 
 use common::assert_query_equivalent;
 use glam::{DMat3, DQuat, DVec3};

@@ -4,7 +4,7 @@
 //! shows the tower's colour; rays into the sky show the sky; the sun lights the north-west; near
 //! is light in depth shading; PNG output decodes back to the same pixels.
 
-mod common;
+use crate::common;
 
 use glam::DVec3;
 use raypick::apps::camera::Camera;

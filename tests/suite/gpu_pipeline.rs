@@ -3,7 +3,7 @@
 //! dispatches with the host's conversion and refinement overlapped, give the twin's answers;
 //! the overlapped pipeline refuses a tracer that fails or answers short.
 
-mod common;
+use crate::common;
 
 use common::gpu;
 use raypick::check::compare::differences;

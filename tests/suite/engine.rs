@@ -1,9 +1,9 @@
 //! The CPU engine (`--backend cpu`): its wide tree is the binary tree regrouped, and under the
 //! tie rule every builder and every backend gives the same answers, bit for bit. (The engine
 //! against the twin, the GPU and the oracle on every scene, ray kind and mode runs in
-//! `tests/common`'s equivalence check, used by `equivalence.rs` and `modes.rs`.)
+//! `tests/suite/common`'s equivalence check, used by `equivalence.rs` and `modes.rs`.)
 
-mod common;
+use crate::common;
 
 use raypick::check::compare::differences;
 use raypick::check::synthetic::{RayKind, hills, mixed_rays, rays, terrain, triangle_soup};

@@ -1,0 +1,58 @@
+//! raypick's integration tests, in one test binary (`cargo test --test suite`; one module's
+//! tests: `cargo test --test suite engine::`). One binary links raypick, wgpu, axum and tokio
+//! once, where one binary per file linked them 37 times, and its tests share one GPU context.
+//! Each module is one concern, as each file was; `common` is the shared plumbing (the GPU
+//! context, the equivalence checks).
+//!
+//! The tests of different modules run side by side in one process: a test never changes the
+//! process's state (environment, working folder, global thread pool), and the few that need a
+//! fresh process (peak memory, an address-space limit) run themselves again as a child
+//! ([`child_test_name`]).
+
+mod common;
+
+mod asc_reader;
+mod build;
+mod camera;
+mod cli;
+mod cli_build;
+mod compare;
+mod csv_identity;
+mod dem;
+mod engine;
+mod equivalence;
+mod gltf;
+mod gpu_limits;
+mod gpu_pipeline;
+mod hostile_args;
+mod hostile_files;
+mod instances;
+mod layout;
+mod mesh_formats;
+mod modes;
+mod names;
+mod obj_reader;
+mod precision;
+mod ray_order;
+mod readme_examples;
+mod refit;
+mod render;
+mod rpk;
+mod sah;
+mod semantics;
+mod server;
+mod server_edits;
+mod server_limits;
+mod server_load;
+mod terrain_blocks;
+mod transforms;
+mod watertight;
+mod workgroup_size;
+
+/// The name the test harness knows test `name` of module `module` by (`module_path!()` there:
+/// `suite::rpk`), for a test that runs another of its module's tests in a child process with
+/// `--exact`.
+pub fn child_test_name(module: &str, name: &str) -> String {
+    let module = module.split_once("::").map_or("", |(_, rest)| rest);
+    format!("{module}::{name}")
+}
