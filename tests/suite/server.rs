@@ -25,20 +25,7 @@ fn example() -> Arc<BuiltScene> {
 /// runs on its own runtime thread until the test binary exits.
 fn start(built: Arc<BuiltScene>, backend: Backend, config: ServerConfig) -> String {
     let server = Server::new(built, backend, config).expect("the server starts");
-    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
-    listener.set_nonblocking(true).expect("nonblocking");
-    let addr = listener.local_addr().expect("address");
-    std::thread::spawn(move || {
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-            .expect("runtime");
-        runtime.block_on(async move {
-            let listener = tokio::net::TcpListener::from_std(listener).expect("listener");
-            server.serve(listener).await.expect("serve");
-        });
-    });
+    let addr = crate::common::serve(server);
     format!("http://{addr}")
 }
 

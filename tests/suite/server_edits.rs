@@ -70,20 +70,7 @@ fn start_with(backend: Backend, config: ServerConfig) -> String {
 
 fn start_scene(scene: Arc<BuiltScene>, backend: Backend, config: ServerConfig) -> String {
     let server = Server::new(scene, backend, config).expect("the server starts");
-    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
-    listener.set_nonblocking(true).expect("nonblocking");
-    let addr = listener.local_addr().expect("address");
-    std::thread::spawn(move || {
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-            .expect("runtime");
-        runtime.block_on(async move {
-            let listener = tokio::net::TcpListener::from_std(listener).expect("listener");
-            server.serve(listener).await.expect("serve");
-        });
-    });
+    let addr = crate::common::serve(server);
     format!("http://{addr}")
 }
 

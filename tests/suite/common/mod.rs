@@ -206,3 +206,24 @@ pub fn assert_query_equivalent(
     );
     cpu
 }
+
+/// Serves `server` on an ephemeral loopback port, on a runtime thread of its own until the test
+/// binary exits (the server, server-edit and server-limit tests' one way to start one); returns
+/// its address.
+pub fn serve(server: raypick::server::Server) -> std::net::SocketAddr {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    listener.set_nonblocking(true).expect("nonblocking");
+    let addr = listener.local_addr().expect("address");
+    std::thread::spawn(move || {
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .expect("runtime");
+        runtime.block_on(async move {
+            let listener = tokio::net::TcpListener::from_std(listener).expect("listener");
+            server.serve(listener).await.expect("serve");
+        });
+    });
+    addr
+}
