@@ -6,7 +6,7 @@
 use glam::DVec3;
 use raypick::apps::camera::Camera;
 use raypick::check::synthetic::{RayKind, example_scene, mixed_rays, rays as synthetic_rays};
-use raypick::server::{Server, ServerConfig};
+use raypick::server::ServerConfig;
 use raypick::{
     Answers, Backend, BuildOptions, BuiltScene, Cull, GpuContext, GpuPicker, Hit, Intersector,
     Mode, Picker, Query, Ray,
@@ -24,9 +24,7 @@ fn example() -> Arc<BuiltScene> {
 /// Starts a server over `built` on an ephemeral loopback port; returns its base URL. The server
 /// runs on its own runtime thread until the test binary exits.
 fn start(built: Arc<BuiltScene>, backend: Backend, config: ServerConfig) -> String {
-    let server = Server::new(built, backend, config).expect("the server starts");
-    let addr = crate::common::serve(server);
-    format!("http://{addr}")
+    format!("http://{}", crate::common::serve(built, backend, config))
 }
 
 fn agent() -> ureq::Agent {

@@ -7,7 +7,7 @@
 
 use glam::DVec3;
 use raypick::check::synthetic::{box_mesh, terrain};
-use raypick::server::{Server, ServerConfig};
+use raypick::server::ServerConfig;
 use raypick::{Backend, BuildOptions, BuiltScene, Scene};
 use serde_json::{Value, json};
 use std::sync::Arc;
@@ -69,9 +69,7 @@ fn start_with(backend: Backend, config: ServerConfig) -> String {
 }
 
 fn start_scene(scene: Arc<BuiltScene>, backend: Backend, config: ServerConfig) -> String {
-    let server = Server::new(scene, backend, config).expect("the server starts");
-    let addr = crate::common::serve(server);
-    format!("http://{addr}")
+    format!("http://{}", crate::common::serve(scene, backend, config))
 }
 
 fn agent() -> ureq::Agent {

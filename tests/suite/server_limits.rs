@@ -8,7 +8,7 @@
 //! loop is bounded; the whole file runs in a few seconds.
 
 use raypick::check::synthetic::example_scene;
-use raypick::server::{Server, ServerConfig};
+use raypick::server::ServerConfig;
 use raypick::{Backend, BuildOptions, BuiltScene};
 use std::io::{ErrorKind, Read, Write};
 use std::net::{SocketAddr, TcpStream};
@@ -21,8 +21,7 @@ fn start(config: ServerConfig) -> SocketAddr {
     let built = Arc::new(
         BuiltScene::new(example_scene(), &BuildOptions::default()).expect("example builds"),
     );
-    let server = Server::new(built, Backend::Cpu, config).expect("the server starts");
-    crate::common::serve(server)
+    crate::common::serve(built, Backend::Cpu, config)
 }
 
 /// A connection with a read timeout of `wait`.

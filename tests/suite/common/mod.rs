@@ -207,10 +207,15 @@ pub fn assert_query_equivalent(
     cpu
 }
 
-/// Serves `server` on an ephemeral loopback port, on a runtime thread of its own until the test
-/// binary exits (the server, server-edit and server-limit tests' one way to start one); returns
-/// its address.
-pub fn serve(server: raypick::server::Server) -> std::net::SocketAddr {
+/// Starts a server over `built` on an ephemeral loopback port, on a runtime thread of its own
+/// until the test binary exits (the server, server-edit and server-limit tests' one way to start
+/// one); returns its address.
+pub fn serve(
+    built: Arc<BuiltScene>,
+    backend: raypick::Backend,
+    config: raypick::server::ServerConfig,
+) -> std::net::SocketAddr {
+    let server = raypick::server::Server::new(built, backend, config).expect("the server starts");
     let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
     listener.set_nonblocking(true).expect("nonblocking");
     let addr = listener.local_addr().expect("address");
