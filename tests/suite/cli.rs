@@ -2,17 +2,7 @@
 
 use std::process::Command;
 
-fn raypick(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
-        .args(args)
-        .output()
-        .expect("run raypick");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+use crate::common::raypick;
 
 fn temp_file(name: &str, text: &str) -> String {
     let path = std::env::temp_dir().join(format!("raypick-cli-{}-{name}", std::process::id()));

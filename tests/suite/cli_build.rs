@@ -3,20 +3,8 @@
 //! or a damaged file is exit 2 with one sentence naming the file.
 
 use std::path::Path;
-use std::process::Command;
 
-fn raypick(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
-        .args(args)
-        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-        .output()
-        .expect("the binary runs");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+use crate::common::raypick;
 
 fn tmp(name: &str) -> String {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("cli_build");

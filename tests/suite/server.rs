@@ -28,12 +28,7 @@ fn start(built: Arc<BuiltScene>, backend: Backend, config: ServerConfig) -> Stri
 }
 
 fn agent() -> ureq::Agent {
-    ureq::Agent::config_builder()
-        .http_status_as_error(false)
-        .proxy(None)
-        .timeout_global(Some(Duration::from_secs(300)))
-        .build()
-        .into()
+    crate::common::http_agent(Duration::from_secs(300))
 }
 
 /// GET: status, content type, body bytes.

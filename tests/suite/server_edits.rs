@@ -73,12 +73,7 @@ fn start_scene(scene: Arc<BuiltScene>, backend: Backend, config: ServerConfig) -
 }
 
 fn agent() -> ureq::Agent {
-    ureq::Agent::config_builder()
-        .http_status_as_error(false)
-        .proxy(None)
-        .timeout_global(Some(Duration::from_secs(120)))
-        .build()
-        .into()
+    crate::common::http_agent(Duration::from_secs(120))
 }
 
 /// Sends `body` (if any) with `method`: status and JSON answer.

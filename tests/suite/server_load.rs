@@ -138,12 +138,7 @@ fn rss(pid: u32) -> u64 {
 }
 
 fn agent() -> ureq::Agent {
-    ureq::Agent::config_builder()
-        .http_status_as_error(false)
-        .proxy(None)
-        .timeout_global(Some(Duration::from_secs(120)))
-        .build()
-        .into()
+    crate::common::http_agent(Duration::from_secs(120))
 }
 
 /// One request: what to send.

@@ -232,3 +232,29 @@ pub fn serve(
     });
     addr
 }
+
+/// Runs the `raypick` binary with `args` (and a runtime folder for the Vulkan loader); returns
+/// its exit code (-1 when a signal ended it), standard output and standard error.
+pub fn raypick(args: &[&str]) -> (i32, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_raypick"))
+        .args(args)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .expect("run raypick");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// An HTTP client for the server tests: 4xx and 5xx answers returned, not errors; no proxy; the
+/// whole of each request within `timeout`.
+pub fn http_agent(timeout: std::time::Duration) -> ureq::Agent {
+    ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .proxy(None)
+        .timeout_global(Some(timeout))
+        .build()
+        .into()
+}
