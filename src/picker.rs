@@ -208,6 +208,30 @@ impl BuiltScene {
         }
     }
 
+    /// The triangles with area that the tree's single-precision frame loses, which no ray can
+    /// hit ([`crate::bvh::lost`]); an instanced scene's counted once per mesh (each in its own
+    /// frame), the first named by the first instance placing it.
+    pub fn lost_triangles(&self) -> crate::bvh::Lost {
+        let Some(i) = &self.instances else {
+            return crate::bvh::lost_triangles(&self.scene, &self.bvh);
+        };
+        let mut all = crate::bvh::Lost::default();
+        for (m, mesh) in i.meshes().iter().enumerate() {
+            let lost = crate::bvh::lost_triangles(&mesh.scene, &mesh.bvh);
+            if all.first.is_none()
+                && let Some((_, triangle)) = lost.first
+            {
+                all.first = i
+                    .instances()
+                    .iter()
+                    .position(|p| p.mesh as usize == m)
+                    .map(|k| (k as u32, triangle));
+            }
+            all.triangles += lost.triangles;
+        }
+        all
+    }
+
     /// Whether some object is a height grid (hits on it report cells).
     pub fn has_grid(&self) -> bool {
         match &self.instances {

@@ -6,6 +6,7 @@
 //! [`validate`] checks the invariants.
 
 pub mod binned_sah;
+pub mod lost;
 pub mod median_cut;
 pub mod options;
 mod refit;
@@ -15,6 +16,7 @@ pub mod terrain_blocks;
 mod top_down;
 pub mod validate;
 
+pub use lost::{Lost, lost_triangles};
 pub use options::{BuildOptions, Builder, SplitAxis};
 pub use terrain_blocks::Block;
 
@@ -104,28 +106,45 @@ pub(crate) fn local_positions(scene: &Scene, origin: DVec3) -> Vec<Vec3> {
     local
 }
 
+/// Whether every vertex of `scene` has a finite f32 offset from `origin` (then no triangle
+/// needs [`is_traceable`]'s check of its own offsets): the bounds' corners' offsets are, and
+/// rounding is monotone.
+pub(crate) fn frame_holds(scene: &Scene, origin: DVec3) -> bool {
+    scene.bounds().is_none_or(|(lo, hi)| {
+        (lo - origin)
+            .abs()
+            .max((hi - origin).abs())
+            .as_vec3()
+            .is_finite()
+    })
+}
+
 /// Scene triangle `index` as f32 offsets (from [`local_positions`]), or `None` when it can
-/// never be hit (see [`is_traceable`]).
+/// never be hit (see [`is_traceable`]; `holds`: [`frame_holds`]).
 pub(crate) fn traceable_triangle(
     scene: &Scene,
     local_positions: &[Vec3],
     index: usize,
+    holds: bool,
 ) -> Option<[Vec3; 3]> {
     let local = scene
         .triangle_vertices(index)
         .map(|v| local_positions[v as usize]);
-    is_traceable(scene, index, local).then_some(local)
+    is_traceable(scene, index, local, holds).then_some(local)
 }
 
 /// Whether scene triangle `index`, whose f32 offsets are `local`, can be hit: not zero area in
-/// f64 and not zero area once rounded to f32. Other triangles are left out of every tree and
-/// keep their ids.
-pub(crate) fn is_traceable(scene: &Scene, index: usize, local: [Vec3; 3]) -> bool {
-    traceable_corners(scene.world_triangle(index), local)
+/// f64 and not zero area once rounded to f32, its offsets finite (in a scene too wide for f32
+/// offsets no ray could reach it; `holds`: the frame holds every offset, [`frame_holds`]).
+/// Other triangles are left out of every tree and keep their ids.
+pub(crate) fn is_traceable(scene: &Scene, index: usize, local: [Vec3; 3], holds: bool) -> bool {
+    (holds || local.iter().all(|p| p.is_finite()))
+        && traceable_corners(scene.world_triangle(index), local)
 }
 
 /// [`is_traceable`] for a triangle with world corners `world` and f32 offsets `local`: neither
-/// has zero area (`Scene::is_degenerate`'s test on the world corners).
+/// has zero area (`Scene::is_degenerate`'s test on the world corners). Offsets that are not
+/// finite are the caller's to find ([`is_traceable`]; the refit, in its root's box).
 #[inline]
 pub(crate) fn traceable_corners(world: [DVec3; 3], [a, b, c]: [Vec3; 3]) -> bool {
     // The edges are f32 differences, as the kernel forms them, widened for the cross product.

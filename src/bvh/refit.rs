@@ -5,7 +5,7 @@
 //! Boxes are the min/max of their triangles' f32 corners, exactly as the builders make them, so
 //! the refitted tree holds the same triangles in boxes that are exact for them. Only when a
 //! triangle's traceability changes (it becomes degenerate, or stops being so) does the tree
-//! need building again ([`Bvh::refit`] says so).
+//! need building again ([`Bvh::refit`] says so), or when an offset leaves f32's range.
 
 use super::{Bvh, traceable_corners};
 use crate::layout::{GpuNode, GpuTriangle, KIND_INNER};
@@ -135,6 +135,13 @@ impl Bvh {
             refit_serially(nodes, 0, triangles, 0, &leaves);
         }
         if lost.load(Ordering::Relaxed) {
+            return false;
+        }
+        // An offset past f32's range (the object moved too far for this frame) shows in the
+        // root's box: such triangles cannot be traced (`bvh::is_traceable`), so build again.
+        if let Some(root) = self.nodes.first()
+            && !(Vec3::from(root.min).is_finite() && Vec3::from(root.max).is_finite())
+        {
             return false;
         }
         let (ids, blocks) = (&self.triangle_ids, &mut self.blocks);

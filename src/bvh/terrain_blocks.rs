@@ -204,6 +204,7 @@ impl<'a> Grid<'a> {
         );
         let origin = scene.origin();
         let local_positions = super::local_positions(scene, origin);
+        let holds = super::frame_holds(scene, origin);
         let first_triangle = object.first_triangle;
         let traceable: Vec<u8> = (0..cell_rows as usize * cell_cols as usize)
             .into_par_iter()
@@ -214,7 +215,7 @@ impl<'a> Grid<'a> {
                     let local = scene
                         .triangle_vertices(index)
                         .map(|v| local_positions[v as usize]);
-                    bits | (u8::from(is_traceable(scene, index, local)) << h)
+                    bits | (u8::from(is_traceable(scene, index, local, holds)) << h)
                 })
             })
             .collect();

@@ -63,10 +63,11 @@ pub(super) fn build_with(
     // the untraceable triangles (rare) taken out in order.
     const LEFT_OUT: u32 = u32::MAX;
     let local = local_positions(scene, origin);
+    let holds = super::frame_holds(scene, origin);
     let mut prims: Vec<PrimRef> = Vec::new();
     (0..scene.triangle_count())
         .into_par_iter()
-        .map(|i| match traceable_triangle(scene, &local, i) {
+        .map(|i| match traceable_triangle(scene, &local, i, holds) {
             Some([a, b, c]) => PrimRef {
                 min: a.min(b).min(c),
                 max: a.max(b).max(c),

@@ -1,0 +1,155 @@
+//! Triangles a tree's single-precision frame loses: they have area in f64, but rounded to f32
+//! offsets from the tree's origin they have none, or their offsets are not finite. Every
+//! builder leaves them out (`is_traceable`), so no ray can hit them, on any backend. A scene
+//! loses them when it is wide for the size of its parts: offsets from the centre of a scene
+//! 10⁹ units across are rounded to 64 units, so a one-unit triangle at one end of it collapses.
+//! The command line warns about them; the server refuses an edit that would lose more.
+
+use super::Bvh;
+use crate::scene::Scene;
+use rayon::prelude::*;
+
+/// What a tree loses of its scene (see the module docs).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Lost {
+    /// Triangles with area in f64 that the tree leaves out.
+    pub triangles: usize,
+    /// The first of them, as `(object id, triangle id within the object)`.
+    pub first: Option<(u32, u32)>,
+}
+
+impl Lost {
+    /// A sentence naming how many triangles are lost and the first, for a message; empty when
+    /// none is.
+    pub fn describe(&self) -> String {
+        match self.first {
+            Some((object, triangle)) => format!(
+                "{} triangle(s) with area (the first: object {object}'s triangle {triangle}) \
+                 have none once rounded into the scene's single-precision frame, so they can \
+                 never be hit",
+                self.triangles
+            ),
+            None => String::new(),
+        }
+    }
+}
+
+/// The triangles of `scene` with area in f64 that `bvh` (built over `scene`) leaves out. Costs
+/// nothing when the tree holds every triangle; otherwise one pass over the scene's triangles.
+pub fn lost_triangles(scene: &Scene, bvh: &Bvh) -> Lost {
+    let n = scene.triangle_count();
+    if bvh.triangle_ids.len() >= n {
+        return Lost::default();
+    }
+    let mut held = vec![false; n];
+    for &id in bvh.triangle_ids.iter() {
+        if let Some(h) = held.get_mut(id as usize) {
+            *h = true;
+        }
+    }
+    let lost: Vec<u32> = (0..n)
+        .into_par_iter()
+        .filter(|&i| !held[i] && !scene.is_degenerate(i))
+        .map(|i| i as u32)
+        .collect();
+    Lost {
+        triangles: lost.len(),
+        first: lost.first().map(|&i| scene.locate(i)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bvh::BuildOptions;
+    use crate::scene::Mesh;
+    use glam::DVec3;
+
+    /// A unit triangle at the origin, a degenerate one, and a unit triangle at `far` on x.
+    fn scene(far: f64) -> Scene {
+        let mut scene = Scene::new();
+        let at = |x: f64| {
+            vec![
+                DVec3::new(x, 0.0, 0.0),
+                DVec3::new(x + 1.0, 0.0, 0.0),
+                DVec3::new(x, 1.0, 0.0),
+            ]
+        };
+        let mut positions = at(0.0);
+        positions.extend(at(far));
+        positions.push(DVec3::new(2.0, 0.0, 0.0));
+        scene
+            .add_mesh(
+                "m",
+                Mesh {
+                    positions,
+                    triangles: vec![[0, 1, 2], [0, 1, 6], [3, 4, 5]],
+                },
+            )
+            .unwrap();
+        scene
+    }
+
+    fn lost(far: f64) -> Lost {
+        let scene = scene(far);
+        let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
+        lost_triangles(&scene, &bvh)
+    }
+
+    /// Nearby, only the degenerate triangle is left out, and it is not lost (it has no area in
+    /// f64 either). At 10⁹ the triangle at the origin collapses (offsets from the centre are
+    /// rounded to 32 units there; the far one, 10⁹ + 1, too); at 10³⁰⁰ the triangle at the
+    /// origin's offsets overflow f32 (the far one has no area in f64 there: 10³⁰⁰ + 1 is 10³⁰⁰).
+    #[test]
+    fn a_scene_too_wide_for_its_frame_loses_its_small_triangles() {
+        assert_eq!(lost(10.0), Lost::default());
+        assert_eq!(
+            lost(1e9),
+            Lost {
+                triangles: 2,
+                first: Some((0, 0))
+            }
+        );
+        assert_eq!(
+            lost(1e300),
+            Lost {
+                triangles: 1,
+                first: Some((0, 0))
+            }
+        );
+        assert!(
+            lost(1e9)
+                .describe()
+                .starts_with("2 triangle(s) with area (the first: object 0's triangle 0)")
+        );
+        assert_eq!(lost(10.0).describe(), "");
+    }
+
+    /// An object moved past f32's range from the frame's origin cannot be refitted in place
+    /// (its offsets would be infinite): the scene is built again, re-centred, and what the new
+    /// frame loses (here both triangles: each lies past f32's range from the new centre) is
+    /// counted. Moved back, the scene loses nothing again.
+    #[test]
+    fn a_move_past_f32s_range_builds_again() {
+        use crate::picker::{BuiltScene, Refit};
+        let triangle = |x: f64, size: f64| Mesh {
+            positions: vec![
+                DVec3::new(x, 0.0, 0.0),
+                DVec3::new(x + size, 0.0, 0.0),
+                DVec3::new(x, size, 0.0),
+            ],
+            triangles: vec![[0, 1, 2]],
+        };
+        let mut scene = Scene::new();
+        scene.add_mesh("near", triangle(0.0, 1.0)).unwrap();
+        scene.add_mesh("moved", triangle(10.0, 1.0)).unwrap();
+        let mut built = BuiltScene::new(scene, &BuildOptions::default()).unwrap();
+        assert_eq!(built.lost_triangles(), Lost::default());
+        let far = triangle(1e39, 1e25).positions;
+        assert_eq!(built.set_positions(1, &far).unwrap(), Refit::Rebuilt);
+        assert_eq!(built.lost_triangles().triangles, 2);
+        let near = triangle(10.0, 1.0).positions;
+        assert_eq!(built.set_positions(1, &near).unwrap(), Refit::Rebuilt);
+        assert_eq!(built.lost_triangles(), Lost::default());
+    }
+}
