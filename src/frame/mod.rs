@@ -13,6 +13,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 mod four;
+pub mod reach;
 pub(crate) use four::refine_four;
 pub use four::{local_rays_into, local_rays_with_rests_into};
 

@@ -233,6 +233,11 @@ impl Instances {
         } else {
             (DVec3::ZERO, None)
         };
+        for (k, b) in boxes.iter().enumerate() {
+            if let Some(b) = b {
+                this.check_resolved(k, *b)?;
+            }
+        }
         let top = top::build(&this.scene_boxes(&boxes));
         let top_count = top.len() as u64;
         if top_count + nodes > u64::from(MAX_NODES) || triangles > u64::from(u32::MAX) {
@@ -286,14 +291,18 @@ impl Instances {
         placed.transform = transform;
         check_instance(&self.meshes, i, &placed)?;
         let old = std::mem::replace(&mut self.instances[i], placed);
-        if let Some((lo, hi)) = self.world_box(i)
-            && !(lo.is_finite() && hi.is_finite())
-        {
-            self.instances[i] = old;
-            return Err(Error::Invalid(format!(
-                "instance {k} (\"{}\"): the transform carries the mesh past the finite range",
-                crate::budget::quote(&self.instances[i].name)
-            )));
+        if let Some((lo, hi)) = self.world_box(i) {
+            if !(lo.is_finite() && hi.is_finite()) {
+                self.instances[i] = old;
+                return Err(Error::Invalid(format!(
+                    "instance {k} (\"{}\"): the transform carries the mesh past the finite range",
+                    crate::budget::quote(&self.instances[i].name)
+                )));
+            }
+            if let Err(e) = self.check_resolved(i, (lo, hi)) {
+                self.instances[i] = old;
+                return Err(e);
+            }
         }
         self.records[i] = self.record(i, self.records[i].prim_base);
         self.refit_leaf(bvh, i);
@@ -325,7 +334,9 @@ impl Instances {
 
     /// Adds `mesh` (a scene of one object, in its own coordinates) with its tree built by
     /// `options`, for instances to place; returns its index. The combined tree holds it once an
-    /// instance places it ([`Instances::add`]).
+    /// instance places it ([`Instances::add`]). Fails on a mesh that its own single-precision
+    /// frame cannot hold: triangles with area that it loses ([`crate::bvh::lost`]), which no
+    /// instance of it could ever have hit.
     pub fn add_mesh(&mut self, mesh: Scene, options: &BuildOptions) -> Result<u32> {
         if mesh.objects().len() != 1 {
             return Err(Error::Invalid(format!(
@@ -334,6 +345,18 @@ impl Instances {
             )));
         }
         let bvh = Bvh::build(&mesh, options)?;
+        let lost = crate::bvh::lost_triangles(&mesh, &bvh);
+        if let Some((_, triangle)) = lost.first {
+            let span = mesh
+                .bounds()
+                .map_or(0.0, |(lo, hi)| (hi - lo).max_element());
+            return Err(Error::Invalid(format!(
+                "the mesh spans {span:.3e} units, and {} triangle(s) with area (the first: \
+                 triangle {triangle}) have none once rounded into its single-precision frame: \
+                 they could never be hit",
+                lost.triangles
+            )));
+        }
         self.meshes.push(Arc::new(MeshTree::new(mesh, bvh)));
         Ok(self.meshes.len() as u32 - 1)
     }
@@ -605,6 +628,20 @@ impl Instances {
             .with_min_len(256)
             .map(|k| self.world_box(k))
             .collect()
+    }
+
+    /// Fails, naming it, when instance `k`, whose world box is `(lo, hi)`, lies so far from the
+    /// scene frame's origin that rays there are placed too coarsely to pick it
+    /// ([`crate::frame::reach`]).
+    fn check_resolved(&self, k: usize, b: (DVec3, DVec3)) -> Result<()> {
+        use crate::frame::reach::{Unresolved, ray_step};
+        match Unresolved::of(k as u32, b, self.origin, ray_step) {
+            None => Ok(()),
+            Some(u) => Err(Error::Invalid(u.describe(&format!(
+                "instance {k} (\"{}\")",
+                crate::budget::quote(&self.instances[k].name)
+            )))),
+        }
     }
 
     /// Instance `k`'s world box: the exact box of its mesh's vertices through its transform
