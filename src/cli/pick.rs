@@ -158,7 +158,8 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     if invalid > 0 {
         eprintln!(
             "warning: {invalid} ray(s) were invalid (NaN or infinite values, a zero direction or one \
-             too short or too long to normalize, or tmin > tmax) and are reported as misses"
+             too short or too long to normalize, tmin > tmax, or an origin too far from the scene \
+             for single precision) and are reported as misses"
         );
     }
     if !progress::is_quiet() {

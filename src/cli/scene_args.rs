@@ -198,6 +198,7 @@ impl SceneArgs {
                 let built = super::progress::phase("building the trees", || {
                     BuiltScene::instanced(meshes, instances, &options)
                 })?;
+                warn_lost(&built);
                 return Ok((built, loaded, start.elapsed().as_secs_f64() - loaded));
             }
         }
@@ -225,6 +226,7 @@ impl SceneArgs {
         let start = std::time::Instant::now();
         if let Some(built) = self.saved(matches, placement)? {
             let Some(instances) = built.instances() else {
+                warn_lost(&built);
                 return Ok((built, start.elapsed().as_secs_f64(), 0.0));
             };
             // A saved instanced scene, for a command that picks copies: its instances baked
@@ -234,6 +236,7 @@ impl SceneArgs {
             let options = self.build_options();
             let built =
                 super::progress::phase("building the tree", || BuiltScene::new(scene, &options))?;
+            warn_lost(&built);
             return Ok((built, loaded, start.elapsed().as_secs_f64() - loaded));
         }
         let files = self.files(matches)?;
@@ -246,7 +249,42 @@ impl SceneArgs {
         let options = self.build_options();
         let built =
             super::progress::phase("building the tree", || BuiltScene::new(scene, &options))?;
+        warn_lost(&built);
         Ok((built, loaded, start.elapsed().as_secs_f64() - loaded))
+    }
+}
+
+/// Warns when the scene's single-precision frame loses triangles ([`raypick::bvh::lost`]) or
+/// does not resolve an object ([`raypick::frame::reach`]): picks on them would be missed or
+/// off without a word.
+fn warn_lost(built: &BuiltScene) {
+    use raypick::frame::reach::{f32_step, unresolved_objects};
+    let lost = built.lost_triangles();
+    if lost.triangles > 0 {
+        let (lo, hi) = built.bounds().unwrap_or_default();
+        let span = (hi - lo).max_element();
+        let step = f32_step(span * 0.5);
+        let frame = if step.is_finite() {
+            format!("in a frame that wide offsets are rounded to about {step:.1e} units")
+        } else {
+            "more than single precision holds".into()
+        };
+        eprintln!(
+            "warning: {}; the scene spans {span:.3e} units, {frame} (are some objects in other \
+             coordinates?)",
+            lost.describe(),
+        );
+    }
+    if built.instances().is_none() {
+        let unresolved = unresolved_objects(&built.scene, built.bvh.origin);
+        if let Some(first) = unresolved.first() {
+            let what = format!("object {}", first.part);
+            let others = match unresolved.len() {
+                1 => String::new(),
+                n => format!("{n} objects are too small for where they lie; the first, "),
+            };
+            eprintln!("warning: {others}{}", first.describe(&what));
+        }
     }
 }
 

@@ -877,3 +877,68 @@ fn sigbus_from_a_shortened_mapped_file_is_exit_2_and_a_sentence() {
     std::fs::remove_file(&fifo).ok();
     std::fs::remove_file(&rpk).ok();
 }
+
+/// A scene too wide for its single-precision frame (parts 10⁹ units apart, in other coordinates
+/// say) is picked with a warning naming what the frame loses: triangles no ray can hit, objects
+/// it rounds too coarsely. Placed as instances, such a part is refused (exit 2, naming it).
+/// Nearby, no warning.
+#[test]
+fn scenes_too_wide_for_their_frame_are_warned_about_or_refused() {
+    let near = temp_file("near.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let far = temp_file("far.obj", "v 1e9 0 0\nv 1e9 1 0\nv 1e9 0 1\nf 1 2 3\n");
+    let both = temp_file(
+        "both.obj",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1e9 0 0\nv 1e9 1 0\nv 1e9 0 1\nf 1 2 3\nf 4 5 6\n",
+    );
+    let rays = temp_file("down.txt", "0.2 0.2 5 0 0 -1\n");
+    let pick = |scenes: &[&str]| {
+        let mut args = vec!["pick", "--rays", &rays, "-q"];
+        for s in scenes {
+            args.extend(["--scene", s]);
+        }
+        raypick(&args)
+    };
+    let (code, out, err) = pick(&[&near, &near]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!err.contains("warning"), "{err}");
+    assert!(out.lines().nth(1).unwrap().starts_with("0,1,"), "{out}");
+    let (code, out, err) = pick(&[&both]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains(
+            "warning: 1 triangle(s) with area (the first: object 0's triangle 0) have none once \
+             rounded into the scene's single-precision frame, so they can never be hit; the \
+             scene spans 1.000e9 units"
+        ),
+        "{err}"
+    );
+    assert!(out.lines().nth(1).unwrap().starts_with("0,0,"), "{out}");
+    let (code, _, err) = pick(&[&near, &far]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains(
+            "warning: 2 objects are too small for where they lie; the first, object 0 lies \
+             5.000e8 units from the centre of the scene"
+        ),
+        "{err}"
+    );
+    // Listed twice, the file is one mesh placed twice (the description beside it).
+    let name = std::path::Path::new(&near)
+        .file_name()
+        .unwrap()
+        .to_str()
+        .unwrap();
+    let description = temp_file(
+        "far.json",
+        &format!(
+            r#"{{"objects": [{{"file": "{name}"}}, {{"file": "{name}", "transform": [[1, 0, 0, 1e12], [0, 1, 0, 0], [0, 0, 1, 0]]}}]}}"#
+        ),
+    );
+    let (code, _, err) = raypick(&["pick", "--scenes", &description, "--rays", &rays]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("instance 0") && err.contains("single-precision frame"),
+        "{err}"
+    );
+    assert_eq!(err.lines().count(), 1, "{err}");
+}
