@@ -7,6 +7,7 @@
 //! order they arrived: every pick sees one version of the scene, and after each edit the worker
 //! publishes the new version ([`SceneView`]) for `GET /scene`.
 
+use super::frame_faults::{FrameFaults, box_of, moved_out_of_reach};
 use crate::apps::camera::Camera;
 use crate::apps::render::{Image, Shade, render};
 use crate::error::{Error, Result};
@@ -314,6 +315,7 @@ impl Worker {
                     view,
                     loaded: vec![None; objects],
                     placed: vec![None; objects],
+                    faults: None,
                     added_triangles: 0,
                     max_added_triangles,
                 };
@@ -393,6 +395,9 @@ struct Batcher {
     /// Per instance of an instanced scene: its transform as loaded or added, kept from its
     /// first move on.
     placed: Vec<Option<[[f64; 4]; 3]>>,
+    /// What a plain scene's frame fails to hold, when counted since the last edit that may
+    /// have changed it.
+    faults: Option<FrameFaults>,
     /// Triangles added by edits so far...
     added_triangles: usize,
     /// ...and at most.
@@ -459,6 +464,12 @@ impl Batcher {
             let object = self.apply_instanced(picker, edit, &mut objects)?;
             return self.publish(picker.as_ref(), objects, object);
         }
+        // What the scene's frame fails to hold now (nothing, but for a scene loaded so): an
+        // edit after which it fails more is refused.
+        let before = match self.faults {
+            Some(f) => f,
+            None => FrameFaults::of(&*scene_of(picker.as_ref())?),
+        };
         let object = match edit {
             Edit::Change {
                 object,
@@ -472,12 +483,43 @@ impl Batcher {
                     let current = objects[object as usize].0;
                     if mirrors(&Some(transform)) == mirrors(&current) {
                         // The same handedness: the vertices move, the tree is refitted.
+                        let here: Vec<DVec3> = built
+                            .scene
+                            .object_vertices(object)
+                            .map(|v| built.scene.position(v))
+                            .collect();
+                        let frame = built.bvh.origin;
                         drop(built);
                         let moved: Vec<DVec3> = loaded
                             .iter()
                             .map(|&p| crate::scene::apply_transform(&transform, p))
                             .collect();
-                        picker.set_positions(object, &moved).map_err(invalid)?;
+                        let refit = picker.set_positions(object, &moved).map_err(invalid)?;
+                        // A refit keeps the frame and every triangle it held, so only the moved
+                        // object can leave its reach; a rebuild re-centres the frame, which may
+                        // leave any object far from the new centre.
+                        let now = scene_of(picker.as_ref())?;
+                        let refused = if refit == crate::picker::Refit::Rebuilt {
+                            let (after, refused) = before.after(&now);
+                            if refused.is_none() {
+                                self.faults = Some(after);
+                            }
+                            refused
+                        } else {
+                            let (here, there) = (box_of(&here), box_of(&moved));
+                            let origin = now.bvh.origin;
+                            let refused = moved_out_of_reach(object, here, there, origin);
+                            if refused.is_none() {
+                                // It may have come back within reach: counted again when needed.
+                                self.faults = None;
+                            }
+                            refused
+                        };
+                        drop(now);
+                        if let Some(refused) = refused {
+                            self.move_back(picker, object, &here, frame)?;
+                            return Err(refused);
+                        }
                     } else {
                         // A mirror comes or goes: the winding flips, so the tree is built anew.
                         let mut scene = built.scene.clone();
@@ -493,7 +535,7 @@ impl Batcher {
                         scene
                             .transform_object(object, &transform)
                             .map_err(invalid)?;
-                        self.rebuild(picker, scene, &options)?;
+                        self.rebuild(picker, scene, &options, before)?;
                     }
                     objects[object as usize].0 = Some(transform);
                 }
@@ -570,7 +612,7 @@ impl Batcher {
                 if options.builder == crate::bvh::Builder::Grid {
                     options.builder = crate::bvh::Builder::Auto;
                 }
-                self.rebuild(picker, scene, &options)?;
+                self.rebuild(picker, scene, &options, before)?;
                 // Only now that the object exists: its positions before its transform.
                 if self.loaded.len() <= id as usize {
                     self.loaded.resize(id as usize + 1, None);
@@ -699,7 +741,10 @@ impl Batcher {
                                 added = b.add_mesh(one.clone())?;
                                 Ok(crate::picker::Refit::Moved)
                             })
-                            .map_err(failed)?;
+                            .map_err(|e| match e {
+                                Error::Invalid(_) => invalid(e),
+                                e => failed(e),
+                            })?;
                         added
                     }
                     (None, MeshSource::Copy(_)) => unreachable!("a copy has its source's mesh"),
@@ -755,20 +800,57 @@ impl Batcher {
         Ok(t)
     }
 
-    /// Builds `scene` with `options` and puts a new picker over it in `picker`'s place.
+    /// Undoes a refused move of `object`: its vertices back `here`, in the frame centred on
+    /// `frame` as before. Moving back refits in the frame the refused move made, so where that
+    /// move re-centred it (a rebuild: it widened the scene), the scene is built again, centred
+    /// on its bounds as a fresh build is.
+    fn move_back(
+        &mut self,
+        picker: &mut Box<dyn Picker>,
+        object: u32,
+        here: &[DVec3],
+        frame: DVec3,
+    ) -> std::result::Result<(), EditError> {
+        let failed = |e: Error| EditError::Failed(format!("the move could not be undone: {e}"));
+        picker.set_positions(object, here).map_err(failed)?;
+        let built = picker
+            .current_scene()
+            .ok_or_else(|| EditError::Failed("this picker cannot change its scene".into()))?;
+        if built.bvh.origin == frame {
+            return Ok(());
+        }
+        let (scene, options) = (built.scene.clone(), *built.options());
+        drop(built);
+        let rebuilt = BuiltScene::new(scene, &options).map_err(failed)?;
+        *picker = make_picker(self.backend, Arc::new(rebuilt))
+            .map_err(failed)?
+            .0;
+        self.faults = None;
+        Ok(())
+    }
+
+    /// Builds `scene` with `options` and puts a new picker over it in `picker`'s place; refused,
+    /// with nothing changed, when its frame fails to hold more than `before` (the scene's
+    /// before the edit: [`FrameFaults::after`]).
     fn rebuild(
-        &self,
+        &mut self,
         picker: &mut Box<dyn Picker>,
         scene: crate::scene::Scene,
         options: &crate::bvh::BuildOptions,
+        before: FrameFaults,
     ) -> std::result::Result<(), EditError> {
         let failed = |e: Error| match e {
             Error::TooLargeForGpu { .. } => EditError::TooLarge(e.to_string()),
             e => EditError::Failed(e.to_string()),
         };
         let rebuilt = BuiltScene::new(scene, options).map_err(failed)?;
+        let (after, refused) = before.after(&rebuilt);
+        if let Some(refused) = refused {
+            return Err(refused);
+        }
         let (new_picker, _) = make_picker(self.backend, Arc::new(rebuilt)).map_err(failed)?;
         *picker = new_picker;
+        self.faults = Some(after);
         Ok(())
     }
 

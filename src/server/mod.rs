@@ -118,6 +118,7 @@
 
 mod api;
 pub mod batcher;
+mod frame_faults;
 pub mod page;
 
 pub use batcher::Stats;

@@ -431,3 +431,62 @@ fn the_triangles_clients_add_are_capped() {
     let (_, scene) = call("GET", &format!("{base}/scene"), None);
     assert_eq!(scene["objects"].as_array().unwrap().len(), 4);
 }
+
+/// An edit that would carry the scene past what its single-precision frame resolves (an
+/// object placed in other units, a typo in a coordinate) is refused with a sentence and
+/// changes nothing: before this, one such object re-centred the frame a billion units away and
+/// every pick on the rest was off, or every ray invalid, for every client, removal or not.
+fn far_edits_are_refused_on(scene: Arc<BuiltScene>, instanced: bool) {
+    let base = start_on(scene, Backend::Cpu);
+    let refused = |method: &str, path: &str, body: Value| {
+        let (status, answer) = call(method, &format!("{base}{path}"), Some(&body));
+        assert_eq!(status, 400, "{method} {path} {body}: {answer}");
+        let error = answer["error"].as_str().unwrap().to_owned();
+        assert!(!error.contains('\n') && error.len() < 400, "{error}");
+        error
+    };
+    let far_box = |x: f64| json!({"mesh": 1, "transform": translate(x)});
+    let error = refused("POST", "/objects", far_box(1e12));
+    assert!(error.contains("single-precision frame"), "{error}");
+    refused("POST", "/objects", far_box(1e300));
+    refused(
+        "POST",
+        "/objects",
+        json!({
+            "vertices": [[1e300, 0.0, 0.0], [-1e300, 0.0, 0.0], [0.0, 1e300, 0.0]],
+            "triangles": [[0, 1, 2]],
+        }),
+    );
+    for x in [1e12, 1e300] {
+        refused("PATCH", "/objects/1", json!({"transform": translate(x)}));
+    }
+    if !instanced {
+        // After a refused move that had re-centred the frame, the frame is as it was: a move
+        // that leaves the box out of reach of the frame it kept is refused too.
+        refused("PATCH", "/objects/1", json!({"transform": translate(1e8)}));
+    }
+    let (_, scene) = call("GET", &format!("{base}/scene"), None);
+    assert_eq!(scene["objects"].as_array().unwrap().len(), 2, "{scene}");
+    assert_eq!(scene["objects"][1]["transform"], Value::Null, "{scene}");
+    assert_eq!(down(&base, &[0.5, 10.5], u32::MAX), [Some(1), Some(0)]);
+    // Nearby edits still go through.
+    let (status, answer) = call(
+        "PATCH",
+        &format!("{base}/objects/1"),
+        Some(&json!({"transform": translate(10.0)})),
+    );
+    assert_eq!((status, &answer), (200, &json!({"object": 1})));
+    let (status, answer) = call("POST", &format!("{base}/objects"), Some(&far_box(1e4)));
+    assert_eq!((status, &answer), (200, &json!({"object": 2})));
+    assert_eq!(down(&base, &[0.5, 10.5], u32::MAX), [Some(0), Some(1)]);
+}
+
+#[test]
+fn far_edits_are_refused() {
+    far_edits_are_refused_on(scene(), false);
+}
+
+#[test]
+fn far_edits_are_refused_on_instances() {
+    far_edits_are_refused_on(instanced_scene(), true);
+}

@@ -1,0 +1,89 @@
+//! What a scene's single-precision frame fails to hold, before and after an edit, so that no
+//! edit leaves the scene worse than it found it. One client's object placed far from the rest
+//! (a transform in other units, a typo in a coordinate) widens the scene and re-centres its
+//! frame, and every other object then lies far from the centre: its triangles rounded out of
+//! shape or out of f32's range, every pick on it off or every ray invalid, for every client,
+//! and no removal would bring the frame back. The worker refuses such an edit (400) with
+//! nothing changed. Plain scenes only: an instanced scene's meshes keep frames of their own,
+//! and placing an instance checks itself (`Instances::check_resolved`).
+
+use super::batcher::EditError;
+use crate::frame::reach::{Unresolved, f32_step, unresolved_objects};
+use crate::picker::BuiltScene;
+use glam::DVec3;
+
+/// Faults of a plain scene's frame ([`crate::bvh::lost`], [`crate::frame::reach`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct FrameFaults {
+    /// Triangles with area that the frame loses.
+    pub(crate) lost: usize,
+    /// Objects the frame does not resolve.
+    pub(crate) unresolved: usize,
+}
+
+impl FrameFaults {
+    /// `built`'s faults (one pass over its vertices, and over its triangles when the tree
+    /// leaves some out).
+    pub(crate) fn of(built: &BuiltScene) -> Self {
+        FrameFaults {
+            lost: built.lost_triangles().triangles,
+            unresolved: unresolved_objects(&built.scene, built.bvh.origin).len(),
+        }
+    }
+
+    /// `built`'s faults, and the refusal of the edit that made it when it has more of either
+    /// kind than `self` (the scene's before the edit).
+    pub(crate) fn after(&self, built: &BuiltScene) -> (Self, Option<EditError>) {
+        let lost = built.lost_triangles();
+        let unresolved = unresolved_objects(&built.scene, built.bvh.origin);
+        let now = FrameFaults {
+            lost: lost.triangles,
+            unresolved: unresolved.len(),
+        };
+        let why = if now.unresolved > self.unresolved {
+            let u = &unresolved[0];
+            Some(u.describe(&format!("object {}", u.part)))
+        } else if now.lost > self.lost {
+            let span = built
+                .bounds()
+                .map_or(0.0, |(lo, hi)| (hi - lo).max_element());
+            Some(format!(
+                "the scene would span {span:.3e} units, and {}",
+                lost.describe()
+            ))
+        } else {
+            None
+        };
+        (now, why.map(refusal))
+    }
+}
+
+/// The refusal of a move of an object from the box `here` to the box `there` in a frame that
+/// keeps its origin (a refit): when the object was resolved there before and is not now.
+pub(crate) fn moved_out_of_reach(
+    object: u32,
+    here: (DVec3, DVec3),
+    there: (DVec3, DVec3),
+    origin: DVec3,
+) -> Option<EditError> {
+    let before = Unresolved::of(object, here, origin, f32_step);
+    let after = Unresolved::of(object, there, origin, f32_step)?;
+    before
+        .is_none()
+        .then(|| refusal(after.describe(&format!("object {object}"))))
+}
+
+/// The box around `points`.
+pub(crate) fn box_of(points: &[DVec3]) -> (DVec3, DVec3) {
+    points
+        .iter()
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), &p| {
+            (lo.min(p), hi.max(p))
+        })
+}
+
+fn refusal(why: String) -> EditError {
+    EditError::Invalid(format!(
+        "refused, nothing was changed: after this edit, {why}"
+    ))
+}
