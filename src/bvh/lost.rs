@@ -1,18 +1,23 @@
 //! Triangles a tree's single-precision frame loses: they have area in f64, but rounded to f32
-//! offsets from the tree's origin they have none, or their offsets are not finite. Every
-//! builder leaves them out (`is_traceable`), so no ray can hit them, on any backend. A scene
-//! loses them when it is wide for the size of its parts: offsets from the centre of a scene
-//! 10⁹ units across are rounded to 64 units, so a one-unit triangle at one end of it collapses.
-//! The command line warns about them; the server refuses an edit that would lose more.
+//! offsets from the tree's origin they have none, or their offsets are not finite, and they
+//! are small for the frame's step where they lie (their box spans fewer than
+//! [`crate::frame::reach::RESOLVED_STEPS`] of them). Every builder leaves them out
+//! (`is_traceable`), so no ray can hit them, on any backend. A scene loses them when it is wide
+//! for the size of its parts: offsets from the centre of a scene 10⁹ units across are rounded
+//! to 32 units, so a one-unit triangle at one end of it collapses. Slivers (long, but flatter
+//! than f32 resolves wherever they lie) and triangles of objects with layer mask 0 (never hit)
+//! are not counted. The command
+//! line warns about lost triangles; the server refuses an edit that would lose more.
 
 use super::Bvh;
+use crate::frame::reach::{Unresolved, f32_step};
 use crate::scene::Scene;
 use rayon::prelude::*;
 
 /// What a tree loses of its scene (see the module docs).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Lost {
-    /// Triangles with area in f64 that the tree leaves out.
+    /// Triangles with area in f64 that the frame loses (see the module docs).
     pub triangles: usize,
     /// The first of them, as `(object id, triangle id within the object)`.
     pub first: Option<(u32, u32)>,
@@ -22,19 +27,20 @@ impl Lost {
     /// A sentence naming how many triangles are lost and the first, for a message; empty when
     /// none is.
     pub fn describe(&self) -> String {
-        match self.first {
-            Some((object, triangle)) => format!(
-                "{} triangle(s) with area (the first: object {object}'s triangle {triangle}) \
-                 have none once rounded into the scene's single-precision frame, so they can \
-                 never be hit",
-                self.triangles
+        let first = self.first.map_or(String::new(), |(object, triangle)| {
+            format!(" (the first: object {object}'s triangle {triangle})")
+        });
+        match self.triangles {
+            0 => String::new(),
+            n => format!(
+                "{n} triangle(s) with area{first} have none once rounded into the scene's \
+                 single-precision frame, so they can never be hit"
             ),
-            None => String::new(),
         }
     }
 }
 
-/// The triangles of `scene` with area in f64 that `bvh` (built over `scene`) leaves out. Costs
+/// The triangles of `scene` that `bvh`'s frame loses (built over `scene`; see the module). Costs
 /// nothing when the tree holds every triangle; otherwise one pass over the scene's triangles.
 pub fn lost_triangles(scene: &Scene, bvh: &Bvh) -> Lost {
     let n = scene.triangle_count();
@@ -49,7 +55,19 @@ pub fn lost_triangles(scene: &Scene, bvh: &Bvh) -> Lost {
     }
     let lost: Vec<u32> = (0..n)
         .into_par_iter()
-        .filter(|&i| !held[i] && !scene.is_degenerate(i))
+        .filter(|&i| {
+            if held[i] || scene.is_degenerate(i) {
+                return false;
+            }
+            let (object, _) = scene.locate(i as u32);
+            // Collapsed by the frame: its box spans few of the frame's steps where it lies (a
+            // sliver, long but flat, collapses wherever it lies: not the frame's doing).
+            let world = scene.world_triangle(i);
+            let lo = world[0].min(world[1]).min(world[2]);
+            let hi = world[0].max(world[1]).max(world[2]);
+            let resolved = Unresolved::of(0, (lo, hi), bvh.origin, f32_step).is_none();
+            scene.objects()[object as usize].mask != 0 && !resolved
+        })
         .map(|i| i as u32)
         .collect();
     Lost {
@@ -94,6 +112,32 @@ mod tests {
         let scene = scene(far);
         let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
         lost_triangles(&scene, &bvh)
+    }
+
+    /// A sliver (area in f64, none in f32 even in a frame of its own) is not lost: it was
+    /// never the frame's doing.
+    #[test]
+    fn slivers_are_not_lost() {
+        let mut scene = Scene::new();
+        let positions = vec![
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(1.0, 0.0, 0.0),
+            DVec3::new(0.5, 1e-12, 0.0),
+            DVec3::new(0.0, 1.0, 0.0),
+        ];
+        let triangles = vec![[0, 1, 2], [0, 1, 3]];
+        scene
+            .add_mesh(
+                "m",
+                Mesh {
+                    positions,
+                    triangles,
+                },
+            )
+            .unwrap();
+        let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
+        assert_eq!(bvh.triangle_ids.len(), 1, "the sliver is left out");
+        assert_eq!(lost_triangles(&scene, &bvh), Lost::default());
     }
 
     /// Nearby, only the degenerate triangle is left out, and it is not lost (it has no area in

@@ -255,8 +255,8 @@ impl SceneArgs {
 }
 
 /// Warns when the scene's single-precision frame loses triangles ([`raypick::bvh::lost`]) or
-/// does not resolve an object ([`raypick::frame::reach`]): picks on them would be missed or
-/// off without a word.
+/// does not resolve an object or an instance ([`raypick::frame::reach`]): picks on them would
+/// be missed or off without a word.
 fn warn_lost(built: &BuiltScene) {
     use raypick::frame::reach::{f32_step, unresolved_objects};
     let lost = built.lost_triangles();
@@ -275,16 +275,17 @@ fn warn_lost(built: &BuiltScene) {
             lost.describe(),
         );
     }
-    if built.instances().is_none() {
-        let unresolved = unresolved_objects(&built.scene, built.bvh.origin);
-        if let Some(first) = unresolved.first() {
-            let what = format!("object {}", first.part);
-            let others = match unresolved.len() {
-                1 => String::new(),
-                n => format!("{n} objects are too small for where they lie; the first, "),
-            };
-            eprintln!("warning: {others}{}", first.describe(&what));
-        }
+    let (unresolved, kind) = match built.instances() {
+        None => (unresolved_objects(&built.scene, built.bvh.origin), "object"),
+        Some(i) => (i.unresolved(), "instance"),
+    };
+    if let Some(first) = unresolved.first() {
+        let what = format!("{kind} {}", first.part);
+        let others = match unresolved.len() {
+            1 => String::new(),
+            n => format!("{n} {kind}s are too small for where they lie; the first, "),
+        };
+        eprintln!("warning: {others}{}", first.describe(&what));
     }
 }
 

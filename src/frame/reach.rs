@@ -8,8 +8,9 @@
 //! re-centres the frame, which leaves the others that far from its centre: their triangles
 //! rounded out of shape (or out of f32's range), and every pick on them off. A part counts as
 //! resolved where its box spans at least [`RESOLVED_STEPS`] steps of its place in the frame;
-//! the server refuses edits that leave a part unresolved ([`unresolved_objects`]), and an
-//! instanced scene refuses to place an instance so (`Instances::check_resolved`).
+//! the command line warns about parts left unresolved, the server refuses edits that leave
+//! more unresolved ([`unresolved_objects`]), and an
+//! instanced scene refuses to place an instance so (`Instances::add`, `set_transform`).
 
 use crate::scene::Scene;
 use glam::DVec3;
@@ -68,22 +69,28 @@ impl Unresolved {
 
     /// The sentence for a message: where the part lies, the step there and its size.
     pub fn describe(&self, what: &str) -> String {
+        let rounds = if self.step.is_finite() {
+            format!("rounds positions to {:.1e} units", self.step)
+        } else {
+            "cannot hold positions at all".into()
+        };
         format!(
             "{what} lies {:.3e} units from the centre of the scene, where its \
-             single-precision frame rounds positions to {:.1e} units: too coarse for its \
-             {:.3e} units (are some objects in other coordinates?)",
-            self.reach, self.step, self.size
+             single-precision frame {rounds}: too coarse for its {:.3e} units (are some objects \
+             in other coordinates?)",
+            self.reach, self.size
         )
     }
 }
 
 /// The objects of `scene` with triangles that its f32 frame, centred on `origin`, does not
-/// resolve ([`Unresolved::of`] with [`f32_step`]), in id order. One pass over the triangles.
+/// resolve ([`Unresolved::of`] with [`f32_step`]), in id order; objects with layer mask 0 (never
+/// hit: removed) are not counted. One pass over the vertices.
 pub fn unresolved_objects(scene: &Scene, origin: DVec3) -> Vec<Unresolved> {
     scene
         .objects()
         .par_iter()
-        .filter(|o| o.triangle_count > 0)
+        .filter(|o| o.triangle_count > 0 && o.mask != 0)
         .filter_map(|o| {
             let (lo, hi) = scene
                 .object_vertices(o.id)

@@ -233,11 +233,6 @@ impl Instances {
         } else {
             (DVec3::ZERO, None)
         };
-        for (k, b) in boxes.iter().enumerate() {
-            if let Some(b) = b {
-                this.check_resolved(k, *b)?;
-            }
-        }
         let top = top::build(&this.scene_boxes(&boxes));
         let top_count = top.len() as u64;
         if top_count + nodes > u64::from(MAX_NODES) || triangles > u64::from(u32::MAX) {
@@ -290,19 +285,24 @@ impl Instances {
         let mut placed = self.instances[i].clone();
         placed.transform = transform;
         check_instance(&self.meshes, i, &placed)?;
+        let was = self.unresolved_at(i);
         let old = std::mem::replace(&mut self.instances[i], placed);
-        if let Some((lo, hi)) = self.world_box(i) {
-            if !(lo.is_finite() && hi.is_finite()) {
-                self.instances[i] = old;
-                return Err(Error::Invalid(format!(
-                    "instance {k} (\"{}\"): the transform carries the mesh past the finite range",
-                    crate::budget::quote(&self.instances[i].name)
-                )));
-            }
-            if let Err(e) = self.check_resolved(i, (lo, hi)) {
-                self.instances[i] = old;
-                return Err(e);
-            }
+        if let Some((lo, hi)) = self.world_box(i)
+            && !(lo.is_finite() && hi.is_finite())
+        {
+            self.instances[i] = old;
+            return Err(Error::Invalid(format!(
+                "instance {k} (\"{}\"): the transform carries the mesh past the finite range",
+                crate::budget::quote(&self.instances[i].name)
+            )));
+        }
+        // Placed where its rays would be too coarse to pick it, where they were not.
+        if let (None, Some(u)) = (was, self.unresolved_at(i)) {
+            self.instances[i] = old;
+            return Err(Error::Invalid(u.describe(&format!(
+                "instance {k} (\"{}\")",
+                crate::budget::quote(&self.instances[i].name)
+            ))));
         }
         self.records[i] = self.record(i, self.records[i].prim_base);
         self.refit_leaf(bvh, i);
@@ -327,6 +327,17 @@ impl Instances {
         let mut instances = self.instances.clone();
         instances.push(instance);
         let (rebuilt, combined) = Self::assemble(self.meshes.clone(), instances)?;
+        // Re-centred around the new one, the frame may leave instances too coarse to pick that
+        // were not (an instance placed far from the rest): refused, nothing changed.
+        let after = rebuilt.unresolved();
+        if after.len() > self.unresolved().len() {
+            let u = after[0];
+            return Err(Error::Invalid(u.describe(&format!(
+                "with it, instance {} (\"{}\")",
+                u.part,
+                crate::budget::quote(&rebuilt.instances[u.part as usize].name)
+            ))));
+        }
         *self = rebuilt;
         *bvh = combined;
         Ok(self.instances.len() as u32 - 1)
@@ -334,9 +345,8 @@ impl Instances {
 
     /// Adds `mesh` (a scene of one object, in its own coordinates) with its tree built by
     /// `options`, for instances to place; returns its index. The combined tree holds it once an
-    /// instance places it ([`Instances::add`]). Fails on a mesh that its own single-precision
-    /// frame cannot hold: triangles with area that it loses ([`crate::bvh::lost`]), which no
-    /// instance of it could ever have hit.
+    /// instance places it ([`Instances::add`]). Fails on a mesh too wide for its own
+    /// single-precision frame to hold (no instance of it could be hit).
     pub fn add_mesh(&mut self, mesh: Scene, options: &BuildOptions) -> Result<u32> {
         if mesh.objects().len() != 1 {
             return Err(Error::Invalid(format!(
@@ -344,19 +354,15 @@ impl Instances {
                 mesh.objects().len()
             )));
         }
-        let bvh = Bvh::build(&mesh, options)?;
-        let lost = crate::bvh::lost_triangles(&mesh, &bvh);
-        if let Some((_, triangle)) = lost.first {
+        if !crate::bvh::frame_holds(&mesh, mesh.origin()) {
             let span = mesh
                 .bounds()
                 .map_or(0.0, |(lo, hi)| (hi - lo).max_element());
             return Err(Error::Invalid(format!(
-                "the mesh spans {span:.3e} units, and {} triangle(s) with area (the first: \
-                 triangle {triangle}) have none once rounded into its single-precision frame: \
-                 they could never be hit",
-                lost.triangles
+                "the mesh spans {span:.3e} units, more than its single-precision frame holds"
             )));
         }
+        let bvh = Bvh::build(&mesh, options)?;
         self.meshes.push(Arc::new(MeshTree::new(mesh, bvh)));
         Ok(self.meshes.len() as u32 - 1)
     }
@@ -630,18 +636,23 @@ impl Instances {
             .collect()
     }
 
-    /// Fails, naming it, when instance `k`, whose world box is `(lo, hi)`, lies so far from the
-    /// scene frame's origin that rays there are placed too coarsely to pick it
-    /// ([`crate::frame::reach`]).
-    fn check_resolved(&self, k: usize, b: (DVec3, DVec3)) -> Result<()> {
+    /// The instances that can be hit (mask not 0) whose rays the scene frame places too
+    /// coarsely to pick them ([`crate::frame::reach`]: an instance far from the others, in
+    /// other coordinates say, widens the frame and leaves them far from its centre), in id
+    /// order. One box per instance.
+    pub fn unresolved(&self) -> Vec<crate::frame::reach::Unresolved> {
+        (0..self.instances.len())
+            .filter_map(|k| self.unresolved_at(k))
+            .collect()
+    }
+
+    /// Instance `k`, where it is placed now, when it can be hit and the frame does not resolve it.
+    fn unresolved_at(&self, k: usize) -> Option<crate::frame::reach::Unresolved> {
         use crate::frame::reach::{Unresolved, ray_step};
-        match Unresolved::of(k as u32, b, self.origin, ray_step) {
-            None => Ok(()),
-            Some(u) => Err(Error::Invalid(u.describe(&format!(
-                "instance {k} (\"{}\")",
-                crate::budget::quote(&self.instances[k].name)
-            )))),
+        if self.instances[k].mask == 0 {
+            return None;
         }
+        Unresolved::of(k as u32, self.world_box(k)?, self.origin, ray_step)
     }
 
     /// Instance `k`'s world box: the exact box of its mesh's vertices through its transform

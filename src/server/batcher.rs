@@ -7,7 +7,7 @@
 //! order they arrived: every pick sees one version of the scene, and after each edit the worker
 //! publishes the new version ([`SceneView`]) for `GET /scene`.
 
-use super::frame_faults::{FrameFaults, box_of, moved_out_of_reach};
+use super::frame_faults::{self, FrameFaults, box_of};
 use crate::apps::camera::Camera;
 use crate::apps::render::{Image, Shade, render};
 use crate::error::{Error, Result};
@@ -483,42 +483,42 @@ impl Batcher {
                     let current = objects[object as usize].0;
                     if mirrors(&Some(transform)) == mirrors(&current) {
                         // The same handedness: the vertices move, the tree is refitted.
-                        let here: Vec<DVec3> = built
-                            .scene
-                            .object_vertices(object)
-                            .map(|v| built.scene.position(v))
-                            .collect();
                         let frame = built.bvh.origin;
                         drop(built);
-                        let moved: Vec<DVec3> = loaded
-                            .iter()
-                            .map(|&p| crate::scene::apply_transform(&transform, p))
-                            .collect();
+                        // Where the vertices are now: the loaded ones through the transform
+                        // last set, as that move placed them (bit for bit).
+                        let placed = |t: &Option<[[f64; 4]; 3]>| -> Vec<DVec3> {
+                            match t {
+                                Some(t) => loaded
+                                    .iter()
+                                    .map(|&p| crate::scene::apply_transform(t, p))
+                                    .collect(),
+                                None => loaded.clone(),
+                            }
+                        };
+                        let here = box_of(placed(&current));
+                        let moved = placed(&Some(transform));
                         let refit = picker.set_positions(object, &moved).map_err(invalid)?;
                         // A refit keeps the frame and every triangle it held, so only the moved
                         // object can leave its reach; a rebuild re-centres the frame, which may
                         // leave any object far from the new centre.
                         let now = scene_of(picker.as_ref())?;
                         let refused = if refit == crate::picker::Refit::Rebuilt {
-                            let (after, refused) = before.after(&now);
-                            if refused.is_none() {
-                                self.faults = Some(after);
-                            }
-                            refused
+                            before.after(&now)
                         } else {
-                            let (here, there) = (box_of(&here), box_of(&moved));
-                            let origin = now.bvh.origin;
-                            let refused = moved_out_of_reach(object, here, there, origin);
-                            if refused.is_none() {
-                                // It may have come back within reach: counted again when needed.
-                                self.faults = None;
+                            let there = box_of(moved.iter().copied());
+                            match frame_faults::moved(object, here, there, &now, before) {
+                                Ok(after) => (after, None),
+                                Err(refused) => (before, Some(refused)),
                             }
-                            refused
                         };
                         drop(now);
-                        if let Some(refused) = refused {
-                            self.move_back(picker, object, &here, frame)?;
-                            return Err(refused);
+                        match refused {
+                            (after, None) => self.faults = Some(after),
+                            (_, Some(refused)) => {
+                                self.move_back(picker, object, &placed(&current), frame)?;
+                                return Err(refused);
+                            }
                         }
                     } else {
                         // A mirror comes or goes: the winding flips, so the tree is built anew.
@@ -745,6 +745,9 @@ impl Batcher {
                                 Error::Invalid(_) => invalid(e),
                                 e => failed(e),
                             })?;
+                        // The mesh is stored from here on, placed or not: counted now, so
+                        // refused placements cannot add meshes past the cap.
+                        self.added_triangles = total;
                         added
                     }
                     (None, MeshSource::Copy(_)) => unreachable!("a copy has its source's mesh"),

@@ -5,7 +5,7 @@
 //! shape or out of f32's range, every pick on it off or every ray invalid, for every client,
 //! and no removal would bring the frame back. The worker refuses such an edit (400) with
 //! nothing changed. Plain scenes only: an instanced scene's meshes keep frames of their own,
-//! and placing an instance checks itself (`Instances::check_resolved`).
+//! and placing an instance checks itself (`Instances::add`, `Instances::set_transform`).
 
 use super::batcher::EditError;
 use crate::frame::reach::{Unresolved, f32_step, unresolved_objects};
@@ -58,26 +58,49 @@ impl FrameFaults {
     }
 }
 
-/// The refusal of a move of an object from the box `here` to the box `there` in a frame that
-/// keeps its origin (a refit): when the object was resolved there before and is not now.
-pub(crate) fn moved_out_of_reach(
+/// The faults after a move of object `object` from the box `here` to the box `there` that
+/// `built` (the scene after it) refitted, keeping its frame and every triangle the tree held,
+/// from `before`; refused when the object was resolved in that frame and is not now, or when the
+/// frame a rebuild would centre on the scene's new bounds (the next edit that builds again)
+/// would leave more objects unresolved than `before`.
+pub(crate) fn moved(
     object: u32,
     here: (DVec3, DVec3),
     there: (DVec3, DVec3),
-    origin: DVec3,
-) -> Option<EditError> {
-    let before = Unresolved::of(object, here, origin, f32_step);
-    let after = Unresolved::of(object, there, origin, f32_step)?;
-    before
-        .is_none()
-        .then(|| refusal(after.describe(&format!("object {object}"))))
+    built: &BuiltScene,
+    before: FrameFaults,
+) -> Result<FrameFaults, EditError> {
+    let origin = built.bvh.origin;
+    // An object never hit (layer mask 0: removed) is not counted.
+    let counted = built.scene.objects()[object as usize].mask != 0;
+    let was = counted && Unresolved::of(object, here, origin, f32_step).is_some();
+    let is = Unresolved::of(object, there, origin, f32_step).filter(|_| counted);
+    if let (false, Some(after)) = (was, is) {
+        return Err(refusal(after.describe(&format!("object {object}"))));
+    }
+    let unresolved =
+        (before.unresolved + usize::from(is.is_some())).saturating_sub(usize::from(was));
+    if built.scene.origin() != origin {
+        let recentred = unresolved_objects(&built.scene, built.scene.origin());
+        if recentred.len() > before.unresolved {
+            let u = &recentred[0];
+            return Err(refusal(u.describe(&format!(
+                "once the frame is centred on the scene again, object {}",
+                u.part
+            ))));
+        }
+    }
+    Ok(FrameFaults {
+        unresolved,
+        ..before
+    })
 }
 
 /// The box around `points`.
-pub(crate) fn box_of(points: &[DVec3]) -> (DVec3, DVec3) {
+pub(crate) fn box_of(points: impl IntoIterator<Item = DVec3>) -> (DVec3, DVec3) {
     points
-        .iter()
-        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), &p| {
+        .into_iter()
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
             (lo.min(p), hi.max(p))
         })
 }
