@@ -6,12 +6,12 @@
 //! for the size of its parts: offsets from the centre of a scene 10⁹ units across are rounded
 //! to 32 units, so a one-unit triangle at one end of it collapses. Slivers (long, but flatter
 //! than f32 resolves wherever they lie) and triangles of objects with layer mask 0 (never hit)
-//! are not counted. The command
-//! line warns about lost triangles; the server refuses an edit that would lose more.
+//! are not counted. The command line warns about lost triangles; the server refuses an edit
+//! that would lose more.
 
 use super::Bvh;
 use crate::frame::reach::{Unresolved, f32_step};
-use crate::scene::Scene;
+use crate::scene::{Scene, box_of};
 use rayon::prelude::*;
 
 /// What a tree loses of its scene (see the module docs).
@@ -62,10 +62,8 @@ pub fn lost_triangles(scene: &Scene, bvh: &Bvh) -> Lost {
             let (object, _) = scene.locate(i as u32);
             // Collapsed by the frame: its box spans few of the frame's steps where it lies (a
             // sliver, long but flat, collapses wherever it lies: not the frame's doing).
-            let world = scene.world_triangle(i);
-            let lo = world[0].min(world[1]).min(world[2]);
-            let hi = world[0].max(world[1]).max(world[2]);
-            let resolved = Unresolved::of(0, (lo, hi), bvh.origin, f32_step).is_none();
+            let b = box_of(scene.world_triangle(i));
+            let resolved = Unresolved::of(0, b, bvh.origin, f32_step).is_none();
             scene.objects()[object as usize].mask != 0 && !resolved
         })
         .map(|i| i as u32)

@@ -12,7 +12,7 @@
 //! more unresolved ([`unresolved_objects`]), and an
 //! instanced scene refuses to place an instance so (`Instances::add`, `set_transform`).
 
-use crate::scene::Scene;
+use crate::scene::{Scene, box_of};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -92,13 +92,8 @@ pub fn unresolved_objects(scene: &Scene, origin: DVec3) -> Vec<Unresolved> {
         .par_iter()
         .filter(|o| o.triangle_count > 0 && o.mask != 0)
         .filter_map(|o| {
-            let (lo, hi) = scene
-                .object_vertices(o.id)
-                .map(|v| scene.position(v))
-                .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
-                    (lo.min(p), hi.max(p))
-                });
-            Unresolved::of(o.id, (lo, hi), origin, f32_step)
+            let b = box_of(scene.object_vertices(o.id).map(|v| scene.position(v)));
+            Unresolved::of(o.id, b, origin, f32_step)
         })
         .collect()
 }

@@ -285,9 +285,9 @@ impl Instances {
         let mut placed = self.instances[i].clone();
         placed.transform = transform;
         check_instance(&self.meshes, i, &placed)?;
-        let was = self.unresolved_at(i);
         let old = std::mem::replace(&mut self.instances[i], placed);
-        if let Some((lo, hi)) = self.world_box(i)
+        let placed_box = self.world_box(i);
+        if let Some((lo, hi)) = placed_box
             && !(lo.is_finite() && hi.is_finite())
         {
             self.instances[i] = old;
@@ -296,13 +296,17 @@ impl Instances {
                 crate::budget::quote(&self.instances[i].name)
             )));
         }
-        // Placed where its rays would be too coarse to pick it, where they were not.
-        if let (None, Some(u)) = (was, self.unresolved_at(i)) {
-            self.instances[i] = old;
-            return Err(Error::Invalid(u.describe(&format!(
-                "instance {k} (\"{}\")",
-                crate::budget::quote(&self.instances[i].name)
-            ))));
+        // Placed where its rays would be too coarse to pick it, where they were not (the old
+        // place looked at only then: a move's common path costs no second box).
+        if let Some(u) = placed_box.and_then(|b| self.unresolved_in(i, b)) {
+            let placed = std::mem::replace(&mut self.instances[i], old);
+            if self.unresolved_at(i).is_none() {
+                return Err(Error::Invalid(u.describe(&format!(
+                    "instance {k} (\"{}\")",
+                    crate::budget::quote(&self.instances[i].name)
+                ))));
+            }
+            self.instances[i] = placed;
         }
         self.records[i] = self.record(i, self.records[i].prim_base);
         self.refit_leaf(bvh, i);
@@ -648,11 +652,20 @@ impl Instances {
 
     /// Instance `k`, where it is placed now, when it can be hit and the frame does not resolve it.
     fn unresolved_at(&self, k: usize) -> Option<crate::frame::reach::Unresolved> {
+        self.unresolved_in(k, self.world_box(k)?)
+    }
+
+    /// [`Instances::unresolved_at`] with instance `k`'s world box `b`.
+    fn unresolved_in(
+        &self,
+        k: usize,
+        b: (DVec3, DVec3),
+    ) -> Option<crate::frame::reach::Unresolved> {
         use crate::frame::reach::{Unresolved, ray_step};
         if self.instances[k].mask == 0 {
             return None;
         }
-        Unresolved::of(k as u32, self.world_box(k)?, self.origin, ray_step)
+        Unresolved::of(k as u32, b, self.origin, ray_step)
     }
 
     /// Instance `k`'s world box: the exact box of its mesh's vertices through its transform

@@ -7,14 +7,14 @@
 //! order they arrived: every pick sees one version of the scene, and after each edit the worker
 //! publishes the new version ([`SceneView`]) for `GET /scene`.
 
-use super::frame_faults::{self, FrameFaults, box_of};
+use super::frame_faults::{self, FrameFaults};
 use crate::apps::camera::Camera;
 use crate::apps::render::{Image, Shade, render};
 use crate::error::{Error, Result};
 use crate::picker::{Backend, BuiltScene, Picker};
 use crate::query::{Answers, Mode, Query};
 use crate::ray::Ray;
-use crate::scene::Mesh;
+use crate::scene::{Mesh, box_of};
 use glam::DVec3;
 use serde::Serialize;
 use std::ops::Range;

@@ -96,15 +96,6 @@ pub(crate) fn moved(
     })
 }
 
-/// The box around `points`.
-pub(crate) fn box_of(points: impl IntoIterator<Item = DVec3>) -> (DVec3, DVec3) {
-    points
-        .into_iter()
-        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
-            (lo.min(p), hi.max(p))
-        })
-}
-
 fn refusal(why: String) -> EditError {
     EditError::Invalid(format!(
         "refused, nothing was changed: after this edit, {why}"
