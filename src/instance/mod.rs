@@ -174,8 +174,19 @@ impl Instances {
         Self::assemble(trees, instances)
     }
 
-    /// [`Instances::build`] over meshes whose trees exist.
+    /// [`Instances::build`] over meshes whose trees exist; the scene frame is centred on the
+    /// instances' bounds.
     pub fn assemble(meshes: Vec<Arc<MeshTree>>, instances: Vec<Instance>) -> Result<(Self, Bvh)> {
+        Self::assemble_about(meshes, instances, None)
+    }
+
+    /// [`Instances::assemble`] with the scene frame's origin at `origin`, or at the centre of
+    /// the instances' bounds when `None`.
+    fn assemble_about(
+        meshes: Vec<Arc<MeshTree>>,
+        instances: Vec<Instance>,
+        origin: Option<DVec3>,
+    ) -> Result<(Self, Bvh)> {
         for (k, i) in instances.iter().enumerate() {
             check_instance(&meshes, k, i)?;
         }
@@ -229,9 +240,9 @@ impl Instances {
                 (lo.min(b.0), hi.max(b.1))
             });
         (this.origin, this.bounds) = if lo.is_finite() {
-            ((lo + hi) * 0.5, Some((lo, hi)))
+            (origin.unwrap_or((lo + hi) * 0.5), Some((lo, hi)))
         } else {
-            (DVec3::ZERO, None)
+            (origin.unwrap_or(DVec3::ZERO), None)
         };
         let top = top::build(&this.scene_boxes(&boxes));
         let top_count = top.len() as u64;
@@ -324,15 +335,16 @@ impl Instances {
     }
 
     /// Adds `instance` (its id is the next one) and builds the top tree again over all
-    /// instances, with the combined tree (`bvh`) laid out anew and the scene frame re-centred.
-    /// Fails, naming it, on an unknown mesh or a transform that cannot place it, with nothing
-    /// changed.
+    /// instances, with the combined tree (`bvh`) laid out anew in the frame
+    /// [`Instances::reassemble`] chooses (re-centred, or kept). Fails, naming it, on an unknown
+    /// mesh or a transform that cannot place it, or when in that frame more instances are too
+    /// coarse to pick than before, with nothing changed.
     pub fn add(&mut self, bvh: &mut Bvh, instance: Instance) -> Result<u32> {
         let mut instances = self.instances.clone();
         instances.push(instance);
-        let (rebuilt, combined) = Self::assemble(self.meshes.clone(), instances)?;
-        // Re-centred around the new one, the frame may leave instances too coarse to pick that
-        // were not (an instance placed far from the rest): refused, nothing changed.
+        let (rebuilt, combined) = self.reassemble(instances)?;
+        // In either frame, instances may be too coarse to pick that were not (one placed far
+        // from the rest): refused, nothing changed.
         let after = rebuilt.unresolved();
         if after.len() > self.unresolved().len() {
             let u = after[0];
@@ -372,12 +384,33 @@ impl Instances {
     }
 
     /// Builds the top tree again over the instances where they are now (a refitted top tree's
-    /// boxes may have grown loose after many moves), the combined tree laid out anew.
+    /// boxes may have grown loose after many moves), the combined tree laid out anew, in the
+    /// frame [`Instances::reassemble`] chooses.
     pub fn rebuild_top(&mut self, bvh: &mut Bvh) -> Result<()> {
-        let (rebuilt, combined) = Self::assemble(self.meshes.clone(), self.instances.clone())?;
+        let (rebuilt, combined) = self.reassemble(self.instances.clone())?;
         *self = rebuilt;
         *bvh = combined;
         Ok(())
+    }
+
+    /// `instances` over this scene's meshes, assembled in a frame centred on their bounds,
+    /// unless that frame leaves more of them unresolved than this scene's frame would (checked
+    /// only then): the frame then keeps its origin. A move places an instance where the frame it
+    /// keeps resolves it (a large one can lie far out), and the centre of the bounds that now
+    /// reach it may lie so far from the rest that re-centring there would round their rays too
+    /// coarsely to pick them.
+    fn reassemble(&self, instances: Vec<Instance>) -> Result<(Self, Bvh)> {
+        let centred = Self::assemble(self.meshes.clone(), instances.clone())?;
+        let unresolved = centred.0.unresolved().len();
+        if unresolved == 0 || centred.0.origin == self.origin {
+            return Ok(centred);
+        }
+        let kept = Self::assemble_about(self.meshes.clone(), instances, Some(self.origin))?;
+        Ok(if kept.0.unresolved().len() < unresolved {
+            kept
+        } else {
+            centred
+        })
     }
 
     /// Moves mesh `mesh`'s vertices to `positions` (its vertex order, the same triangles) and

@@ -661,6 +661,70 @@ fn moved_masked_added_and_reshaped_instances_answer_as_the_oracle_with_increment
     assert!(hits.iter().any(|h| h.hit && h.object == 30));
 }
 
+/// A large instance moved far out, where the frame it keeps resolves it, then a small one added
+/// beside the first: a frame centred on bounds that now reach 10¹² would round the small ones'
+/// rays to 16 units, so the scene keeps its frame (the addition was once refused for it, naming
+/// an instance it had not touched), and every path answers as the oracle on the small ones; a
+/// rebuilt top tree keeps the frame too.
+#[test]
+fn after_a_far_move_additions_and_rebuilds_keep_a_frame_that_resolves_every_instance() {
+    let placed = |scale: f64, x: f64| {
+        transform(
+            DMat3::from_diagonal(DVec3::splat(scale)),
+            DVec3::new(x, 0.0, 0.0),
+        )
+    };
+    let instance = |name: &str, transform| Instance {
+        name: name.into(),
+        mesh: 1,
+        transform,
+        mask: u32::MAX,
+    };
+    let mut built = BuiltScene::instanced(
+        meshes(),
+        vec![
+            instance("small", placed(1.0, 0.0)),
+            instance("large", placed(1000.0, 5000.0)),
+        ],
+        &BuildOptions::default(),
+    )
+    .expect("build");
+    let origin = built.instances().unwrap().origin();
+    built
+        .set_instance_transform(1, placed(1000.0, 1e12))
+        .expect("the large box is resolved where it goes");
+    let added = built
+        .add_instance(instance("added", placed(1.0, 10.0)))
+        .expect("the small box is added beside the first");
+    assert_eq!(added, 2);
+    assert_eq!(built.instances().unwrap().origin(), origin);
+    assert!(built.instances().unwrap().unresolved().is_empty());
+    built.rebuild_top().unwrap();
+    assert_eq!(built.instances().unwrap().origin(), origin);
+    assert!(built.instances().unwrap().unresolved().is_empty());
+    // Rays of every kind aimed at the two small boxes (made over a scene of them alone).
+    let near = BuiltScene::instanced(
+        meshes(),
+        vec![
+            instance("small", placed(1.0, 0.0)),
+            instance("added", placed(1.0, 10.0)),
+        ],
+        &BuildOptions::default(),
+    )
+    .unwrap();
+    let rays = mixed_rays(&near.instances().unwrap().baked().unwrap(), 800, 17);
+    let built = Arc::new(built);
+    for query in queries() {
+        let answers = assert_query_equivalent("kept frame", built.clone(), &rays, &query);
+        for object in [0, 2] {
+            assert!(
+                answers.nearest.iter().any(|h| h.hit && h.object == object),
+                "instance {object} is hit"
+            );
+        }
+    }
+}
+
 #[test]
 fn camera_rays_on_instances_give_the_twins_answers_with_packets_asked_for_or_not() {
     // The instanced walk goes ray by ray (an 8-ray packet walk of both levels measured no faster
