@@ -86,16 +86,23 @@ pub fn parse_size(text: &str) -> std::result::Result<u64, String> {
     Ok(bytes as u64)
 }
 
-/// A user token for an error message: at most 60 characters, with "…" when cut.
+/// A user token for an error message: at most 60 characters, with "…" when cut, and its
+/// control characters escaped ([`crate::error::escape_controls`]).
 pub fn quote(token: &str) -> String {
     const MOST: usize = 60;
-    match token.char_indices().nth(MOST) {
-        None => token.to_string(),
-        Some((cut, _)) => format!("{}…", &token[..cut]),
+    let cut = match token.char_indices().nth(MOST) {
+        None => token,
+        Some((cut, _)) => &token[..cut],
+    };
+    let mut quoted = crate::error::escape_controls(cut).into_owned();
+    if cut.len() < token.len() {
+        quoted.push('…');
     }
+    quoted
 }
 
-fn human(bytes: u64) -> String {
+/// `bytes` for a message: in GiB from 1 GiB, else in MiB, one decimal.
+pub fn human(bytes: u64) -> String {
     const GIB: f64 = (1u64 << 30) as f64;
     const MIB: f64 = (1u64 << 20) as f64;
     if bytes as f64 >= GIB {

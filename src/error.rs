@@ -70,6 +70,24 @@ pub enum Error {
 /// Shorthand for results in this crate.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
+/// `text` with its control characters (a NUL, an escape sequence's ESC, a line break) written
+/// as escapes (`\u{0}`, `\u{1b}`, `\n`), so a file name or token in a message cannot break the
+/// line it is on or drive the terminal.
+pub fn escape_controls(text: &str) -> std::borrow::Cow<'_, str> {
+    if !text.chars().any(char::is_control) {
+        return std::borrow::Cow::Borrowed(text);
+    }
+    let mut out = String::with_capacity(text.len() + 16);
+    for c in text.chars() {
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    std::borrow::Cow::Owned(out)
+}
+
 /// `text` with every long token cut short by [`crate::budget::quote`] (at most 60 characters
 /// and "…"): each run of non-blank characters longer than that, keeping a quote mark ('', "" or
 /// ``) around it; then the whole cut at `most` characters. For messages that repeat user input

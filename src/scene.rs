@@ -91,12 +91,27 @@ pub fn check_transform(transform: &[[f64; 4]; 3]) -> std::result::Result<f64, St
     // volume its rows could span at most (the product of their lengths).
     let rows: f64 = m
         .iter()
-        .map(|r| (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt())
+        .map(|r| DVec3::new(r[0], r[1], r[2]))
+        .map(|r| {
+            // Scaled first, so a row of 1e200s has a length, not an overflow.
+            let most = r.abs().max_element();
+            if most > 0.0 {
+                (r / most).length() * most
+            } else {
+                0.0
+            }
+        })
         .product();
-    if !det.is_finite() || det.abs() <= 1e-12 * rows || rows.is_nan() {
+    if !(det.is_finite() && rows.is_finite()) {
         return Err(format!(
-            "is singular (its 3 × 3 part has determinant {det}, its rows' lengths multiply to \
-             {rows})"
+            "scales by more than double precision holds (its 3 × 3 part's rows' lengths \
+             multiply to {rows:.3e}, its determinant is {det:.3e})"
+        ));
+    }
+    if det.abs() <= 1e-12 * rows {
+        return Err(format!(
+            "is singular (its 3 × 3 part has determinant {det:.3e}, its rows' lengths multiply \
+             to {rows:.3e})"
         ));
     }
     Ok(det)

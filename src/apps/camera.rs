@@ -133,6 +133,9 @@ struct Basis {
 
 /// Vertical field of view of [`Camera::frame_bounds`] cameras, in degrees.
 pub const FRAME_FOV_Y_DEG: f64 = 45.0;
+
+/// The longest camera file read: a camera is a few hundred bytes of JSON.
+pub const MAX_CAMERA_FILE_BYTES: u64 = 1 << 20;
 /// How far [`Camera::frame_bounds`] cameras look down: the view direction's angle below the
 /// horizontal, in degrees.
 pub const FRAME_ELEVATION_DEG: f64 = 45.0;
@@ -516,11 +519,16 @@ impl Camera {
         Self::from_spec(spec).map_err(|e| Error::Invalid(format!("{path}: {e}")))
     }
 
-    /// Reads, parses and checks the camera file at `path` (see [`Camera::from_json_str`]); a
+    /// Reads, parses and checks the camera file at `path` (at most [`MAX_CAMERA_FILE_BYTES`]) (see [`Camera::from_json_str`]); a
     /// file that cannot be read is an [`Error::Io`] naming it.
     pub fn from_json_file(path: impl AsRef<Path>) -> Result<Camera> {
         let name = path.as_ref().display().to_string();
-        let text = crate::io::ray_file::read_text(path.as_ref())?;
+        let text = crate::io::ray_file::read_text_within(
+            path.as_ref(),
+            MAX_CAMERA_FILE_BYTES,
+            "more than a camera file holds",
+            None,
+        )?;
         Self::from_json_str(&name, &text)
     }
 

@@ -53,6 +53,11 @@ fn run_ray_file(
     matches: &ArgMatches,
 ) -> Result<ExitCode, Error> {
     let rays = super::read_rays(path, 0.0, f64::INFINITY, u32::MAX)?;
+    super::check_rays(
+        &format!("the {} rays of {}", rays.len(), path.display()),
+        rays.len() as u64,
+        &raypick::Query::default(),
+    )?;
     if rays.is_empty() {
         return Err(Error::Invalid(format!(
             "{}: no rays to time (the file holds no ray lines)",

@@ -77,6 +77,15 @@ fn visible(
             csv_number(eps)
         )));
     }
+    let query = Query {
+        mode: Mode::Any,
+        ..Query::default()
+    };
+    super::check_rays(
+        &format!("the {} {what}s", segments.len()),
+        segments.len() as u64,
+        &query,
+    )?;
     let rays: Vec<Ray> = segments
         .iter()
         .map(|&(a, b)| {
@@ -85,10 +94,6 @@ fn visible(
                 .with_mask(sight.ray_mask)
         })
         .collect();
-    let query = Query {
-        mode: Mode::Any,
-        ..Query::default()
-    };
     let answers = make_picker(sight.backend, built)?.query(&rays, &query)?;
     let invalid = answers.nearest.iter().filter(|h| h.invalid).count();
     if invalid > 0 {

@@ -65,7 +65,13 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         },
         (None, Some(camera), Some(pixels)) => {
             let camera = Camera::from_json_file(camera)?;
-            load_pixel_indices_as_centers(pixels)?
+            let pixels_read = load_pixel_indices_as_centers(pixels)?;
+            super::check_rays(
+                &format!("the {} pixels of {}", pixels_read.len(), pixels.display()),
+                pixels_read.len() as u64,
+                &query,
+            )?;
+            pixels_read
                 .into_iter()
                 .map(|(x, y)| {
                     camera

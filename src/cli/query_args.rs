@@ -26,10 +26,10 @@ pub struct QueryArgs {
     #[arg(long, value_parser = parse_mask, default_value = "0xffffffff")]
     pub ray_mask: u32,
     /// Default tmin of every ray (hits need t > tmin).
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = parse_ray_parameter)]
     pub tmin: f64,
     /// Default tmax of every ray (hits need t <= tmax); a ray line's 7th number overrides it.
-    #[arg(long, default_value_t = f64::INFINITY, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = f64::INFINITY, allow_negative_numbers = true, value_parser = parse_ray_parameter)]
     pub tmax: f64,
 }
 
@@ -42,5 +42,16 @@ impl QueryArgs {
             max_hits: self.max_hits,
             intersector: self.intersector,
         }
+    }
+}
+
+/// A `--tmin` or `--tmax` value: a number, or `inf` (not NaN, which no `t` compares with).
+pub fn parse_ray_parameter(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(t) if !t.is_nan() => Ok(t),
+        _ => Err(format!(
+            "'{}' is not a ray parameter (a number, or inf)",
+            raypick::budget::quote(text)
+        )),
     }
 }

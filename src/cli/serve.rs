@@ -54,7 +54,8 @@ fn timeout(flag: &str, seconds: f64) -> Result<Duration, Error> {
         Ok(Duration::from_secs_f64(seconds))
     } else {
         Err(Error::Invalid(format!(
-            "{flag} {seconds} is not a timeout; give a positive number of seconds"
+            "{flag} {} is not a timeout; give a positive number of seconds, at most 1e9",
+            raypick::io::output::csv_number(seconds)
         )))
     }
 }

@@ -33,7 +33,7 @@ pub struct VerifyArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Run the brute-force oracle only when triangles × rays is at most this (it is O(N) per ray).
-    #[arg(long, default_value_t = 5e9)]
+    #[arg(long, default_value_t = 5e9, value_parser = parse_oracle_budget)]
     pub oracle_budget: f64,
     #[command(flatten)]
     pub query: QueryArgs,
@@ -95,10 +95,15 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let query = q.query();
     println!("query: {query:?}, ray mask {:#x}", q.ray_mask);
     let labelled: Vec<(&str, Ray)> = match &args.rays {
-        Some(path) => read_rays(path, q.tmin, q.tmax, q.ray_mask)?
-            .into_iter()
-            .map(|r| ("file", r))
-            .collect(),
+        Some(path) => {
+            let rays = read_rays(path, q.tmin, q.tmax, q.ray_mask)?;
+            super::check_rays(
+                &format!("the {} rays of {}", rays.len(), path.display()),
+                rays.len() as u64,
+                &query,
+            )?;
+            rays.into_iter().map(|r| ("file", r)).collect()
+        }
         None => mixed_rays(world, args.random, args.seed)
             .into_iter()
             .map(|(k, r)| (k.name(), r.with_mask(q.ray_mask)))
@@ -279,4 +284,15 @@ fn timed<T>(f: impl FnOnce() -> Result<T, Error>) -> Result<(T, f64), Error> {
     let start = Instant::now();
     let value = f()?;
     Ok((value, start.elapsed().as_secs_f64()))
+}
+
+/// An `--oracle-budget` value: a number of exact triangle tests, 0 or more (`inf`: always).
+fn parse_oracle_budget(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(n) if n >= 0.0 => Ok(n),
+        _ => Err(format!(
+            "'{}' is not a number of triangle tests (0 or more, or inf)",
+            raypick::budget::quote(text)
+        )),
+    }
 }

@@ -15,6 +15,7 @@
 //! [`super::refine`] on each hit): three divisions, a square root and one more division each.
 
 use super::{NEVER_TRACED, Refined, local_ray, refine};
+use crate::exact::scales;
 use crate::layout::GpuRay;
 use crate::query::Query;
 use crate::ray::Ray;
@@ -83,8 +84,9 @@ pub fn refine_four(
     rays: [&Ray; 4],
     traced: [[f64; 3]; 4],
 ) -> [Refined; 4] {
+    // A direction near an end of f64's range is scaled first, which the lanes leave out.
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx") {
+    if std::arch::is_x86_feature_detected!("avx") && !rays.iter().any(|r| scales(r.dir)) {
         // SAFETY: the CPU has AVX (checked just above).
         return unsafe { avx::refine_four(triangles, rays, traced) };
     }

@@ -68,6 +68,10 @@ pub fn parse_pairs(path: &str, text: &str) -> Result<Vec<(DVec3, DVec3)>, Error>
         .collect())
 }
 
+/// What a line of a number file takes once parsed: its line number and numbers (a vector of
+/// up to eight, with the allocator's share), then the ray, point pair or pixel made of them.
+const PARSED_LINE_BYTES: u64 = 160;
+
 /// The numbers of each non-blank line with its 1-based line number; each line must hold one of
 /// `counts` numbers. `#` starts a comment; a leading byte-order mark is skipped.
 pub(crate) fn parse_number_lines(
@@ -77,6 +81,14 @@ pub(crate) fn parse_number_lines(
     expected: &str,
 ) -> Result<Vec<(usize, Vec<f64>)>, Error> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    // Each line's numbers, and what its caller makes of them, checked against the budget
+    // before they are made: a file of short lines parses into ten times its size.
+    let count = 1 + text.bytes().filter(|&b| b == b'\n').count() as u64;
+    crate::budget::check(
+        &format!("the {count} lines of {path}"),
+        count,
+        PARSED_LINE_BYTES,
+    )?;
     let mut lines = Vec::new();
     for (i, raw) in text.lines().enumerate() {
         if let Some(numbers) = parse_line(path, i + 1, raw, counts, expected)? {
@@ -155,14 +167,81 @@ pub fn load_pairs(path: &Path) -> Result<Vec<(DVec3, DVec3)>, Error> {
     parse_pairs(&name, &read_text(path)?)
 }
 
-/// The file as UTF-8 text; errors name the file (and the line of the first invalid byte).
-/// Reads a whole text file, naming it (and the line of the first invalid UTF-8) on failure.
+/// Reads a whole number file (rays, points, pairs, pixels), naming it (and the line of the
+/// first invalid UTF-8) on failure. A file longer than the memory budget, or with a line longer
+/// than [`MAX_LINE_BYTES`], is refused as soon as the reading gets there (a device or a pipe says
+/// nothing of its length beforehand).
 pub(crate) fn read_text(path: &Path) -> Result<String, Error> {
+    read_text_within(
+        path,
+        crate::budget::limit(),
+        "the memory budget (set it with --max-memory)",
+        Some(MAX_LINE_BYTES),
+    )
+}
+
+/// [`read_text`] for a file of at most `most` bytes (`limit` says what sets that), and lines of
+/// at most `longest_line` bytes when given.
+pub(crate) fn read_text_within(
+    path: &Path,
+    most: u64,
+    limit: &str,
+    longest_line: Option<usize>,
+) -> Result<String, Error> {
+    use std::io::Read;
     let name = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| Error::Io {
+    let io = |source| Error::Io {
         path: name.clone(),
         source,
-    })?;
+    };
+    let too_long = || {
+        Error::Invalid(format!(
+            "{name} is longer than {}, {limit}",
+            crate::budget::human(most)
+        ))
+    };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    // A regular file's length is known: refused before reading, read without regrowing.
+    let length = file
+        .metadata()
+        .ok()
+        .filter(|m| m.is_file())
+        .map(|m| m.len());
+    if length.is_some_and(|n| n > most) {
+        return Err(too_long());
+    }
+    let mut bytes = Vec::with_capacity(length.unwrap_or(0) as usize);
+    let (mut block, mut line_start, mut lines) = (vec![0u8; 64 << 10], 0usize, 1usize);
+    loop {
+        let n = match file.read(&mut block) {
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(io(e)),
+        };
+        if (bytes.len() + n) as u64 > most {
+            return Err(too_long());
+        }
+        let read = &block[..n];
+        bytes.extend_from_slice(read);
+        if let Some(longest) = longest_line {
+            let newlines = read.iter().filter(|&&b| b == b'\n').count();
+            if let Some(last) = read.iter().rposition(|&b| b == b'\n') {
+                line_start = bytes.len() - n + last + 1;
+            }
+            if bytes.len() - line_start > longest {
+                return Err(Error::Parse {
+                    path: name,
+                    line: Some(lines + newlines),
+                    message: format!(
+                        "the line is longer than {longest} bytes; a line of this file holds a \
+                         few numbers"
+                    ),
+                });
+            }
+            lines += newlines;
+        }
+    }
     String::from_utf8(bytes).map_err(|e| {
         let bytes = e.as_bytes();
         let valid = bytes

@@ -423,7 +423,8 @@ fn error_messages_quote_at_most_a_few_dozen_characters_of_a_bad_token() {
         &["longer-rays.txt:1", "longer than"],
     );
     assert!(err.len() < 400, "{} bytes", err.len());
-    let pixels = temp_file("long-pixels.txt", &format!("1 {junk}\n"));
+    // So are pixel files, read whole: a longer line is refused as such.
+    let pixels = temp_file("long-pixels.txt", &format!("1 {}\n", &junk[..100_000]));
     let camera = camera_file("small-camera.json", 8, 6);
     check(
         &[
@@ -437,9 +438,10 @@ fn error_messages_quote_at_most_a_few_dozen_characters_of_a_bad_token() {
         ],
         "is not a number",
     );
+    // Camera files are at most 1 MiB.
     let bad_camera = temp_file(
         "long-camera.json",
-        &format!(r#"{{"perspective": {{"{junk}": 1}}}}"#),
+        &format!(r#"{{"perspective": {{"{}": 1}}}}"#, &junk[..500_000]),
     );
     check(
         &["render", "--camera", &bad_camera, "--out", "/dev/null"],
@@ -447,7 +449,7 @@ fn error_messages_quote_at_most_a_few_dozen_characters_of_a_bad_token() {
     );
     let string_camera = temp_file(
         "string-camera.json",
-        &format!(r#"{{"perspective": {{"eye": "{junk}"}}}}"#),
+        &format!(r#"{{"perspective": {{"eye": "{}"}}}}"#, &junk[..500_000]),
     );
     check(
         &["render", "--camera", &string_camera, "--out", "/dev/null"],
@@ -755,5 +757,217 @@ fn outputs_that_cannot_be_what_their_name_says_are_refused() {
     assert_refused(&["idbuffer", "--raw-ids"], &["--raw-ids", ".png"]);
     for bad in ["-1", "nan", "inf"] {
         assert_refused(&["soak", "--max-growth", bad], &["--max-growth"]);
+    }
+}
+
+/// Inputs whose size no header gives (a device, a pipe, a file of endless short lines, a small
+/// file listed thousands of times) are refused as soon as the reading shows them too long or
+/// over the budget: before, `/dev/zero` as a pair, pixel, target, camera or verify ray file
+/// grew to gigabytes, `--max-memory` or not.
+#[test]
+fn inputs_of_unknown_length_are_refused_when_too_long_or_over_the_budget() {
+    let pixels = temp_file("one-pixel.txt", "3 4\n");
+    let camera = camera_file("small-camera.json", 64, 48);
+    for args in [
+        &["los", "--pairs", "/dev/zero", "--backend", "cpu"][..],
+        &[
+            "viewshed",
+            "--observer",
+            "1",
+            "1",
+            "100",
+            "--targets",
+            "/dev/zero",
+            "--backend",
+            "cpu",
+        ],
+        &[
+            "pick",
+            "--camera",
+            &camera,
+            "--pixels",
+            "/dev/zero",
+            "--backend",
+            "cpu",
+        ],
+        &["bench", "--ray-file", "/dev/zero"],
+    ] {
+        assert_refused(args, &["/dev/zero:1:", "longer than 1048576 bytes"]);
+    }
+    // `verify` describes the scene before it reads its rays.
+    let (code, _, err) = raypick(&["verify", "--rays", "/dev/zero"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.starts_with("error: /dev/zero:1: the line is longer than 1048576 bytes"),
+        "{err}"
+    );
+    assert_refused(
+        &[
+            "pick",
+            "--camera",
+            "/dev/zero",
+            "--pixels",
+            &pixels,
+            "--backend",
+            "cpu",
+        ],
+        &["/dev/zero is longer than 1.0 MiB", "camera file"],
+    );
+    // Many short lines: each parsed line costs ten times its bytes.
+    let pairs = temp_file("many-pairs.txt", &"0 0 0 1 1 1\n".repeat(20_000));
+    assert_refused(
+        &[
+            "los",
+            "--pairs",
+            &pairs,
+            "--max-memory",
+            "1M",
+            "--backend",
+            "cpu",
+        ],
+        &["20001 lines of", "many-pairs.txt", "memory budget"],
+    );
+    // A file longer than the budget is refused before it is read.
+    assert_refused(
+        &[
+            "los",
+            "--pairs",
+            &pairs,
+            "--max-memory",
+            "1M",
+            "--backend",
+            "cpu",
+        ],
+        &["memory budget"],
+    );
+    // A small mesh listed 200 times: the copies are counted before they are made.
+    let soup: String = (0..100)
+        .map(|k| {
+            format!(
+                "v {k} 0 0\nv {k} 1 0\nv {k} 0 1\nf {} {} {}\n",
+                3 * k + 1,
+                3 * k + 2,
+                3 * k + 3
+            )
+        })
+        .collect();
+    let obj = temp_file("listed-soup.obj", &soup);
+    let name = std::path::Path::new(&obj)
+        .file_name()
+        .unwrap()
+        .to_str()
+        .unwrap()
+        .to_owned();
+    let listings = vec![format!(r#"{{"file": "{name}"}}"#); 200].join(", ");
+    let description = temp_file(
+        "listed-many.json",
+        &format!(r#"{{"objects": [{listings}]}}"#),
+    );
+    assert_refused(
+        &[
+            "render",
+            "--scenes",
+            &description,
+            "--max-memory",
+            "1M",
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--out",
+            "/dev/null",
+        ],
+        &["200 listings", "× 104 bytes", "memory budget"],
+    );
+}
+
+/// A description that lists nothing, or an empty file name, is refused naming the description
+/// (an empty list once loaded the built-in example scene without a word); a NaN `--tmin`,
+/// `--tmax` or `--oracle-budget` is refused; control bytes in a bad token are escaped; a
+/// transform too large for f64 says so in a short sentence, not as "singular" with 309 digits.
+#[test]
+fn empty_descriptions_nan_bounds_control_bytes_and_huge_transforms_are_refused_plainly() {
+    let empty = temp_file("empty-scene.json", r#"{"objects": []}"#);
+    assert_refused(
+        &["pick", "--scenes", &empty, "--backend", "cpu"],
+        &["empty-scene.json", "lists no objects"],
+    );
+    let unnamed = temp_file("unnamed-scene.json", r#"{"objects": [{"file": ""}]}"#);
+    assert_refused(
+        &["pick", "--scenes", &unnamed, "--backend", "cpu"],
+        &["unnamed-scene.json", "object 0: the file name is empty"],
+    );
+    for flag in ["--tmin", "--tmax"] {
+        assert_parser_refused(&["pick", flag, "NaN"], &[flag, "not a ray parameter"]);
+    }
+    assert_parser_refused(
+        &["verify", "--oracle-budget", "NaN"],
+        &["--oracle-budget", "not a number of triangle tests"],
+    );
+    let nul = temp_file("nul-pairs.txt", &"\0".repeat(2000));
+    let err = assert_refused(&["los", "--pairs", &nul, "--backend", "cpu"], &["\\u{0}"]);
+    assert!(!err.contains('\0') && err.len() < 500, "{err:?}");
+    let obj = temp_file("scaled-box.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let name = std::path::Path::new(&obj)
+        .file_name()
+        .unwrap()
+        .to_str()
+        .unwrap()
+        .to_owned();
+    let huge = temp_file(
+        "huge-transform.json",
+        &format!(
+            r#"{{"objects": [{{"file": "{name}", "transform": [[1e308, 0, 0, 0], [0, 1e308, 0, 0], [0, 0, 1, 0]]}}]}}"#
+        ),
+    );
+    let err = assert_refused(
+        &["pick", "--scenes", &huge, "--backend", "cpu"],
+        &["more than double precision holds"],
+    );
+    assert!(err.len() < 300 && !err.contains("singular"), "{err}");
+}
+
+/// A direction near the top (or the bottom) of f64's range is refined in f64 like a unit one:
+/// the same triangle, u, v and position on every path and for the oracle, with t in its own
+/// units (the exact test overflowed and the f32 traversal's values were reported).
+#[test]
+fn directions_near_the_ends_of_f64_are_refined_in_f64_on_every_path() {
+    let built = Arc::new(BuiltScene::new(example_scene(), &BuildOptions::default()).unwrap());
+    let query = Query::default();
+    let origin = DVec3::new(33.3, 45.1, 100.0);
+    let unit = Ray::new(origin, DVec3::NEG_Z);
+    let expected = brute_force_query(&built.scene, &[unit], &query).nearest[0];
+    assert!(expected.hit);
+    for length in [1e307, 1e-300] {
+        let ray = Ray::new(origin, DVec3::NEG_Z * length);
+        let oracle = brute_force_query(&built.scene, &[ray], &query).nearest[0];
+        // The unit ray's answer, to rounding (the direction is not a power of two times it).
+        assert!(
+            oracle.hit && (oracle.object, oracle.triangle) == (expected.object, expected.triangle)
+        );
+        assert!((oracle.u - expected.u).abs() < 1e-12 && (oracle.v - expected.v).abs() < 1e-12);
+        assert!(
+            (oracle.position - expected.position).length() < 1e-9,
+            "{oracle:?}"
+        );
+        assert!(
+            (oracle.t * length / expected.t - 1.0).abs() < 1e-12,
+            "{oracle:?}"
+        );
+        let mut pickers: Vec<Box<dyn Picker>> = vec![
+            Box::new(CpuPicker::new(built.clone())),
+            Box::new(ReferencePicker::new(built.clone())),
+        ];
+        for h in std::iter::once(oracle).chain(
+            pickers
+                .iter_mut()
+                .map(|p| p.query(&[ray; 5], &query).unwrap().nearest[4]),
+        ) {
+            // Every path gives the oracle's bits.
+            assert!(h.hit, "{length}: {h:?}");
+            let bits =
+                |h: raypick::Hit| (h.object, h.triangle, h.t, h.u, h.v, h.position, h.normal);
+            assert_eq!(bits(h), bits(oracle), "{length}");
+        }
     }
 }
