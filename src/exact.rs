@@ -87,12 +87,23 @@ mod tests {
         let origin = DVec3::new(33.3, 45.1, 100.0);
         let unit = ray_triangle_f64(triangle, origin, DVec3::NEG_Z);
         assert!(unit.hit && unit.t == 100.0);
+        // A power of two times the unit direction: the unit test's u and v, bit for bit.
+        for length in [2f64.powi(1000), 2f64.powi(-1000)] {
+            let h = ray_triangle_f64(triangle, origin, DVec3::NEG_Z * length);
+            assert!(h.hit && scales(DVec3::NEG_Z * length), "{length}");
+            assert_eq!(
+                (h.u, h.v, h.t),
+                (unit.u, unit.v, unit.t / length),
+                "{length}"
+            );
+        }
+        // Other lengths: the same to rounding.
         for length in [1e307, 1e300, 1e-300] {
             let dir = DVec3::NEG_Z * length;
             assert!(scales(dir));
             let h = ray_triangle_f64(triangle, origin, dir);
             assert!(h.hit, "{length}");
-            assert_eq!((h.u, h.v), (unit.u, unit.v), "{length}");
+            assert!((h.u - unit.u).abs() < 1e-12 && (h.v - unit.v).abs() < 1e-12);
             let position = origin + dir * h.t;
             assert!((position.z).abs() < 1e-9, "{length}: {position}");
         }
