@@ -142,6 +142,17 @@ pub struct Instances {
     iteration_cap: u32,
 }
 
+/// The box around `boxes`; `None` when there is none.
+fn all_bounds(boxes: &[Option<(DVec3, DVec3)>]) -> Option<(DVec3, DVec3)> {
+    let (lo, hi) = boxes
+        .iter()
+        .flatten()
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), b| {
+            (lo.min(b.0), hi.max(b.1))
+        });
+    lo.is_finite().then_some((lo, hi))
+}
+
 /// `leaf_of` of an instance without a leaf.
 const NO_LEAF: u32 = u32::MAX;
 
@@ -244,6 +255,11 @@ impl Instances {
         } else {
             (origin.unwrap_or(DVec3::ZERO), None)
         };
+        // The frame is centred on every instance (a hidden one may be shown again); the bounds
+        // users see are those of the instances that can be hit, where there are any.
+        if let Some(live) = this.live_bounds(&boxes) {
+            this.bounds = Some(live);
+        }
         let top = top::build(&this.scene_boxes(&boxes));
         let top_count = top.len() as u64;
         if top_count + nodes > u64::from(MAX_NODES) || triangles > u64::from(u32::MAX) {
@@ -329,9 +345,30 @@ impl Instances {
     /// without renumbering the others). Fails on an unknown instance.
     pub fn set_mask(&mut self, k: u32, mask: u32) -> Result<()> {
         let i = self.known(k)?;
+        let shown = |m: u32| m != 0;
+        let changed = shown(self.instances[i].mask) != shown(mask);
         self.instances[i].mask = mask;
         self.records[i].mask = mask;
+        if changed {
+            // Hidden or shown again: the bounds of what can be hit change (one box per
+            // instance; a move, the frequent edit, only grows them).
+            let boxes = self.world_boxes();
+            if let Some(live) = self.live_bounds(&boxes).or_else(|| all_bounds(&boxes)) {
+                self.bounds = Some(live);
+            }
+        }
         Ok(())
+    }
+
+    /// The box around `boxes` (one per instance) of the instances that can be hit (mask not
+    /// 0); `None` when none can.
+    fn live_bounds(&self, boxes: &[Option<(DVec3, DVec3)>]) -> Option<(DVec3, DVec3)> {
+        let live = boxes
+            .iter()
+            .zip(&self.instances)
+            .filter(|(_, i)| i.mask != 0)
+            .map(|(b, _)| *b);
+        all_bounds(&live.collect::<Vec<_>>())
     }
 
     /// Adds `instance` (its id is the next one) and builds the top tree again over all
@@ -514,7 +551,8 @@ impl Instances {
         if leaf == NO_LEAF {
             return;
         }
-        let Some((lo, hi)) = self.scene_boxes(&[self.world_box(i)])[0] else {
+        let world = self.world_box(i);
+        let Some((lo, hi)) = self.scene_boxes(&[world])[0] else {
             return;
         };
         let nodes = bvh.nodes.to_mut();
@@ -527,7 +565,9 @@ impl Instances {
             nodes[at].min = Vec3::from(l.min).min(Vec3::from(r.min)).into();
             nodes[at].max = Vec3::from(l.max).max(Vec3::from(r.max)).into();
         }
-        if let Some((blo, bhi)) = self.world_box(i) {
+        if let Some((blo, bhi)) = world
+            && self.instances[i].mask != 0
+        {
             self.bounds = Some(match self.bounds {
                 Some((a, b)) => (a.min(blo), b.max(bhi)),
                 None => (blo, bhi),
@@ -565,7 +605,10 @@ impl Instances {
         self.origin
     }
 
-    /// The world box around every instance that can be hit (`None`: nothing can be).
+    /// The world box around the instances that can be hit (mask not 0; around all of them
+    /// when none can, `None` when none has a box): worked out when instances are placed, added,
+    /// hidden or shown; a move grows it to the moved instance's new box (it may then hold the
+    /// old place too).
     pub fn bounds(&self) -> Option<(DVec3, DVec3)> {
         self.bounds
     }

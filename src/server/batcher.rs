@@ -548,6 +548,7 @@ impl Batcher {
                 live(&objects, object)?;
                 picker.set_mask(object, 0).map_err(invalid)?;
                 objects[object as usize].1 = true;
+                self.gather_removed(picker, object, &objects, before);
                 object
             }
             Edit::Add {
@@ -830,6 +831,58 @@ impl Batcher {
             .0;
         self.faults = None;
         Ok(())
+    }
+
+    /// After `object` was removed (its mask 0): where it reached the edge of the scene's
+    /// bounds, its vertices are gathered at one point inside the objects left (zero-area
+    /// triangles, which no tree holds) and the scene is built again, so its bounds, its framing
+    /// camera and its frame's centre are those of what is left. Without it, one far object
+    /// added and removed kept them wide for every client: the first view empty, and nearby
+    /// additions refused as too far from the centre. Where the rebuild cannot be made, the
+    /// removal stands as a mask.
+    fn gather_removed(
+        &mut self,
+        picker: &mut Box<dyn Picker>,
+        object: u32,
+        objects: &[(Option<[[f64; 4]; 3]>, bool)],
+        before: FrameFaults,
+    ) {
+        let Some(built) = picker.current_scene() else {
+            return;
+        };
+        let scene = &built.scene;
+        let (Some((lo, hi)), Some(removed)) =
+            (scene.bounds(), scene.objects().get(object as usize))
+        else {
+            return;
+        };
+        let points = |k: u32| scene.object_vertices(k).map(|v| scene.position(v));
+        let (rlo, rhi) = box_of(points(object));
+        if removed.triangle_count == 0 || (rlo.cmpgt(lo).all() && rhi.cmplt(hi).all()) {
+            // Inside the bounds on every side: they stay as they are.
+            return;
+        }
+        let left = box_of(
+            (0..scene.objects().len() as u32)
+                .filter(|&k| !objects.get(k as usize).is_some_and(|o| o.1))
+                .flat_map(points),
+        );
+        if !left.0.is_finite() || left == (lo, hi) {
+            return;
+        }
+        let centre = (left.0 + left.1) * 0.5;
+        let mut gathered = scene.clone();
+        let options = *built.options();
+        let count = scene.object_vertices(object).count();
+        drop(built);
+        if gathered
+            .set_object_positions(object, &vec![centre; count])
+            .is_ok()
+        {
+            // A smaller frame resolves what is left at least as finely; a refusal or a
+            // failure leaves the masked scene serving.
+            let _ = self.rebuild(picker, gathered, &options, before);
+        }
     }
 
     /// Builds `scene` with `options` and puts a new picker over it in `picker`'s place; refused,

@@ -490,3 +490,56 @@ fn far_edits_are_refused() {
 fn far_edits_are_refused_on_instances() {
     far_edits_are_refused_on(instanced_scene(), true);
 }
+
+/// A far object added and then removed leaves the scene's bounds (what `GET /scene` reports and
+/// the viewer's first view frames), and on copies its frame's centre, as they were: before, a
+/// removal was only a mask, so the bounds kept reaching the removed object for good, the first
+/// view stayed empty, and on copies a small addition near the rest was then refused as too far
+/// from the centre the removed object still pulled.
+fn removals_give_back_the_bounds_on(scene: Arc<BuiltScene>, instanced: bool) {
+    let base = start_on(scene, Backend::Cpu);
+    let get = || call("GET", &format!("{base}/scene"), None).1;
+    let (bounds, origin) = (get()["bounds"].clone(), get()["origin"].clone());
+    let triangle = |size: f64, at: Value| {
+        json!({
+            "vertices": [[0.0, 0.45, 2.0], [size, 0.45, 2.0], [0.0, 0.45 + size, 2.0]],
+            "triangles": [[0, 1, 2]],
+            "transform": at,
+        })
+    };
+    let (status, added) = call(
+        "POST",
+        &format!("{base}/objects"),
+        Some(&triangle(1.0, translate(3e5))),
+    );
+    assert_eq!(status, 200, "{added}");
+    assert_ne!(get()["bounds"], bounds);
+    let far = added["object"].as_u64().unwrap();
+    let (status, answer) = call("DELETE", &format!("{base}/objects/{far}"), None);
+    assert_eq!(status, 200, "{answer}");
+    assert_eq!(get()["bounds"], bounds, "the bounds of what is left");
+    if !instanced {
+        assert_eq!(get()["origin"], origin, "the frame centred on what is left");
+    }
+    // A tenth of a unit, beside the box: resolved in the frame of what is left.
+    let (status, answer) = call(
+        "POST",
+        &format!("{base}/objects"),
+        Some(&triangle(0.1, translate(3.0))),
+    );
+    assert_eq!(status, 200, "{answer}");
+    assert_eq!(
+        down(&base, &[0.5, 3.02], u32::MAX),
+        [Some(1), Some(far + 1)]
+    );
+}
+
+#[test]
+fn removals_give_back_the_bounds() {
+    removals_give_back_the_bounds_on(scene(), false);
+}
+
+#[test]
+fn removals_give_back_the_bounds_on_instances() {
+    removals_give_back_the_bounds_on(instanced_scene(), true);
+}
