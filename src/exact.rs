@@ -12,12 +12,12 @@ pub const SCALED_BEYOND: f64 = 1.0 / UNSCALE;
 /// The power of two a direction outside the range is multiplied by, once or more.
 const UNSCALE: f64 = 3.054936363499605e-151; // 2^-500
 
-/// Whether [`ray_triangle_f64`] scales `dir` before testing (a direction whose largest
+/// Whether [`ray_triangle_f64`] scales `dir` before testing (a finite direction whose largest
 /// component is not in `(1 / SCALED_BEYOND, SCALED_BEYOND)`, zero aside).
 #[inline]
 pub fn scales(dir: DVec3) -> bool {
     let most = dir.abs().max_element();
-    most >= SCALED_BEYOND || (most > 0.0 && most <= UNSCALE)
+    most.is_finite() && (most >= SCALED_BEYOND || (most > 0.0 && most <= UNSCALE))
 }
 
 /// f64 Möller–Trumbore on world-space vertices. `hit` is false when the ray is parallel to the
@@ -108,5 +108,14 @@ mod tests {
             assert!((position.z).abs() < 1e-9, "{length}: {position}");
         }
         assert!(!scales(DVec3::NEG_Z * 1e150) && !scales(DVec3::ZERO));
+        // Not finite: tested as it is (scaling would never bring it into range); with a NaN
+        // beside a large component, scaled and tested, and no hit either way.
+        assert!(!scales(DVec3::NEG_Z * f64::INFINITY));
+        for dir in [
+            DVec3::NEG_Z * f64::INFINITY,
+            DVec3::new(f64::NAN, 0.0, -1e300),
+        ] {
+            assert!(!ray_triangle_f64(triangle, origin, dir).hit);
+        }
     }
 }
