@@ -94,7 +94,7 @@ pub fn quote(token: &str) -> String {
         None => token,
         Some((cut, _)) => &token[..cut],
     };
-    let mut quoted = crate::error::escape_controls(cut).into_owned();
+    let mut quoted = crate::error::escape_controls(cut, false).into_owned();
     if cut.len() < token.len() {
         quoted.push('…');
     }

@@ -72,14 +72,16 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 /// `text` with its control characters (a NUL, an escape sequence's ESC, a line break) written
 /// as escapes (`\u{0}`, `\u{1b}`, `\n`), so a file name or token in a message cannot break the
-/// line it is on or drive the terminal.
-pub fn escape_controls(text: &str) -> std::borrow::Cow<'_, str> {
-    if !text.chars().any(char::is_control) {
+/// line it is on or drive the terminal; with `keep_lines`, line breaks and tabs stay (a whole
+/// message, whose GPU validation text may run over lines).
+pub fn escape_controls(text: &str, keep_lines: bool) -> std::borrow::Cow<'_, str> {
+    let escaped = |c: char| c.is_control() && !(keep_lines && matches!(c, '\n' | '\t'));
+    if !text.chars().any(escaped) {
         return std::borrow::Cow::Borrowed(text);
     }
     let mut out = String::with_capacity(text.len() + 16);
     for c in text.chars() {
-        if c.is_control() {
+        if escaped(c) {
             out.extend(c.escape_default());
         } else {
             out.push(c);

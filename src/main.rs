@@ -108,7 +108,7 @@ fn main() -> ExitCode {
         Err(e) => {
             // A long message (one that repeats a huge bad token: a JSON, glTF or GeoTIFF
             // reader's) is cut to short tokens; ordinary ones, with their paths, stay whole.
-            let message = raypick::error::escape_controls(&e.to_string()).into_owned();
+            let message = raypick::error::escape_controls(&e.to_string(), true).into_owned();
             if message.len() > 1000 {
                 eprintln!("error: {}", raypick::error::shorten_tokens(&message, 2000));
             } else {

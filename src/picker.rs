@@ -184,7 +184,9 @@ impl BuiltScene {
         Ok(Refit::Rebuilt)
     }
 
-    /// The world box around the scene (`None`: an empty scene).
+    /// The world box around the scene (`None`: an empty scene): every object of a plain scene
+    /// (but a removed one the server gathered), the instances that can be hit of an instanced
+    /// one ([`Instances::bounds`]).
     pub fn bounds(&self) -> Option<(DVec3, DVec3)> {
         match &self.instances {
             Some(i) => i.bounds(),

@@ -200,9 +200,12 @@ fn grid_targets(built: &BuiltScene, lift: DVec3) -> Result<Vec<(DVec3, String)>,
         }
     }
     if targets.is_empty() {
-        return Err(Error::Invalid(
-            "the scene has no terrain grid: give --targets FILE".into(),
-        ));
+        let why = if scene.objects().iter().any(|o| o.grid.is_some()) {
+            "the scene's terrain grids have no cells with data (NODATA everywhere)"
+        } else {
+            "the scene has no terrain grid"
+        };
+        return Err(Error::Invalid(format!("{why}: give --targets FILE")));
     }
     Ok(targets)
 }

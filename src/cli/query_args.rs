@@ -47,11 +47,13 @@ impl QueryArgs {
 
 /// A `--tmin` or `--tmax` value: a number, or `inf` (not NaN, which no `t` compares with).
 pub fn parse_ray_parameter(text: &str) -> Result<f64, String> {
+    parse_number_where(text, |t| !t.is_nan(), "a ray parameter (a number, or inf)")
+}
+
+/// A number argument for which `ok` holds; else a sentence quoting it as not `what`.
+pub fn parse_number_where(text: &str, ok: fn(f64) -> bool, what: &str) -> Result<f64, String> {
     match text.trim().parse::<f64>() {
-        Ok(t) if !t.is_nan() => Ok(t),
-        _ => Err(format!(
-            "'{}' is not a ray parameter (a number, or inf)",
-            raypick::budget::quote(text)
-        )),
+        Ok(x) if ok(x) => Ok(x),
+        _ => Err(format!("'{}' is not {what}", raypick::budget::quote(text))),
     }
 }

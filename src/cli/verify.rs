@@ -288,11 +288,9 @@ fn timed<T>(f: impl FnOnce() -> Result<T, Error>) -> Result<(T, f64), Error> {
 
 /// An `--oracle-budget` value: a number of exact triangle tests, 0 or more (`inf`: always).
 fn parse_oracle_budget(text: &str) -> Result<f64, String> {
-    match text.trim().parse::<f64>() {
-        Ok(n) if n >= 0.0 => Ok(n),
-        _ => Err(format!(
-            "'{}' is not a number of triangle tests (0 or more, or inf)",
-            raypick::budget::quote(text)
-        )),
-    }
+    super::query_args::parse_number_where(
+        text,
+        |n| n >= 0.0,
+        "a number of triangle tests (0 or more, or inf)",
+    )
 }

@@ -244,16 +244,9 @@ impl Instances {
                 crate::budget::quote(&this.instances[k].name)
             )));
         }
-        let (lo, hi) = boxes
-            .iter()
-            .flatten()
-            .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), b| {
-                (lo.min(b.0), hi.max(b.1))
-            });
-        (this.origin, this.bounds) = if lo.is_finite() {
-            (origin.unwrap_or((lo + hi) * 0.5), Some((lo, hi)))
-        } else {
-            (origin.unwrap_or(DVec3::ZERO), None)
+        (this.origin, this.bounds) = match all_bounds(&boxes) {
+            Some((lo, hi)) => (origin.unwrap_or((lo + hi) * 0.5), Some((lo, hi))),
+            None => (origin.unwrap_or(DVec3::ZERO), None),
         };
         // The frame is centred on every instance (a hidden one may be shown again); the bounds
         // users see are those of the instances that can be hit, where there are any.
@@ -349,9 +342,23 @@ impl Instances {
         let changed = shown(self.instances[i].mask) != shown(mask);
         self.instances[i].mask = mask;
         self.records[i].mask = mask;
-        if changed {
-            // Hidden or shown again: the bounds of what can be hit change (one box per
-            // instance; a move, the frequent edit, only grows them).
+        // The bounds of what can be hit: a shown instance's box joins them; a hidden one that
+        // reached their edge makes them worked out again (one box per instance).
+        if !changed {
+            return Ok(());
+        }
+        let Some((lo, hi)) = self.world_box(i) else {
+            return Ok(());
+        };
+        let inside = self
+            .bounds
+            .is_some_and(|(blo, bhi)| lo.cmpgt(blo).all() && hi.cmplt(bhi).all());
+        if shown(mask) {
+            self.bounds = Some(
+                self.bounds
+                    .map_or((lo, hi), |(blo, bhi)| (blo.min(lo), bhi.max(hi))),
+            );
+        } else if !inside {
             let boxes = self.world_boxes();
             if let Some(live) = self.live_bounds(&boxes).or_else(|| all_bounds(&boxes)) {
                 self.bounds = Some(live);
@@ -600,7 +607,8 @@ impl Instances {
         &self.top_wide
     }
 
-    /// The scene frame's origin: the centre of the instances' world boxes.
+    /// The scene frame's origin: the centre of the instances' world boxes when they were last
+    /// assembled, or the origin kept then ([`Instances::reassemble`]).
     pub fn origin(&self) -> DVec3 {
         self.origin
     }

@@ -83,7 +83,8 @@ pub(crate) fn parse_number_lines(
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     // Each line's numbers, and what its caller makes of them, checked against the budget
     // before they are made: a file of short lines parses into ten times its size.
-    let count = 1 + text.bytes().filter(|&b| b == b'\n').count() as u64;
+    let count = text.bytes().filter(|&b| b == b'\n').count() as u64
+        + u64::from(!text.is_empty() && !text.ends_with('\n'));
     crate::budget::check(
         &format!("the {count} lines of {path}"),
         count,
@@ -222,24 +223,31 @@ pub(crate) fn read_text_within(
         if (bytes.len() + n) as u64 > most {
             return Err(too_long());
         }
-        let read = &block[..n];
-        bytes.extend_from_slice(read);
+        let base = bytes.len();
+        bytes.extend_from_slice(&block[..n]);
         if let Some(longest) = longest_line {
-            let newlines = read.iter().filter(|&&b| b == b'\n').count();
-            if let Some(last) = read.iter().rposition(|&b| b == b'\n') {
-                line_start = bytes.len() - n + last + 1;
+            // Each line ended in this block, then the one it leaves open, by its length
+            // without the line break (as `RayReader` counts).
+            let ends = block[..n]
+                .iter()
+                .enumerate()
+                .filter(|&(_, &b)| b == b'\n')
+                .map(|(k, _)| base + k);
+            for end in ends.chain(std::iter::once(bytes.len())) {
+                if end - line_start > longest {
+                    return Err(Error::Parse {
+                        path: name,
+                        line: Some(lines),
+                        message: format!(
+                            "the line is longer than {longest} bytes; a line of this file holds \
+                             a few numbers"
+                        ),
+                    });
+                }
+                if end < bytes.len() {
+                    (line_start, lines) = (end + 1, lines + 1);
+                }
             }
-            if bytes.len() - line_start > longest {
-                return Err(Error::Parse {
-                    path: name,
-                    line: Some(lines + newlines),
-                    message: format!(
-                        "the line is longer than {longest} bytes; a line of this file holds a \
-                         few numbers"
-                    ),
-                });
-            }
-            lines += newlines;
         }
     }
     String::from_utf8(bytes).map_err(|e| {
@@ -290,13 +298,22 @@ pub struct RayReader<R> {
 }
 
 impl RayReader<std::io::BufReader<std::fs::File>> {
-    /// Opens the ray file at `path` (a regular file, or a pipe such as `/dev/stdin`).
+    /// Opens the ray file at `path` (a regular file, or a pipe such as `/dev/stdin`; a folder
+    /// is an error).
     pub fn open(path: &Path) -> Result<Self, Error> {
         let name = path.display().to_string();
-        let file = std::fs::File::open(path).map_err(|source| Error::Io {
+        let io = |source| Error::Io {
             path: name.clone(),
             source,
-        })?;
+        };
+        // A folder opens, and fails only at the first read: after the output has begun.
+        if std::fs::metadata(path).is_ok_and(|m| m.is_dir()) {
+            return Err(io(std::io::Error::new(
+                std::io::ErrorKind::IsADirectory,
+                "is a folder, not a ray file",
+            )));
+        }
+        let file = std::fs::File::open(path).map_err(io)?;
         Ok(Self::new(
             name,
             std::io::BufReader::with_capacity(1 << 16, file),

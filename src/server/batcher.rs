@@ -839,7 +839,9 @@ impl Batcher {
     /// camera and its frame's centre are those of what is left. Without it, one far object
     /// added and removed kept them wide for every client: the first view empty, and nearby
     /// additions refused as too far from the centre. Where the rebuild cannot be made, the
-    /// removal stands as a mask.
+    /// removal stands as a mask. (A removed object inside the bounds is left where it is until
+    /// a removal gathers them all: should moves of the others shrink the bounds, they may then
+    /// reach it until the next removal.)
     fn gather_removed(
         &mut self,
         picker: &mut Box<dyn Picker>,
@@ -870,19 +872,27 @@ impl Batcher {
         if !left.0.is_finite() || left == (lo, hi) {
             return;
         }
+        // Every removed object is gathered (one removed earlier, inside bounds that this one
+        // held wide, would reach past what is left once they shrink).
         let centre = (left.0 + left.1) * 0.5;
         let mut gathered = scene.clone();
         let options = *built.options();
-        let count = scene.object_vertices(object).count();
+        let removed: Vec<(u32, usize)> = (0..scene.objects().len() as u32)
+            .filter(|&k| objects.get(k as usize).is_some_and(|o| o.1))
+            .map(|k| (k, scene.object_vertices(k).count()))
+            .collect();
         drop(built);
-        if gathered
-            .set_object_positions(object, &vec![centre; count])
-            .is_ok()
-        {
-            // A smaller frame resolves what is left at least as finely; a refusal or a
-            // failure leaves the masked scene serving.
-            let _ = self.rebuild(picker, gathered, &options, before);
+        for (k, count) in removed {
+            if gathered
+                .set_object_positions(k, &vec![centre; count])
+                .is_err()
+            {
+                return;
+            }
         }
+        // A smaller frame resolves what is left at least as finely; a refusal or a failure
+        // leaves the masked scene serving.
+        let _ = self.rebuild(picker, gathered, &options, before);
     }
 
     /// Builds `scene` with `options` and puts a new picker over it in `picker`'s place; refused,

@@ -794,6 +794,12 @@ fn inputs_of_unknown_length_are_refused_when_too_long_or_over_the_budget() {
     ] {
         assert_refused(args, &["/dev/zero:1:", "longer than 1048576 bytes"]);
     }
+    // A folder opens like a file and fails at the first read: refused before any output.
+    let folder = std::env::temp_dir().display().to_string();
+    assert_refused(
+        &["pick", "--rays", &folder, "--backend", "cpu"],
+        &["is a folder, not a ray file"],
+    );
     // `verify` describes the scene before it reads its rays.
     let (code, _, err) = raypick(&["verify", "--rays", "/dev/zero"]);
     assert_eq!(code, 2, "{err}");
@@ -825,20 +831,34 @@ fn inputs_of_unknown_length_are_refused_when_too_long_or_over_the_budget() {
             "--backend",
             "cpu",
         ],
-        &["20001 lines of", "many-pairs.txt", "memory budget"],
+        &["20000 lines of", "many-pairs.txt", "memory budget"],
     );
     // A file longer than the budget is refused before it is read.
+    let longer = temp_file("more-pairs.txt", &"0 0 0 1 1 1\n".repeat(100_000));
     assert_refused(
         &[
             "los",
             "--pairs",
-            &pairs,
+            &longer,
             "--max-memory",
             "1M",
             "--backend",
             "cpu",
         ],
-        &["memory budget"],
+        &["more-pairs.txt is longer than 1.0 MiB, the memory budget"],
+    );
+    // A line over 1 MiB is refused wherever it ends (here its line break falls in the block
+    // where it crosses the limit), naming its line.
+    let long_line = temp_file(
+        "long-line-pairs.txt",
+        &format!(
+            "0 0 0 1 1 1\n{}\n0 0 0 1 1 1\n",
+            " ".repeat((1 << 20) + 1000)
+        ),
+    );
+    assert_refused(
+        &["los", "--pairs", &long_line, "--backend", "cpu"],
+        &["long-line-pairs.txt:2:", "longer than 1048576 bytes"],
     );
     // A small mesh listed 200 times: the copies are counted before they are made.
     let soup: String = (0..100)
@@ -970,4 +990,31 @@ fn directions_near_the_ends_of_f64_are_refined_in_f64_on_every_path() {
             assert_eq!(bits(h), bits(oracle), "{length}");
         }
     }
+}
+
+/// `viewshed` without `--targets` on a grid with no data anywhere says so, rather than that the
+/// scene has no grid.
+#[test]
+fn a_viewshed_over_a_grid_with_no_data_says_so() {
+    let asc = temp_file(
+        "no-data.asc",
+        "ncols 3\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 1\nNODATA_value -9999\n\
+         -9999 -9999 -9999\n-9999 -9999 -9999\n-9999 -9999 -9999\n",
+    );
+    let (code, out, err) = raypick(&[
+        "viewshed",
+        "--scene",
+        &asc,
+        "--observer",
+        "1",
+        "1",
+        "100",
+        "--backend",
+        "cpu",
+    ]);
+    assert_eq!(code, 2, "{out}{err}");
+    assert!(
+        err.contains("no cells with data") && !err.contains("has no terrain grid"),
+        "{err}"
+    );
 }

@@ -515,8 +515,18 @@ fn removals_give_back_the_bounds_on(scene: Arc<BuiltScene>, instanced: bool) {
     assert_eq!(status, 200, "{added}");
     assert_ne!(get()["bounds"], bounds);
     let far = added["object"].as_u64().unwrap();
-    let (status, answer) = call("DELETE", &format!("{base}/objects/{far}"), None);
-    assert_eq!(status, 200, "{answer}");
+    // One between, inside the bounds the far one holds wide, removed first.
+    let (status, between) = call(
+        "POST",
+        &format!("{base}/objects"),
+        Some(&triangle(1.0, translate(1000.0))),
+    );
+    assert_eq!(status, 200, "{between}");
+    let between = between["object"].as_u64().unwrap();
+    for removed in [between, far] {
+        let (status, answer) = call("DELETE", &format!("{base}/objects/{removed}"), None);
+        assert_eq!(status, 200, "{answer}");
+    }
     assert_eq!(get()["bounds"], bounds, "the bounds of what is left");
     if !instanced {
         assert_eq!(get()["origin"], origin, "the frame centred on what is left");
@@ -530,7 +540,7 @@ fn removals_give_back_the_bounds_on(scene: Arc<BuiltScene>, instanced: bool) {
     assert_eq!(status, 200, "{answer}");
     assert_eq!(
         down(&base, &[0.5, 3.02], u32::MAX),
-        [Some(1), Some(far + 1)]
+        [Some(1), Some(far + 2)]
     );
 }
 
