@@ -27,6 +27,12 @@ fn temp_file(name: &str, text: &str) -> String {
     path.display().to_string()
 }
 
+/// The last part of `path` (a [`temp_file`]'s name, for a description beside it to list).
+fn file_name(path: &str) -> String {
+    let name = std::path::Path::new(path).file_name().unwrap();
+    name.to_str().unwrap().to_owned()
+}
+
 /// Asserts a refusal: exit 2, nothing on standard output, one line on standard error that starts
 /// with `error:`, contains every one of `named`, and is no panic.
 fn assert_refused(args: &[&str], named: &[&str]) -> String {
@@ -872,12 +878,7 @@ fn inputs_of_unknown_length_are_refused_when_too_long_or_over_the_budget() {
         })
         .collect();
     let obj = temp_file("listed-soup.obj", &soup);
-    let name = std::path::Path::new(&obj)
-        .file_name()
-        .unwrap()
-        .to_str()
-        .unwrap()
-        .to_owned();
+    let name = file_name(&obj);
     let listings = vec![format!(r#"{{"file": "{name}"}}"#); 200].join(", ");
     let description = temp_file(
         "listed-many.json",
@@ -928,12 +929,7 @@ fn empty_descriptions_nan_bounds_control_bytes_and_huge_transforms_are_refused_p
     let err = assert_refused(&["los", "--pairs", &nul, "--backend", "cpu"], &["\\u{0}"]);
     assert!(!err.contains('\0') && err.len() < 500, "{err:?}");
     let obj = temp_file("scaled-box.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
-    let name = std::path::Path::new(&obj)
-        .file_name()
-        .unwrap()
-        .to_str()
-        .unwrap()
-        .to_owned();
+    let name = file_name(&obj);
     let huge = temp_file(
         "huge-transform.json",
         &format!(
