@@ -143,9 +143,11 @@ pub struct Instances {
 }
 
 /// The box around `boxes`; `None` when there is none.
-fn all_bounds(boxes: &[Option<(DVec3, DVec3)>]) -> Option<(DVec3, DVec3)> {
+fn all_bounds<'a>(
+    boxes: impl IntoIterator<Item = &'a Option<(DVec3, DVec3)>>,
+) -> Option<(DVec3, DVec3)> {
     let (lo, hi) = boxes
-        .iter()
+        .into_iter()
         .flatten()
         .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), b| {
             (lo.min(b.0), hi.max(b.1))
@@ -329,7 +331,7 @@ impl Instances {
             self.instances[i] = placed;
         }
         self.records[i] = self.record(i, self.records[i].prim_base);
-        self.refit_leaf(bvh, i);
+        self.refit_leaf(bvh, i, placed_box);
         self.refit_top_wide(bvh);
         Ok(())
     }
@@ -370,12 +372,13 @@ impl Instances {
     /// The box around `boxes` (one per instance) of the instances that can be hit (mask not
     /// 0); `None` when none can.
     fn live_bounds(&self, boxes: &[Option<(DVec3, DVec3)>]) -> Option<(DVec3, DVec3)> {
-        let live = boxes
-            .iter()
-            .zip(&self.instances)
-            .filter(|(_, i)| i.mask != 0)
-            .map(|(b, _)| *b);
-        all_bounds(&live.collect::<Vec<_>>())
+        all_bounds(
+            boxes
+                .iter()
+                .zip(&self.instances)
+                .filter(|(_, i)| i.mask != 0)
+                .map(|(b, _)| b),
+        )
     }
 
     /// Adds `instance` (its id is the next one) and builds the top tree again over all
@@ -386,10 +389,9 @@ impl Instances {
     pub fn add(&mut self, bvh: &mut Bvh, instance: Instance) -> Result<u32> {
         let mut instances = self.instances.clone();
         instances.push(instance);
-        let (rebuilt, combined) = self.reassemble(instances)?;
+        let ((rebuilt, combined), after) = self.reassemble(instances)?;
         // In either frame, instances may be too coarse to pick that were not (one placed far
         // from the rest): refused, nothing changed.
-        let after = rebuilt.unresolved();
         if after.len() > self.unresolved().len() {
             let u = after[0];
             return Err(Error::Invalid(u.describe(&format!(
@@ -431,7 +433,7 @@ impl Instances {
     /// boxes may have grown loose after many moves), the combined tree laid out anew, in the
     /// frame [`Instances::reassemble`] chooses.
     pub fn rebuild_top(&mut self, bvh: &mut Bvh) -> Result<()> {
-        let (rebuilt, combined) = self.reassemble(self.instances.clone())?;
+        let ((rebuilt, combined), _) = self.reassemble(self.instances.clone())?;
         *self = rebuilt;
         *bvh = combined;
         Ok(())
@@ -442,18 +444,23 @@ impl Instances {
     /// only then): the frame then keeps its origin. A move places an instance where the frame it
     /// keeps resolves it (a large one can lie far out), and the centre of the bounds that now
     /// reach it may lie so far from the rest that re-centring there would round their rays too
-    /// coarsely to pick them.
-    fn reassemble(&self, instances: Vec<Instance>) -> Result<(Self, Bvh)> {
+    /// coarsely to pick them. Returns the chosen assembly with its unresolved instances.
+    #[allow(clippy::type_complexity)]
+    fn reassemble(
+        &self,
+        instances: Vec<Instance>,
+    ) -> Result<((Self, Bvh), Vec<crate::frame::reach::Unresolved>)> {
         let centred = Self::assemble(self.meshes.clone(), instances.clone())?;
-        let unresolved = centred.0.unresolved().len();
-        if unresolved == 0 || centred.0.origin == self.origin {
-            return Ok(centred);
+        let unresolved = centred.0.unresolved();
+        if unresolved.is_empty() || centred.0.origin == self.origin {
+            return Ok((centred, unresolved));
         }
         let kept = Self::assemble_about(self.meshes.clone(), instances, Some(self.origin))?;
-        Ok(if kept.0.unresolved().len() < unresolved {
-            kept
+        let kept_unresolved = kept.0.unresolved();
+        Ok(if kept_unresolved.len() < unresolved.len() {
+            (kept, kept_unresolved)
         } else {
-            centred
+            (centred, unresolved)
         })
     }
 
@@ -519,7 +526,7 @@ impl Instances {
         for i in 0..self.instances.len() {
             if self.instances[i].mesh == mesh {
                 self.records[i] = self.record(i, self.records[i].prim_base);
-                self.refit_leaf(bvh, i);
+                self.refit_leaf(bvh, i, self.world_box(i));
             }
         }
         self.refit_top_wide(bvh);
@@ -551,14 +558,13 @@ impl Instances {
         }
     }
 
-    /// Instance `i`'s leaf box from where it is now, and every box above it, in `bvh`'s top
-    /// nodes.
-    fn refit_leaf(&mut self, bvh: &mut Bvh, i: usize) {
+    /// Instance `i`'s leaf box from `world`, its world box where it is now, and every box
+    /// above it, in `bvh`'s top nodes.
+    fn refit_leaf(&mut self, bvh: &mut Bvh, i: usize, world: Option<(DVec3, DVec3)>) {
         let leaf = self.leaf_of[i];
         if leaf == NO_LEAF {
             return;
         }
-        let world = self.world_box(i);
         let Some((lo, hi)) = self.scene_boxes(&[world])[0] else {
             return;
         };
