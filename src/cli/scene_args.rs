@@ -4,7 +4,7 @@
 use clap::{ArgMatches, Args};
 use raypick::check::synthetic::example_scene;
 use raypick::io::scene_files::{SceneFile, load_description, load_instanced, load_scene};
-use raypick::{BuildOptions, Builder, BuiltScene, Error, SplitAxis};
+use raypick::{BuildOptions, Builder, BuiltScene, Error, Scene, SplitAxis};
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -160,6 +160,17 @@ impl SceneArgs {
         self.build_timed(matches).map(|(built, _, _)| built)
     }
 
+    /// [`SceneArgs::build`] with `check` run on the loaded scene before its tree is built: a
+    /// command's refusal of a scene (too many objects for its output, say) costs no build.
+    pub fn build_checked(
+        &self,
+        matches: &ArgMatches,
+        check: impl Fn(&Scene) -> Result<(), Error>,
+    ) -> Result<BuiltScene, Error> {
+        self.build_placed(matches, Placement::InPlace, &check)
+            .map(|(built, _, _)| built)
+    }
+
     /// [`SceneArgs::build_timed`] for a command that picks instanced scenes (pick, verify,
     /// serve): when a file is listed several times, or glTF nodes share a mesh, each mesh is
     /// built once and placed by its transforms ([`BuiltScene::instanced`]), with the same objects
@@ -202,36 +213,41 @@ impl SceneArgs {
                 return Ok((built, loaded, start.elapsed().as_secs_f64() - loaded));
             }
         }
-        self.build_placed(matches, placement)
+        self.build_placed(matches, placement, &|_| Ok(()))
     }
 
     /// [`SceneArgs::build`] for a process that lives on (the server, a soak): a saved scene is
     /// copied into memory of its own ([`raypick::rpk::load`]), so a file replaced or rewritten
     /// meanwhile changes nothing.
     pub fn build_owned(&self, matches: &ArgMatches) -> Result<BuiltScene, Error> {
-        self.build_placed(matches, Placement::Owned)
+        self.build_placed(matches, Placement::Owned, &|_| Ok(()))
             .map(|(built, _, _)| built)
     }
 
     /// Like [`SceneArgs::build`], also returning the seconds spent loading and building.
     pub fn build_timed(&self, matches: &ArgMatches) -> Result<(BuiltScene, f64, f64), Error> {
-        self.build_placed(matches, Placement::InPlace)
+        self.build_placed(matches, Placement::InPlace, &|_| Ok(()))
     }
 
+    /// Loads and builds; `check` sees the scene before any tree is built (a saved scene's once
+    /// it is read).
     fn build_placed(
         &self,
         matches: &ArgMatches,
         placement: Placement,
+        check: &dyn Fn(&Scene) -> Result<(), Error>,
     ) -> Result<(BuiltScene, f64, f64), Error> {
         let start = std::time::Instant::now();
         if let Some(built) = self.saved(matches, placement)? {
             let Some(instances) = built.instances() else {
+                check(&built.scene)?;
                 warn_lost(&built);
                 return Ok((built, start.elapsed().as_secs_f64(), 0.0));
             };
             // A saved instanced scene, for a command that picks copies: its instances baked
             // into objects (the same ids and names) and built again.
             let scene = instances.baked()?;
+            check(&scene)?;
             let loaded = start.elapsed().as_secs_f64();
             let options = self.build_options();
             let built =
@@ -245,6 +261,7 @@ impl SceneArgs {
         } else {
             super::progress::phase("loading the scene", || load_scene(&files))?
         };
+        check(&scene)?;
         let loaded = start.elapsed().as_secs_f64();
         let options = self.build_options();
         let built =

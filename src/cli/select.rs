@@ -107,14 +107,16 @@ pub fn run_idbuffer(args: IdBufferArgs, matches: &ArgMatches) -> Result<ExitCode
     }
     let view = args.view.view()?;
     check_id_buffer_size(view.width, view.height)?;
-    let built = Arc::new(args.scene.build(matches)?);
-    if args.raw_ids && built.scene.objects().len() >= u16::MAX as usize {
-        return Err(Error::Invalid(format!(
-            "the scene has {} objects, too many for a 16-bit id image; leave out --raw-ids or \
-             write CSV",
-            built.scene.objects().len()
-        )));
-    }
+    let built = Arc::new(args.scene.build_checked(matches, |scene| {
+        if args.raw_ids && scene.objects().len() >= u16::MAX as usize {
+            return Err(Error::Invalid(format!(
+                "the scene has {} objects, too many for a 16-bit id image; leave out --raw-ids \
+                 or write CSV",
+                scene.objects().len()
+            )));
+        }
+        Ok(())
+    })?);
     let camera = view.camera(&built);
     let mut picker = make_picker(args.rays.backend, built.clone())?;
     let ids = object_id_buffer(picker.as_mut(), &camera, args.rays.ray_mask)?;

@@ -766,6 +766,30 @@ fn outputs_that_cannot_be_what_their_name_says_are_refused() {
     }
 }
 
+/// `idbuffer --raw-ids` writes ids in 16 bits: a scene of 65,535 objects (one small file listed
+/// that many times) is refused, by its count, once loaded and before its tree is built.
+#[test]
+fn raw_ids_refuse_a_scene_with_more_objects_than_sixteen_bits_hold() {
+    let obj = temp_file("one-triangle.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let entry = format!("{{\"file\": \"{}\"}}", file_name(&obj));
+    let listed = vec![entry; u16::MAX as usize].join(",");
+    let description = temp_file("many-objects.json", &format!("{{\"objects\": [{listed}]}}"));
+    let png = std::env::temp_dir().join(format!("raypick-hostile-{}-ids.png", std::process::id()));
+    let png = png.display().to_string();
+    assert_refused(
+        &[
+            "idbuffer",
+            "--scenes",
+            &description,
+            "--raw-ids",
+            "--out",
+            &png,
+        ],
+        &["65535 objects", "--raw-ids"],
+    );
+    assert!(!std::path::Path::new(&png).exists(), "{png} written");
+}
+
 /// Inputs whose size no header gives (a device, a pipe, a file of endless short lines, a small
 /// file listed thousands of times) are refused as soon as the reading shows them too long or
 /// over the budget: before, `/dev/zero` as a pair, pixel, target, camera or verify ray file
