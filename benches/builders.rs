@@ -126,7 +126,10 @@ fn bench_scene(c: &mut Criterion, name: &str, scene: Scene, gpu: Option<&GpuCont
             .into_iter()
             .map(|(kind_name, kind)| {
                 let world = rays(&scene, kind, RAY_COUNT, SEED);
-                (kind_name, local_rays(scene.origin(), &world))
+                (
+                    kind_name,
+                    local_rays(raypick::frame::Frame::at(scene.origin()), &world),
+                )
             })
             .collect();
     let trees: Vec<(&str, Bvh)> = builders

@@ -227,7 +227,10 @@ fn layouts(c: &mut Criterion) {
         configure(&mut group);
         group.throughput(Throughput::Elements(RAY_COUNT as u64));
         for kind in [RayKind::Camera, RayKind::Random] {
-            let rays = local_rays(bvh.origin, &rays(&scene, kind, RAY_COUNT, 1));
+            let rays = local_rays(
+                raypick::frame::Frame::at(bvh.origin),
+                &rays(&scene, kind, RAY_COUNT, 1),
+            );
             let reference = trace_with(flat_nodes, flat_tris, cap, ids, &rays);
             let box_tests = |hits: &[GpuHit]| {
                 hits.iter().map(|h| h.box_tests as f64).sum::<f64>() / hits.len() as f64

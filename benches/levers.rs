@@ -68,7 +68,10 @@ static FIXTURES: LazyLock<Vec<Fixture>> = LazyLock::new(|| {
                 .into_iter()
                 .map(|(kind_name, kind)| {
                     let local = |count| {
-                        local_rays(built.bvh.origin, &rays(&built.scene, kind, count, SEED))
+                        local_rays(
+                            raypick::frame::Frame::at(built.bvh.origin),
+                            &rays(&built.scene, kind, count, SEED),
+                        )
                     };
                     (kind_name, local(SWEEP_RAYS), local(order_rays))
                 })

@@ -253,7 +253,7 @@ fn ray_sets(built: &BuiltScene, large: usize) -> Vec<RaySet> {
         .into_iter()
         .map(|(name, kind, count)| {
             let world = rays(&built.scene, kind, count, SEED);
-            let local = local_rays(built.bvh.origin, &world);
+            let local = local_rays(raypick::frame::Frame::at(built.bvh.origin), &world);
             let tmin_max = local.iter().map(|r| r.tmin).fold(0.0f32, f32::max);
             if tmin_max > 0.0 {
                 eprintln!("{name} rays have tmin up to {tmin_max} (parry3d ignores tmin)");

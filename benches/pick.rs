@@ -62,7 +62,7 @@ static FIXTURE: LazyLock<Fixture> = LazyLock::new(|| {
         .into_iter()
         .map(|(name, kind)| {
             let world = rays(&built.scene, kind, RAY_COUNT, SEED);
-            let local = local_rays(built.bvh.origin, &world);
+            let local = local_rays(raypick::frame::Frame::at(built.bvh.origin), &world);
             (name, world, local)
         })
         .collect();

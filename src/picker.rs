@@ -8,8 +8,8 @@ use crate::cpu::{TraceSettings, trace_batch};
 use crate::engine::{Simd, WideBvh};
 use crate::error::Result;
 use crate::frame::{
-    NEVER_TRACED, check_found_in, local_rays_into, local_rays_with_rests_into, put_origin_lo,
-    resolve_chunk, resolve_with, scene_rays, split_hits,
+    Frame, NEVER_TRACED, check_found_in, local_rays_into, local_rays_with_rests_into,
+    put_origin_lo, resolve_chunk, resolve_with, scene_rays, split_hits,
 };
 use crate::instance::{Instance, Instances};
 use crate::layout::{GpuHit, GpuHitEntry, GpuRay, NO_HIT};
@@ -192,6 +192,13 @@ impl BuiltScene {
             Some(i) => i.bounds(),
             None => self.scene.bounds(),
         }
+    }
+
+    /// The scene frame the pick pipeline converts world rays into: about the tree's origin,
+    /// reaching as far as [`BuiltScene::bounds`] (what the refinement's fallback assumes too:
+    /// `frame::resolve_with`, `instance::resolve_with`).
+    pub fn frame(&self) -> Frame {
+        Frame::around(self.bvh.origin, self.bounds())
     }
 
     /// Objects that hits can report (an instanced scene's instances).
@@ -751,10 +758,10 @@ pub fn pick_through<T: Tracer + ?Sized>(
 /// ([`crate::frame::scene_rays`]), and an instanced scene's origin low parts
 /// ([`put_origin_lo`]).
 fn kernel_rays(built: &BuiltScene, rays: &[Ray], query: &Query) -> (Vec<GpuRay>, Vec<f64>) {
-    let origin = built.bvh.origin;
-    let (mut local, lengths) = scene_rays(origin, rays, query);
+    let frame = built.frame();
+    let (mut local, lengths) = scene_rays(frame, rays, query);
     if built.instances.is_some() {
-        put_origin_lo(origin, rays, &mut local);
+        put_origin_lo(frame, rays, &mut local);
     }
     (local, lengths)
 }
@@ -822,7 +829,7 @@ fn pick_fused(
     answers: &mut Answers,
 ) -> Result<()> {
     let n = rays.len();
-    let origin = built.bvh.origin;
+    let frame = built.frame();
     let ordered = (n >= reorder_from)
         .then(|| {
             let (local, lengths) = kernel_rays(built, rays, query);
@@ -867,9 +874,9 @@ fn pick_fused(
                     // same pass.
                     let (rays, local, lengths) = (&rays[span], &mut local[..m], &mut lengths[..m]);
                     if built.instances.is_some() {
-                        local_rays_with_rests_into(origin, rays, query, local, lengths);
+                        local_rays_with_rests_into(frame, rays, query, local, lengths);
                     } else {
-                        local_rays_into(origin, rays, query, local, lengths);
+                        local_rays_into(frame, rays, query, local, lengths);
                     }
                     for (k, slot) in input[..m].iter_mut().enumerate() {
                         *slot = start + k;

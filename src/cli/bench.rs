@@ -129,7 +129,7 @@ fn run_ray_file(
     };
     if let Some(mut tracer) = tracer {
         let query = raypick::Query::default();
-        let (local, _) = raypick::frame::scene_rays(built.bvh.origin, &rays, &query);
+        let (local, _) = raypick::frame::scene_rays(built.frame(), &rays, &query);
         let settings = built.settings(&query);
         let mut trace_best = f64::INFINITY;
         pool.install(|| tracer.trace(&local, &settings))?;

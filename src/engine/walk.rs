@@ -1708,7 +1708,12 @@ mod tests {
         let scene = crate::Scene::from_meshes([("hills".to_string(), mesh)]).unwrap();
         let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
         let size = WideBvh::collapse(&bvh).unwrap().size();
-        let local = |kind, n| crate::frame::local_rays(bvh.origin, &rays(&scene, kind, n, 7));
+        let local = |kind, n| {
+            crate::frame::local_rays(
+                crate::frame::Frame::at(bvh.origin),
+                &rays(&scene, kind, n, 7),
+            )
+        };
         let mut sets = vec![
             local(RayKind::Camera, 1 << 16),
             local(RayKind::Camera, 4096),
@@ -1978,7 +1983,7 @@ mod tests {
         // A narrow view (the camera's rays drawn to a twentieth of their angle from the mean),
         // so that packets of eight are within the frustum's cone.
         let rays = rays(&hills.scene, RayKind::Camera, 4096, 5);
-        let mut camera = crate::frame::local_rays(hills.bvh.origin, &rays);
+        let mut camera = crate::frame::local_rays(crate::frame::Frame::at(hills.bvh.origin), &rays);
         let mean = camera
             .iter()
             .fold(Vec3::ZERO, |m, r| m + Vec3::from(r.dir).normalize())
@@ -2058,7 +2063,7 @@ mod tests {
                     world.push(crate::Ray::new(origin, glam::DVec3::from_array(dir)));
                 }
             }
-            let local = crate::frame::local_rays(hills.bvh.origin, &world);
+            let local = crate::frame::local_rays(crate::frame::Frame::at(hills.bvh.origin), &world);
             for flags in FLAGS {
                 let k = if flags & 3 == MODE_ALL { 4 } else { 0 };
                 for (g, group) in local.chunks_exact(PACKET).enumerate() {

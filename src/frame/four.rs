@@ -14,18 +14,18 @@
 //! The hits' f64 refinement goes four at a time too ([`refine_four`], bit for bit
 //! [`super::refine`] on each hit): three divisions, a square root and one more division each.
 
-use super::{NEVER_TRACED, Refined, local_ray, refine};
+use super::{FAR_REACHES, Frame, NEVER_TRACED, Refined, local_ray, refine};
 use crate::exact::scales;
 use crate::layout::GpuRay;
 use crate::query::Query;
 use crate::ray::Ray;
 use glam::DVec3;
 
-/// Fills `local[i]` and `lengths[i]` as `local_ray(scene_origin, &rays[i], query)` would:
+/// Fills `local[i]` and `lengths[i]` as `local_ray(frame, &rays[i], query)` would:
 /// the scene-frame ray and the world direction's length, or [`NEVER_TRACED`] and NaN for an
 /// invalid ray. The three slices have the same length.
 pub fn local_rays_into(
-    scene_origin: DVec3,
+    frame: Frame,
     rays: &[Ray],
     query: &Query,
     local: &mut [GpuRay],
@@ -38,10 +38,10 @@ pub fn local_rays_into(
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx") {
         // SAFETY: the CPU has AVX (checked just above).
-        unsafe { avx::local_rays_into(scene_origin, rays, query, local, lengths) };
+        unsafe { avx::local_rays_into(frame, rays, query, local, lengths) };
         return;
     }
-    scalar(scene_origin, rays, query, local, lengths);
+    scalar(frame, rays, query, local, lengths);
 }
 
 /// [`local_rays_into`] followed by [`put_origin_lo`](super::put_origin_lo) (what an instanced
@@ -50,7 +50,7 @@ pub fn local_rays_into(
 /// (that second pass was 3% of a pick of the field of 10,000 bunnies). The same bits as the two
 /// passes.
 pub fn local_rays_with_rests_into(
-    scene_origin: DVec3,
+    frame: Frame,
     rays: &[Ray],
     query: &Query,
     local: &mut [GpuRay],
@@ -63,14 +63,14 @@ pub fn local_rays_with_rests_into(
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("f16c") {
         // SAFETY: the CPU has AVX2 and F16C (checked just above).
-        unsafe { avx::local_rays_with_rests_into(scene_origin, rays, query, local, lengths) };
+        unsafe { avx::local_rays_with_rests_into(frame, rays, query, local, lengths) };
         return;
     }
-    local_rays_into(scene_origin, rays, query, local, lengths);
-    put_origin_lo_into(scene_origin, rays, local);
+    local_rays_into(frame, rays, query, local, lengths);
+    put_origin_lo_into(frame, rays, local);
 }
 
-/// `refine(triangles[i], rays[i], traced[i])` for the four hits, bit for bit. The corners are
+/// `refine(triangles[i], rays[i], || traced(i))` for the four hits, bit for bit. The corners are
 /// read where they lie (the scene's positions): the lanes load them straight into registers,
 /// where whole triangles passed by value went through the stack, and loads that straddled
 /// the stores made there stalled (a fifth of the refinement's time on the bunny). Never
@@ -82,7 +82,7 @@ pub fn local_rays_with_rests_into(
 pub fn refine_four(
     triangles: [[&DVec3; 3]; 4],
     rays: [&Ray; 4],
-    traced: [[f64; 3]; 4],
+    traced: impl Fn(usize) -> [f64; 3],
 ) -> [Refined; 4] {
     // A direction near an end of f64's range is scaled first, which the lanes leave out.
     #[cfg(target_arch = "x86_64")]
@@ -90,43 +90,51 @@ pub fn refine_four(
         // SAFETY: the CPU has AVX (checked just above).
         return unsafe { avx::refine_four(triangles, rays, traced) };
     }
-    [0, 1, 2, 3].map(|i| refine(triangles[i].map(|v| *v), rays[i], traced[i]))
+    [0, 1, 2, 3].map(|i| refine(triangles[i].map(|v| *v), rays[i], || traced(i)))
 }
 
 /// [`super::put_origin_lo`] over `rays` and their scene-frame rays `local` (the same length),
 /// four rays at a time in f64 lanes where the CPU has AVX2 and F16C: each rest rounded as
 /// `half_bits` rounds it (the same products by powers of two and the same exact rounding to an
 /// integer), the result, a half float already, converted exactly by F16C.
-pub(super) fn put_origin_lo_into(scene_origin: DVec3, rays: &[Ray], local: &mut [GpuRay]) {
+pub(super) fn put_origin_lo_into(frame: Frame, rays: &[Ray], local: &mut [GpuRay]) {
     assert_eq!(rays.len(), local.len(), "one scene-frame ray per ray");
     let mut done = 0;
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("f16c") {
         done = rays.len() / 4 * 4;
         // SAFETY: the CPU has AVX2 and F16C (checked just above).
-        unsafe { avx::put_origin_lo_into(scene_origin, &rays[..done], &mut local[..done]) };
+        unsafe { avx::put_origin_lo_into(frame.origin, &rays[..done], &mut local[..done]) };
+        // An origin the conversion moved ([`Frame::shift`]) has its rest taken where it went.
+        for (ray, l) in rays[..done].iter().zip(&mut local[..done]) {
+            if frame.shift(ray) != 0.0 {
+                super::origin_lo_of(frame, ray, l);
+            }
+        }
     }
     for (ray, l) in rays[done..].iter().zip(&mut local[done..]) {
-        super::origin_lo_of(scene_origin, ray, l);
+        super::origin_lo_of(frame, ray, l);
     }
 }
 
 /// [`local_rays_into`] one ray at a time.
-fn scalar(
-    scene_origin: DVec3,
-    rays: &[Ray],
-    query: &Query,
-    local: &mut [GpuRay],
-    lengths: &mut [f64],
-) {
+fn scalar(frame: Frame, rays: &[Ray], query: &Query, local: &mut [GpuRay], lengths: &mut [f64]) {
     for ((ray, local), length) in rays.iter().zip(local).zip(lengths) {
-        (*local, *length) = local_ray(scene_origin, ray, query).unwrap_or((NEVER_TRACED, f64::NAN));
+        (*local, *length) = local_ray(frame, ray, query).unwrap_or((NEVER_TRACED, f64::NAN));
     }
+}
+
+/// The square of the distance from the frame's origin past which [`Frame::shift`] may move an
+/// origin (infinite: none is moved), for the lanes' check: `offset.length_squared()` above it
+/// sends a ray to the scalar function.
+fn far_squared(frame: Frame) -> f64 {
+    let limit = frame.reach * FAR_REACHES;
+    limit * limit
 }
 
 #[cfg(target_arch = "x86_64")]
 mod avx {
-    use super::{GpuRay, Query, Ray, Refined, scalar};
+    use super::{Frame, GpuRay, Query, Ray, Refined, far_squared, scalar};
     use glam::DVec3;
     use std::arch::x86_64::*;
 
@@ -136,23 +144,24 @@ mod avx {
     /// The CPU has AVX.
     #[target_feature(enable = "avx")]
     pub unsafe fn local_rays_into(
-        scene_origin: DVec3,
+        frame: Frame,
         rays: &[Ray],
         query: &Query,
         local: &mut [GpuRay],
         lengths: &mut [f64],
     ) {
         let flags = query.flags();
+        let far = far_squared(frame);
         let whole = rays.len() / 4 * 4;
         for g in (0..whole).step_by(4) {
             let r = &rays[g..g + 4];
             let (out, len) = (&mut local[g..g + 4], &mut lengths[g..g + 4]);
-            four(scene_origin, r, flags, out, len, &mut Skip);
+            four(frame.origin, far, r, flags, out, len, &mut Skip);
             for i in 0..4 {
                 if out[i].origin_lo[0] != 0 {
                     // Off the common path: the scalar function decides.
                     scalar(
-                        scene_origin,
+                        frame,
                         &r[i..i + 1],
                         query,
                         &mut out[i..i + 1],
@@ -162,7 +171,7 @@ mod avx {
             }
         }
         scalar(
-            scene_origin,
+            frame,
             &rays[whole..],
             query,
             &mut local[whole..],
@@ -178,13 +187,14 @@ mod avx {
     /// The CPU has AVX2 and F16C.
     #[target_feature(enable = "avx2,f16c")]
     pub unsafe fn local_rays_with_rests_into(
-        scene_origin: DVec3,
+        frame: Frame,
         rays: &[Ray],
         query: &Query,
         local: &mut [GpuRay],
         lengths: &mut [f64],
     ) {
         let flags = query.flags();
+        let far = far_squared(frame);
         let whole = rays.len() / 4 * 4;
         for g in (0..whole).step_by(4) {
             let r = &rays[g..g + 4];
@@ -193,7 +203,7 @@ mod avx {
                 offset: [_mm256_setzero_pd(); 3],
                 origin: [_mm_setzero_ps(); 3],
             };
-            four(scene_origin, r, flags, out, len, &mut lanes);
+            four(frame.origin, far, r, flags, out, len, &mut lanes);
             // `(ray.origin - scene_origin) - l.origin as f64`: the offset's f64 lanes less their
             // f32 rounding (the origin `four` wrote). Written out, without `array::map`.
             let mut halves = [[0u16; 8]; 3];
@@ -210,25 +220,25 @@ mod avx {
                 } else {
                     // Off it: the scalar functions decide.
                     scalar(
-                        scene_origin,
+                        frame,
                         &r[i..i + 1],
                         query,
                         &mut out[i..i + 1],
                         &mut len[i..i + 1],
                     );
-                    super::super::origin_lo_of(scene_origin, &r[i], &mut out[i]);
+                    super::super::origin_lo_of(frame, &r[i], &mut out[i]);
                 }
             }
         }
         scalar(
-            scene_origin,
+            frame,
             &rays[whole..],
             query,
             &mut local[whole..],
             &mut lengths[whole..],
         );
         for (ray, l) in rays[whole..].iter().zip(&mut local[whole..]) {
-            super::super::origin_lo_of(scene_origin, ray, l);
+            super::super::origin_lo_of(frame, ray, l);
         }
     }
 
@@ -320,7 +330,7 @@ mod avx {
     pub unsafe fn refine_four(
         triangles: [[&DVec3; 3]; 4],
         rays: [&Ray; 4],
-        traced: [[f64; 3]; 4],
+        traced: impl Fn(usize) -> [f64; 3],
     ) -> [Refined; 4] {
         let [a, b, c, d] = triangles;
         let v0 = points([a[0], b[0], c[0], d[0]]);
@@ -350,6 +360,11 @@ mod avx {
             ),
             _mm256_and_pd(_mm256_and_pd(finite(t), finite(u)), finite(v)),
         );
+        // The traversal's values, asked for only where a lane needs them.
+        let traced = match _mm256_movemask_pd(exact) {
+            0b1111 => [[0.0; 3]; 4],
+            _ => [traced(0), traced(1), traced(2), traced(3)],
+        };
         let pick = |x: __m256d, k: usize| _mm256_blendv_pd(lanes(traced.map(|f| f[k])), x, exact);
         let (t, u, v) = (pick(t, 0), pick(u, 1), pick(v, 2));
         // Ray::at: origin + dir * t.
@@ -519,6 +534,7 @@ mod avx {
     #[target_feature(enable = "avx")]
     pub(super) fn four<K: Lanes>(
         scene_origin: DVec3,
+        far_squared: f64,
         r: &[Ray],
         flags: u32,
         out: &mut [GpuRay],
@@ -600,6 +616,19 @@ mod avx {
             _mm256_cvtpd_ps(offset[2]),
         ];
         keep.keep(offset, origin);
+        // An origin [`Frame::shift`] may move is left to the scalar function: the offset's
+        // `length_squared()`, operation for operation, no farther out than that.
+        let length_squared = _mm256_add_pd(
+            _mm256_add_pd(
+                _mm256_mul_pd(offset[0], offset[0]),
+                _mm256_mul_pd(offset[1], offset[1]),
+            ),
+            _mm256_mul_pd(offset[2], offset[2]),
+        );
+        ok = and(
+            ok,
+            _mm256_cmp_pd::<_CMP_LE_OQ>(length_squared, splat(far_squared)),
+        );
         // `t.clamp(-f64::MAX, f64::MAX)`, then `(t * dir_length).clamp(f32 range) as f32`:
         // for values that are not NaN (tmin and tmax are not, on the common path, nor their
         // products with a finite length), clamp is max then min.
@@ -704,25 +733,32 @@ mod tests {
             })
     }
 
+    /// A frame's reach: unknown (no origin moved), or one that the rays' origins (within 1e7
+    /// of the frame's, or special) are often more than [`FAR_REACHES`] of out.
+    fn reach() -> impl Strategy<Value = f64> {
+        prop_oneof![Just(f64::INFINITY), 1e-3..1e6f64]
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(2000))]
         #[test]
         fn four_at_a_time_gives_the_scalar_bits(
             rays in prop::collection::vec(ray(), 0..11),
             origin in [-1e6..1e6f64, -1e6..1e6f64, -1e6..1e6f64],
+            reach in reach(),
             cull in 0usize..3,
         ) {
             let query = Query {
                 cull: [crate::query::Cull::None, crate::query::Cull::Back, crate::query::Cull::Front][cull],
                 ..Query::default()
             };
-            let origin = DVec3::from(origin);
+            let frame = Frame { origin: DVec3::from(origin), reach };
             let mut local = vec![NEVER_TRACED; rays.len()];
             let mut lengths = vec![0.0; rays.len()];
-            local_rays_into(origin, &rays, &query, &mut local, &mut lengths);
+            local_rays_into(frame, &rays, &query, &mut local, &mut lengths);
             for (i, ray) in rays.iter().enumerate() {
                 let (want, want_length) =
-                    local_ray(origin, ray, &query).unwrap_or((NEVER_TRACED, f64::NAN));
+                    local_ray(frame, ray, &query).unwrap_or((NEVER_TRACED, f64::NAN));
                 prop_assert!(same(&local[i], &want), "ray {i} {ray:?}: {:?} vs {want:?}", local[i]);
                 prop_assert_eq!(lengths[i].to_bits(), want_length.to_bits(), "ray {}", i);
             }
@@ -738,25 +774,29 @@ mod tests {
             rays in prop::collection::vec(ray(), 0..11),
             far in prop::collection::vec([-1e7..1e7f64, -1e7..1e7f64, -1e3..1e3f64], 0..11),
             origin in [-1e6..1e6f64, -1e6..1e6f64, -1e6..1e6f64],
+            reach in reach(),
         ) {
             let origin = DVec3::from(origin);
+            let frame = Frame { origin, reach };
             let mut rays = rays;
             rays.extend(far.iter().map(|&p| Ray::new(DVec3::from(p), DVec3::NEG_Z)));
+            // Some aimed at the frame's origin, so that far ones are moved.
+            rays.extend(far.iter().map(|&p| Ray::new(DVec3::from(p), origin - DVec3::from(p))));
             let mut local = vec![NEVER_TRACED; rays.len()];
             let mut lengths = vec![0.0; rays.len()];
-            local_rays_into(origin, &rays, &Query::default(), &mut local, &mut lengths);
+            local_rays_into(frame, &rays, &Query::default(), &mut local, &mut lengths);
             let mut want = local.clone();
             for (ray, l) in rays.iter().zip(&mut want) {
-                super::super::origin_lo_of(origin, ray, l);
+                super::super::origin_lo_of(frame, ray, l);
             }
-            put_origin_lo_into(origin, &rays, &mut local);
+            put_origin_lo_into(frame, &rays, &mut local);
             for i in 0..rays.len() {
                 prop_assert!(same(&local[i], &want[i]), "ray {i} {:?}: {:?} vs {:?}", rays[i], local[i], want[i]);
             }
             // In one pass with the conversion: the same rays and lengths, bit for bit.
             let mut fused = vec![NEVER_TRACED; rays.len()];
             let mut fused_lengths = vec![0.0; rays.len()];
-            local_rays_with_rests_into(origin, &rays, &Query::default(), &mut fused, &mut fused_lengths);
+            local_rays_with_rests_into(frame, &rays, &Query::default(), &mut fused, &mut fused_lengths);
             for i in 0..rays.len() {
                 prop_assert!(same(&fused[i], &want[i]), "ray {i} {:?}: {:?} vs {:?}", rays[i], fused[i], want[i]);
                 prop_assert_eq!(fused_lengths[i].to_bits(), lengths[i].to_bits(), "ray {}", i);
@@ -841,9 +881,10 @@ mod tests {
                 let [a, b, c] = &triangles[i];
                 [a, b, c]
             });
-            let refined = refine_four(corners, [&rays[0], &rays[1], &rays[2], &rays[3]], traced);
+            let refined =
+                refine_four(corners, [&rays[0], &rays[1], &rays[2], &rays[3]], |i| traced[i]);
             for i in 0..4 {
-                let want = refine(triangles[i], &rays[i], traced[i]);
+                let want = refine(triangles[i], &rays[i], || traced[i]);
                 // Every NaN as one (x86 makes a new NaN negative; which NaN a scalar operation
                 // passes on depends on the order the compiler chose for its operands).
                 let bits = |r: &Refined| {
@@ -878,9 +919,10 @@ mod tests {
             .collect();
         let mut local = vec![NEVER_TRACED; rays.len()];
         let mut lengths = vec![0.0; rays.len()];
-        local_rays_into(origin, &rays, &Query::default(), &mut local, &mut lengths);
+        let frame = Frame::at(origin);
+        local_rays_into(frame, &rays, &Query::default(), &mut local, &mut lengths);
         for (i, ray) in rays.iter().enumerate() {
-            let (want, want_length) = local_ray(origin, ray, &Query::default()).unwrap();
+            let (want, want_length) = local_ray(frame, ray, &Query::default()).unwrap();
             assert!(same(&local[i], &want), "ray {i}");
             assert_eq!(lengths[i].to_bits(), want_length.to_bits());
         }
@@ -893,6 +935,7 @@ mod tests {
                 unsafe {
                     avx::four(
                         origin,
+                        f64::INFINITY,
                         r,
                         Query::default().flags(),
                         l,

@@ -28,9 +28,102 @@ pub const NEVER_TRACED: GpuRay = GpuRay {
     origin_lo: [0; 2],
 };
 
+/// How far out, in the scene's reaches ([`Frame::reach`]), a ray's origin may lie before the
+/// conversion moves it along the ray towards the scene ([`Frame::shift`]). Rounding an origin
+/// to an f32 offset moves it by up to 2^-24 of its distance: from 16 reaches that is under a
+/// millionth of the scene's size, and nearer origins (a camera's, a click's) keep the bits
+/// they always had.
+pub const FAR_REACHES: f64 = 16.0;
+
+/// The scene frame that world rays are converted into: the f64 point their f32 offsets are
+/// taken from, and how far from it the scene's hittable triangles reach.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Frame {
+    /// The scene origin ([`Bvh::origin`]).
+    pub origin: DVec3,
+    /// No hittable point lies farther than this from `origin`; infinite when unknown (no
+    /// origin is then moved).
+    pub reach: f64,
+}
+
+impl Frame {
+    /// A frame about `origin` whose reach is unknown: no ray's origin is moved. For rays
+    /// traced without the pipeline's refinement (ordering, the trace alone in benchmarks).
+    pub fn at(origin: DVec3) -> Frame {
+        Frame {
+            origin,
+            reach: f64::INFINITY,
+        }
+    }
+
+    /// The frame about `origin` of a scene whose hittable triangles lie within `bounds`
+    /// (`None`: nothing to hit; no ray is moved). The reach is the distance to the farthest
+    /// corner of the bounds.
+    pub fn around(origin: DVec3, bounds: Option<(DVec3, DVec3)>) -> Frame {
+        let reach = bounds.map_or(f64::INFINITY, |(lo, hi)| {
+            let corner = (lo - origin).abs().max((hi - origin).abs());
+            // Rounded up by a part in 2^40, past the length's own rounding.
+            let reach = corner.length() * (1.0 + f64::EPSILON * 4096.0);
+            if reach.is_finite() {
+                reach
+            } else {
+                f64::INFINITY
+            }
+        });
+        Frame { origin, reach }
+    }
+
+    /// How far along `ray`, in its own units, the conversion moves its origin before rounding
+    /// it to f32: 0 unless the origin lies more than [`FAR_REACHES`] reaches out and the ray
+    /// heads towards the scene; then to two reaches before the point of the ray nearest the
+    /// frame's origin. Every hittable point lies within one reach of that point, so none lies
+    /// on the stretch skipped, and the rounded origin keeps the precision of one near the
+    /// scene: from 10^9 units out, a 96-unit scene's f32 offsets were 64 units apart, and the
+    /// traversal chose the far wall of a building over the near one. The refinement measures t
+    /// from the ray's own origin, in f64, as always.
+    #[inline]
+    pub fn shift(&self, ray: &Ray) -> f64 {
+        let offset = ray.origin - self.origin;
+        let limit = self.reach * FAR_REACHES;
+        // False for NaN, and for an infinite reach.
+        let far = offset.length_squared() > limit * limit;
+        if !far {
+            return 0.0;
+        }
+        let scale = crate::ray::direction_scale(ray.dir);
+        if !(scale > 0.0 && scale.is_finite()) {
+            return 0.0;
+        }
+        let dir = ray.dir / scale;
+        let length_squared = dir.length_squared();
+        // In the scaled direction's units: the nearest point's parameter, less two reaches.
+        let along = -offset.dot(dir) / length_squared - 2.0 * self.reach / length_squared.sqrt();
+        let world = along / scale;
+        if along > 0.0 && world.is_finite() && world < f64::MAX / 4.0 {
+            world
+        } else {
+            0.0
+        }
+    }
+}
+
+/// `ray` with its origin moved `shift` along it (its own units), the range with it: the
+/// stretch skipped holds no hittable point ([`Frame::shift`]).
+fn moved(ray: &Ray, shift: f64) -> Ray {
+    // `shift * dir` as the scaled parameter times the scaled direction: neither overflows.
+    let scale = crate::ray::direction_scale(ray.dir);
+    Ray {
+        origin: ray.origin + (ray.dir / scale) * (shift * scale),
+        tmin: ray.tmin - shift,
+        tmax: ray.tmax - shift,
+        ..*ray
+    }
+}
+
 /// A world ray in the scene frame: the kernel input plus the length of the world direction
-/// (`t_world = t_local / dir_length`). `None` for an invalid ray ([`Ray::is_valid`]: among
-/// others, a direction that cannot be normalized to finite values).
+/// (`t_world = t_local / dir_length`, plus the frame's [`Frame::shift`] of the ray). `None`
+/// for an invalid ray ([`Ray::is_valid`]: among others, a direction that cannot be normalized
+/// to finite values).
 ///
 /// A ray with layer mask 0 shares no bit with any object, so it is never traced: it comes back
 /// as [`NEVER_TRACED`] with its direction length, a plain miss on every backend whatever the
@@ -38,7 +131,17 @@ pub const NEVER_TRACED: GpuRay = GpuRay {
 ///
 /// The local range is capped so that every hit's world `t` stays finite: a hit farther than
 /// `f64::MAX` in the ray's own units is no hit.
-pub fn local_ray(scene_origin: DVec3, ray: &Ray, query: &Query) -> Option<(GpuRay, f64)> {
+pub fn local_ray(frame: Frame, ray: &Ray, query: &Query) -> Option<(GpuRay, f64)> {
+    let shift = frame.shift(ray);
+    if shift == 0.0 {
+        local_ray_at(frame.origin, ray, query)
+    } else {
+        local_ray_at(frame.origin, &moved(ray, shift), query)
+    }
+}
+
+/// [`local_ray`] for a ray whose origin stays where it is.
+fn local_ray_at(scene_origin: DVec3, ray: &Ray, query: &Query) -> Option<(GpuRay, f64)> {
     // `Ray::is_valid`, with `direction_length` taken apart so that the scaled direction and its
     // length are computed once (the same operations in the same order, so the same bits):
     // scaled first so that huge or tiny directions neither overflow nor underflow.
@@ -94,16 +197,16 @@ pub fn local_ray(scene_origin: DVec3, ray: &Ray, query: &Query) -> Option<(GpuRa
 }
 
 /// Converts a batch of world rays to closest-hit kernel rays; invalid ones become [`NEVER_TRACED`].
-pub fn local_rays(scene_origin: DVec3, rays: &[Ray]) -> Vec<GpuRay> {
-    local_rays_for(scene_origin, rays, &Query::default())
+pub fn local_rays(frame: Frame, rays: &[Ray]) -> Vec<GpuRay> {
+    local_rays_for(frame, rays, &Query::default())
 }
 
 /// Converts a batch of world rays to kernel rays for `query`.
-pub fn local_rays_for(scene_origin: DVec3, rays: &[Ray], query: &Query) -> Vec<GpuRay> {
+pub fn local_rays_for(frame: Frame, rays: &[Ray], query: &Query) -> Vec<GpuRay> {
     let mut out = Vec::new();
     rays.par_iter()
         .with_min_len(4096)
-        .map(|r| local_ray(scene_origin, r, query).map_or(NEVER_TRACED, |(g, _)| g))
+        .map(|r| local_ray(frame, r, query).map_or(NEVER_TRACED, |(g, _)| g))
         .collect_into_vec(&mut out);
     out
 }
@@ -111,7 +214,7 @@ pub fn local_rays_for(scene_origin: DVec3, rays: &[Ray], query: &Query) -> Vec<G
 /// Converts a batch of world rays to kernel rays for `query`, with each ray's world direction
 /// length (`t_world = t_local / length`; NaN for an invalid ray), computed once for
 /// [`resolve_with`].
-pub fn scene_rays(scene_origin: DVec3, rays: &[Ray], query: &Query) -> (Vec<GpuRay>, Vec<f64>) {
+pub fn scene_rays(frame: Frame, rays: &[Ray], query: &Query) -> (Vec<GpuRay>, Vec<f64>) {
     // Both vectors are first touched by many threads: `vec![NEVER_TRACED; n]` would write (and
     // fault in) all of a large batch's rays on this thread alone, which on a 16-core host took
     // longer than the GPU's trace of them. `vec![0.0; n]` is zeroed memory, touched below.
@@ -124,9 +227,7 @@ pub fn scene_rays(scene_origin: DVec3, rays: &[Ray], query: &Query) -> (Vec<GpuR
     rays.par_chunks(4096)
         .zip(local.par_chunks_mut(4096))
         .zip(lengths.par_chunks_mut(4096))
-        .for_each(|((rays, local), lengths)| {
-            local_rays_into(scene_origin, rays, query, local, lengths)
-        });
+        .for_each(|((rays, local), lengths)| local_rays_into(frame, rays, query, local, lengths));
     (local, lengths)
 }
 
@@ -135,13 +236,13 @@ pub fn scene_rays(scene_origin: DVec3, rays: &[Ray], query: &Query) -> (Vec<GpuR
 /// half floats, each rounded once from f64 (to nearest, ties to even), the same bits on every
 /// CPU. A rest too small for a normal half float is 0, so every decoder reads the same bits; a
 /// ray never traced keeps zeros.
-pub fn put_origin_lo(scene_origin: DVec3, rays: &[Ray], local: &mut [GpuRay]) {
+pub fn put_origin_lo(frame: Frame, rays: &[Ray], local: &mut [GpuRay]) {
     if rays.len() <= 4096 {
-        four::put_origin_lo_into(scene_origin, rays, local);
+        four::put_origin_lo_into(frame, rays, local);
     } else {
         rays.par_chunks(4096)
             .zip(local.par_chunks_mut(4096))
-            .for_each(|(rays, local)| four::put_origin_lo_into(scene_origin, rays, local));
+            .for_each(|(rays, local)| four::put_origin_lo_into(frame, rays, local));
     }
 }
 
@@ -153,12 +254,18 @@ fn gets_origin_rest(l: &GpuRay) -> bool {
     l.tmin <= l.tmax && l.mask != 0
 }
 
-/// [`put_origin_lo`] for one ray.
+/// [`put_origin_lo`] for one ray (the rest of its origin as [`local_ray`] moved it).
 #[inline]
-fn origin_lo_of(scene_origin: DVec3, ray: &Ray, l: &mut GpuRay) {
+fn origin_lo_of(frame: Frame, ray: &Ray, l: &mut GpuRay) {
     if !gets_origin_rest(l) {
         return;
     }
+    let shift = frame.shift(ray);
+    let origin = if shift == 0.0 {
+        ray.origin
+    } else {
+        moved(ray, shift).origin
+    };
     let half = |x: f64| -> u32 {
         let h = half::f16::from_bits(half_bits(x));
         if h.is_normal() {
@@ -167,7 +274,7 @@ fn origin_lo_of(scene_origin: DVec3, ray: &Ray, l: &mut GpuRay) {
             0
         }
     };
-    let rest = (ray.origin - scene_origin) - glam::Vec3::from(l.origin).as_dvec3();
+    let rest = (origin - frame.origin) - glam::Vec3::from(l.origin).as_dvec3();
     l.origin_lo = [half(rest.x) | half(rest.y) << 16, half(rest.z)];
 }
 
@@ -246,7 +353,8 @@ pub fn check_found_in<T: Sync>(
 /// Turns a traversal result into the public hit: maps the leaf-order triangle back to its
 /// object and file-order id, and recomputes t, u, v, position and normal in f64.
 pub fn resolve(scene: &Scene, bvh: &Bvh, ray: &Ray, found: &GpuHit) -> Result<Hit> {
-    let Some((_, dir_length)) = local_ray(bvh.origin, ray, &Query::default()) else {
+    let frame = Frame::around(bvh.origin, scene.bounds());
+    let Some((_, dir_length)) = local_ray(frame, ray, &Query::default()) else {
         return Ok(Hit::INVALID);
     };
     check_found(bvh, std::slice::from_ref(found), |f| f.prim)?;
@@ -267,7 +375,10 @@ pub fn resolve_with(scene: &Scene, bvh: &Bvh, ray: &Ray, dir_length: f64, found:
     }
     let scene_index = bvh.triangle_ids[found.prim as usize];
     let vertices = scene.world_triangle(scene_index as usize);
-    let refined = refine(vertices, ray, traced(found, dir_length));
+    let refined = refine(vertices, ray, || {
+        let frame = Frame::around(bvh.origin, scene.bounds());
+        traced(found, dir_length, frame.shift(ray))
+    });
     hit_of(scene, scene_index, refined, found)
 }
 
@@ -312,11 +423,14 @@ pub fn resolve_chunk(
                 ]
             };
             let ray = |j: usize| &rays[input[pending[j]]];
-            let traced_at = |j: usize| traced(&found[pending[j]], lengths[pending[j]]);
+            let traced_at = |j: usize| {
+                let frame = Frame::around(bvh.origin, scene.bounds());
+                traced(&found[pending[j]], lengths[pending[j]], frame.shift(ray(j)))
+            };
             let refined = four::refine_four(
                 [corners(0), corners(1), corners(2), corners(3)],
                 [ray(0), ray(1), ray(2), ray(3)],
-                [traced_at(0), traced_at(1), traced_at(2), traced_at(3)],
+                traced_at,
             );
             for ((k, i), refined) in pending.into_iter().zip(index).zip(refined) {
                 emit(k, hit_of(scene, i, refined, &found[k]));
@@ -389,9 +503,14 @@ pub(crate) fn stats_of(found: &GpuHit) -> Hit {
     }
 }
 
-/// The traversal's own t (in the world ray's units), u and v: what the refinement falls back on.
-pub(crate) fn traced(found: &GpuHit, dir_length: f64) -> [f64; 3] {
-    [found.t as f64 / dir_length, found.u as f64, found.v as f64]
+/// The traversal's own t (in the world ray's units, from its own origin: `shift` is the
+/// conversion's [`Frame::shift`] of the ray), u and v: what the refinement falls back on.
+pub(crate) fn traced(found: &GpuHit, dir_length: f64, shift: f64) -> [f64; 3] {
+    [
+        found.t as f64 / dir_length + shift,
+        found.u as f64,
+        found.v as f64,
+    ]
 }
 
 /// What the f64 refinement makes of a hit.
@@ -410,15 +529,16 @@ pub struct Refined {
 }
 
 /// The f64 refinement of a hit on the world triangle `[a, b, c]`: the exact test's t, u and v
-/// where they are finite (and t is not 0), else `traced` (the traversal's).
+/// where they are finite (and t is not 0), else `traced()` (the traversal's, asked for only
+/// then).
 #[inline]
-pub fn refine([a, b, c]: [DVec3; 3], ray: &Ray, traced: [f64; 3]) -> Refined {
+pub fn refine([a, b, c]: [DVec3; 3], ray: &Ray, traced: impl FnOnce() -> [f64; 3]) -> Refined {
     let exact = ray_triangle_f64([a, b, c], ray.origin, ray.dir);
     let [t, u, v] =
         if exact.t.is_finite() && exact.u.is_finite() && exact.v.is_finite() && exact.t != 0.0 {
             [exact.t, exact.u, exact.v]
         } else {
-            traced
+            traced()
         };
     Refined {
         t,
@@ -470,9 +590,9 @@ mod tests {
         let origin = DVec3::new(2048.0 + rest, 1.0, 1.0);
         assert_eq!(origin.x - 2048.0, rest, "the rest is exact in f64");
         let ray = Ray::new(origin, DVec3::X);
-        let (mut local, _) = scene_rays(DVec3::ZERO, &[ray], &Query::default());
+        let (mut local, _) = scene_rays(Frame::at(DVec3::ZERO), &[ray], &Query::default());
         assert_eq!(local[0].origin[0], 2048.0);
-        put_origin_lo(DVec3::ZERO, &[ray], &mut local);
+        put_origin_lo(Frame::at(DVec3::ZERO), &[ray], &mut local);
         let (below, above) = (0x0400, 0x0401);
         assert_eq!(half::f16::from_bits(below).to_f64(), 2f64.powi(-14));
         assert_eq!(

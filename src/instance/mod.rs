@@ -619,6 +619,12 @@ impl Instances {
         self.origin
     }
 
+    /// The scene frame rays are converted into: about [`Instances::origin`], reaching as far as
+    /// [`Instances::bounds`] (the instances that can be hit).
+    pub fn frame(&self) -> crate::frame::Frame {
+        crate::frame::Frame::around(self.origin, self.bounds)
+    }
+
     /// The world box around the instances that can be hit (mask not 0; around all of them
     /// when none can, `None` when none has a box): worked out when instances are placed, added,
     /// hidden or shown; a move grows it to the moved instance's new box (it may then hold the

@@ -21,7 +21,9 @@ pub fn resolve_with(instances: &Instances, ray: &Ray, dir_length: f64, found: &G
     }
     let (instance, triangle) = instances.locate(found.prim);
     let (corners, swapped) = instances.world_triangle(instance, triangle);
-    let refined = refine(corners, ray, traced(found, dir_length));
+    let refined = refine(corners, ray, || {
+        traced(found, dir_length, instances.frame().shift(ray))
+    });
     hit_of(instances, instance, triangle, swapped, refined, found)
 }
 
@@ -64,7 +66,10 @@ pub fn resolve_chunk(
             let w2 = instances.world_triangle(located[g + 2].0, located[g + 2].1);
             let w3 = instances.world_triangle(located[g + 3].0, located[g + 3].1);
             let ray = |n: usize| &rays[input[k(n)]];
-            let traced_at = |n: usize| traced(&found[k(n)], lengths[k(n)]);
+            let traced_at = |n: usize| {
+                let shift = instances.frame().shift(&rays[input[k(n)]]);
+                traced(&found[k(n)], lengths[k(n)], shift)
+            };
             let refined = refine_four(
                 [
                     corners(&w0.0),
@@ -73,7 +78,7 @@ pub fn resolve_chunk(
                     corners(&w3.0),
                 ],
                 [ray(0), ray(1), ray(2), ray(3)],
-                [traced_at(0), traced_at(1), traced_at(2), traced_at(3)],
+                traced_at,
             );
             for (n, (w, refined)) in [w0.1, w1.1, w2.1, w3.1]
                 .into_iter()

@@ -103,7 +103,7 @@ proptest! {
         prop_assert!(bvh.triangles.len() <= hittable);
         // Traversal terminates within its bound for every ray.
         let rays = raypick::check::synthetic::rays(&s, raypick::check::synthetic::RayKind::Random, 64, 1);
-        let local = raypick::frame::local_rays(bvh.origin, &rays);
+        let local = raypick::frame::local_rays(raypick::frame::Frame::at(bvh.origin), &rays);
         for hit in raypick::cpu::trace_all(&bvh, &local) {
             prop_assert!(hit.prim != raypick::layout::CAP_REACHED);
             prop_assert!(hit.box_tests <= bvh.nodes.len() as u32);

@@ -40,7 +40,10 @@ fn is_permutation(order: &[u32]) -> bool {
 fn the_order_is_a_permutation_that_round_trips() {
     let built = terrain_scene();
     for kind in [RayKind::Random, RayKind::AxisParallel, RayKind::InsideBox] {
-        let local = local_rays(built.bvh.origin, &rays(&built.scene, kind, 5000, 3));
+        let local = local_rays(
+            raypick::frame::Frame::at(built.bvh.origin),
+            &rays(&built.scene, kind, 5000, 3),
+        );
         let order = RayOrder::new(&local).expect("order");
         assert!(is_permutation(order.order()), "{kind:?}");
         let traced = order.gather(&local);
@@ -61,7 +64,7 @@ fn the_order_is_a_permutation_that_round_trips() {
 fn random_rays_are_grouped_by_octant_then_origin() {
     let built = terrain_scene();
     let local = local_rays(
-        built.bvh.origin,
+        raypick::frame::Frame::at(built.bvh.origin),
         &rays(&built.scene, RayKind::Random, 4000, 5),
     );
     let order = RayOrder::new(&local).expect("order");
@@ -89,7 +92,7 @@ fn random_rays_are_grouped_by_octant_then_origin() {
 fn batches_from_one_origin_keep_their_order() {
     let built = terrain_scene();
     let camera = local_rays(
-        built.bvh.origin,
+        raypick::frame::Frame::at(built.bvh.origin),
         &rays(&built.scene, RayKind::Camera, 5000, 3),
     );
     assert_eq!(RayOrder::new(&camera), None, "a pinhole camera's rays");
@@ -147,7 +150,10 @@ proptest! {
 fn cpu_traversal_is_identical_in_either_order() {
     for built in [terrain_scene(), bunny_scene()] {
         for kind in [RayKind::Random, RayKind::Camera] {
-            let local = local_rays(built.bvh.origin, &rays(&built.scene, kind, 20_000, 9));
+            let local = local_rays(
+                raypick::frame::Frame::at(built.bvh.origin),
+                &rays(&built.scene, kind, 20_000, 9),
+            );
             let plain = cpu::trace_all(&built.bvh, &local);
             let (reordered, _) = trace_in_order(&local, 0, true, |r| {
                 Ok::<_, ()>((cpu::trace_all(&built.bvh, r), Vec::new()))

@@ -60,7 +60,8 @@ fn every_swept_workgroup_size_answers_as_the_cpu_path() {
                     .map(|&i| (&rays[i], &answers.nearest[i], &cpu.nearest[i]))
             );
             // Raw kernel records against the CPU twin's, bit for bit.
-            let local = raypick::frame::local_rays(built.bvh.origin, &rays);
+            let local =
+                raypick::frame::local_rays(raypick::frame::Frame::at(built.bvh.origin), &rays);
             let settings = built.settings(&query);
             let (cpu_raw, _) = raypick::cpu::trace_batch(&built.bvh, &local, &settings);
             let (gpu_raw, _) = picker
