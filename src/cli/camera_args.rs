@@ -5,7 +5,7 @@
 use clap::Args;
 use glam::DVec3;
 use raypick::apps::camera::Camera;
-use raypick::{BuiltScene, Error};
+use raypick::{BuiltScene, Error, Query};
 use std::path::PathBuf;
 
 /// Width of the framing camera without `--camera` or `--width`.
@@ -71,5 +71,39 @@ impl View {
             let (min, max) = built.scene.bounds().unwrap_or((DVec3::ZERO, DVec3::ZERO));
             Camera::frame_bounds(min, max, self.width, self.height)
         })
+    }
+}
+
+/// Warns, as `pick` does, when pixel rays of `camera` are invalid (every pixel of an
+/// orthographic view a 10³⁰⁰ units tall, say): they are misses, and the picture or the list
+/// would be empty without a word. `lattice` is `(first pixel, columns × rows, step)`, the
+/// rays `Camera::pixel_center_ray_lattice` makes; counted a row at a time.
+pub fn warn_invalid_rays(
+    built: &BuiltScene,
+    camera: &Camera,
+    lattice: ((u32, u32), (u32, u32), u32),
+    mask: u32,
+) {
+    use rayon::prelude::*;
+    let ((x0, y0), (columns, rows), step) = lattice;
+    let frame = built.frame();
+    let invalid: usize = (0..rows)
+        .into_par_iter()
+        .map(|b| {
+            let row =
+                camera.pixel_center_ray_lattice((x0, y0 + b * step), (columns, 1), step, mask);
+            row.iter()
+                .filter(|r| raypick::frame::local_ray(frame, r, &Query::default()).is_none())
+                .count()
+        })
+        .sum();
+    if invalid > 0 {
+        eprintln!(
+            "warning: {invalid} of the view's {} pixel ray(s) were invalid (NaN or infinite \
+             values, a zero direction or one too short or too long to normalize, or an origin \
+             too far from the scene for single precision: is the camera's size or place right?) \
+             and count as misses",
+            u64::from(columns) * u64::from(rows)
+        );
     }
 }

@@ -1,7 +1,7 @@
 //! `raypick render`: a ray-cast picture of a scene (one closest-hit ray per pixel), written as a
 //! PNG, shaded by normal (hillshade), depth or object id.
 
-use super::camera_args::CameraArgs;
+use super::camera_args::{CameraArgs, warn_invalid_rays};
 use super::make_picker;
 use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
@@ -34,8 +34,10 @@ pub fn run(args: RenderArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     check_size(view.width, view.height)?;
     let built = Arc::new(args.scene.build(matches)?);
     let camera = view.camera(&built);
-    let mut picker = make_picker(args.backend, built)?;
+    let mut picker = make_picker(args.backend, built.clone())?;
     let image = render(picker.as_mut(), &camera, args.shade)?;
+    let size = (camera.width(), camera.height());
+    warn_invalid_rays(&built, &camera, ((0, 0), size, 1), u32::MAX);
     image.save_png(&args.out)?;
     Ok(ExitCode::SUCCESS)
 }

@@ -2,7 +2,7 @@
 //! object under every pixel of a view). Both look through `--camera`, or without one through the
 //! framing camera that `render` uses.
 
-use super::camera_args::CameraArgs;
+use super::camera_args::{CameraArgs, warn_invalid_rays};
 use super::scene_args::{SceneArgs, parse_mask};
 use super::{csv_only, make_picker, write_output};
 use clap::{ArgMatches, Args};
@@ -81,6 +81,14 @@ pub fn run_select(args: SelectArgs, matches: &ArgMatches) -> Result<ExitCode, Er
         args.step,
         args.rays.ray_mask,
     )?;
+    // The marquee's lattice (checked by `marquee`: inside the view, step at least 1).
+    let sides = |from: u32, to: u32| (to - from).div_ceil(args.step);
+    let lattice = (
+        (rect.x0, rect.y0),
+        (sides(rect.x0, rect.x1), sides(rect.y0, rect.y1)),
+        args.step,
+    );
+    warn_invalid_rays(&built, &camera, lattice, args.rays.ray_mask);
     write_output(args.out.as_deref(), |out| {
         writeln!(out, "object,name,pixels")?;
         for s in &selected {
@@ -121,6 +129,7 @@ pub fn run_idbuffer(args: IdBufferArgs, matches: &ArgMatches) -> Result<ExitCode
     let mut picker = make_picker(args.rays.backend, built.clone())?;
     let ids = object_id_buffer(picker.as_mut(), &camera, args.rays.ray_mask)?;
     let (w, h) = (camera.width(), camera.height());
+    warn_invalid_rays(&built, &camera, ((0, 0), (w, h), 1), args.rays.ray_mask);
     match png {
         Some(path) if args.raw_ids => write_id_png(path, w, h, &ids)?,
         Some(path) => {

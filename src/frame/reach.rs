@@ -35,6 +35,16 @@ pub fn ray_step(reach: f64) -> f64 {
     f32_step(reach) / 2048.0
 }
 
+/// `v`'s length without overflow: scaled by its largest component first (a diagonal 10²⁰⁰
+/// long squared is past f64's range).
+fn length(v: DVec3) -> f64 {
+    let largest = v.abs().max_element();
+    if largest == 0.0 || !largest.is_finite() {
+        return largest;
+    }
+    (v / largest).length() * largest
+}
+
 /// A part that its frame does not resolve: where it lies, the step there and its size.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Unresolved {
@@ -58,8 +68,10 @@ impl Unresolved {
         step: fn(f64) -> f64,
     ) -> Option<Self> {
         let reach = (lo - origin).abs().max((hi - origin).abs()).max_element();
-        let (size, step) = ((hi - lo).length(), step(reach));
-        (size < RESOLVED_STEPS * step).then_some(Unresolved {
+        let (size, step) = (length(hi - lo), step(reach));
+        // Past f32's range nothing is resolved, however large (a box 10²⁰⁰ across, whose
+        // diagonal is as infinite as the step there, was counted as resolved).
+        (size < RESOLVED_STEPS * step || step.is_infinite()).then_some(Unresolved {
             part,
             reach,
             step,
@@ -135,5 +147,19 @@ mod tests {
                 .starts_with("object 0 lies 5.000e7 units")
         );
         assert!(scene(1e300).iter().all(|u| u.step.is_infinite()));
+    }
+
+    /// A part past f32's range is unresolved however large it is: one 10²⁰⁰ across (its
+    /// diagonal's square past f64's range) was counted as resolved, and its triangles, which no
+    /// tree holds, went without a warning.
+    #[test]
+    fn parts_past_f32s_range_are_unresolved_however_large() {
+        for size in [1e150, 1e200, 1e300] {
+            let b = (DVec3::ZERO, DVec3::new(size, size, 0.0));
+            let u = Unresolved::of(0, b, DVec3::ZERO, f32_step).expect("unresolved");
+            assert_eq!(u.size, size * 2f64.sqrt());
+            assert!(u.step.is_infinite());
+        }
+        assert_eq!(length(DVec3::new(3e200, 4e200, 0.0)), 5e200);
     }
 }

@@ -790,6 +790,59 @@ fn raw_ids_refuse_a_scene_with_more_objects_than_sixteen_bits_hold() {
     assert!(!std::path::Path::new(&png).exists(), "{png} written");
 }
 
+/// Heights past f32's range (±10¹⁶⁰ in a 2 × 2 grid, a triangle 10²⁰⁰ across in an OBJ) lose
+/// their triangles, and every command that builds says so: before, a box that large counted as
+/// resolved (its diagonal's square overflowed), and the picks missed without a word.
+#[test]
+fn triangles_past_f32s_range_are_warned_about() {
+    let rays = temp_file("one-ray.txt", "1.0 -100 0 0 1 0\n");
+    let grid = temp_file(
+        "h160.asc",
+        "ncols 2\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n1e160 2\n3 -1e160\n",
+    );
+    let obj = temp_file("huge.obj", "v 0 0 0\nv 1e200 0 0\nv 0 1e200 0\nf 1 2 3\n");
+    for scene in [&grid, &obj] {
+        let (code, _, err) = raypick(&["pick", "--scene", scene, "--rays", &rays, "-q"]);
+        assert_eq!(code, 0, "{scene}: {err}");
+        assert!(err.contains("can never be hit"), "{scene}: {err}");
+    }
+}
+
+/// A view whose every pixel ray is invalid (an orthographic view 10³⁰⁰ units tall: origins
+/// past single precision) is warned about by `render`, `select` and `idbuffer`, as `pick`
+/// warns about invalid rays: before, they drew the sky and listed nothing without a word.
+#[test]
+fn views_of_invalid_pixel_rays_are_warned_about() {
+    let camera = temp_file(
+        "tall-view.json",
+        r#"{"orthographic":{"eye":[50,-60,80],"target":[48,48,0],"up":[0,0,1],"view_height":1e300,"width":16,"height":12}}"#,
+    );
+    let png = std::env::temp_dir().join(format!("raypick-hostile-{}-tall.png", std::process::id()));
+    let png = png.display().to_string();
+    for (args, count) in [
+        (
+            &["render", "--camera", &camera, "--out", &png][..],
+            "192 of the view's 192",
+        ),
+        (
+            &[
+                "select", "--camera", &camera, "--rect", "0", "0", "16", "12", "--step", "4",
+            ],
+            "12 of the view's 12",
+        ),
+        (&["idbuffer", "--camera", &camera], "192 of the view's 192"),
+    ] {
+        let (code, _, err) = raypick(args);
+        assert_eq!(code, 0, "{args:?}: {err}");
+        assert!(
+            err.contains(&format!("warning: {count} pixel ray(s) were invalid")),
+            "{args:?}: {err}"
+        );
+    }
+    let (_, _, err) = raypick(&["render", "--width", "16", "--height", "12", "--out", &png]);
+    assert!(!err.contains("invalid"), "an ordinary view: {err}");
+}
+
 /// Inputs whose size no header gives (a device, a pipe, a file of endless short lines, a small
 /// file listed thousands of times) are refused as soon as the reading shows them too long or
 /// over the budget: before, `/dev/zero` as a pair, pixel, target, camera or verify ray file
