@@ -29,7 +29,7 @@ struct Cli {
     /// probe counts, all-hits lists, sizes in file headers): bytes, or a number with K, M, G or
     /// T (powers of 1024), e.g. 8G or 512M. A size over it is an error naming the value and
     /// the limit [default: half the machine's memory].
-    #[arg(long, global = true, value_name = "SIZE", value_parser = raypick::budget::parse_size)]
+    #[arg(long, global = true, value_name = "SIZE", value_parser = parse_budget)]
     max_memory: Option<u64>,
     #[command(subcommand)]
     command: Command,
@@ -117,4 +117,17 @@ fn main() -> ExitCode {
             ExitCode::from(2)
         }
     }
+}
+
+/// `--max-memory`: a size ([`raypick::budget::parse_size`]) of at least 1 MiB, the least budget
+/// (a smaller one was taken as 1 MiB without a word).
+fn parse_budget(text: &str) -> Result<u64, String> {
+    let bytes = raypick::budget::parse_size(text)?;
+    if bytes < 1 << 20 {
+        return Err(format!(
+            "{:?} is below the least memory budget, 1M",
+            raypick::budget::quote(text.trim())
+        ));
+    }
+    Ok(bytes)
 }

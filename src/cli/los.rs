@@ -200,10 +200,19 @@ fn grid_targets(built: &BuiltScene, lift: DVec3) -> Result<Vec<(DVec3, String)>,
         }
     }
     if targets.is_empty() {
-        let why = if scene.objects().iter().any(|o| o.grid.is_some()) {
-            "the scene's terrain grids have no cells with data (NODATA everywhere)"
+        let grids: Vec<_> = scene.objects().iter().filter_map(|o| o.grid).collect();
+        let why = if grids.is_empty() {
+            "the scene has no terrain grid".to_string()
+        } else if grids.iter().all(|g| g.columns < 2 || g.rows < 2) {
+            // One row or one column of samples: no cell between them.
+            let g = grids[0];
+            format!(
+                "the scene's terrain grids have no cells (the first is {} x {} samples; a cell \
+                 needs two rows and two columns)",
+                g.columns, g.rows
+            )
         } else {
-            "the scene has no terrain grid"
+            "the scene's terrain grids have no cells with data (NODATA everywhere)".to_string()
         };
         return Err(Error::Invalid(format!("{why}: give --targets FILE")));
     }

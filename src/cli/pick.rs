@@ -48,8 +48,7 @@ pub struct PickArgs {
 pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let q = &args.query;
     // Arguments are checked before anything is read or written.
-    let query = q.query();
-    query.validate()?;
+    let query = q.checked()?;
     let built = Arc::new(args.scene.build_instanced(matches, false)?.0);
     // A large ray file is read in chunks while answers are written (memory bounded whatever its
     // length); it is first checked whole, line by line in constant memory, so that a bad line is

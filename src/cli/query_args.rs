@@ -3,7 +3,7 @@
 
 use super::scene_args::parse_mask;
 use clap::Args;
-use raypick::{Cull, Intersector, Mode, Query};
+use raypick::{Cull, Error, Intersector, Mode, Query};
 
 #[derive(Args, Debug)]
 pub struct QueryArgs {
@@ -11,9 +11,9 @@ pub struct QueryArgs {
     #[arg(long, value_parser = crate::cli::choice::choice::<Mode>(), default_value_t = Mode::Closest)]
     pub mode: Mode,
     /// In `--mode all`, the most hits kept per ray (the nearest), 1 ..= 1024; a ray that had
-    /// more is flagged (`overflow`).
-    #[arg(long, default_value_t = 16)]
-    pub max_hits: u32,
+    /// more is flagged (`overflow`). Only with `--mode all` [default: 16].
+    #[arg(long, value_name = "MAX_HITS")]
+    pub max_hits: Option<u32>,
     /// Skip back faces or front faces (front = counter-clockwise as seen from the ray).
     #[arg(long, value_parser = crate::cli::choice::choice::<Cull>(), default_value_t = Cull::None)]
     pub cull: Cull,
@@ -33,15 +33,32 @@ pub struct QueryArgs {
     pub tmax: f64,
 }
 
+/// `--max-hits` without it.
+pub const DEFAULT_MAX_HITS: u32 = 16;
+
 impl QueryArgs {
     /// The query these options describe.
     pub fn query(&self) -> Query {
         Query {
             mode: self.mode,
             cull: self.cull,
-            max_hits: self.max_hits,
+            max_hits: self.max_hits.unwrap_or(DEFAULT_MAX_HITS),
             intersector: self.intersector,
         }
+    }
+
+    /// [`QueryArgs::query`], checked ([`Query::validate`]); `--max-hits` outside `--mode all`
+    /// is refused (it would be ignored).
+    pub fn checked(&self) -> Result<Query, Error> {
+        if let (Some(k), false) = (self.max_hits, self.mode == Mode::All) {
+            return Err(Error::Invalid(format!(
+                "--max-hits {k} applies to --mode all only (this is --mode {})",
+                self.mode
+            )));
+        }
+        let query = self.query();
+        query.validate()?;
+        Ok(query)
     }
 }
 

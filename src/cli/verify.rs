@@ -52,7 +52,7 @@ fn check_count(count: u64, query: &Query) -> Result<(), Error> {
 }
 
 pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
-    args.query.query().validate()?;
+    args.query.checked()?;
     if args.rays.is_none() {
         check_count(args.random as u64, &args.query.query())?;
     }

@@ -118,10 +118,12 @@ fn scene_of(
     let scene = Scene::from_checked_parts(positions, triangles, objects);
     let bits = |v: glam::DVec3| v.to_array().map(f64::to_bits);
     if bits(scene.origin()) != bits(summary.scene_origin) {
+        // In exponent form: a point 10³⁰⁰ out written in full took 300 digits a coordinate.
+        let point = |v: glam::DVec3| format!("[{:e}, {:e}, {:e}]", v.x, v.y, v.z);
         return Err(format!(
             "the scene origin {} is not the centre of its vertices' bounds, {}",
-            summary.scene_origin,
-            scene.origin()
+            point(summary.scene_origin),
+            point(scene.origin())
         ));
     }
     Ok(scene)

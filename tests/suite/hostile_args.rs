@@ -152,6 +152,12 @@ fn max_memory_sets_the_budget_and_is_documented() {
     let (code, _, err) = raypick(&["pick", "--max-memory", "lots"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("lots") && !err.contains("panicked"), "{err}");
+    // Below the least budget: refused, not taken as 1 MiB without a word.
+    for small in ["1", "1000", "1023K"] {
+        let (code, _, err) = raypick(&["pick", "--max-memory", small]);
+        assert_eq!(code, 2, "{small}: {err}");
+        assert!(err.contains("least memory budget"), "{small}: {err}");
+    }
     let (code, help, _) = raypick(&["pick", "--help"]);
     assert_eq!(code, 0);
     assert!(help.contains("--max-memory <SIZE>"), "{help}");
@@ -761,6 +767,13 @@ fn outputs_that_cannot_be_what_their_name_says_are_refused() {
         &["--raw-ids", ".png"],
     );
     assert_refused(&["idbuffer", "--raw-ids"], &["--raw-ids", ".png"]);
+    // `--max-hits` outside `--mode all` would be ignored: refused.
+    for args in [
+        &["pick", "--max-hits", "5"][..],
+        &["verify", "--mode", "any", "--max-hits", "5"],
+    ] {
+        assert_refused(args, &["--max-hits 5", "--mode all"]);
+    }
     for bad in ["-1", "nan", "inf"] {
         assert_refused(&["soak", "--max-growth", bad], &["--max-growth"]);
     }
@@ -1089,5 +1102,14 @@ fn a_viewshed_over_a_grid_with_no_data_says_so() {
     assert!(
         err.contains("no cells with data") && !err.contains("has no terrain grid"),
         "{err}"
+    );
+    // A grid of one row holds data but no cell: said so, not "NODATA everywhere".
+    let row = temp_file(
+        "one-row.asc",
+        "ncols 3\nnrows 1\nxllcorner 0\nyllcorner 0\ncellsize 1\n5 6 7\n",
+    );
+    assert_refused(
+        &["viewshed", "--scene", &row, "--observer", "0", "0", "10"],
+        &["3 x 1 samples", "--targets"],
     );
 }
