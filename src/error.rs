@@ -75,7 +75,11 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 /// line it is on or drive the terminal; with `keep_lines`, line breaks and tabs stay (a whole
 /// message, whose GPU validation text may run over lines).
 pub fn escape_controls(text: &str, keep_lines: bool) -> std::borrow::Cow<'_, str> {
-    let escaped = |c: char| c.is_control() && !(keep_lines && matches!(c, '\n' | '\t'));
+    // Bidirectional formatting characters too: printed raw, a file name holding U+202E shows
+    // its text reversed on a terminal.
+    let bidi = |c: char| matches!(c, '\u{061C}' | '\u{200E}' | '\u{200F}' | '\u{202A}'..='\u{202E}' | '\u{2066}'..='\u{2069}');
+    let escaped =
+        |c: char| (c.is_control() && !(keep_lines && matches!(c, '\n' | '\t'))) || bidi(c);
     if !text.chars().any(escaped) {
         return std::borrow::Cow::Borrowed(text);
     }
@@ -140,7 +144,7 @@ pub fn shorten_tokens(text: &str, most: usize) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::shorten_tokens;
+    use super::{escape_controls, shorten_tokens};
 
     #[test]
     fn long_tokens_are_cut_and_short_ones_kept() {
@@ -153,5 +157,21 @@ mod tests {
         assert!(cut.chars().count() < 120, "{cut}");
         let many = "ab ".repeat(10_000);
         assert!(shorten_tokens(&many, 300).chars().count() <= 301);
+    }
+
+    /// Control characters and bidirectional formatting ones are escaped; other text, line
+    /// breaks with `keep_lines` included, stays.
+    #[test]
+    fn controls_and_bidi_characters_are_escaped() {
+        assert_eq!(
+            escape_controls("t\u{f3}w\u{202e}er\0.obj", false),
+            "t\u{f3}w\\u{202e}er\\u{0}.obj"
+        );
+        assert_eq!(escape_controls("a\nb", true), "a\nb");
+        assert_eq!(escape_controls("a\nb", false), "a\\nb");
+        assert!(matches!(
+            escape_controls("plain", false),
+            std::borrow::Cow::Borrowed(_)
+        ));
     }
 }

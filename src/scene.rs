@@ -110,8 +110,8 @@ pub fn check_transform(transform: &[[f64; 4]; 3]) -> std::result::Result<f64, St
     }
     if det.abs() <= 1e-12 * rows {
         return Err(format!(
-            "is singular (its 3 × 3 part has determinant {det:.3e}, its rows' lengths multiply \
-             to {rows:.3e})"
+            "is singular, or too nearly so (its 3 × 3 part's determinant, {det:.3e}, is under \
+             10⁻¹² of its rows' lengths multiplied, {rows:.3e})"
         ));
     }
     Ok(det)

@@ -71,7 +71,10 @@ impl Unresolved {
         let (size, step) = (length(hi - lo), step(reach));
         // Past f32's range nothing is resolved, however large (a box 10²⁰⁰ across, whose
         // diagonal is as infinite as the step there, was counted as resolved).
-        (size < RESOLVED_STEPS * step || step.is_infinite()).then_some(Unresolved {
+        // A part of no size (every vertex at one point: a glTF node scaled by 0) has nothing to
+        // resolve.
+        let unresolved = size > 0.0 && (size < RESOLVED_STEPS * step || step.is_infinite());
+        unresolved.then_some(Unresolved {
             part,
             reach,
             step,
@@ -161,5 +164,9 @@ mod tests {
             assert!(u.step.is_infinite());
         }
         assert!((length(DVec3::new(3e200, 4e200, 0.0)) / 5e200 - 1.0).abs() < 1e-15);
+        // A part of no size has nothing to resolve (its warning read "too coarse for its 0
+        // units").
+        let point = (DVec3::splat(1e8), DVec3::splat(1e8));
+        assert_eq!(Unresolved::of(0, point, DVec3::ZERO, f32_step), None);
     }
 }
