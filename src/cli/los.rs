@@ -94,6 +94,7 @@ fn visible(
                 .with_mask(sight.ray_mask)
         })
         .collect();
+    warn_long_ends(&built, segments, eps, what);
     let answers = make_picker(sight.backend, built)?.query(&rays, &query)?;
     let invalid = answers.nearest.iter().filter(|h| h.invalid).count();
     if invalid > 0 {
@@ -107,6 +108,31 @@ fn visible(
         .iter()
         .map(|h| !h.hit && !h.invalid)
         .collect())
+}
+
+/// Warns when segments ignore ends longer than a thousandth of the scene's size: ε is a part
+/// of each segment's length, so from an observer 10⁹ units out the default ε skips the last
+/// 1,000 units of every segment, more than a 100-unit scene, and everything reads visible.
+fn warn_long_ends(built: &BuiltScene, segments: &[(DVec3, DVec3)], eps: f64, what: &str) {
+    let Some((lo, hi)) = built.bounds() else {
+        return;
+    };
+    let size = (hi - lo).length();
+    let ends = |&(a, b): &(DVec3, DVec3)| eps * (b - a).length();
+    let long = segments.iter().filter(|s| ends(s) > size * 1e-3).count();
+    if long > 0 {
+        let longest = segments
+            .iter()
+            .map(ends)
+            .filter(|e| e.is_finite())
+            .fold(0.0, f64::max);
+        eprintln!(
+            "warning: {long} {what}(s) ignore more than a thousandth of the scene's size at each \
+             end (--epsilon {} of their length: up to {longest:.3e} units, the scene being \
+             {size:.3e} across); give a smaller --epsilon for ends this far apart",
+            csv_number(eps)
+        );
+    }
 }
 
 /// A finite number of an argument, or an error naming it.

@@ -856,6 +856,23 @@ fn views_of_invalid_pixel_rays_are_warned_about() {
     assert!(!err.contains("invalid"), "an ordinary view: {err}");
 }
 
+/// An observer so far out that `--epsilon` of each segment's length is more than a thousandth
+/// of the scene (10⁹ units from the 100-unit example: 1,000 units skipped at each end) is
+/// warned about; a near one is not. Before, every sample read visible without a word.
+#[test]
+fn segments_whose_ignored_ends_outgrow_the_scene_are_warned_about() {
+    for (x, warned) in [("1e9", true), ("50", false)] {
+        let args = ["viewshed", "--observer", x, "50", "150", "--backend", "cpu"];
+        let (code, _, err) = raypick(&args);
+        assert_eq!(code, 0, "{err}");
+        assert_eq!(
+            err.contains("give a smaller --epsilon"),
+            warned,
+            "{x}: {err}"
+        );
+    }
+}
+
 /// Inputs whose size no header gives (a device, a pipe, a file of endless short lines, a small
 /// file listed thousands of times) are refused as soon as the reading shows them too long or
 /// over the budget: before, `/dev/zero` as a pair, pixel, target, camera or verify ray file
