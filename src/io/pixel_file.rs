@@ -25,8 +25,8 @@ pub fn parse_pixel_indices_as_centers(path: &str, text: &str) -> Result<Vec<(f64
                 path: path.to_owned(),
                 line: Some(line),
                 message: format!(
-                    "a pixel coordinate is not finite ({bad}: a number past f64's range, inf or \
-                     NaN)"
+                    "a pixel coordinate is not a finite number ({bad}: one past f64's range, inf \
+                     or NaN)"
                 ),
             }),
             None => Ok((v[0] + 0.5, v[1] + 0.5)),
