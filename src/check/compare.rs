@@ -2,6 +2,10 @@
 //! a mismatch is a differing hit/miss, or a differing triangle with |Δt| > 1e-5·max(1, t).
 //! A disagreement that only decides which side of an edge, or of the ray's range end, the ray
 //! passes (within f32 reach of that boundary) is a tie, counted separately and never hidden.
+//! Distances along a ray count at most [`FAR_DISTANCE`] of the scene's reaches: the traversal
+//! moves an origin from farther out to there before rounding it (`frame::Frame::shift`), so
+//! its f32 error stops growing there (a tolerance of 10⁻⁵ of 10⁹ units called a tower's far
+//! wall picked from 10⁹ units out a tie).
 
 use crate::query::{Answers, Mode};
 use crate::ray::{Hit, Ray};
@@ -9,6 +13,22 @@ use crate::scene::Scene;
 
 /// Relative tolerance on t and on distances to edges.
 pub const RELATIVE_TOLERANCE: f64 = 1e-5;
+
+/// The farthest distance along a ray, in the scene's reaches, that the tolerances grow with:
+/// past [`crate::frame::FAR_REACHES`] and the two reaches a moved origin keeps before the scene,
+/// with room for a frame centred elsewhere (an instanced scene's, against its baked copy).
+pub const FAR_DISTANCE: f64 = 2.0 * crate::frame::FAR_REACHES;
+
+/// `|t|` as the tolerances count it: at most [`FAR_DISTANCE`] reaches of `scene` along `ray`.
+fn counted_t(scene: &Scene, ray: &Ray, t: f64) -> f64 {
+    let reach = crate::frame::Frame::around(scene.origin(), scene.bounds()).reach;
+    t.abs().min(FAR_DISTANCE * reach / ray.dir.length())
+}
+
+/// The tolerance on `t` (in the ray's units) for a hit at `t`.
+fn t_tolerance(scene: &Scene, ray: &Ray, t: f64) -> f64 {
+    RELATIVE_TOLERANCE * counted_t(scene, ray, t).max(1.0)
+}
 
 /// How two answers for one ray compare.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
@@ -35,9 +55,7 @@ pub fn classify(scene: &Scene, ray: &Ray, a: &Hit, b: &Hit) -> Verdict {
     match (a.hit, b.hit) {
         (false, false) => return Verdict::Same,
         (true, true) if (a.object, a.triangle) == (b.object, b.triangle) => return Verdict::Same,
-        (true, true)
-            if (a.t - b.t).abs() <= RELATIVE_TOLERANCE * a.t.abs().min(b.t.abs()).max(1.0) =>
-        {
+        (true, true) if (a.t - b.t).abs() <= t_tolerance(scene, ray, a.t.abs().min(b.t.abs())) => {
             return Verdict::SharedEdge;
         }
         _ => {}
@@ -84,7 +102,10 @@ pub fn classify_lists(scene: &Scene, ray: &Ray, a: (&[Hit], bool), b: (&[Hit], b
     let cutoff = [a, b]
         .iter()
         .filter(|(list, overflow)| *overflow && !list.is_empty())
-        .map(|(list, _)| list[list.len() - 1].t * (1.0 - RELATIVE_TOLERANCE))
+        .map(|(list, _)| {
+            let last = list[list.len() - 1].t;
+            last - t_tolerance(scene, ray, last)
+        })
         .fold(f64::INFINITY, f64::min);
     let a: Vec<&Hit> = a.0.iter().filter(|h| h.t < cutoff).collect();
     let b: Vec<&Hit> = b.0.iter().filter(|h| h.t < cutoff).collect();
@@ -95,9 +116,7 @@ pub fn classify_lists(scene: &Scene, ray: &Ray, a: (&[Hit], bool), b: (&[Hit], b
         let same = (0..b.len())
             .find(|&j| !used[j] && (b[j].object, b[j].triangle) == (x.object, x.triangle));
         let edge = || {
-            (0..b.len()).find(|&j| {
-                !used[j] && (b[j].t - x.t).abs() <= RELATIVE_TOLERANCE * x.t.abs().max(1.0)
-            })
+            (0..b.len()).find(|&j| !used[j] && (b[j].t - x.t).abs() <= t_tolerance(scene, ray, x.t))
         };
         match same
             .map(|j| (j, Verdict::Same))
@@ -174,10 +193,11 @@ pub fn compare_answers(
 }
 
 /// Whether `hit` lies within f32 reach of its triangle's edges or of the ray's range ends.
-/// The reach is `1e-5·max(1, distance along the ray)`, divided by the sine of the angle between
-/// ray and plane (floored at 1e-3) because a grazing ray moves that much further per error.
+/// The reach is `1e-5·max(1, distance along the ray)` (the distance counted as far as
+/// [`FAR_DISTANCE`] reaches of the scene), divided by the sine of the angle between ray and
+/// plane (floored at 1e-3) because a grazing ray moves that much further per error.
 pub fn near_boundary(scene: &Scene, ray: &Ray, hit: &Hit) -> bool {
-    let t_tolerance = RELATIVE_TOLERANCE * hit.t.abs().max(1.0);
+    let t_tolerance = t_tolerance(scene, ray, hit.t);
     if (hit.t - ray.tmax).abs() <= t_tolerance || (hit.t - ray.tmin).abs() <= t_tolerance {
         return true;
     }
@@ -200,7 +220,7 @@ pub fn near_boundary(scene: &Scene, ray: &Ray, hit: &Hit) -> bool {
     let sine = (normal.dot(ray.dir) / (twice_area * dir_length))
         .abs()
         .max(1e-3);
-    let reach = RELATIVE_TOLERANCE * (hit.t * dir_length).abs().max(1.0) / sine;
+    let reach = RELATIVE_TOLERANCE * (counted_t(scene, ray, hit.t) * dir_length).max(1.0) / sine;
     edge_distance.abs() <= reach
 }
 
@@ -273,4 +293,36 @@ pub fn differences(mode: Mode, a: &Answers, b: &Answers) -> Vec<usize> {
                         .any(|(p, q)| !same_answer(p, q)))
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::check::synthetic::box_mesh;
+    use glam::DVec3;
+
+    /// Two walls of a box 8 units apart, picked from 10³ and from 10⁹ units out: the far wall
+    /// is a tie of neither. Before distances were counted only as far as the scene's reaches,
+    /// from 10⁹ out the far wall was within 10⁻⁵·t of the near one, a "shared edge".
+    #[test]
+    fn a_far_wall_is_a_mismatch_however_far_out_the_ray_starts() {
+        let mut scene = Scene::new();
+        let mesh = box_mesh(DVec3::new(30.0, 40.0, 0.0), DVec3::new(38.0, 48.0, 30.0));
+        scene.add_mesh("tower", mesh).unwrap();
+        for x in [1e3, 1e9] {
+            let ray = Ray::new(DVec3::new(x, 44.0, 10.0), DVec3::NEG_X);
+            let hit = |t: f64| {
+                let hits = crate::check::oracle::all_hits(
+                    &scene,
+                    &crate::check::oracle::OracleTriangles::new(&scene),
+                    &ray,
+                    crate::query::Cull::None,
+                );
+                *hits.iter().find(|h| (h.t - t).abs() < 1e-6).expect("a wall there")
+            };
+            let (near, far) = (hit(x - 38.0), hit(x - 30.0));
+            assert_eq!(classify(&scene, &ray, &near, &near), Verdict::Same);
+            assert_eq!(classify(&scene, &ray, &near, &far), Verdict::Mismatch, "from {x}");
+        }
+    }
 }
