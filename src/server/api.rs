@@ -227,9 +227,19 @@ impl ApiError {
     }
 }
 
+/// The most characters of an error sentence sent back; longer ones are cut with "…".
+const MOST_ERROR_CHARS: usize = 1000;
+
 impl IntoResponse for ApiError {
+    /// The sentence with every quoted or long token of the request in it (serde's and axum's
+    /// rejections repeat a bad field name or value whole, of any size) cut to 60 characters
+    /// and "…", as the command line cuts its messages.
     fn into_response(self) -> Response {
-        json_response(self.status, &json!({ "error": self.message }))
+        let message = crate::error::shorten_tokens(
+            &crate::error::shorten_quoted(&self.message),
+            MOST_ERROR_CHARS,
+        );
+        json_response(self.status, &json!({ "error": message }))
     }
 }
 
@@ -315,7 +325,8 @@ impl PickRequest {
             None => Intersector::default(),
             Some(name) => Intersector::from_name(name).ok_or_else(|| {
                 ApiError::bad_request(format!(
-                    "unknown intersector '{name}'; expected 'moller-trumbore' or 'watertight'"
+                    "unknown intersector '{}'; expected 'moller-trumbore' or 'watertight'",
+                    crate::budget::quote(name)
                 ))
             })?,
         };
@@ -888,7 +899,8 @@ async fn render_view(
         None => Shade::default(),
         Some(name) => Shade::from_name(name).ok_or_else(|| {
             ApiError::bad_request(format!(
-                "unknown shade '{name}'; expected normal, depth or object"
+                "unknown shade '{}'; expected normal, depth or object",
+                crate::budget::quote(name)
             ))
         })?,
     };

@@ -21,7 +21,8 @@
 //! [`ServerConfig::max_body_bytes`], more than [`ServerConfig::max_rays`] rays, or in mode `all`
 //! more than [`ServerConfig::max_hit_entries`] rays x `max_hits`; 404; 405; 408 for a body not
 //! sent whole within [`ServerConfig::body_timeout`]), 503 when the request's memory does not
-//! fit the server's memory budget (see below), and 500 when picking itself fails.
+//! fit the server's memory budget (see below), and 500 when picking itself fails. A sentence
+//! quotes at most 60 characters of any token of the request (a field name, a value), then "…".
 //!
 //! # Limits on slow clients and memory
 //!

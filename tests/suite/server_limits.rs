@@ -4,7 +4,8 @@
 //! server closes them. Checks that idle, half-header (even trickled) and half-body connections
 //! are closed after the configured (shortened) timeouts, that normal picks still answer while
 //! 200 idle connections are held, that connections beyond the cap wait for a free slot, and that
-//! a request over the memory budget gets 503 while the next normal request answers 200. Every
+//! a request over the memory budget gets 503 while the next normal request answers 200, and that
+//! an error sentence quotes at most 60 characters of a megabyte-long field name or value. Every
 //! loop is bounded; the whole file runs in a few seconds.
 
 use raypick::check::synthetic::example_scene;
@@ -238,4 +239,48 @@ fn requests_over_the_memory_budget_get_503_and_the_next_answers() {
     assert_eq!(request(addr, "POST", "/pick", &small).0, 200);
     let (status, _) = request(addr, "GET", "/render?width=64&height=48", "");
     assert_eq!(status, 200);
+}
+
+#[test]
+fn error_bodies_quote_at_most_a_short_piece_of_a_long_token() {
+    let addr = start(ServerConfig::default());
+    let b = "b".repeat(1_000_000);
+    let x = "x".repeat(100_000);
+    let spaced = "x y ".repeat(25_000);
+    let shade = format!("/render?shade={}", "s".repeat(10_000));
+    let query_field = format!("/render?{}=1", "q".repeat(10_000));
+    let cases = [
+        ("POST", "/pick", format!(r#"{{"rays":[],"{b}":1}}"#)),
+        ("POST", "/pick", format!(r#"{{"rays":[],"mode":"{x}"}}"#)),
+        (
+            "POST",
+            "/pick",
+            format!(r#"{{"rays":[],"mode":"{spaced}"}}"#),
+        ),
+        (
+            "POST",
+            "/pick",
+            format!(r#"{{"rays":[],"intersector":"{x}"}}"#),
+        ),
+        ("POST", "/objects", format!(r#"{{"mesh":0,"{b}":1}}"#)),
+        ("POST", "/objects", format!(r#"{{"mesh":"{x}"}}"#)),
+        ("PATCH", "/objects/0", format!(r#"{{"{b}":1}}"#)),
+        ("GET", shade.as_str(), String::new()),
+        ("GET", query_field.as_str(), String::new()),
+    ];
+    for (method, path, body) in &cases {
+        let (status, answer) = request(addr, method, path, body);
+        let what = format!("{method} {}…", &path[..path.len().min(20)]);
+        assert_eq!(status, 400, "{what}: {}", &answer[..answer.len().min(300)]);
+        let error: serde_json::Value = serde_json::from_str(&answer).expect("a JSON error");
+        let sentence = error["error"].as_str().expect("an error sentence");
+        assert!(sentence.contains('…'), "{what}: cut short: {sentence}");
+        for run in ["b", "x", "s", "q", "x y "] {
+            assert!(
+                !sentence.contains(&run.repeat(61 / run.len() + 1)),
+                "{what}: more than 60 characters of the token: {sentence}"
+            );
+        }
+        assert!(sentence.chars().count() < 400, "{what}: {sentence}");
+    }
 }
