@@ -26,6 +26,11 @@ pub enum Error {
     /// A scene or argument is not usable as given.
     #[error("{0}")]
     Invalid(String),
+    /// A size that comes from user input (an argument, a file's header, a request) would need
+    /// more memory than the process's budget ([`crate::budget`]); the sentence names what
+    /// needed it, the size and the limit.
+    #[error("{0}")]
+    OverBudget(String),
     /// No GPU adapter could be found (on machines without a GPU, install Mesa's lavapipe).
     #[error(
         "no GPU adapter found ({0}); install a Vulkan driver such as Mesa lavapipe (mesa-vulkan-drivers)"

@@ -60,7 +60,7 @@ const TRIANGLE_BYTES: u64 = 12;
 /// A file without faces gives an empty mesh. A malformed header or body (an unknown keyword or
 /// type, missing `x`/`y`/`z`, a bad number, an index out of range, a truncated file) is an
 /// [`Error::Parse`] naming the file, and for ascii the line; counts over the memory budget are
-/// an [`Error::Invalid`] naming the file; a file that cannot be read is an [`Error::Io`].
+/// an [`Error::OverBudget`] naming the file; a file that cannot be read is an [`Error::Io`].
 pub fn load_ply(path: &Path) -> Result<Mesh, Error> {
     let name = path.display().to_string();
     let (file, length) = crate::io::open_regular(path)?;

@@ -3,7 +3,9 @@
 //! the [module docs](super).
 
 use super::ServerConfig;
-use super::batcher::{Edit, EditError, Job, MeshSource, SceneView, SharedView, Stats, Worker};
+use super::batcher::{
+    Edit, EditError, Job, JobError, MeshSource, SceneView, SharedView, Stats, Worker,
+};
 use super::page;
 use crate::apps::camera::{Camera, CameraSpec};
 use crate::apps::render::Shade;
@@ -224,6 +226,16 @@ impl ApiError {
 
     fn internal(message: impl Into<String>) -> Self {
         Self::new(StatusCode::INTERNAL_SERVER_ERROR, message)
+    }
+
+    /// A failed pick or render: 503 when it was over the memory budget, else 500.
+    fn of_job(error: JobError) -> Self {
+        let status = if error.over_budget {
+            StatusCode::SERVICE_UNAVAILABLE
+        } else {
+            StatusCode::INTERNAL_SERVER_ERROR
+        };
+        Self::new(status, error.message)
     }
 }
 
@@ -503,7 +515,7 @@ async fn pick(
         answer
             .await
             .map_err(|_| ApiError::internal("the picking worker dropped the request"))?
-            .map_err(ApiError::internal)?
+            .map_err(ApiError::of_job)?
     };
     let view = state.view();
     let names: Vec<&str> = view.objects.iter().map(|o| public_name(&o.name)).collect();
@@ -774,6 +786,7 @@ async fn submit_edit(state: &AppState, edit: Edit) -> Result<Response, ApiError>
             EditError::TooLarge(m) => ApiError::too_large(m),
             EditError::Failed(m) => ApiError::internal(m),
             EditError::Invalid(m) => ApiError::bad_request(m),
+            EditError::OverBudget(m) => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, m),
         })?;
     Ok(json_response(StatusCode::OK, &json!({ "object": object })))
 }
@@ -951,7 +964,7 @@ async fn render_view(
     let image = answer
         .await
         .map_err(|_| ApiError::internal("the picking worker dropped the request"))?
-        .map_err(ApiError::internal)?;
+        .map_err(ApiError::of_job)?;
     let png = tokio::task::spawn_blocking(move || image.to_png())
         .await
         .map_err(|e| ApiError::internal(format!("encoding the PNG failed: {e}")))?
