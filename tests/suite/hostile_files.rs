@@ -294,21 +294,29 @@ fn header_sizes_are_checked_against_the_memory_budget() {
         outcome.stderr
     );
 
-    // A triangle placed by 20,000 nodes: 1.7 MB of objects from a 240 KB file.
+    // A mesh of 1000 triangles placed by 200 nodes: 24 MB of objects from a 4 KB file and its
+    // 36 KB buffer (the file's parse fits 1 MiB; its objects do not).
     let dir = TempDir::new("budget");
-    dir.write("tri.bin", &triangle_bytes());
-    let nodes: Vec<String> = (0..20_000).map(|_| r#"{"mesh":0}"#.to_owned()).collect();
-    let roots: Vec<String> = (0..20_000).map(|k| k.to_string()).collect();
-    let text = triangle_gltf("tri.bin").replace(
-        r#""nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}]"#,
-        &format!(
-            r#""nodes":[{}],"scenes":[{{"nodes":[{}]}}]"#,
-            nodes.join(","),
-            roots.join(",")
-        ),
-    );
+    let vertices: Vec<u8> = (0..3000)
+        .flat_map(|k| [k as f32, (k % 3) as f32, 0.0])
+        .flat_map(f32::to_le_bytes)
+        .collect();
+    dir.write("mesh.bin", &vertices);
+    let nodes: Vec<String> = (0..200).map(|_| r#"{"mesh":0}"#.to_owned()).collect();
+    let roots: Vec<String> = (0..200).map(|k| k.to_string()).collect();
+    let text = triangle_gltf("mesh.bin")
+        .replace(r#""byteLength":36"#, r#""byteLength":36000"#)
+        .replace(r#""count":3"#, r#""count":3000"#)
+        .replace(
+            r#""nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}]"#,
+            &format!(
+                r#""nodes":[{}],"scenes":[{{"nodes":[{}]}}]"#,
+                nodes.join(","),
+                roots.join(",")
+            ),
+        );
     let many = dir.write("many.gltf", text.as_bytes());
-    assert_eq!(load_gltf(&many).unwrap().len(), 20_000);
+    assert_eq!(load_gltf(&many).unwrap().len(), 200);
     let name = many.display().to_string();
     let outcome = run(&[
         "pick",
@@ -319,12 +327,82 @@ fn header_sizes_are_checked_against_the_memory_budget() {
         "--scene",
         &name,
     ]);
-    assert_refused(&outcome, &name, "20000 objects with 60000 vertices");
+    assert_refused(&outcome, &name, "200 objects with 600000 vertices");
     assert!(
         outcome.stderr.contains("memory budget"),
         "{}",
         outcome.stderr
     );
+}
+
+/// A file of `length` bytes that starts with `head` and holds no data after it (sparse): it
+/// takes no disk space, but reading it would take `length` bytes of memory.
+fn sparse_file(dir: &TempDir, name: &str, head: &[u8], length: u64) -> PathBuf {
+    let path = dir.write(name, head);
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&path)
+        .and_then(|f| f.set_len(length))
+        .expect("extend the sparse file");
+    path
+}
+
+/// Scene descriptions have a size cap, and glTF files are checked against the memory budget
+/// with what their parse needs, both before a byte is read.
+#[test]
+fn large_descriptions_and_gltf_files_are_refused_by_size_before_reading() {
+    let dir = TempDir::new("large");
+    let json = sparse_file(&dir, "big.json", b"", 100 << 20);
+    let name = json.display().to_string();
+    let message = load_description(&json).unwrap_err().to_string();
+    assert!(
+        message.starts_with(&name) && message.contains("more than a scene description may be"),
+        "{message}"
+    );
+    let outcome = run(&["pick", "--backend", "cpu", "--scenes", &name]);
+    assert_refused(
+        &outcome,
+        &name,
+        "more than a scene description may be (64.0 MiB)",
+    );
+
+    // 300 MB of .gltf: 300 MB to read, 2.4 GB more to parse.
+    let gltf = sparse_file(&dir, "big.gltf", b"", 300 << 20);
+    let name = gltf.display().to_string();
+    let outcome = run(&[
+        "--max-memory",
+        "2G",
+        "pick",
+        "--backend",
+        "cpu",
+        "--scene",
+        &name,
+    ]);
+    assert_refused(&outcome, &name, "parsing its 314572800 bytes of JSON");
+    assert!(
+        outcome.stderr.contains("memory budget"),
+        "{}",
+        outcome.stderr
+    );
+
+    // A GLB of 250 MB whose header declares 200 MB of JSON.
+    let mut head = b"glTF".to_vec();
+    for word in [2u32, 250 << 20, 200 << 20] {
+        head.extend(word.to_le_bytes());
+    }
+    head.extend(b"JSON");
+    let glb = sparse_file(&dir, "big.glb", &head, 250 << 20);
+    let name = glb.display().to_string();
+    let outcome = run(&[
+        "--max-memory",
+        "1G",
+        "pick",
+        "--backend",
+        "cpu",
+        "--scene",
+        &name,
+    ]);
+    assert_refused(&outcome, &name, "parsing its 209715200 bytes of JSON");
 }
 
 // --- Item 4: paths that lead out of a scene's folder; FIFOs and devices --------------------
