@@ -17,6 +17,7 @@ use std::time::{Duration, Instant};
 use raypick::Error;
 use raypick::dem::{PngGrid, load_elevation, load_png16};
 use raypick::io::gltf::load_gltf;
+use raypick::io::ply::load_ply;
 use raypick::io::ray_file::{RayReader, parse_rays};
 use raypick::io::scene_files::{SceneFile, load_description, load_scene};
 
@@ -750,5 +751,53 @@ fn pick_memory_does_not_grow_with_the_ray_file() {
         outcome.peak_kb < 300 * 1024,
         "pick of 5M rays peaked at {} kB",
         outcome.peak_kb
+    );
+}
+
+// --- PLY headers of many elements or properties --------------------------------------------
+
+/// A four-letter name for `k` (a-z), so that 1 MiB of header holds tens of thousands of lines.
+fn short_name(k: usize) -> String {
+    (0..4)
+        .map(|d| char::from(b'a' + (k / 26usize.pow(d) % 26) as u8))
+        .collect()
+}
+
+/// A header of the most element lines, or property lines of one element, that 1 MiB holds is
+/// read in linear time: each name is checked against the others at once.
+#[test]
+fn ply_headers_of_many_elements_or_properties_are_read_in_linear_time() {
+    let dir = TempDir::new("ply-header");
+    let many_elements: String = (0..60_000)
+        .map(|k| format!("element {} 0\n", short_name(k)))
+        .collect();
+    let many_properties: String = (0..50_000)
+        .map(|k| format!("property float {}\n", short_name(k)))
+        .collect();
+    for (file, lines) in [
+        ("elements.ply", many_elements),
+        (
+            "properties.ply",
+            format!("element junk 0\n{many_properties}"),
+        ),
+    ] {
+        let text = format!("ply\nformat ascii 1.0\n{lines}end_header\n");
+        assert!(text.len() < 1 << 20, "{file}: {} bytes", text.len());
+        let path = dir.write(file, text.as_bytes());
+        let start = Instant::now();
+        let mesh = load_ply(&path).unwrap_or_else(|e| panic!("{file}: {e}"));
+        let took = start.elapsed();
+        assert!(mesh.triangles.is_empty(), "{file}");
+        assert!(took < Duration::from_secs(1), "{file}: {took:?}");
+    }
+    // A second name is still refused, by line.
+    let path = dir.write(
+        "twice.ply",
+        b"ply\nformat ascii 1.0\nelement aaaa 0\nelement bbbb 0\nproperty float x\nproperty float x\nend_header\n",
+    );
+    let message = parse_message(load_ply(&path), &path);
+    assert!(
+        message.contains(":6: element 'bbbb' has a second property named 'x'"),
+        "{message}"
     );
 }
