@@ -801,3 +801,47 @@ fn ply_headers_of_many_elements_or_properties_are_read_in_linear_time() {
         "{message}"
     );
 }
+
+// --- OBJ files with nothing an OBJ reader knows --------------------------------------------
+
+/// A file with no `v` or `f` line (not an OBJ file, perhaps) loads as an empty object, with one
+/// warning naming it; so does one with vertices but no face. A mesh gets no warning.
+#[test]
+fn obj_files_that_give_no_triangle_are_warned_about_once() {
+    let dir = TempDir::new("obj-empty");
+    for (file, text, expected) in [
+        (
+            "junk.obj",
+            "hello world\nfoo 1 2 3\n",
+            "no vertex or face was read",
+        ),
+        ("empty.obj", "", "no vertex or face was read"),
+        (
+            "points.obj",
+            "v 0 0 0\nv 1 0 0\n",
+            "2 vertices but no face were read",
+        ),
+    ] {
+        let path = dir.write(file, text.as_bytes());
+        let name = path.display().to_string();
+        let outcome = run(&["pick", "--backend", "cpu", "--scene", &name]);
+        let err = &outcome.stderr;
+        assert_eq!(outcome.code, Some(0), "{file}: {err}");
+        let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("warning:")).collect();
+        assert_eq!(warnings.len(), 1, "{file}: one warning: {err}");
+        assert!(
+            warnings[0].contains(&name) && warnings[0].contains(expected),
+            "{file}: {err}"
+        );
+    }
+    let path = dir.write("triangle.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let outcome = run(&[
+        "pick",
+        "--backend",
+        "cpu",
+        "--scene",
+        &path.display().to_string(),
+    ]);
+    assert_eq!(outcome.code, Some(0), "{}", outcome.stderr);
+    assert!(!outcome.stderr.contains("warning"), "{}", outcome.stderr);
+}
