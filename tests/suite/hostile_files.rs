@@ -845,3 +845,73 @@ fn obj_files_that_give_no_triangle_are_warned_about_once() {
     assert_eq!(outcome.code, Some(0), "{}", outcome.stderr);
     assert!(!outcome.stderr.contains("warning"), "{}", outcome.stderr);
 }
+
+// --- Compressed PLY bombs ------------------------------------------------------------------
+
+fn gzip(bytes: &[u8]) -> Vec<u8> {
+    use std::io::Write;
+    let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+    encoder.write_all(bytes).unwrap();
+    encoder.finish().unwrap()
+}
+
+/// A `.ply.gz` whose header declares more data than real meshes compress into its size is
+/// refused before its body is inflated; one whose lists run longer than the header's least is
+/// refused once its data inflates past what real meshes compress into its size. Both are far
+/// under deflate's own limit (1032-fold), which is all the reader checked before.
+#[test]
+fn compressed_ply_bombs_are_refused_before_inflating_much() {
+    let dir = TempDir::new("ply-bomb");
+    let xyz = "property float x\nproperty float y\nproperty float z\n";
+
+    // 5M zero vertices, ascii: 30 MB from about 45 KB (some 680-fold).
+    let mut plain =
+        format!("ply\nformat ascii 1.0\nelement vertex 5000000\n{xyz}end_header\n").into_bytes();
+    plain.extend("0 0 0\n".repeat(5_000_000).bytes());
+    let vertices = dir.write("vertices.ply.gz", &gzip(&plain));
+    drop(plain);
+
+    // 40,000 faces of 255 corners (all vertex 0), binary: 41 MB from about 40 KB, where the
+    // header's least (a count per face) is 40 KB.
+    let mut plain = format!(
+        "ply\nformat binary_little_endian 1.0\nelement vertex 3\n{xyz}element face 40000\n\
+         property list uchar int vertex_indices\nend_header\n"
+    )
+    .into_bytes();
+    plain.extend([0u8; 36]);
+    for _ in 0..40_000 {
+        plain.push(255);
+        plain.extend([0u8; 255 * 4]);
+    }
+    let faces = dir.write("faces.ply.gz", &gzip(&plain));
+    drop(plain);
+
+    for (file, expected) in [
+        (
+            &vertices,
+            "need at least 29999999 bytes of data, which is implausible",
+        ),
+        (&faces, "the data inflates past 16777216 bytes"),
+    ] {
+        let start = Instant::now();
+        // Not `parse_message`: a mesh loaded by mistake is too long to show.
+        let message = match load_ply(file) {
+            Err(e @ Error::Parse { .. }) => e.to_string(),
+            Err(e) => panic!("{}: expected a parse error, got {e}", file.display()),
+            Ok(mesh) => panic!(
+                "{}: loaded {} vertices and {} triangles",
+                file.display(),
+                mesh.positions.len(),
+                mesh.triangles.len()
+            ),
+        };
+        assert!(
+            message.starts_with(&file.display().to_string()),
+            "{message}"
+        );
+        assert!(message.contains(expected), "{message}");
+        assert!(message.contains("64 bytes per byte of file"), "{message}");
+        assert!(start.elapsed() < Duration::from_secs(5), "{message}");
+        assert_scene_refused(file, expected);
+    }
+}
