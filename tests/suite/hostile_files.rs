@@ -1,6 +1,8 @@
 //! Hostile input files (issue 11, items 3, 4 and 7): tiny files that claim gigabytes, paths that
 //! lead out of a scene's folder, FIFOs and devices as scenes, and ray files larger than memory
-//! should be.
+//! should be. Then what a later sweep found: scene descriptions and glTF files read whole
+//! whatever their size, PLY headers read in quadratic time, compressed PLY bombs, and OBJ files
+//! that give no triangle without a word.
 //!
 //! The corpus is `tests/data/hostile/` (written by its `make_corpus.py`; its README lists what
 //! each file tries). Every file goes through the release binary, which must exit 2 with one
