@@ -3,7 +3,7 @@
 //!
 //! The default is half the machine's physical memory (or 4 GiB where it cannot be read);
 //! `--max-memory` on the command line sets it for the process. A size over the budget is an
-//! [`Error::Invalid`] naming what needed the memory, the size and the limit.
+//! [`Error::OverBudget`] naming what needed the memory, the size and the limit.
 
 use crate::error::{Error, Result};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -45,7 +45,7 @@ pub fn check(what: &str, count: u64, item_bytes: u64) -> Result<()> {
     let limit = limit();
     match count.checked_mul(item_bytes) {
         Some(bytes) if bytes <= limit => Ok(()),
-        bytes => Err(Error::Invalid(format!(
+        bytes => Err(Error::OverBudget(format!(
             "{what} would need {} ({count} × {item_bytes} bytes), over the memory budget of {} \
              (set it with --max-memory)",
             bytes.map_or("more than 16 EiB".to_string(), human),

@@ -26,6 +26,11 @@ pub enum Error {
     /// A scene or argument is not usable as given.
     #[error("{0}")]
     Invalid(String),
+    /// A size that comes from user input (an argument, a file's header, a request) would need
+    /// more memory than the process's budget ([`crate::budget`]); the sentence names what
+    /// needed it, the size and the limit.
+    #[error("{0}")]
+    OverBudget(String),
     /// No GPU adapter could be found (on machines without a GPU, install Mesa's lavapipe).
     #[error(
         "no GPU adapter found ({0}); install a Vulkan driver such as Mesa lavapipe (mesa-vulkan-drivers)"
@@ -142,9 +147,62 @@ pub fn shorten_tokens(text: &str, most: usize) -> String {
     }
 }
 
+/// `text` with every quoted span ('…', "…" or `…`) of more than 60 characters cut short by
+/// [`crate::budget::quote`], its quote marks kept. A span opens at a mark that starts the text
+/// or follows a blank or an opening bracket, and closes at the next same mark that ends the text
+/// or comes before a blank or punctuation, so a quoted token with blanks in it (serde's
+/// ``unknown field `…` ``, whatever the field's name) is cut as one. Linear in `text`'s length.
+pub fn shorten_quoted(text: &str) -> String {
+    const QUOTES: [char; 3] = ['\'', '"', '`'];
+    let mut out = String::new();
+    let mut copied = 0;
+    // Per quote mark: no closing mark after some place, so none after any later one either.
+    let mut unclosed = [false; 3];
+    let mut prev: Option<char> = None;
+    let mut chars = text.char_indices();
+    while let Some((at, c)) = chars.next() {
+        let opens = prev.is_none_or(|p| p.is_whitespace() || "([{:=".contains(p));
+        prev = Some(c);
+        let Some(kind) = QUOTES.iter().position(|&q| q == c).filter(|_| opens) else {
+            continue;
+        };
+        if unclosed[kind] {
+            continue;
+        }
+        let body = at + c.len_utf8();
+        let close = text[body..]
+            .match_indices(c)
+            .map(|(j, _)| body + j)
+            .find(|&j| {
+                text[j + c.len_utf8()..]
+                    .chars()
+                    .next()
+                    .is_none_or(|n| n.is_whitespace() || ",.;:)]}".contains(n))
+            });
+        let Some(close) = close else {
+            unclosed[kind] = true;
+            continue;
+        };
+        let inner = &text[body..close];
+        if inner.chars().nth(60).is_some() {
+            out.push_str(&text[copied..body]);
+            out.push_str(&crate::budget::quote(inner));
+            copied = close;
+        }
+        // On after the closing mark.
+        for (k, _) in chars.by_ref() {
+            if k >= close {
+                break;
+            }
+        }
+    }
+    out.push_str(&text[copied..]);
+    out
+}
+
 #[cfg(test)]
 mod tests {
-    use super::{escape_controls, shorten_tokens};
+    use super::{escape_controls, shorten_quoted, shorten_tokens};
 
     #[test]
     fn long_tokens_are_cut_and_short_ones_kept() {
@@ -173,5 +231,21 @@ mod tests {
             escape_controls("plain", false),
             std::borrow::Cow::Borrowed(_)
         ));
+    }
+
+    #[test]
+    fn long_quoted_spans_are_cut_blanks_and_all() {
+        let kept = "unknown field `rayz`, expected one of `rays`, `camera`";
+        assert_eq!(shorten_quoted(kept), kept);
+        let long = "x y ".repeat(10_000);
+        let cut = shorten_quoted(&format!("unknown variant `{long}`, expected `all`"));
+        assert!(cut.starts_with("unknown variant `x y x"), "{cut}");
+        assert!(cut.ends_with("…`, expected `all`"), "{cut}");
+        assert!(cut.chars().count() < 120, "{cut}");
+        let cut = shorten_quoted(&format!("bad '{}' here", "z".repeat(100)));
+        assert_eq!(cut, format!("bad '{}…' here", "z".repeat(60)));
+        // Unclosed marks are left alone, in linear time.
+        let open = "'a ".repeat(200_000);
+        assert_eq!(shorten_quoted(&open), open);
     }
 }

@@ -38,8 +38,9 @@ pub struct ServeArgs {
     /// Seconds a request body has to arrive whole (408 after).
     #[arg(long, default_value_t = ServerConfig::default().body_timeout.as_secs_f64())]
     pub body_timeout: f64,
-    /// Memory budget of all requests in progress together (e.g. 2G, 512M); requests beyond it
-    /// wait briefly, then get 503. Default: a quarter of --max-memory.
+    /// Memory budget of all requests in progress together (e.g. 2G, 512M), at most
+    /// --max-memory; requests beyond it wait briefly, then get 503. Default: a quarter of
+    /// --max-memory, at least 64 MiB (or all of a smaller --max-memory).
     #[arg(long, value_parser = raypick::budget::parse_size)]
     pub memory_budget: Option<u64>,
     /// Most triangles `POST /objects` may add over the server's life, copies included (413
@@ -60,6 +61,23 @@ fn timeout(flag: &str, seconds: f64) -> Result<Duration, Error> {
     }
 }
 
+/// The requests' memory budget: `--memory-budget`, which must fit within the process's
+/// (`--max-memory`), or the default.
+fn memory_budget(asked: Option<u64>) -> Result<u64, Error> {
+    let process = raypick::budget::limit();
+    match asked {
+        None => Ok(ServerConfig::default_memory_budget()),
+        Some(bytes) if bytes <= process => Ok(bytes),
+        Some(bytes) => Err(Error::Invalid(format!(
+            "--memory-budget {} is more than the process's memory budget of {} (--max-memory, \
+             default half the machine's memory); give a smaller --memory-budget or a larger \
+             --max-memory",
+            raypick::budget::human(bytes),
+            raypick::budget::human(process)
+        ))),
+    }
+}
+
 pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     // A server gives its memory back after a burst of large requests.
     raypick::huge_pages::keep_freed_blocks(false);
@@ -69,9 +87,7 @@ pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         max_connections: args.max_connections.max(1),
         idle_timeout: timeout("--idle-timeout", args.idle_timeout)?,
         body_timeout: timeout("--body-timeout", args.body_timeout)?,
-        memory_budget: args
-            .memory_budget
-            .unwrap_or_else(ServerConfig::default_memory_budget),
+        memory_budget: memory_budget(args.memory_budget)?,
         max_added_triangles: args.max_added_triangles,
         ..ServerConfig::default()
     };

@@ -52,7 +52,7 @@ const RASTER_PIXEL_IS_POINT: u16 = 2;
 /// type or photometric interpretation, missing or rotated georeferencing
 /// (naming the tag), a non-numeric GDAL_NODATA, infinite samples, or a
 /// raster larger than [`MAX_SAMPLES`](super::MAX_SAMPLES) or implausible for the file's size
-/// (see the module docs); [`Error::Invalid`] when its heights would not fit the memory budget.
+/// (see the module docs); [`Error::OverBudget`] when its heights would not fit the memory budget.
 pub fn load_geotiff(path: impl AsRef<Path>) -> Result<ElevationGrid, Error> {
     let path = path.as_ref();
     let name = path.display().to_string();

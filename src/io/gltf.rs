@@ -54,6 +54,25 @@
 //! required material, texture and light extensions are accepted. Buffers
 //! are only loaded when a walked primitive reads them. The spec's rule that
 //! `POSITION` accessors carry `min`/`max` is not enforced.
+//!
+//! # Sizes
+//!
+//! Every size is checked before the memory for it is taken:
+//!
+//! - Before the file is read, its length plus [`PARSE_PER_JSON_BYTE`] bytes
+//!   per byte of its JSON (the whole file for `.gltf`, the JSON chunk its
+//!   header declares for `.glb`) must fit the memory budget
+//!   ([`crate::budget`]): the parse holds the file's bytes and the `gltf`
+//!   crate's records, 32 to 224 bytes each (a node's 224) for typically 20
+//!   to 60 bytes of JSON, in lists that may hold twice their records while
+//!   they grow. A `data:` URI's text is copied once and decoded later.
+//! - The accessors the walked primitives read may claim at most
+//!   [`READ_PER_INPUT_BYTE`] bytes per byte of input (the file and the
+//!   external buffers loaded), or [`READ_FLOOR`] in all: more can only be
+//!   zero-filled (sparse) accessors or accessors sharing their data.
+//! - The objects placed may have at most [`OUTPUT_PER_INPUT_BYTE`] vertices
+//!   plus triangles per byte of input, or [`OUTPUT_FLOOR`] in all, and
+//!   their memory must fit the budget.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -85,6 +104,9 @@ pub const OUTPUT_PER_INPUT_BYTE: u64 = 8;
 
 /// Vertices plus triangles any file may produce, whatever its size.
 pub const OUTPUT_FLOOR: u64 = 1 << 23;
+
+/// Bytes of memory per byte of a file's JSON while it is parsed (see [Sizes](self#sizes)).
+pub const PARSE_PER_JSON_BYTE: u64 = 8;
 
 /// Loads every triangle primitive placed in the scene of the glTF 2.0 file
 /// at `path` (`.gltf` with external or `data:` buffers, or binary `.glb`),
@@ -118,7 +140,19 @@ fn with_loader<T>(
     load: impl FnOnce(&mut Loader<'_>) -> Result<T, Error>,
 ) -> Result<T, Error> {
     let name = path.display().to_string();
-    let bytes = crate::io::read_regular(path)?;
+    let (mut file, length) = crate::io::open_regular(path)?;
+    let json_length = glb_json_length(&mut file)
+        .map_err(|source| Error::Io {
+            path: name.clone(),
+            source,
+        })?
+        .map_or(length, |j| j.min(length));
+    crate::budget::check(
+        &format!("{name}: reading it and parsing its {json_length} bytes of JSON"),
+        length.saturating_add(json_length.saturating_mul(PARSE_PER_JSON_BYTE)),
+        1,
+    )?;
+    let bytes = crate::io::read_opened(path, file, length)?;
     let parse = |line: Option<usize>, message: String| Error::Parse {
         path: name.clone(),
         line,
@@ -174,6 +208,27 @@ pub type Shared = (Vec<(String, Mesh)>, Vec<(String, usize, DMat4)>);
 /// instances of it. The placements name the objects as [`load_gltf_placed`] does, in its order.
 pub fn load_gltf_shared(path: &Path) -> Result<Shared, Error> {
     with_loader(path, |loader| loader.load_shared())
+}
+
+/// The length of a GLB file's JSON chunk, from its header (the file left at its start); `None`
+/// for a file that does not start as a GLB file with a JSON chunk (a `.gltf`, all JSON).
+fn glb_json_length(file: &mut std::fs::File) -> std::io::Result<Option<u64>> {
+    use std::io::{Read, Seek};
+    let mut head = [0u8; 20];
+    let mut got = 0;
+    while got < head.len() {
+        match file.read(&mut head[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    file.rewind()?;
+    Ok(
+        (got == head.len() && head.starts_with(b"glTF") && &head[16..20] == b"JSON")
+            .then(|| u64::from(u32::from_le_bytes([head[12], head[13], head[14], head[15]]))),
+    )
 }
 
 /// Splits a GLB container into its JSON chunk and optional `BIN` chunk.

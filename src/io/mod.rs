@@ -104,14 +104,22 @@ pub fn open_regular(path: &Path) -> Result<(File, u64), Error> {
 pub fn read_regular(path: &Path) -> Result<Vec<u8>, Error> {
     let (file, length) = open_regular(path)?;
     crate::budget::check(&format!("reading {}", path.display()), length, 1)?;
+    read_opened(path, file, length)
+}
+
+/// Reads the first `length` bytes of `file` (opened from `path` by [`open_regular`], its
+/// length checked by the caller), into a buffer of that size from the start.
+pub(crate) fn read_opened(path: &Path, file: File, length: u64) -> Result<Vec<u8>, Error> {
+    let io = |source| Error::Io {
+        path: path.display().to_string(),
+        source,
+    };
     let mut bytes = Vec::new();
+    bytes
+        .try_reserve_exact(usize::try_from(length).unwrap_or(usize::MAX))
+        .map_err(|_| io(std::io::Error::from(std::io::ErrorKind::OutOfMemory)))?;
     // The length may change while reading; `take` keeps the read within what was checked.
-    file.take(length)
-        .read_to_end(&mut bytes)
-        .map_err(|source| Error::Io {
-            path: path.display().to_string(),
-            source,
-        })?;
+    file.take(length).read_to_end(&mut bytes).map_err(io)?;
     Ok(bytes)
 }
 

@@ -22,7 +22,9 @@
 //!   before it.
 //! - A face with k ≥ 3 corners (i0 … i(k−1)) is fan-triangulated as (i0, i1, i2), (i0, i2, i3),
 //!   …. Faces with fewer than 3 vertices give no triangle: they are skipped with one warning on
-//!   standard error (their count and the first one's line).
+//!   standard error (their count and the first one's line). A file that gives no triangle
+//!   otherwise (no face at all, or no `v` or `f` line: not an OBJ file, perhaps) is warned about
+//!   once too.
 //! - A `v` or `f` line whose last character before any comment (spaces aside) is `\` continues
 //!   on the next line: the `\` counts as a space. Errors name the first line of the joined
 //!   ones. Other lines are ignored whole, so a `\` at their end joins nothing.
@@ -53,7 +55,8 @@ const MAX_CHUNK_BYTES: usize = 1 << 20;
 
 /// Loads the triangle mesh of the OBJ file at `path`.
 ///
-/// A file with no faces gives an empty mesh. Malformed content (unparseable or non-finite
+/// A file with no faces gives an empty mesh, with one warning on standard error (that no vertex
+/// or face was read, or how many vertices but no face). Malformed content (unparseable or non-finite
 /// coordinates, face indices that are 0, out of range or not integers) is an [`Error::Parse`]
 /// naming the file and the line. The file must be a regular file whose length fits the memory
 /// budget ([`crate::budget`]).
@@ -65,11 +68,25 @@ pub fn load_obj(path: &Path) -> Result<Mesh, Error> {
         FileBytes::Read(_) => (Pages(None), None),
     };
     let chunk_bytes = chunk_bytes_for(bytes.len());
-    let (mesh, short) = parse_with(&name, &bytes, chunk_bytes, file, &pages)?;
+    let (mesh, short, vertices) = parse_with(&name, &bytes, chunk_bytes, file, &pages)?;
     if let Some(short) = short {
         eprintln!("warning: {name}: {}", short.describe());
+    } else if mesh.triangles.is_empty() {
+        eprintln!("warning: {name}: {}", nothing_read(vertices));
     }
     Ok(mesh)
+}
+
+/// The warning for a file that gave no triangle (and no face too short to give one), having
+/// read `vertices` vertices.
+fn nothing_read(vertices: u64) -> String {
+    match vertices {
+        0 => "no vertex or face was read (no line is a 'v' or 'f' statement), so its object is \
+              empty"
+            .to_owned(),
+        1 => "1 vertex but no face was read, so its object is empty".to_owned(),
+        n => format!("{n} vertices but no face were read, so its object is empty"),
+    }
 }
 
 /// Parses the OBJ text `bytes` (named `name` in errors) into a mesh, and says which faces had
@@ -117,7 +134,7 @@ pub fn parse_obj_in_chunks(
     bytes: &[u8],
     chunk_bytes: usize,
 ) -> Result<(Mesh, Option<ShortFaces>), Error> {
-    parse_with(name, bytes, chunk_bytes, None, &Pages(None))
+    parse_with(name, bytes, chunk_bytes, None, &Pages(None)).map(|(mesh, short, _)| (mesh, short))
 }
 
 /// [`parse_obj_in_chunks`] of bytes that may lie in a map of `file`. Then each chunk is read
@@ -125,13 +142,14 @@ pub fn parse_obj_in_chunks(
 /// chunks are cut (and again on error paths), its pages let go at once: the file is never
 /// resident whole beside the mesh. (Parsing straight from the map let the kernel map whole
 /// page-cache folios around each chunk, and kept them mapped: a third of the file, at times.)
+/// Also returns the number of vertices read, used by a face or not.
 fn parse_with(
     name: &str,
     whole: &[u8],
     chunk_bytes: usize,
     file: Option<&std::fs::File>,
     pages: &Pages<'_>,
-) -> Result<(Mesh, Option<ShortFaces>), Error> {
+) -> Result<(Mesh, Option<ShortFaces>, u64), Error> {
     let bytes = whole.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(whole);
     let skipped = whole.len() - bytes.len();
     // Each chunk's pages are let go as soon as it is cut: a touch can map a whole page-cache
@@ -352,13 +370,14 @@ fn parse_chunk(bytes: &[u8], base: Option<u64>) -> Outcome {
     }
 }
 
-/// Joins the chunks' outcomes, in order, into one mesh, or reports the file's first error.
+/// Joins the chunks' outcomes, in order, into one mesh (with the faces too short for a
+/// triangle, and the number of vertices read), or reports the file's first error.
 fn join(
     name: &str,
     bytes: &[u8],
     ranges: &[Range<usize>],
     outcomes: Vec<Outcome>,
-) -> Result<(Mesh, Option<ShortFaces>), Error> {
+) -> Result<(Mesh, Option<ShortFaces>, u64), Error> {
     let lines = |k: usize| {
         outcomes[k]
             .lines
@@ -407,7 +426,7 @@ fn join(
         before += lines(k);
     }
     let mesh = build_mesh(name, outcomes, &bases)?;
-    Ok((mesh, short))
+    Ok((mesh, short, base))
 }
 
 /// Concatenates the chunks' triangles, numbering the vertices in order of first use (as the

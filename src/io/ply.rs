@@ -24,11 +24,19 @@
 //!
 //! Nothing is allocated from a count in the header before it is checked: the header's vertices
 //! and faces must fit the memory budget ([`crate::budget`]); the least number of bytes the
-//! header's elements need must be in the file (for a compressed file: at most
-//! [`MAX_DEFLATE_RATIO`] bytes per byte of file, deflate's limit); and triangles, whose number
-//! the header does not say, are checked against the budget as they grow. The header itself may
-//! take at most [`MAX_HEADER_BYTES`]; an ascii token at most [`MAX_TOKEN_BYTES`].
+//! header's elements need must be in the file; and triangles, whose number the header does not
+//! say, are checked against the budget as they grow. The header itself may take at most
+//! [`MAX_HEADER_BYTES`]; an ascii token at most [`MAX_TOKEN_BYTES`].
+//!
+//! A compressed file must be plausible: it may inflate to at most [`MAX_INFLATE_RATIO`] bytes
+//! per byte of file, or [`INFLATE_FLOOR`] bytes in all. Its header's elements are refused when
+//! the least bytes they need pass that, before anything is inflated past the header; its data,
+//! whatever the header says (a list may be longer than its least), as soon as the inflated
+//! bytes pass it. So a decompression bomb — a megabyte of zeros that inflates to a gigabyte —
+//! stops within [`INFLATE_FLOOR`] or so, as compressed rasters and glTF files do
+//! ([`crate::dem::SAMPLES_PER_FILE_BYTE`], [`crate::io::gltf::READ_PER_INPUT_BYTE`]).
 
+use std::collections::HashSet;
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
@@ -49,6 +57,19 @@ pub const MAX_TOKEN_BYTES: usize = 128;
 /// 2-bit length/distance pair).
 pub const MAX_DEFLATE_RATIO: u64 = 1032;
 
+/// The most bytes a compressed PLY file may inflate to per byte of file (beyond
+/// [`INFLATE_FLOOR`]). Real meshes compress far less, their coordinates and indices being close
+/// to random in their low bits: gzip (level 9) shrinks the Stanford bunny 1.7-fold as binary
+/// PLY, 2.4-fold as ascii, and even a flat 500 × 500 grid of integer coordinates only 4.3-fold
+/// (binary) and 5.9-fold (ascii). Between this and deflate's own limit ([`MAX_DEFLATE_RATIO`])
+/// lies zero-filled or constant data: 1M zero vertices shrink 1017-fold. That is what a
+/// decompression bomb is made of, and what this refuses.
+pub const MAX_INFLATE_RATIO: u64 = 64;
+
+/// The bytes any compressed PLY file may inflate to, whatever its size (16 MiB): small files of
+/// very regular data still load, and a bomb stops within this.
+pub const INFLATE_FLOOR: u64 = 16 << 20;
+
 /// Bytes of memory per vertex (its f64 position).
 const VERTEX_BYTES: u64 = 24;
 
@@ -60,7 +81,7 @@ const TRIANGLE_BYTES: u64 = 12;
 /// A file without faces gives an empty mesh. A malformed header or body (an unknown keyword or
 /// type, missing `x`/`y`/`z`, a bad number, an index out of range, a truncated file) is an
 /// [`Error::Parse`] naming the file, and for ascii the line; counts over the memory budget are
-/// an [`Error::Invalid`] naming the file; a file that cannot be read is an [`Error::Io`].
+/// an [`Error::OverBudget`] naming the file; a file that cannot be read is an [`Error::Io`].
 pub fn load_ply(path: &Path) -> Result<Mesh, Error> {
     let name = path.display().to_string();
     let (file, length) = crate::io::open_regular(path)?;
@@ -75,7 +96,12 @@ pub fn load_ply(path: &Path) -> Result<Mesh, Error> {
             length,
             compressed: true,
         };
-        read_ply(&input, BufReader::new(MultiGzDecoder::new(reader)))
+        let inflated = Inflated {
+            decoder: MultiGzDecoder::new(reader),
+            bytes: 0,
+            most: input.most_inflated(),
+        };
+        read_ply(&input, BufReader::new(inflated))
     } else {
         let input = Input {
             name,
@@ -96,7 +122,57 @@ struct Input {
     compressed: bool,
 }
 
+/// A gzip stream's inflated bytes, refused once they pass `most` (with an [`InflatedPast`]
+/// error).
+struct Inflated<R> {
+    decoder: R,
+    bytes: u64,
+    most: u64,
+}
+
+impl<R: Read> Read for Inflated<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.decoder.read(buf)?;
+        self.bytes = self.bytes.saturating_add(n as u64);
+        if self.bytes > self.most {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                InflatedPast(self.most),
+            ));
+        }
+        Ok(n)
+    }
+}
+
+/// The error of an [`Inflated`] stream that passed its most bytes.
+#[derive(Debug)]
+struct InflatedPast(u64);
+
+impl std::fmt::Display for InflatedPast {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "the data inflates past {} bytes", self.0)
+    }
+}
+
+impl std::error::Error for InflatedPast {}
+
 impl Input {
+    /// The most bytes a compressed file of this length may inflate to.
+    fn most_inflated(&self) -> u64 {
+        INFLATE_FLOOR.max(self.length.saturating_mul(MAX_INFLATE_RATIO))
+    }
+
+    /// Why a compressed file of this length cannot plausibly hold more.
+    fn implausible(&self) -> String {
+        format!(
+            "which is implausible for a compressed file of {} bytes: a compressed PLY file may \
+             inflate to at most {MAX_INFLATE_RATIO} bytes per byte of file (or {INFLATE_FLOOR} \
+             bytes in all), so {} here; refusing to decompress it",
+            self.length,
+            self.most_inflated()
+        )
+    }
+
     fn parse(&self, line: Option<usize>, message: String) -> Error {
         Error::Parse {
             path: self.name.clone(),
@@ -105,7 +181,15 @@ impl Input {
         }
     }
 
+    /// A read error while `context`; a compressed file's data that inflates past its most is a
+    /// [`Error::Parse`] saying so.
     fn io(&self, source: std::io::Error, context: &str) -> Error {
+        if let Some(past) = source
+            .get_ref()
+            .and_then(|e| e.downcast_ref::<InflatedPast>())
+        {
+            return self.parse(None, format!("{past} ({context}), {}", self.implausible()));
+        }
         Error::Io {
             path: self.name.clone(),
             source: std::io::Error::new(source.kind(), format!("{source} ({context})")),
@@ -279,6 +363,10 @@ fn read_header<R: BufRead>(input: &Input, reader: &mut R) -> Result<Header, Erro
     let mut lines = 0usize;
     let mut format = None;
     let mut elements: Vec<Element> = Vec::new();
+    // The names seen, so that a second one is found in constant time (a 1 MiB header may
+    // declare 60,000 elements, or as many properties of one element).
+    let mut element_names: HashSet<String> = HashSet::new();
+    let mut property_names: HashSet<String> = HashSet::new();
     let mut buf = Vec::new();
     loop {
         lines += 1;
@@ -362,11 +450,12 @@ fn read_header<R: BufRead>(input: &Input, reader: &mut R) -> Result<Header, Erro
                         ),
                     )
                 })?;
-                if elements.iter().any(|e| e.name == *name) {
+                if !element_names.insert((*name).to_owned()) {
                     return Err(
                         input.parse(at, format!("a second element named '{}'", quote(name)))
                     );
                 }
+                property_names.clear();
                 elements.push(Element {
                     name: (*name).to_owned(),
                     count,
@@ -414,7 +503,7 @@ fn read_header<R: BufRead>(input: &Input, reader: &mut R) -> Result<Header, Erro
                         ),
                     ));
                 }
-                if element.properties.iter().any(|p| p.name == name) {
+                if !property_names.insert(name.to_owned()) {
                     return Err(input.parse(
                         at,
                         format!(
@@ -602,19 +691,10 @@ fn check_sizes(input: &Input, header: &Header, plan: &Plan) -> Result<(), Error>
     } else {
         need
     };
-    let (have, what) = if input.compressed {
-        (
-            input.length.saturating_mul(MAX_DEFLATE_RATIO),
-            format!(
-                "a compressed file of {} bytes can hold at most {} (deflate inflates at most \
-                 {MAX_DEFLATE_RATIO}-fold)",
-                input.length,
-                input.length.saturating_mul(MAX_DEFLATE_RATIO)
-            ),
-        )
+    let have = if input.compressed {
+        input.most_inflated().saturating_sub(header.bytes)
     } else {
-        let have = input.length.saturating_sub(header.bytes);
-        (have, format!("the file has {have} bytes after its header"))
+        input.length.saturating_sub(header.bytes)
     };
     if need > have {
         let counts: Vec<String> = header
@@ -622,11 +702,18 @@ fn check_sizes(input: &Input, header: &Header, plan: &Plan) -> Result<(), Error>
             .iter()
             .map(|e| format!("{} {}", e.count, quote(&e.name)))
             .collect();
+        let why = if input.compressed {
+            input.implausible()
+        } else {
+            format!(
+                "but the file has {have} bytes after its header: the file is truncated or its \
+                 counts are wrong"
+            )
+        };
         return Err(input.parse(
             None,
             format!(
-                "the header's elements ({}) need at least {need} bytes of data, but {what}: the \
-                 file is truncated or its counts are wrong",
+                "the header's elements ({}) need at least {need} bytes of data, {why}",
                 counts.join(", ")
             ),
         ));

@@ -25,7 +25,7 @@ use crate::io::gltf::{load_gltf_placed, load_gltf_shared};
 use crate::io::obj::load_obj;
 use crate::io::ply::load_ply;
 use crate::io::stl::load_stl;
-use crate::io::{Refusal, read_regular, regular_file, resolve_inside};
+use crate::io::{Refusal, open_regular, read_opened, regular_file, resolve_inside};
 use crate::scene::{GridShape, Mesh, Scene};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -55,15 +55,39 @@ struct Description {
     objects: Vec<SceneFile>,
 }
 
+/// The longest scene description read (64 MiB): one that lists 200,000 objects, each with a
+/// file name, a mask and a transform, is about 10 MB.
+pub const MAX_DESCRIPTION_BYTES: u64 = 64 << 20;
+
+/// Bytes of memory per byte of a description while it is parsed, at most: its text, and each
+/// listing's record (136 bytes, with its path's allocation about 170) for as few as 12 bytes of
+/// JSON (`{"file":"a"},`), in a list that may hold twice its records while it grows.
+const DESCRIPTION_BYTES_PER_BYTE: u64 = 32;
+
 /// Reads a scene description (JSON) and returns its files, resolved against its folder.
 ///
 /// # Errors
-/// [`Error::Io`] when the description or a file it lists cannot be read (or is not a regular
-/// file); [`Error::Parse`] naming the description for malformed JSON, and for a listed path that
+/// [`Error::Invalid`] naming the description when it is longer than [`MAX_DESCRIPTION_BYTES`],
+/// and [`Error::OverBudget`] when its parse would not fit the memory budget, both before it is
+/// read; [`Error::Io`] when the description or a file it lists cannot be read (or is not a
+/// regular file); [`Error::Parse`] naming the description for malformed JSON, and for a listed path that
 /// is absolute, contains `..` or leads out of the description's folder through a symbolic link.
 pub fn load_description(path: &Path) -> Result<Vec<SceneFile>> {
     let name = path.display().to_string();
-    let bytes = read_regular(path)?;
+    let (file, length) = open_regular(path)?;
+    if length > MAX_DESCRIPTION_BYTES {
+        return Err(Error::Invalid(format!(
+            "{name} is {} long, more than a scene description may be ({})",
+            crate::budget::human(length),
+            crate::budget::human(MAX_DESCRIPTION_BYTES)
+        )));
+    }
+    crate::budget::check(
+        &format!("reading and parsing the scene description {name}"),
+        length,
+        DESCRIPTION_BYTES_PER_BYTE,
+    )?;
+    let bytes = read_opened(path, file, length)?;
     let description: Description = serde_json::from_slice(&bytes).map_err(|e| Error::Parse {
         path: name.clone(),
         line: Some(e.line()),

@@ -48,7 +48,7 @@ const BINARY_FACET: u64 = 50;
 ///
 /// Malformed content (a length that fits neither form, an unexpected keyword, a bad or
 /// non-finite number, a truncated file) is an [`Error::Parse`] naming the file, and for ascii
-/// files the line; a mesh over the memory budget is an [`Error::Invalid`] naming the file; a
+/// files the line; a mesh over the memory budget is an [`Error::OverBudget`] naming the file; a
 /// file that cannot be read is an [`Error::Io`].
 pub fn load_stl(path: &Path) -> Result<Mesh, Error> {
     let name = path.display().to_string();

@@ -228,8 +228,8 @@ pub fn save(built: &BuiltScene, path: &Path) -> Result<()> {
 ///
 /// # Errors
 /// [`crate::Error::Io`] when the file cannot be read; [`crate::Error::Parse`] naming the file
-/// for another format version, a truncated or corrupted file; [`crate::Error::Invalid`] when it
-/// is larger than the memory budget.
+/// for another format version, a truncated or corrupted file; [`crate::Error::OverBudget`] when
+/// it is larger than the memory budget.
 pub fn load(path: &Path) -> Result<BuiltScene> {
     let map = read::map_file(path)?;
     if instanced::is_instanced(&map) {

@@ -3,7 +3,9 @@
 //! the [module docs](super).
 
 use super::ServerConfig;
-use super::batcher::{Edit, EditError, Job, MeshSource, SceneView, SharedView, Stats, Worker};
+use super::batcher::{
+    Edit, EditError, Job, JobError, MeshSource, SceneView, SharedView, Stats, Worker,
+};
 use super::page;
 use crate::apps::camera::{Camera, CameraSpec};
 use crate::apps::render::Shade;
@@ -225,11 +227,31 @@ impl ApiError {
     fn internal(message: impl Into<String>) -> Self {
         Self::new(StatusCode::INTERNAL_SERVER_ERROR, message)
     }
+
+    /// A failed pick or render: 503 when it was over the memory budget, else 500.
+    fn of_job(error: JobError) -> Self {
+        let status = if error.over_budget {
+            StatusCode::SERVICE_UNAVAILABLE
+        } else {
+            StatusCode::INTERNAL_SERVER_ERROR
+        };
+        Self::new(status, error.message)
+    }
 }
 
+/// The most characters of an error sentence sent back; longer ones are cut with "…".
+const MOST_ERROR_CHARS: usize = 1000;
+
 impl IntoResponse for ApiError {
+    /// The sentence with every quoted or long token of the request in it (serde's and axum's
+    /// rejections repeat a bad field name or value whole, of any size) cut to 60 characters
+    /// and "…", as the command line cuts its messages.
     fn into_response(self) -> Response {
-        json_response(self.status, &json!({ "error": self.message }))
+        let message = crate::error::shorten_tokens(
+            &crate::error::shorten_quoted(&self.message),
+            MOST_ERROR_CHARS,
+        );
+        json_response(self.status, &json!({ "error": message }))
     }
 }
 
@@ -315,7 +337,8 @@ impl PickRequest {
             None => Intersector::default(),
             Some(name) => Intersector::from_name(name).ok_or_else(|| {
                 ApiError::bad_request(format!(
-                    "unknown intersector '{name}'; expected 'moller-trumbore' or 'watertight'"
+                    "unknown intersector '{}'; expected 'moller-trumbore' or 'watertight'",
+                    crate::budget::quote(name)
                 ))
             })?,
         };
@@ -492,7 +515,7 @@ async fn pick(
         answer
             .await
             .map_err(|_| ApiError::internal("the picking worker dropped the request"))?
-            .map_err(ApiError::internal)?
+            .map_err(ApiError::of_job)?
     };
     let view = state.view();
     let names: Vec<&str> = view.objects.iter().map(|o| public_name(&o.name)).collect();
@@ -763,6 +786,7 @@ async fn submit_edit(state: &AppState, edit: Edit) -> Result<Response, ApiError>
             EditError::TooLarge(m) => ApiError::too_large(m),
             EditError::Failed(m) => ApiError::internal(m),
             EditError::Invalid(m) => ApiError::bad_request(m),
+            EditError::OverBudget(m) => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, m),
         })?;
     Ok(json_response(StatusCode::OK, &json!({ "object": object })))
 }
@@ -888,7 +912,8 @@ async fn render_view(
         None => Shade::default(),
         Some(name) => Shade::from_name(name).ok_or_else(|| {
             ApiError::bad_request(format!(
-                "unknown shade '{name}'; expected normal, depth or object"
+                "unknown shade '{}'; expected normal, depth or object",
+                crate::budget::quote(name)
             ))
         })?,
     };
@@ -939,7 +964,7 @@ async fn render_view(
     let image = answer
         .await
         .map_err(|_| ApiError::internal("the picking worker dropped the request"))?
-        .map_err(ApiError::internal)?;
+        .map_err(ApiError::of_job)?;
     let png = tokio::task::spawn_blocking(move || image.to_png())
         .await
         .map_err(|e| ApiError::internal(format!("encoding the PNG failed: {e}")))?

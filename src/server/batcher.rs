@@ -43,7 +43,17 @@ pub struct Stats {
 }
 
 /// A reply: the value, or a sentence saying why the worker could not produce it.
-pub(crate) type Reply<T> = oneshot::Sender<std::result::Result<T, String>>;
+pub(crate) type Reply<T> = oneshot::Sender<std::result::Result<T, JobError>>;
+
+/// Why a pick or a render failed, as a sentence.
+#[derive(Clone, Debug)]
+pub(crate) struct JobError {
+    /// The work would have needed more than the process's memory budget
+    /// ([`Error::OverBudget`]: 503); otherwise the picker failed (500).
+    pub(crate) over_budget: bool,
+    /// What went wrong.
+    pub(crate) message: String,
+}
 
 /// Work for the picking worker.
 pub(crate) enum Job {
@@ -122,6 +132,19 @@ pub(crate) enum EditError {
     Failed(String),
     /// A bad edit (400).
     Invalid(String),
+    /// The edit would need more than the process's memory budget (503).
+    OverBudget(String),
+}
+
+impl EditError {
+    /// `e` as an edit error: [`EditError::OverBudget`] for [`Error::OverBudget`], else what
+    /// `otherwise` makes of its sentence.
+    fn of(e: Error, otherwise: fn(String) -> EditError) -> EditError {
+        match e {
+            Error::OverBudget(m) => EditError::OverBudget(m),
+            e => otherwise(e.to_string()),
+        }
+    }
 }
 
 /// The scene as the picks see it, summarised for `GET /scene` and the answers' object names,
@@ -443,7 +466,7 @@ impl Batcher {
         picker: &mut Box<dyn Picker>,
         edit: Edit,
     ) -> std::result::Result<u32, EditError> {
-        let invalid = |e: Error| EditError::Invalid(e.to_string());
+        let invalid = |e: Error| EditError::of(e, EditError::Invalid);
         let view = self
             .view
             .lock()
@@ -656,10 +679,10 @@ impl Batcher {
         edit: Edit,
         objects: &mut Vec<(Option<[[f64; 4]; 3]>, bool)>,
     ) -> std::result::Result<u32, EditError> {
-        let invalid = |e: Error| EditError::Invalid(e.to_string());
+        let invalid = |e: Error| EditError::of(e, EditError::Invalid);
         let failed = |e: Error| match e {
             Error::TooLargeForGpu { .. } => EditError::TooLarge(e.to_string()),
-            e => EditError::Failed(e.to_string()),
+            e => EditError::of(e, EditError::Failed),
         };
         Ok(match edit {
             Edit::Change {
@@ -815,7 +838,12 @@ impl Batcher {
         here: &[DVec3],
         frame: DVec3,
     ) -> std::result::Result<(), EditError> {
-        let failed = |e: Error| EditError::Failed(format!("the move could not be undone: {e}"));
+        let failed = |e: Error| match e {
+            Error::OverBudget(m) => {
+                EditError::OverBudget(format!("the move could not be undone: {m}"))
+            }
+            e => EditError::Failed(format!("the move could not be undone: {e}")),
+        };
         picker.set_positions(object, here).map_err(failed)?;
         let built = picker
             .current_scene()
@@ -907,7 +935,7 @@ impl Batcher {
     ) -> std::result::Result<(), EditError> {
         let failed = |e: Error| match e {
             Error::TooLargeForGpu { .. } => EditError::TooLarge(e.to_string()),
-            e => EditError::Failed(e.to_string()),
+            e => EditError::of(e, EditError::Failed),
         };
         let rebuilt = BuiltScene::new(scene, options).map_err(failed)?;
         let (after, refused) = before.after(&rebuilt);
@@ -1036,9 +1064,9 @@ impl Batcher {
                     let _ = member.reply.send(Ok(slice_answers(&answers, range)));
                 }
             }
-            Err(message) => {
+            Err(error) => {
                 for member in members {
-                    let _ = member.reply.send(Err(message.clone()));
+                    let _ = member.reply.send(Err(error.clone()));
                 }
             }
         }
@@ -1062,11 +1090,17 @@ fn group_key(query: Query) -> Query {
 fn flatten<T>(
     outcome: std::thread::Result<Result<T>>,
     what: &str,
-) -> std::result::Result<T, String> {
+) -> std::result::Result<T, JobError> {
     match outcome {
         Ok(Ok(value)) => Ok(value),
-        Ok(Err(e)) => Err(format!("{what} failed: {e}")),
-        Err(_) => Err(format!("{what} failed: the picker panicked")),
+        Ok(Err(e)) => Err(JobError {
+            over_budget: matches!(e, Error::OverBudget(_)),
+            message: format!("{what} failed: {e}"),
+        }),
+        Err(_) => Err(JobError {
+            over_budget: false,
+            message: format!("{what} failed: the picker panicked"),
+        }),
     }
 }
 

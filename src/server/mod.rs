@@ -21,7 +21,9 @@
 //! [`ServerConfig::max_body_bytes`], more than [`ServerConfig::max_rays`] rays, or in mode `all`
 //! more than [`ServerConfig::max_hit_entries`] rays x `max_hits`; 404; 405; 408 for a body not
 //! sent whole within [`ServerConfig::body_timeout`]), 503 when the request's memory does not
-//! fit the server's memory budget (see below), and 500 when picking itself fails.
+//! fit the server's memory budget (see below) or its work the process's
+//! ([`crate::Error::OverBudget`]), and 500 when picking itself fails. A sentence
+//! quotes at most 60 characters of any token of the request (a field name, a value), then "…".
 //!
 //! # Limits on slow clients and memory
 //!
@@ -160,7 +162,8 @@ pub struct ServerConfig {
     pub max_connections: usize,
     /// The memory budget of all requests in progress together, in bytes: each request's
     /// estimated memory (its body, rays, hit lists and answer, or its image) is reserved from
-    /// it before the work starts.
+    /// it before the work starts. Part of the process's budget ([`crate::budget::limit`]):
+    /// `raypick serve` refuses a larger one.
     pub memory_budget: u64,
     /// How long a request waits for its memory to become free in the budget before it is
     /// answered 503.
@@ -180,9 +183,10 @@ impl ServerConfig {
     }
 
     /// The default [`ServerConfig::memory_budget`]: a quarter of the process's memory budget
-    /// ([`crate::budget::limit`]), at least 64 MiB.
+    /// ([`crate::budget::limit`]), at least 64 MiB, but never more than the process's budget.
     pub fn default_memory_budget() -> u64 {
-        (crate::budget::limit() / 4).max(64 << 20)
+        let process = crate::budget::limit();
+        (process / 4).max(64 << 20).min(process)
     }
 }
 

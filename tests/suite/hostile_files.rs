@@ -1,6 +1,8 @@
 //! Hostile input files (issue 11, items 3, 4 and 7): tiny files that claim gigabytes, paths that
 //! lead out of a scene's folder, FIFOs and devices as scenes, and ray files larger than memory
-//! should be.
+//! should be. Then what a later sweep found: scene descriptions and glTF files read whole
+//! whatever their size, PLY headers read in quadratic time, compressed PLY bombs, and OBJ files
+//! that give no triangle without a word.
 //!
 //! The corpus is `tests/data/hostile/` (written by its `make_corpus.py`; its README lists what
 //! each file tries). Every file goes through the release binary, which must exit 2 with one
@@ -17,6 +19,7 @@ use std::time::{Duration, Instant};
 use raypick::Error;
 use raypick::dem::{PngGrid, load_elevation, load_png16};
 use raypick::io::gltf::load_gltf;
+use raypick::io::ply::load_ply;
 use raypick::io::ray_file::{RayReader, parse_rays};
 use raypick::io::scene_files::{SceneFile, load_description, load_scene};
 
@@ -294,21 +297,29 @@ fn header_sizes_are_checked_against_the_memory_budget() {
         outcome.stderr
     );
 
-    // A triangle placed by 20,000 nodes: 1.7 MB of objects from a 240 KB file.
+    // A mesh of 1000 triangles placed by 200 nodes: 24 MB of objects from a 4 KB file and its
+    // 36 KB buffer (the file's parse fits 1 MiB; its objects do not).
     let dir = TempDir::new("budget");
-    dir.write("tri.bin", &triangle_bytes());
-    let nodes: Vec<String> = (0..20_000).map(|_| r#"{"mesh":0}"#.to_owned()).collect();
-    let roots: Vec<String> = (0..20_000).map(|k| k.to_string()).collect();
-    let text = triangle_gltf("tri.bin").replace(
-        r#""nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}]"#,
-        &format!(
-            r#""nodes":[{}],"scenes":[{{"nodes":[{}]}}]"#,
-            nodes.join(","),
-            roots.join(",")
-        ),
-    );
+    let vertices: Vec<u8> = (0..3000)
+        .flat_map(|k| [k as f32, (k % 3) as f32, 0.0])
+        .flat_map(f32::to_le_bytes)
+        .collect();
+    dir.write("mesh.bin", &vertices);
+    let nodes: Vec<String> = (0..200).map(|_| r#"{"mesh":0}"#.to_owned()).collect();
+    let roots: Vec<String> = (0..200).map(|k| k.to_string()).collect();
+    let text = triangle_gltf("mesh.bin")
+        .replace(r#""byteLength":36"#, r#""byteLength":36000"#)
+        .replace(r#""count":3"#, r#""count":3000"#)
+        .replace(
+            r#""nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}]"#,
+            &format!(
+                r#""nodes":[{}],"scenes":[{{"nodes":[{}]}}]"#,
+                nodes.join(","),
+                roots.join(",")
+            ),
+        );
     let many = dir.write("many.gltf", text.as_bytes());
-    assert_eq!(load_gltf(&many).unwrap().len(), 20_000);
+    assert_eq!(load_gltf(&many).unwrap().len(), 200);
     let name = many.display().to_string();
     let outcome = run(&[
         "pick",
@@ -319,12 +330,82 @@ fn header_sizes_are_checked_against_the_memory_budget() {
         "--scene",
         &name,
     ]);
-    assert_refused(&outcome, &name, "20000 objects with 60000 vertices");
+    assert_refused(&outcome, &name, "200 objects with 600000 vertices");
     assert!(
         outcome.stderr.contains("memory budget"),
         "{}",
         outcome.stderr
     );
+}
+
+/// A file of `length` bytes that starts with `head` and holds no data after it (sparse): it
+/// takes no disk space, but reading it would take `length` bytes of memory.
+fn sparse_file(dir: &TempDir, name: &str, head: &[u8], length: u64) -> PathBuf {
+    let path = dir.write(name, head);
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&path)
+        .and_then(|f| f.set_len(length))
+        .expect("extend the sparse file");
+    path
+}
+
+/// Scene descriptions have a size cap, and glTF files are checked against the memory budget
+/// with what their parse needs, both before a byte is read.
+#[test]
+fn large_descriptions_and_gltf_files_are_refused_by_size_before_reading() {
+    let dir = TempDir::new("large");
+    let json = sparse_file(&dir, "big.json", b"", 100 << 20);
+    let name = json.display().to_string();
+    let message = load_description(&json).unwrap_err().to_string();
+    assert!(
+        message.starts_with(&name) && message.contains("more than a scene description may be"),
+        "{message}"
+    );
+    let outcome = run(&["pick", "--backend", "cpu", "--scenes", &name]);
+    assert_refused(
+        &outcome,
+        &name,
+        "more than a scene description may be (64.0 MiB)",
+    );
+
+    // 300 MB of .gltf: 300 MB to read, 2.4 GB more to parse.
+    let gltf = sparse_file(&dir, "big.gltf", b"", 300 << 20);
+    let name = gltf.display().to_string();
+    let outcome = run(&[
+        "--max-memory",
+        "2G",
+        "pick",
+        "--backend",
+        "cpu",
+        "--scene",
+        &name,
+    ]);
+    assert_refused(&outcome, &name, "parsing its 314572800 bytes of JSON");
+    assert!(
+        outcome.stderr.contains("memory budget"),
+        "{}",
+        outcome.stderr
+    );
+
+    // A GLB of 250 MB whose header declares 200 MB of JSON.
+    let mut head = b"glTF".to_vec();
+    for word in [2u32, 250 << 20, 200 << 20] {
+        head.extend(word.to_le_bytes());
+    }
+    head.extend(b"JSON");
+    let glb = sparse_file(&dir, "big.glb", &head, 250 << 20);
+    let name = glb.display().to_string();
+    let outcome = run(&[
+        "--max-memory",
+        "1G",
+        "pick",
+        "--backend",
+        "cpu",
+        "--scene",
+        &name,
+    ]);
+    assert_refused(&outcome, &name, "parsing its 209715200 bytes of JSON");
 }
 
 // --- Item 4: paths that lead out of a scene's folder; FIFOs and devices --------------------
@@ -673,4 +754,166 @@ fn pick_memory_does_not_grow_with_the_ray_file() {
         "pick of 5M rays peaked at {} kB",
         outcome.peak_kb
     );
+}
+
+// --- PLY headers of many elements or properties --------------------------------------------
+
+/// A four-letter name for `k` (a-z), so that 1 MiB of header holds tens of thousands of lines.
+fn short_name(k: usize) -> String {
+    (0..4)
+        .map(|d| char::from(b'a' + (k / 26usize.pow(d) % 26) as u8))
+        .collect()
+}
+
+/// A header of the most element lines, or property lines of one element, that 1 MiB holds is
+/// read in linear time: each name is checked against the others at once.
+#[test]
+fn ply_headers_of_many_elements_or_properties_are_read_in_linear_time() {
+    let dir = TempDir::new("ply-header");
+    let many_elements: String = (0..60_000)
+        .map(|k| format!("element {} 0\n", short_name(k)))
+        .collect();
+    let many_properties: String = (0..50_000)
+        .map(|k| format!("property float {}\n", short_name(k)))
+        .collect();
+    for (file, lines) in [
+        ("elements.ply", many_elements),
+        (
+            "properties.ply",
+            format!("element junk 0\n{many_properties}"),
+        ),
+    ] {
+        let text = format!("ply\nformat ascii 1.0\n{lines}end_header\n");
+        assert!(text.len() < 1 << 20, "{file}: {} bytes", text.len());
+        let path = dir.write(file, text.as_bytes());
+        let start = Instant::now();
+        let mesh = load_ply(&path).unwrap_or_else(|e| panic!("{file}: {e}"));
+        let took = start.elapsed();
+        assert!(mesh.triangles.is_empty(), "{file}");
+        assert!(took < Duration::from_secs(1), "{file}: {took:?}");
+    }
+    // A second name is still refused, by line.
+    let path = dir.write(
+        "twice.ply",
+        b"ply\nformat ascii 1.0\nelement aaaa 0\nelement bbbb 0\nproperty float x\nproperty float x\nend_header\n",
+    );
+    let message = parse_message(load_ply(&path), &path);
+    assert!(
+        message.contains(":6: element 'bbbb' has a second property named 'x'"),
+        "{message}"
+    );
+}
+
+// --- OBJ files with nothing an OBJ reader knows --------------------------------------------
+
+/// A file with no `v` or `f` line (not an OBJ file, perhaps) loads as an empty object, with one
+/// warning naming it; so does one with vertices but no face. A mesh gets no warning.
+#[test]
+fn obj_files_that_give_no_triangle_are_warned_about_once() {
+    let dir = TempDir::new("obj-empty");
+    for (file, text, expected) in [
+        (
+            "junk.obj",
+            "hello world\nfoo 1 2 3\n",
+            "no vertex or face was read",
+        ),
+        ("empty.obj", "", "no vertex or face was read"),
+        (
+            "points.obj",
+            "v 0 0 0\nv 1 0 0\n",
+            "2 vertices but no face were read",
+        ),
+    ] {
+        let path = dir.write(file, text.as_bytes());
+        let name = path.display().to_string();
+        let outcome = run(&["pick", "--backend", "cpu", "--scene", &name]);
+        let err = &outcome.stderr;
+        assert_eq!(outcome.code, Some(0), "{file}: {err}");
+        let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("warning:")).collect();
+        assert_eq!(warnings.len(), 1, "{file}: one warning: {err}");
+        assert!(
+            warnings[0].contains(&name) && warnings[0].contains(expected),
+            "{file}: {err}"
+        );
+    }
+    let path = dir.write("triangle.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let outcome = run(&[
+        "pick",
+        "--backend",
+        "cpu",
+        "--scene",
+        &path.display().to_string(),
+    ]);
+    assert_eq!(outcome.code, Some(0), "{}", outcome.stderr);
+    assert!(!outcome.stderr.contains("warning"), "{}", outcome.stderr);
+}
+
+// --- Compressed PLY bombs ------------------------------------------------------------------
+
+fn gzip(bytes: &[u8]) -> Vec<u8> {
+    use std::io::Write;
+    let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+    encoder.write_all(bytes).unwrap();
+    encoder.finish().unwrap()
+}
+
+/// A `.ply.gz` whose header declares more data than real meshes compress into its size is
+/// refused before its body is inflated; one whose lists run longer than the header's least is
+/// refused once its data inflates past what real meshes compress into its size. Both are far
+/// under deflate's own limit (1032-fold), which is all the reader checked before.
+#[test]
+fn compressed_ply_bombs_are_refused_before_inflating_much() {
+    let dir = TempDir::new("ply-bomb");
+    let xyz = "property float x\nproperty float y\nproperty float z\n";
+
+    // 5M zero vertices, ascii: 30 MB from about 45 KB (some 680-fold).
+    let mut plain =
+        format!("ply\nformat ascii 1.0\nelement vertex 5000000\n{xyz}end_header\n").into_bytes();
+    plain.extend("0 0 0\n".repeat(5_000_000).bytes());
+    let vertices = dir.write("vertices.ply.gz", &gzip(&plain));
+    drop(plain);
+
+    // 40,000 faces of 255 corners (all vertex 0), binary: 41 MB from about 40 KB, where the
+    // header's least (a count per face) is 40 KB.
+    let mut plain = format!(
+        "ply\nformat binary_little_endian 1.0\nelement vertex 3\n{xyz}element face 40000\n\
+         property list uchar int vertex_indices\nend_header\n"
+    )
+    .into_bytes();
+    plain.extend([0u8; 36]);
+    for _ in 0..40_000 {
+        plain.push(255);
+        plain.extend([0u8; 255 * 4]);
+    }
+    let faces = dir.write("faces.ply.gz", &gzip(&plain));
+    drop(plain);
+
+    for (file, expected) in [
+        (
+            &vertices,
+            "need at least 29999999 bytes of data, which is implausible",
+        ),
+        (&faces, "the data inflates past 16777216 bytes"),
+    ] {
+        let start = Instant::now();
+        // Not `parse_message`: a mesh loaded by mistake is too long to show.
+        let message = match load_ply(file) {
+            Err(e @ Error::Parse { .. }) => e.to_string(),
+            Err(e) => panic!("{}: expected a parse error, got {e}", file.display()),
+            Ok(mesh) => panic!(
+                "{}: loaded {} vertices and {} triangles",
+                file.display(),
+                mesh.positions.len(),
+                mesh.triangles.len()
+            ),
+        };
+        assert!(
+            message.starts_with(&file.display().to_string()),
+            "{message}"
+        );
+        assert!(message.contains(expected), "{message}");
+        assert!(message.contains("64 bytes per byte of file"), "{message}");
+        assert!(start.elapsed() < Duration::from_secs(5), "{message}");
+        assert_scene_refused(file, expected);
+    }
 }

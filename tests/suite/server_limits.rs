@@ -4,7 +4,10 @@
 //! server closes them. Checks that idle, half-header (even trickled) and half-body connections
 //! are closed after the configured (shortened) timeouts, that normal picks still answer while
 //! 200 idle connections are held, that connections beyond the cap wait for a free slot, and that
-//! a request over the memory budget gets 503 while the next normal request answers 200. Every
+//! a request over the memory budget gets 503 while the next normal request answers 200, and that
+//! an error sentence quotes at most 60 characters of a megabyte-long field name or value; and,
+//! for `raypick serve` in a child process, that work over `--max-memory` gets 503 too and a
+//! `--memory-budget` over `--max-memory` is refused at start. Every
 //! loop is bounded; the whole file runs in a few seconds.
 
 use raypick::check::synthetic::example_scene;
@@ -238,4 +241,131 @@ fn requests_over_the_memory_budget_get_503_and_the_next_answers() {
     assert_eq!(request(addr, "POST", "/pick", &small).0, 200);
     let (status, _) = request(addr, "GET", "/render?width=64&height=48", "");
     assert_eq!(status, 200);
+}
+
+#[test]
+fn error_bodies_quote_at_most_a_short_piece_of_a_long_token() {
+    let addr = start(ServerConfig::default());
+    let b = "b".repeat(1_000_000);
+    let x = "x".repeat(100_000);
+    let spaced = "x y ".repeat(25_000);
+    let shade = format!("/render?shade={}", "s".repeat(10_000));
+    let query_field = format!("/render?{}=1", "q".repeat(10_000));
+    let cases = [
+        ("POST", "/pick", format!(r#"{{"rays":[],"{b}":1}}"#)),
+        ("POST", "/pick", format!(r#"{{"rays":[],"mode":"{x}"}}"#)),
+        (
+            "POST",
+            "/pick",
+            format!(r#"{{"rays":[],"mode":"{spaced}"}}"#),
+        ),
+        (
+            "POST",
+            "/pick",
+            format!(r#"{{"rays":[],"intersector":"{x}"}}"#),
+        ),
+        ("POST", "/objects", format!(r#"{{"mesh":0,"{b}":1}}"#)),
+        ("POST", "/objects", format!(r#"{{"mesh":"{x}"}}"#)),
+        ("PATCH", "/objects/0", format!(r#"{{"{b}":1}}"#)),
+        ("GET", shade.as_str(), String::new()),
+        ("GET", query_field.as_str(), String::new()),
+    ];
+    for (method, path, body) in &cases {
+        let (status, answer) = request(addr, method, path, body);
+        let what = format!("{method} {}…", &path[..path.len().min(20)]);
+        assert_eq!(status, 400, "{what}: {}", &answer[..answer.len().min(300)]);
+        let error: serde_json::Value = serde_json::from_str(&answer).expect("a JSON error");
+        let sentence = error["error"].as_str().expect("an error sentence");
+        assert!(sentence.contains('…'), "{what}: cut short: {sentence}");
+        for run in ["b", "x", "s", "q", "x y "] {
+            assert!(
+                !sentence.contains(&run.repeat(61 / run.len() + 1)),
+                "{what}: more than 60 characters of the token: {sentence}"
+            );
+        }
+        assert!(sentence.chars().count() < 400, "{what}: {sentence}");
+    }
+}
+
+/// `raypick --max-memory <max_memory> serve --backend cpu --addr 127.0.0.1:0 <more>` over the
+/// example scene in a child process (the process budget is the process's own); killed on drop.
+struct ChildServer(std::process::Child);
+
+impl Drop for ChildServer {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+impl ChildServer {
+    /// Starts it and reads its address from its first line.
+    fn start(max_memory: &str, more: &[&str]) -> (ChildServer, SocketAddr) {
+        use std::io::BufRead;
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_raypick"))
+            .args(["--max-memory", max_memory, "serve", "--backend", "cpu"])
+            .args(["--addr", "127.0.0.1:0"])
+            .args(more)
+            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+            .stdin(std::process::Stdio::null())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::inherit())
+            .spawn()
+            .expect("the raypick binary starts");
+        let stdout = child.stdout.take().expect("piped stdout");
+        let server = ChildServer(child);
+        let mut first = String::new();
+        std::io::BufReader::new(stdout)
+            .read_line(&mut first)
+            .expect("read the server's first line");
+        let addr = first
+            .split_whitespace()
+            .find_map(|w| w.strip_prefix("http://"))
+            .and_then(|a| a.trim_end_matches('/').parse().ok())
+            .unwrap_or_else(|| panic!("no listening address in {first:?}"));
+        (server, addr)
+    }
+}
+
+#[test]
+fn work_over_the_process_memory_budget_gets_503() {
+    // The requests' default budget stays within --max-memory; the render's 96,000 pixels
+    // need more than 32 MiB.
+    let (_server, addr) = ChildServer::start("32M", &[]);
+    let (status, body) = request(addr, "GET", "/render?width=320&height=300", "");
+    assert_eq!(status, 503, "{body}");
+    assert!(body.contains("memory"), "{body}");
+    let (status, body) = request(addr, "GET", "/render?width=32&height=30", "");
+    assert_eq!(status, 200, "{body}");
+}
+
+#[test]
+fn a_request_budget_over_the_process_budget_is_refused_at_start() {
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_raypick"))
+        .args(["--max-memory", "32M", "serve", "--memory-budget", "64M"])
+        .args(["--addr", "127.0.0.1:0"])
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("the raypick binary starts");
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while child.try_wait().expect("wait").is_none() {
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("raypick serve started with --memory-budget over --max-memory");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let out = child.wait_with_output().expect("its output");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--memory-budget 64.0 MiB")
+            && err.contains("32.0 MiB")
+            && err.contains("--max-memory"),
+        "{err}"
+    );
 }
