@@ -318,11 +318,18 @@ mod tests {
                     &ray,
                     crate::query::Cull::None,
                 );
-                *hits.iter().find(|h| (h.t - t).abs() < 1e-6).expect("a wall there")
+                *hits
+                    .iter()
+                    .find(|h| (h.t - t).abs() < 1e-6)
+                    .expect("a wall there")
             };
             let (near, far) = (hit(x - 38.0), hit(x - 30.0));
             assert_eq!(classify(&scene, &ray, &near, &near), Verdict::Same);
-            assert_eq!(classify(&scene, &ray, &near, &far), Verdict::Mismatch, "from {x}");
+            assert_eq!(
+                classify(&scene, &ray, &near, &far),
+                Verdict::Mismatch,
+                "from {x}"
+            );
         }
     }
 }
