@@ -81,10 +81,23 @@ fn memory_budget(asked: Option<u64>) -> Result<u64, Error> {
 pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     // A server gives its memory back after a burst of large requests.
     raypick::huge_pages::keep_freed_blocks(false);
+    // A limit of 0 would refuse every request (or serve no connection): refused, not raised
+    // to 1 without a word.
+    for (flag, value) in [
+        ("--max-rays", args.max_rays),
+        ("--max-body-bytes", args.max_body_bytes),
+        ("--max-connections", args.max_connections),
+    ] {
+        if value == 0 {
+            return Err(Error::Invalid(format!(
+                "{flag} 0 would refuse every request; give at least 1"
+            )));
+        }
+    }
     let config = ServerConfig {
-        max_rays: args.max_rays.max(1),
+        max_rays: args.max_rays,
         max_body_bytes: args.max_body_bytes,
-        max_connections: args.max_connections.max(1),
+        max_connections: args.max_connections,
         idle_timeout: timeout("--idle-timeout", args.idle_timeout)?,
         body_timeout: timeout("--body-timeout", args.body_timeout)?,
         memory_budget: memory_budget(args.memory_budget)?,

@@ -341,6 +341,7 @@ impl Worker {
                     faults: None,
                     added_triangles: 0,
                     max_added_triangles,
+                    notes_shown: Default::default(),
                 };
                 batcher.run(&mut picker);
             })
@@ -393,10 +394,14 @@ fn make_picker(backend: Backend, built: Arc<BuiltScene>) -> Result<(Box<dyn Pick
     Ok((picker, description))
 }
 
-/// Prints the picker's fallback notes (the automatic backend's) on standard error.
-fn show_notes(picker: &mut dyn Picker) {
+/// Prints the picker's fallback notes (the automatic backend's) on standard error, each once
+/// over the server's life: a picker made again over an edited scene says them again (every
+/// `POST /objects` printed "no GPU …" anew).
+fn show_notes(picker: &mut dyn Picker, shown: &mut std::collections::HashSet<String>) {
     for note in picker.take_notes() {
-        eprintln!("note: {note}");
+        if shown.insert(note.clone()) {
+            eprintln!("note: {note}");
+        }
     }
 }
 
@@ -425,6 +430,8 @@ struct Batcher {
     added_triangles: usize,
     /// ...and at most.
     max_added_triangles: usize,
+    /// The pickers' notes printed so far ([`show_notes`]).
+    notes_shown: std::collections::HashSet<String>,
 }
 
 /// A pick job waiting in a batch.
@@ -436,7 +443,7 @@ struct PendingPick {
 impl Batcher {
     /// Collects and answers batches until every sender is gone.
     fn run(&mut self, picker: &mut Box<dyn Picker>) {
-        show_notes(picker.as_mut());
+        show_notes(picker.as_mut(), &mut self.notes_shown);
         while let Ok(first) = self.receiver.recv() {
             let jobs = self.collect(first);
             // Picks and renders up to each edit, then the edit: no query call straddles one.
@@ -453,7 +460,7 @@ impl Batcher {
                 }
             }
             self.answer(picker.as_mut(), part);
-            show_notes(picker.as_mut());
+            show_notes(picker.as_mut(), &mut self.notes_shown);
         }
     }
 

@@ -767,6 +767,10 @@ fn outputs_that_cannot_be_what_their_name_says_are_refused() {
         &["--raw-ids", ".png"],
     );
     assert_refused(&["idbuffer", "--raw-ids"], &["--raw-ids", ".png"]);
+    // A server limit of 0 would refuse every request: refused, not raised to 1 in silence.
+    for flag in ["--max-rays", "--max-body-bytes", "--max-connections"] {
+        assert_refused(&["serve", flag, "0"], &[flag, "at least 1"]);
+    }
     // `--max-hits` outside `--mode all` would be ignored: refused.
     for args in [
         &["pick", "--max-hits", "5"][..],
