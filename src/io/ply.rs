@@ -697,11 +697,17 @@ fn check_sizes(input: &Input, header: &Header, plan: &Plan) -> Result<(), Error>
         input.length.saturating_sub(header.bytes)
     };
     if need > have {
-        let counts: Vec<String> = header
+        // The first few elements, and how many more: a header may declare 60,000.
+        const NAMED: usize = 4;
+        let mut counts: Vec<String> = header
             .elements
             .iter()
+            .take(NAMED)
             .map(|e| format!("{} {}", e.count, quote(&e.name)))
             .collect();
+        if header.elements.len() > NAMED {
+            counts.push(format!("and {} more", header.elements.len() - NAMED));
+        }
         let why = if input.compressed {
             input.implausible()
         } else {
