@@ -217,8 +217,24 @@ impl Server {
     /// Starts the picking worker for `backend` over `built` and waits until its picker is ready
     /// (for the GPU: the device is opened and the scene uploaded). Blocks; call it before
     /// entering the async runtime, or from `spawn_blocking`. Fails as building the picker
-    /// fails (no GPU adapter, a scene too large for the GPU).
+    /// fails (no GPU adapter, a scene too large for the GPU), and on limits that would refuse
+    /// every request or pass the process's memory budget ([`crate::budget`]).
     pub fn new(built: Arc<BuiltScene>, backend: Backend, config: ServerConfig) -> Result<Server> {
+        if config.max_rays == 0 || config.max_body_bytes == 0 || config.max_connections == 0 {
+            return Err(crate::Error::Invalid(format!(
+                "the server's limits must be at least 1 (max_rays {}, max_body_bytes {}, \
+                 max_connections {})",
+                config.max_rays, config.max_body_bytes, config.max_connections
+            )));
+        }
+        let process = crate::budget::limit();
+        if config.memory_budget > process {
+            return Err(crate::Error::Invalid(format!(
+                "the requests' memory budget, {}, is more than the process's, {}",
+                crate::budget::human(config.memory_budget),
+                crate::budget::human(process)
+            )));
+        }
         let view: batcher::SharedView = Arc::new(std::sync::Mutex::new(Arc::new(
             batcher::SceneView::of(&built, Vec::new()),
         )));

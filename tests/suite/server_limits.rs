@@ -369,3 +369,30 @@ fn a_request_budget_over_the_process_budget_is_refused_at_start() {
         "{err}"
     );
 }
+
+/// A library user's `ServerConfig` is checked as the command line's flags are: a limit of 0
+/// (every request refused) or a requests' budget over the process's is an error, not a server.
+#[test]
+fn a_server_with_limits_that_refuse_everything_is_not_made() {
+    let built = Arc::new(
+        BuiltScene::new(example_scene(), &BuildOptions::default()).expect("example builds"),
+    );
+    let configs = [
+        ServerConfig {
+            max_rays: 0,
+            ..ServerConfig::default()
+        },
+        ServerConfig {
+            max_connections: 0,
+            ..ServerConfig::default()
+        },
+        ServerConfig {
+            memory_budget: raypick::budget::limit() + 1,
+            ..ServerConfig::default()
+        },
+    ];
+    for config in configs {
+        let made = raypick::server::Server::new(built.clone(), Backend::Cpu, config.clone());
+        assert!(made.is_err(), "{config:?} made a server");
+    }
+}
