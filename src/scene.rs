@@ -91,16 +91,7 @@ pub fn check_transform(transform: &[[f64; 4]; 3]) -> std::result::Result<f64, St
     // volume its rows could span at most (the product of their lengths).
     let rows: f64 = m
         .iter()
-        .map(|r| DVec3::new(r[0], r[1], r[2]))
-        .map(|r| {
-            // Scaled first, so a row of 1e200s has a length, not an overflow.
-            let most = r.abs().max_element();
-            if most > 0.0 {
-                (r / most).length() * most
-            } else {
-                0.0
-            }
-        })
+        .map(|r| scaled_length(DVec3::new(r[0], r[1], r[2])))
         .product();
     if !(det.is_finite() && rows.is_finite()) {
         return Err(format!(
@@ -115,6 +106,16 @@ pub fn check_transform(transform: &[[f64; 4]; 3]) -> std::result::Result<f64, St
         ));
     }
     Ok(det)
+}
+
+/// `v`'s length without overflow: scaled by its largest component first (a row or a diagonal
+/// of 10²⁰⁰s squared is past f64's range); that component itself when it is 0 or not finite.
+pub(crate) fn scaled_length(v: DVec3) -> f64 {
+    let largest = v.abs().max_element();
+    if largest == 0.0 || !largest.is_finite() {
+        return largest;
+    }
+    (v / largest).length() * largest
 }
 
 /// The box of `points` (empty: from +∞ to −∞).

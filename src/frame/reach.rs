@@ -12,7 +12,7 @@
 //! more unresolved ([`unresolved_objects`]), and an
 //! instanced scene refuses to place an instance so (`Instances::add`, `set_transform`).
 
-use crate::scene::{Scene, box_of};
+use crate::scene::{Scene, box_of, scaled_length};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -33,16 +33,6 @@ pub fn f32_step(reach: f64) -> f64 {
 /// offsets refined by a half-float rest (`frame::put_origin_lo`: 11 more bits).
 pub fn ray_step(reach: f64) -> f64 {
     f32_step(reach) / 2048.0
-}
-
-/// `v`'s length without overflow: scaled by its largest component first (a diagonal 10²⁰⁰
-/// long squared is past f64's range).
-fn length(v: DVec3) -> f64 {
-    let largest = v.abs().max_element();
-    if largest == 0.0 || !largest.is_finite() {
-        return largest;
-    }
-    (v / largest).length() * largest
 }
 
 /// A part that its frame does not resolve: where it lies, the step there and its size.
@@ -68,7 +58,7 @@ impl Unresolved {
         step: fn(f64) -> f64,
     ) -> Option<Self> {
         let reach = (lo - origin).abs().max((hi - origin).abs()).max_element();
-        let (size, step) = (length(hi - lo), step(reach));
+        let (size, step) = (scaled_length(hi - lo), step(reach));
         // Past f32's range nothing is resolved, however large (a box 10²⁰⁰ across, whose
         // diagonal is as infinite as the step there, was counted as resolved).
         // A part of no size (every vertex at one point: a glTF node scaled by 0) has nothing to
@@ -163,7 +153,7 @@ mod tests {
             assert_eq!(u.size, size * 2f64.sqrt());
             assert!(u.step.is_infinite());
         }
-        assert!((length(DVec3::new(3e200, 4e200, 0.0)) / 5e200 - 1.0).abs() < 1e-15);
+        assert!((scaled_length(DVec3::new(3e200, 4e200, 0.0)) / 5e200 - 1.0).abs() < 1e-15);
         // A part of no size has nothing to resolve (its warning read "too coarse for its 0
         // units").
         let point = (DVec3::splat(1e8), DVec3::splat(1e8));
