@@ -62,10 +62,16 @@
 //! - Before the file is read, its length plus [`PARSE_PER_JSON_BYTE`] bytes
 //!   per byte of its JSON (the whole file for `.gltf`, the JSON chunk its
 //!   header declares for `.glb`) must fit the memory budget
-//!   ([`crate::budget`]): the parse holds the file's bytes and the `gltf`
-//!   crate's records, 32 to 224 bytes each (a node's 224) for typically 20
-//!   to 60 bytes of JSON, in lists that may hold twice their records while
-//!   they grow. A `data:` URI's text is copied once and decoded later.
+//!   ([`crate::budget`]): the file's bytes, and the strings the parse copies
+//!   (a `data:` URI's text is copied once and decoded later).
+//! - Before the JSON is parsed, its records are counted: the parse holds the
+//!   `gltf` crate's records and serde's buffered copies of them, up to about
+//!   650 bytes for an empty object (`{}`, a node) and 80 for a number in a
+//!   list (measured), in lists that may hold twice their records while they
+//!   grow. So each `{` counts [`PARSE_PER_OBJECT`] bytes and each `,`, `:`
+//!   and `[` (a further value) [`PARSE_PER_VALUE`], on top of the above, and
+//!   the sum must fit the budget: a file of tiny records needs over 200
+//!   times its size, a `.gltf` that is mostly a base64 buffer about twice.
 //! - The accessors the walked primitives read may claim at most
 //!   [`READ_PER_INPUT_BYTE`] bytes per byte of input (the file and the
 //!   external buffers loaded), or [`READ_FLOOR`] in all: more can only be
@@ -105,8 +111,33 @@ pub const OUTPUT_PER_INPUT_BYTE: u64 = 8;
 /// Vertices plus triangles any file may produce, whatever its size.
 pub const OUTPUT_FLOOR: u64 = 1 << 23;
 
-/// Bytes of memory per byte of a file's JSON while it is parsed (see [Sizes](self#sizes)).
-pub const PARSE_PER_JSON_BYTE: u64 = 8;
+/// Bytes of memory per byte of a file's JSON while it is parsed, besides its records (see
+/// [Sizes](self#sizes)).
+pub const PARSE_PER_JSON_BYTE: u64 = 2;
+
+/// Bytes of memory a JSON object (`{`) may take while the file is parsed (see
+/// [Sizes](self#sizes)).
+pub const PARSE_PER_OBJECT: u64 = 1024;
+
+/// Bytes of memory a further JSON value (each `,`, `:` and `[`) may take while the file is
+/// parsed (see [Sizes](self#sizes)).
+pub const PARSE_PER_VALUE: u64 = 128;
+
+/// The memory the parse of `json` may take (see [Sizes](self#sizes)): its objects, its further
+/// values and its bytes, each at its rate. Brackets inside strings count too (a bound, not a
+/// measure).
+fn parse_bytes(json: &[u8]) -> (u64, u64, u64) {
+    let (mut objects, mut values) = (0u64, 0u64);
+    for &b in json {
+        objects += u64::from(b == b'{');
+        values += u64::from(matches!(b, b',' | b':' | b'['));
+    }
+    let bytes = (json.len() as u64)
+        .saturating_mul(PARSE_PER_JSON_BYTE)
+        .saturating_add(objects.saturating_mul(PARSE_PER_OBJECT))
+        .saturating_add(values.saturating_mul(PARSE_PER_VALUE));
+    (objects, values, bytes)
+}
 
 /// Loads every triangle primitive placed in the scene of the glTF 2.0 file
 /// at `path` (`.gltf` with external or `data:` buffers, or binary `.glb`),
@@ -167,6 +198,15 @@ fn with_loader<T>(
     let json_bytes = json_bytes
         .strip_prefix(b"\xEF\xBB\xBF".as_slice())
         .unwrap_or(json_bytes);
+    let (objects, values, parsing) = parse_bytes(json_bytes);
+    crate::budget::check(
+        &format!(
+            "{name}: parsing its {} bytes of JSON ({objects} objects, {values} further values)",
+            json_bytes.len()
+        ),
+        length.saturating_add(parsing),
+        1,
+    )?;
     let root: json::Root = json::deserialize::from_slice(json_bytes).map_err(|e| {
         if is_glb {
             parse(
@@ -295,6 +335,9 @@ fn is_harmless_extension(name: &str) -> bool {
         || name == "KHR_lights_punctual"
 }
 
+/// The validation errors an invalid file's message names; the rest are counted.
+const SHOWN_ERRORS: usize = 3;
+
 /// Runs the `gltf` crate's validation (after the checks it needs to not
 /// panic itself), dropping what this loader handles on its own.
 fn validate(root: &json::Root) -> Result<(), String> {
@@ -324,20 +367,29 @@ fn validate(root: &json::Root) -> Result<(), String> {
             "the file requires the extension {name}, which this loader does not support"
         ));
     }
+    // The first few errors in words, the rest counted.
     let mut errors = Vec::new();
+    let mut count = 0usize;
     root.validate(root, json::Path::new, &mut |path, error| {
         let path = path().to_string();
         let ignored = path.starts_with("extensionsRequired")
             || (error == json::validation::Error::Missing
                 && (path.ends_with("[\"POSITION\"].min") || path.ends_with("[\"POSITION\"].max")));
         if !ignored {
-            errors.push(format!("{path}: {error}"));
+            count += 1;
+            if errors.len() < SHOWN_ERRORS {
+                errors.push(format!("{path}: {error}"));
+            }
         }
     });
-    if errors.is_empty() {
-        Ok(())
-    } else {
-        Err(format!("invalid glTF: {}", errors.join("; ")))
+    match count {
+        0 => Ok(()),
+        n if n <= SHOWN_ERRORS => Err(format!("invalid glTF: {}", errors.join("; "))),
+        n => Err(format!(
+            "invalid glTF: {}; and {} more",
+            errors[..SHOWN_ERRORS].join("; "),
+            n - SHOWN_ERRORS
+        )),
     }
 }
 
@@ -675,19 +727,26 @@ impl Loader<'_> {
         };
         let mut instances = Vec::new();
         for (scene, roots) in walks {
-            let mut visited = vec![false; document.nodes().len()];
-            let mut stack: Vec<(Node<'_>, DMat4)> = roots
-                .into_iter()
-                .rev()
-                .map(|n| (n, DMat4::IDENTITY))
-                .collect();
+            // Nodes are marked when they are pushed, so the stack holds each node at most once
+            // (a node listing one child a million times is refused at the second, not after a
+            // million pushes).
+            let mut reached = vec![false; document.nodes().len()];
+            let mut reach = |k: usize| {
+                if std::mem::replace(&mut reached[k], true) {
+                    Err(self.parse(format!(
+                        "node {k} is reached twice from scene {scene} (a cycle, a node with two parents, or a root listed twice)"
+                    )))
+                } else {
+                    Ok(())
+                }
+            };
+            let mut stack: Vec<(Node<'_>, DMat4)> = Vec::with_capacity(roots.len());
+            for n in roots.into_iter().rev() {
+                reach(n.index())?;
+                stack.push((n, DMat4::IDENTITY));
+            }
             while let Some((node, parent)) = stack.pop() {
                 let k = node.index();
-                if std::mem::replace(&mut visited[k], true) {
-                    return Err(self.parse(format!(
-                        "node {k} is reached twice from scene {scene} (a cycle, a node with two parents, or a root listed twice)"
-                    )));
-                }
                 let world = parent * self.local_transform(&node)?;
                 if !world.is_finite() {
                     return Err(self.parse(format!(
@@ -702,8 +761,12 @@ impl Loader<'_> {
                         world,
                     });
                 }
-                let children: Vec<Node<'_>> = node.children().collect();
-                stack.extend(children.into_iter().rev().map(|c| (c, world)));
+                let at = stack.len();
+                for c in node.children() {
+                    reach(c.index())?;
+                    stack.push((c, world));
+                }
+                stack[at..].reverse();
             }
         }
         Ok(instances)

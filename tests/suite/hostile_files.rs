@@ -369,12 +369,12 @@ fn large_descriptions_and_gltf_files_are_refused_by_size_before_reading() {
         "more than a scene description may be (64.0 MiB)",
     );
 
-    // 300 MB of .gltf: 300 MB to read, 2.4 GB more to parse.
+    // 300 MB of .gltf: 300 MB to read, at least 600 MB more to parse (its strings).
     let gltf = sparse_file(&dir, "big.gltf", b"", 300 << 20);
     let name = gltf.display().to_string();
     let outcome = run(&[
         "--max-memory",
-        "2G",
+        "800M",
         "pick",
         "--backend",
         "cpu",
@@ -398,7 +398,7 @@ fn large_descriptions_and_gltf_files_are_refused_by_size_before_reading() {
     let name = glb.display().to_string();
     let outcome = run(&[
         "--max-memory",
-        "1G",
+        "600M",
         "pick",
         "--backend",
         "cpu",
@@ -406,6 +406,57 @@ fn large_descriptions_and_gltf_files_are_refused_by_size_before_reading() {
         &name,
     ]);
     assert_refused(&outcome, &name, "parsing its 209715200 bytes of JSON");
+}
+
+#[test]
+fn gltf_json_of_tiny_records_is_counted_before_it_is_parsed() {
+    let dir = TempDir::new("gltf-records");
+    // 200,000 empty nodes: 600 kB of JSON whose parse takes about 130 MB (650 bytes a node),
+    // which a budget by the file's size alone let through.
+    let nodes = vec!["{}"; 200_000].join(",");
+    let file = dir.write(
+        "nodes.gltf",
+        format!(r#"{{"asset":{{"version":"2.0"}},"nodes":[{nodes}]}}"#).as_bytes(),
+    );
+    let name = file.display().to_string();
+    let args = ["pick", "--backend", "cpu", "--scene", &name];
+    let outcome = run(&[&["--max-memory", "64M"], &args[..]].concat());
+    assert_refused(&outcome, &name, "(200002 objects, 200004 further values)");
+    assert!(
+        outcome.stderr.contains("memory budget"),
+        "{}",
+        outcome.stderr
+    );
+    // Under a budget that holds the count, it loads (and places nothing).
+    let outcome = run(&[&["--max-memory", "400M"], &args[..]].concat());
+    assert_eq!(outcome.code, Some(0), "{}", outcome.stderr);
+
+    // A node listing one child 200,000 times is refused at the second, not walked.
+    let children = vec!["1"; 200_000].join(",");
+    let file = dir.write(
+        "children.gltf",
+        format!(r#"{{"asset":{{"version":"2.0"}},"nodes":[{{"children":[{children}]}},{{}}]}}"#)
+            .as_bytes(),
+    );
+    let name = file.display().to_string();
+    let outcome = run(&["pick", "--backend", "cpu", "--scene", &name]);
+    assert_refused(&outcome, &name, "node 1 is reached twice from scene 0");
+
+    // 1,000 invalid accessors: the sentence names three and counts the rest.
+    let accessor = r#"{"componentType":5126,"count":1,"type":"SCALAR"}"#;
+    let accessors = vec![accessor; 1000].join(",");
+    let file = dir.write(
+        "accessors.gltf",
+        format!(r#"{{"asset":{{"version":"2.0"}},"accessors":[{accessors}]}}"#).as_bytes(),
+    );
+    let name = file.display().to_string();
+    let outcome = run(&["pick", "--backend", "cpu", "--scene", &name]);
+    assert_refused(
+        &outcome,
+        &name,
+        "accessors[2].bufferView: Missing data; and 997 more",
+    );
+    assert!(outcome.stderr.len() < 400, "{}", outcome.stderr);
 }
 
 // --- Item 4: paths that lead out of a scene's folder; FIFOs and devices --------------------
