@@ -486,7 +486,38 @@ impl Loader<'_> {
                 }
             }
         }
+        self.warn_if_empty(placements.len(), &instances);
         Ok((primitives, placements))
+    }
+
+    /// Says on standard error when the file places no triangle primitive: it then adds no
+    /// object to the scene, which is otherwise silent (an OBJ file says the same). Once per
+    /// file and process: the command line may read a file twice (for instances, then placed).
+    fn warn_if_empty(&self, placed: usize, instances: &[Instance]) {
+        static WARNED: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
+        if placed > 0 {
+            return;
+        }
+        let mut warned = WARNED.lock().unwrap_or_else(|e| e.into_inner());
+        if warned.iter().any(|f| f == self.file) {
+            return;
+        }
+        warned.push(self.file.to_owned());
+        let document = self.document;
+        let why = if document.meshes().len() == 0 {
+            "it has no mesh".to_owned()
+        } else if instances.is_empty() {
+            format!(
+                "none of its {} mesh(es) is placed by a node of its scene",
+                document.meshes().len()
+            )
+        } else {
+            "its placed meshes hold only point and line primitives".to_owned()
+        };
+        eprintln!(
+            "warning: {}: no triangle is placed ({why}), so it adds no object",
+            self.file
+        );
     }
 
     /// Each placement's label: the mesh's name (or index), with the node (and the scene, when
@@ -583,6 +614,7 @@ impl Loader<'_> {
                 ));
             }
         }
+        self.warn_if_empty(out.len(), &instances);
         Ok(out)
     }
 

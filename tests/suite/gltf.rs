@@ -967,3 +967,39 @@ fn nodes_sharing_a_mesh_load_as_instances_of_it_and_answer_as_the_copies() {
         assert!(a.nearest.iter().filter(|h| h.hit).count() >= 3, "{cull:?}");
     }
 }
+
+#[test]
+fn a_file_that_places_no_triangle_says_so_once() {
+    let dir = TempDir::new();
+    let (mut asset, mesh) = triangle_asset();
+    let line = asset.indices_u16(&[0, 1]);
+    let lines_only = json!({"name": "wires", "primitives": [
+        {"attributes": {"POSITION": 0}, "mode": 0},
+        {"attributes": {"POSITION": 0}, "indices": line, "mode": 1}
+    ]});
+    for (file, rest, why) in [
+        (
+            "wires.gltf",
+            json!({"meshes": [lines_only], "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}]}),
+            "its placed meshes hold only point and line primitives",
+        ),
+        (
+            "unplaced.gltf",
+            json!({"meshes": [mesh], "nodes": [{}], "scenes": [{"nodes": [0]}]}),
+            "none of its 1 mesh(es) is placed by a node of its scene",
+        ),
+    ] {
+        let path = dir.write_json(file, &asset.gltf(rest));
+        let name = path.display().to_string();
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_raypick"))
+            .args(["pick", "--backend", "cpu", "-q", "--scene", &name])
+            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{stderr}");
+        let warning =
+            format!("warning: {name}: no triangle is placed ({why}), so it adds no object");
+        assert_eq!(stderr.matches(&warning).count(), 1, "{stderr}");
+    }
+}

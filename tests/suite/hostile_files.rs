@@ -427,9 +427,17 @@ fn gltf_json_of_tiny_records_is_counted_before_it_is_parsed() {
         "{}",
         outcome.stderr
     );
-    // Under a budget that holds the count, it loads (and places nothing).
+    // Under a budget that holds the count, it loads, places nothing and says so, once.
     let outcome = run(&[&["--max-memory", "400M"], &args[..]].concat());
     assert_eq!(outcome.code, Some(0), "{}", outcome.stderr);
+    let warning =
+        format!("warning: {name}: no triangle is placed (it has no mesh), so it adds no object");
+    assert_eq!(
+        outcome.stderr.matches(&warning).count(),
+        1,
+        "{}",
+        outcome.stderr
+    );
 
     // A node listing one child 200,000 times is refused at the second, not walked.
     let children = vec!["1"; 200_000].join(",");
