@@ -224,25 +224,57 @@ pub fn load_scene(files: &[SceneFile]) -> Result<Scene> {
 /// listed several times, or glTF nodes sharing a mesh): each file read once, each mesh stored
 /// once in its file's coordinates, and one instance per object [`load_scene`] would make, in the
 /// same order and with the same names, its transform the listing's composed with the glTF
-/// node's. `None` when nothing repeats (a scene of copies is then the same scene, and simpler).
+/// node's. `None` when nothing repeats (a scene of copies is then the same scene, and simpler);
+/// only the glTF files are read to find that out.
 pub fn load_instanced(files: &[SceneFile]) -> Result<Option<(Vec<Scene>, Vec<Instance>)>> {
     // Per distinct file: its placements (name, mesh index, file-to-listing transform).
     type Placements = Vec<(String, u32, glam::DMat4)>;
     let mut meshes: Vec<Scene> = Vec::new();
     let mut loaded: Vec<(&Path, Placements)> = Vec::new();
     let mut instances = Vec::new();
-    let mut repeats = false;
+    let mut repeats = files
+        .iter()
+        .enumerate()
+        .any(|(k, f)| files[..k].iter().any(|g| g.file == f.file));
+    // Which placements of a file's meshes repeat one.
+    let repeated = |placements: &Placements| {
+        let mut used: Vec<u32> = placements.iter().map(|p| p.1).collect();
+        used.sort_unstable();
+        used.windows(2).any(|w| w[0] == w[1])
+    };
+    // Listed once each, only a glTF file's nodes can repeat a mesh: those files are read first
+    // (each into meshes of its own), and without a repeat nothing else is read (the caller
+    // loads the scene as placed; an OBJ or a grid listed beside a glTF was read twice).
+    let mut early: Vec<(&Path, Vec<Scene>, Placements)> = Vec::new();
+    if !repeats {
+        for file in files.iter().filter(|f| is_gltf(&f.file)) {
+            let mut own = Vec::new();
+            let placements = read_file_shared(&file.file, &mut own)?;
+            repeats |= repeated(&placements);
+            early.push((&file.file, own, placements));
+        }
+        if !repeats {
+            return Ok(None);
+        }
+    }
     for file in files {
         let k = match loaded.iter().position(|(path, _)| *path == file.file) {
-            Some(k) => {
-                repeats = true;
-                k
-            }
+            Some(k) => k,
             None => {
-                let placements = read_file_shared(&file.file, &mut meshes)?;
-                let mut used: Vec<u32> = placements.iter().map(|p| p.1).collect();
-                used.sort_unstable();
-                repeats |= used.windows(2).any(|w| w[0] == w[1]);
+                let placements = match early.iter().position(|(path, _, _)| *path == file.file) {
+                    // Read above: its meshes go after those before it, as if read here.
+                    Some(e) => {
+                        let (_, own, placements) = early.swap_remove(e);
+                        let base = meshes.len() as u32;
+                        meshes.extend(own);
+                        placements
+                            .into_iter()
+                            .map(|(name, mesh, world)| (name, base + mesh, world))
+                            .collect()
+                    }
+                    None => read_file_shared(&file.file, &mut meshes)?,
+                };
+                repeats |= repeated(&placements);
                 loaded.push((&file.file, placements));
                 loaded.len() - 1
             }
@@ -272,18 +304,21 @@ pub fn load_instanced(files: &[SceneFile]) -> Result<Option<(Vec<Scene>, Vec<Ins
     Ok(repeats.then_some((meshes, instances)))
 }
 
+/// Whether `path` names a glTF file (`.gltf` or `.glb`, any case).
+fn is_gltf(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"))
+}
+
 /// Reads `path`'s meshes into `meshes` (each a scene of one object, in the file's coordinates)
 /// and returns its objects' placements: name, mesh index and the transform that places it.
 fn read_file_shared(
     path: &Path,
     meshes: &mut Vec<Scene>,
 ) -> Result<Vec<(String, u32, glam::DMat4)>> {
-    let is_gltf = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"));
     let base = meshes.len() as u32;
-    if is_gltf {
+    if is_gltf(path) {
         regular_file(path)?;
         let (primitives, placements) = load_gltf_shared(path)?;
         for (name, mesh) in primitives {

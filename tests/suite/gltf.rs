@@ -1003,3 +1003,56 @@ fn a_file_that_places_no_triangle_says_so_once() {
         assert_eq!(stderr.matches(&warning).count(), 1, "{stderr}");
     }
 }
+
+#[test]
+fn a_description_without_repeats_reads_only_its_gltf_files_to_say_so() {
+    use raypick::io::scene_files::{SceneFile, load_instanced, load_scene};
+    let dir = TempDir::new();
+    let (asset, mesh) = triangle_asset();
+    let listing = |path: &std::path::Path| SceneFile {
+        file: path.to_path_buf(),
+        mask: None,
+        transform: None,
+    };
+    let once = dir.write_json(
+        "once.gltf",
+        &asset.gltf(
+            json!({"meshes": [mesh.clone()], "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}]}),
+        ),
+    );
+    let twice = dir.write_json(
+        "twice.gltf",
+        &asset.gltf(json!({
+            "meshes": [mesh],
+            "nodes": [{"mesh": 0}, {"mesh": 0, "translation": [0.0, 0.0, 2.0]}],
+            "scenes": [{"nodes": [0, 1]}]
+        })),
+    );
+    // An OBJ that cannot be read: nothing repeats, so it is not read here (the caller loads the
+    // scene as placed, and that read says what is wrong with it).
+    let bad = dir.write("bad.obj", b"v 0 0 0\nf 1 2 3\n");
+    assert!(
+        load_instanced(&[listing(&bad), listing(&once)])
+            .unwrap()
+            .is_none()
+    );
+    assert!(load_scene(&[listing(&bad), listing(&once)]).is_err());
+    // A glTF whose nodes share a mesh: everything is read, in the listing's order.
+    let message = load_instanced(&[listing(&bad), listing(&twice)])
+        .err()
+        .expect("the OBJ is read once something repeats")
+        .to_string();
+    assert!(message.contains("bad.obj"), "{message}");
+    let good = dir.write("good.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let files = [listing(&good), listing(&twice), listing(&once)];
+    let (meshes, instances) = load_instanced(&files).unwrap().expect("instanced");
+    // The OBJ's mesh first, then each glTF's, as read in order.
+    assert_eq!(meshes.len(), 3);
+    assert_eq!(meshes[0].objects()[0].name, good.display().to_string());
+    let used: Vec<u32> = instances.iter().map(|i| i.mesh).collect();
+    assert_eq!(used, [0, 1, 1, 2]);
+    let copies = load_scene(&files).unwrap();
+    let names: Vec<&str> = copies.objects().iter().map(|o| o.name.as_str()).collect();
+    let instance_names: Vec<&str> = instances.iter().map(|i| i.name.as_str()).collect();
+    assert_eq!(instance_names, names);
+}
