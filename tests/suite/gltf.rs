@@ -1038,10 +1038,10 @@ fn a_description_without_repeats_reads_only_its_gltf_files_to_say_so() {
     );
     assert!(load_scene(&[listing(&bad), listing(&once)]).is_err());
     // A glTF whose nodes share a mesh: everything is read, in the listing's order.
-    let message = load_instanced(&[listing(&bad), listing(&twice)])
-        .err()
-        .expect("the OBJ is read once something repeats")
-        .to_string();
+    let Err(error) = load_instanced(&[listing(&bad), listing(&twice)]) else {
+        panic!("the OBJ is read once something repeats");
+    };
+    let message = error.to_string();
     assert!(message.contains("bad.obj"), "{message}");
     let good = dir.write("good.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
     let files = [listing(&good), listing(&twice), listing(&once)];
