@@ -96,23 +96,21 @@ pub fn classify_any(scene: &Scene, ray: &Ray, a: &Hit, b: &Hit, reference: &[Hit
 }
 
 /// Compares two all-hits lists (each sorted by t). Hits pair up by triangle, or by equal t
-/// (a shared edge); a hit left without a partner is a tie only at a boundary. When a list
-/// overflowed, only hits nearer than its farthest kept hit are compared.
+/// (a shared edge); a hit left without a partner is a tie only at a boundary. A list that
+/// overflowed holds the hits only as far as its farthest kept one: a hit of the other list
+/// beyond that (within the tolerance on t) needs no partner in it.
 pub fn classify_lists(scene: &Scene, ray: &Ray, a: (&[Hit], bool), b: (&[Hit], bool)) -> Verdict {
-    let cutoff = [a, b]
-        .iter()
-        .filter(|(list, overflow)| *overflow && !list.is_empty())
-        .map(|(list, _)| {
-            let last = list[list.len() - 1].t;
-            last - t_tolerance(scene, ray, last)
-        })
-        .fold(f64::INFINITY, f64::min);
-    let a: Vec<&Hit> = a.0.iter().filter(|h| h.t < cutoff).collect();
-    let b: Vec<&Hit> = b.0.iter().filter(|h| h.t < cutoff).collect();
+    // How far along the ray each list holds every hit.
+    let complete = |(list, overflow): (&[Hit], bool)| match list.last() {
+        Some(last) if overflow => last.t - t_tolerance(scene, ray, last.t),
+        _ => f64::INFINITY,
+    };
+    let (a_complete, b_complete) = (complete(a), complete(b));
+    let (a, b) = (a.0, b.0);
     let mut used = vec![false; b.len()];
     let mut verdict = Verdict::Same;
-    let mut unmatched: Vec<&Hit> = Vec::new();
-    for x in &a {
+    let mut unmatched: Vec<(&Hit, f64)> = Vec::new();
+    for x in a {
         let same = (0..b.len())
             .find(|&j| !used[j] && (b[j].object, b[j].triangle) == (x.object, x.triangle));
         let edge = || {
@@ -126,11 +124,20 @@ pub fn classify_lists(scene: &Scene, ray: &Ray, a: (&[Hit], bool), b: (&[Hit], b
                 used[j] = true;
                 verdict = verdict.max(v);
             }
-            None => unmatched.push(x),
+            None => unmatched.push((x, b_complete)),
         }
     }
-    unmatched.extend(b.iter().zip(&used).filter(|(_, u)| !**u).map(|(h, _)| *h));
-    for h in unmatched {
+    unmatched.extend(
+        b.iter()
+            .zip(&used)
+            .filter(|(_, u)| !**u)
+            .map(|(h, _)| (h, a_complete)),
+    );
+    for (h, other_complete) in unmatched {
+        if h.t >= other_complete {
+            // Past the other list's last kept hit: it could not hold this one.
+            continue;
+        }
         if near_boundary(scene, ray, h) {
             verdict = verdict.max(Verdict::Boundary);
         } else {

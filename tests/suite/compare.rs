@@ -50,3 +50,62 @@ fn invalid_rays_are_flagged_misses() {
         assert!(hit.invalid && !hit.hit, "{ray:?}");
     }
 }
+
+/// Every hit of `ray` on `scene` (the oracle's, sorted by t).
+fn every_hit(scene: &Scene, ray: &Ray) -> Vec<Hit> {
+    use raypick::check::oracle::{OracleTriangles, all_hits};
+    all_hits(
+        scene,
+        &OracleTriangles::new(scene),
+        ray,
+        raypick::Cull::None,
+    )
+}
+
+/// All-hits lists that overflowed are compared as far as both are complete: the last hit kept
+/// counts too. Only the hits nearer than the farthest one kept were compared, so with
+/// `--max-hits 1` any two overflowing lists agreed, and a list that skipped the second of three
+/// hits, or stopped after the first with no overflow, agreed with the right one.
+#[test]
+fn all_hits_lists_that_overflowed_are_compared_up_to_their_last_hit() {
+    use raypick::check::compare::classify_lists;
+    let scene = raypick::check::synthetic::example_scene();
+    // Straight down through the tower: its roof, the terrain inside it, its floor.
+    let ray = Ray::new(DVec3::new(33.3, 45.1, 100.0), DVec3::NEG_Z);
+    let hits = every_hit(&scene, &ray);
+    assert_eq!(hits.len(), 3);
+    let [roof, terrain, floor] = [hits[0], hits[1], hits[2]];
+    let same = |a: (&[Hit], bool), b: (&[Hit], bool)| classify_lists(&scene, &ray, a, b);
+    // The right answers agree with themselves.
+    assert_eq!(same((&[roof], true), (&[roof], true)), Verdict::Same);
+    assert_eq!(
+        same((&[roof, terrain], true), (&[roof, terrain], true)),
+        Verdict::Same
+    );
+    assert_eq!(
+        same((&[roof, terrain, floor], false), (&[roof, terrain], true)),
+        Verdict::Same
+    );
+    // Wrong ones do not: a farther hit in the first place, the third hit in the second, or a
+    // list that stopped after one hit of three.
+    let k1: &[Hit] = &[roof];
+    let k2: &[Hit] = &[roof, terrain];
+    for (right, wrong, overflow) in [
+        (k1, &[floor][..], true),
+        (k1, &[terrain][..], true),
+        (k2, &[roof, floor][..], true),
+        (k2, &[roof][..], false),
+    ] {
+        let what = format!("{} hits against {}", wrong.len(), right.len());
+        assert_eq!(
+            same((right, true), (wrong, overflow)),
+            Verdict::Mismatch,
+            "{what}"
+        );
+        assert_eq!(
+            same((wrong, overflow), (right, true)),
+            Verdict::Mismatch,
+            "{what}"
+        );
+    }
+}
