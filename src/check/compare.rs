@@ -25,9 +25,22 @@ fn counted_t(scene: &Scene, ray: &Ray, t: f64) -> f64 {
     t.abs().min(FAR_DISTANCE * reach / ray.dir.length())
 }
 
+/// The size, in world units, of the coordinates the traversal computes with for `ray`: the
+/// scene's reach plus how far from the scene's centre the ray starts (counted as far as
+/// [`FAR_DISTANCE`] reaches, as the traversal moves an origin from farther out). No f32
+/// rounding of the traversal is larger than a small part of it, so the tolerances' floor (one
+/// world unit; one unit of `t`) is never more than this: else a direction 10⁶ long, or a
+/// scene 10⁻⁵ across, made every other triangle a tie.
+fn coordinate_scale(scene: &Scene, ray: &Ray) -> f64 {
+    let frame = crate::frame::Frame::around(scene.origin(), scene.bounds());
+    let start = (ray.origin - frame.origin).length();
+    start.min(FAR_DISTANCE * frame.reach) + frame.reach
+}
+
 /// The tolerance on `t` (in the ray's units) for a hit at `t`.
 fn t_tolerance(scene: &Scene, ray: &Ray, t: f64) -> f64 {
-    RELATIVE_TOLERANCE * counted_t(scene, ray, t).max(1.0)
+    let floor = (coordinate_scale(scene, ray) / ray.dir.length()).min(1.0);
+    RELATIVE_TOLERANCE * counted_t(scene, ray, t).max(floor)
 }
 
 /// How two answers for one ray compare.
@@ -227,7 +240,8 @@ pub fn near_boundary(scene: &Scene, ray: &Ray, hit: &Hit) -> bool {
     let sine = (normal.dot(ray.dir) / (twice_area * dir_length))
         .abs()
         .max(1e-3);
-    let reach = RELATIVE_TOLERANCE * (counted_t(scene, ray, hit.t) * dir_length).max(1.0) / sine;
+    let floor = coordinate_scale(scene, ray).min(1.0);
+    let reach = RELATIVE_TOLERANCE * (counted_t(scene, ray, hit.t) * dir_length).max(floor) / sine;
     edge_distance.abs() <= reach
 }
 

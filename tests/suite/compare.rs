@@ -62,6 +62,41 @@ fn every_hit(scene: &Scene, ray: &Ray) -> Vec<Hit> {
     )
 }
 
+/// A tower's far wall is no tie with its near wall, whatever the length of the ray's direction
+/// or the size of the scene's units. The tolerance on t had a floor of 1 in the ray's own units:
+/// with a direction 10⁶ long that is 10 world units, and the walls 8 apart were a "shared edge";
+/// the same tower in micrometres (a scene 10⁻⁵ across) was a tie of any two of its walls.
+#[test]
+fn a_far_wall_is_a_mismatch_for_long_directions_and_tiny_scenes() {
+    use raypick::check::synthetic::box_mesh;
+    for (scale, dir_length) in [(1.0, 1e6), (1e-6, 1.0), (1e-6, 1e-3)] {
+        let mut scene = Scene::new();
+        let tower = box_mesh(
+            DVec3::new(30.0, 40.0, 0.0) * scale,
+            DVec3::new(38.0, 48.0, 30.0) * scale,
+        );
+        scene.add_mesh("tower", tower).unwrap();
+        let ray = Ray::new(
+            DVec3::new(100.0, 44.0, 10.0) * scale,
+            DVec3::NEG_X * dir_length,
+        );
+        let hits = every_hit(&scene, &ray);
+        assert_eq!(hits.len(), 2, "near and far wall");
+        let (near, far) = (hits[0], hits[1]);
+        assert_eq!(classify(&scene, &ray, &near, &near), Verdict::Same);
+        assert_eq!(
+            classify(&scene, &ray, &near, &far),
+            Verdict::Mismatch,
+            "scale {scale}, direction {dir_length} long"
+        );
+        assert_eq!(
+            classify(&scene, &ray, &near, &Hit::MISS),
+            Verdict::Mismatch,
+            "scale {scale}, direction {dir_length} long"
+        );
+    }
+}
+
 /// All-hits lists that overflowed are compared as far as both are complete: the last hit kept
 /// counts too. Only the hits nearer than the farthest one kept were compared, so with
 /// `--max-hits 1` any two overflowing lists agreed, and a list that skipped the second of three
