@@ -22,7 +22,13 @@ pub const FAR_DISTANCE: f64 = 2.0 * crate::frame::FAR_REACHES;
 /// `|t|` as the tolerances count it: at most [`FAR_DISTANCE`] reaches of `scene` along `ray`.
 fn counted_t(scene: &Scene, ray: &Ray, t: f64) -> f64 {
     let reach = crate::frame::Frame::around(scene.origin(), scene.bounds()).reach;
-    t.abs().min(FAR_DISTANCE * reach / ray.dir.length())
+    t.abs().min(FAR_DISTANCE * reach / dir_length(ray))
+}
+
+/// The length of `ray`'s direction, without underflow or overflow (`glam`'s `length` is 0 for
+/// a direction 10⁻³⁰⁰ long, which the pickers trace).
+fn dir_length(ray: &Ray) -> f64 {
+    crate::ray::direction_length(ray.dir).unwrap_or_else(|| ray.dir.length())
 }
 
 /// The size, in world units, of the coordinates the traversal computes with for `ray`: the
@@ -37,9 +43,14 @@ fn coordinate_scale(scene: &Scene, ray: &Ray) -> f64 {
     start.min(FAR_DISTANCE * frame.reach) + frame.reach
 }
 
-/// The tolerance on `t` (in the ray's units) for a hit at `t`.
+/// The tolerance on `t` (in the ray's units) for a hit at `t`. Its floor is one unit of `t`
+/// for a direction of length 1 or more (at most [`coordinate_scale`] in world units), and
+/// one world unit for a shorter one: a floor of one unit of `t` along a direction 10⁻³⁰⁰
+/// long was 10⁻³⁰⁵ world units, and a hit 10⁻³⁰⁰ past the origin, which no f32 traversal
+/// can tell from one at the origin, was a mismatch rather than a tie at `tmin`.
 fn t_tolerance(scene: &Scene, ray: &Ray, t: f64) -> f64 {
-    let floor = (coordinate_scale(scene, ray) / ray.dir.length()).min(1.0);
+    let length = dir_length(ray);
+    let floor = coordinate_scale(scene, ray).min(length.max(1.0)) / length;
     RELATIVE_TOLERANCE * counted_t(scene, ray, t).max(floor)
 }
 
@@ -236,8 +247,8 @@ pub fn near_boundary(scene: &Scene, ray: &Ray, hit: &Hit) -> bool {
     let edge_distance = (0..3)
         .map(|k| weights[k] * twice_area / opposite[k].length())
         .fold(f64::INFINITY, f64::min);
-    let dir_length = ray.dir.length();
-    let sine = (normal.dot(ray.dir) / (twice_area * dir_length))
+    let dir_length = dir_length(ray);
+    let sine = (normal.dot(ray.dir / dir_length) / twice_area)
         .abs()
         .max(1e-3);
     let floor = coordinate_scale(scene, ray).min(1.0);

@@ -144,3 +144,32 @@ fn all_hits_lists_that_overflowed_are_compared_up_to_their_last_hit() {
         );
     }
 }
+
+/// A hit a hair past the ray's origin, nearer than f32 can place it, against a miss is a tie at
+/// `tmin` whatever the length of the direction: the tolerance on t had a floor of one unit of
+/// t, which along a direction 10⁻³⁰⁰ long is 10⁻³⁰⁵ world units, so a ray starting 10⁻³⁰⁰
+/// above a triangle (which every path answers as starting on it: a miss) was a mismatch.
+#[test]
+fn a_hit_a_hair_past_the_origin_is_a_tie_at_tmin_for_any_direction_length() {
+    let scene = scene();
+    for (height, length) in [(1e-9, 1.0), (1e-9, 1e-6), (1e-9, 1e-300), (1e-300, 1e-300)] {
+        let ray = Ray::new(DVec3::new(0.25, 0.1, height), DVec3::NEG_Z * length);
+        let hit = brute_force(&scene, &ray);
+        assert!(hit.hit, "{height} above, {length} long");
+        assert_eq!(
+            classify(&scene, &ray, &hit, &Hit::MISS),
+            Verdict::Boundary,
+            "{height} above, {length} long"
+        );
+    }
+    // A hit well past the origin is none, however short the direction.
+    for length in [1.0, 1e-300] {
+        let ray = Ray::new(DVec3::new(0.25, 0.1, 1.0), DVec3::NEG_Z * length);
+        let hit = brute_force(&scene, &ray);
+        assert_eq!(
+            classify(&scene, &ray, &hit, &Hit::MISS),
+            Verdict::Mismatch,
+            "{length} long"
+        );
+    }
+}
