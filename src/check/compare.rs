@@ -131,22 +131,26 @@ pub fn classify_lists(scene: &Scene, ray: &Ray, a: (&[Hit], bool), b: (&[Hit], b
     };
     let (a_complete, b_complete) = (complete(a), complete(b));
     let (a, b) = (a.0, b.0);
+    // The same triangles pair up first, then what is left by equal t: pairing by t first let a
+    // hit at a vertex take another object's hit at the same t away from its own partner.
     let mut used = vec![false; b.len()];
-    let mut verdict = Verdict::Same;
-    let mut unmatched: Vec<(&Hit, f64)> = Vec::new();
-    for x in a {
+    let mut paired = vec![false; a.len()];
+    for (x, done) in a.iter().zip(&mut paired) {
         let same = (0..b.len())
             .find(|&j| !used[j] && (b[j].object, b[j].triangle) == (x.object, x.triangle));
-        let edge = || {
-            (0..b.len()).find(|&j| !used[j] && (b[j].t - x.t).abs() <= t_tolerance(scene, ray, x.t))
-        };
-        match same
-            .map(|j| (j, Verdict::Same))
-            .or_else(|| edge().map(|j| (j, Verdict::SharedEdge)))
-        {
-            Some((j, v)) => {
+        if let Some(j) = same {
+            (used[j], *done) = (true, true);
+        }
+    }
+    let mut verdict = Verdict::Same;
+    let mut unmatched: Vec<(&Hit, f64)> = Vec::new();
+    for (x, _) in a.iter().zip(&paired).filter(|(_, done)| !**done) {
+        let edge = (0..b.len())
+            .find(|&j| !used[j] && (b[j].t - x.t).abs() <= t_tolerance(scene, ray, x.t));
+        match edge {
+            Some(j) => {
                 used[j] = true;
-                verdict = verdict.max(v);
+                verdict = verdict.max(Verdict::SharedEdge);
             }
             None => unmatched.push((x, b_complete)),
         }

@@ -173,3 +173,47 @@ fn a_hit_a_hair_past_the_origin_is_a_tie_at_tmin_for_any_direction_length() {
         );
     }
 }
+
+/// All-hits lists pair the same triangles first: a ray through a fan's centre hits several of
+/// its triangles at the vertex and, at the same t, a triangle of another object. Pairing each
+/// hit in turn with the first hit of the other list at its t let an extra hit at the vertex take
+/// the other object's hit from its own partner, and left that one a mismatch.
+#[test]
+fn all_hits_lists_pair_the_same_triangles_before_hits_at_the_same_t() {
+    use raypick::check::compare::classify_lists;
+    let fan = raypick::Mesh {
+        positions: [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)]
+            .map(|(x, y)| DVec3::new(x, y, 0.0))
+            .to_vec(),
+        triangles: vec![[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]],
+    };
+    let across = raypick::Mesh {
+        positions: vec![
+            DVec3::new(-0.5, -0.5, 0.0),
+            DVec3::new(0.5, -0.5, 0.0),
+            DVec3::new(0.0, 0.5, 0.0),
+        ],
+        triangles: vec![[0, 1, 2]],
+    };
+    let scene =
+        Scene::from_meshes([("fan".to_string(), fan), ("across".to_string(), across)]).unwrap();
+    let ray = Ray::new(DVec3::new(0.0, 0.0, 1.0), DVec3::NEG_Z);
+    let hits = every_hit(&scene, &ray);
+    let hit = |object: u32, triangle: u32| {
+        *hits
+            .iter()
+            .find(|h| (h.object, h.triangle) == (object, triangle))
+            .expect("hit")
+    };
+    // One list met the fan at two of its triangles, the other at a third; both met `across`.
+    let a = [hit(0, 0), hit(0, 1), hit(1, 0)];
+    let b = [hit(0, 2), hit(1, 0)];
+    assert_eq!(
+        classify_lists(&scene, &ray, (&a, false), (&b, false)),
+        Verdict::Boundary
+    );
+    assert_eq!(
+        classify_lists(&scene, &ray, (&b, false), (&a, false)),
+        Verdict::Boundary
+    );
+}
