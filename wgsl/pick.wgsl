@@ -121,7 +121,7 @@ const FROM_CHILD: u32 = 2u;   // climbing back up after a subtree is done
 
 // 1: products and quotients are rounded as the twin rounds them, by the kernel itself; 0: by the
 // hardware (set by the host, `GpuPicker::with_options`: 0 only on llvmpipe, which already
-// rounds as the CPU does).
+// rounds as the CPU does, but for the sum `mul_unfused` keeps apart).
 override EXACT_ARITHMETIC: u32 = 1u;
 
 fn mul(a: f32, b: f32) -> f32 {
@@ -136,6 +136,13 @@ fn mul3(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
         return a * b;
     }
     return bitcast<vec3<f32>>(bitcast<vec3<u32>>(a * b) | params.opaque);
+}
+
+// `mul`, kept unfused on every adapter, llvmpipe included: Möller–Trumbore's `u + v` of two
+// products was fused into a multiply-add there, and a ray through the midpoint of a shared
+// edge (u + v = 1) missed the triangle the twin hits (tests/suite/gpu_pipeline.rs).
+fn mul_unfused(a: f32, b: f32) -> f32 {
+    return bitcast<f32>(bitcast<u32>(a * b) | params.opaque.x);
 }
 
 fn dot3(a: vec3<f32>, b: vec3<f32>) -> f32 {
@@ -290,9 +297,9 @@ fn ray_triangle(tri: GpuTriangle, origin: vec3<f32>, dir: vec3<f32>) -> Triangle
     }
     let inv_det = div(1.0, det);
     let to_origin = origin - v0;
-    let u = dot3(p, to_origin) * inv_det;
+    let u = mul_unfused(dot3(p, to_origin), inv_det);
     let q = cross3(to_origin, e1);
-    let v = dot3(q, dir) * inv_det;
+    let v = mul_unfused(dot3(q, dir), inv_det);
     let t = dot3(q, e2) * inv_det;
     return TriangleHit(u >= 0.0 && v >= 0.0 && u + v <= 1.0, t, u, v, det);
 }

@@ -22,12 +22,36 @@ pub const FAR_DISTANCE: f64 = 2.0 * crate::frame::FAR_REACHES;
 /// `|t|` as the tolerances count it: at most [`FAR_DISTANCE`] reaches of `scene` along `ray`.
 fn counted_t(scene: &Scene, ray: &Ray, t: f64) -> f64 {
     let reach = crate::frame::Frame::around(scene.origin(), scene.bounds()).reach;
-    t.abs().min(FAR_DISTANCE * reach / ray.dir.length())
+    t.abs().min(FAR_DISTANCE * reach / dir_length(ray))
 }
 
-/// The tolerance on `t` (in the ray's units) for a hit at `t`.
+/// The length of `ray`'s direction, without underflow or overflow (`glam`'s `length` is 0 for
+/// a direction 10⁻³⁰⁰ long, which the pickers trace).
+fn dir_length(ray: &Ray) -> f64 {
+    crate::ray::direction_length(ray.dir).unwrap_or_else(|| ray.dir.length())
+}
+
+/// The size, in world units, of the coordinates the traversal computes with for `ray`: the
+/// scene's reach plus how far from the scene's centre the ray starts (counted as far as
+/// [`FAR_DISTANCE`] reaches, as the traversal moves an origin from farther out). No f32
+/// rounding of the traversal is larger than a small part of it, so the tolerances' floor (one
+/// world unit; one unit of `t`) is never more than this: else a direction 10⁶ long, or a
+/// scene 10⁻⁵ across, made every other triangle a tie.
+fn coordinate_scale(scene: &Scene, ray: &Ray) -> f64 {
+    let frame = crate::frame::Frame::around(scene.origin(), scene.bounds());
+    let start = (ray.origin - frame.origin).length();
+    start.min(FAR_DISTANCE * frame.reach) + frame.reach
+}
+
+/// The tolerance on `t` (in the ray's units) for a hit at `t`. Its floor is one unit of `t`
+/// for a direction of length 1 or more (at most [`coordinate_scale`] in world units), and
+/// one world unit for a shorter one: a floor of one unit of `t` along a direction 10⁻³⁰⁰
+/// long was 10⁻³⁰⁵ world units, and a hit 10⁻³⁰⁰ past the origin, which no f32 traversal
+/// can tell from one at the origin, was a mismatch rather than a tie at `tmin`.
 fn t_tolerance(scene: &Scene, ray: &Ray, t: f64) -> f64 {
-    RELATIVE_TOLERANCE * counted_t(scene, ray, t).max(1.0)
+    let length = dir_length(ray);
+    let floor = coordinate_scale(scene, ray).min(length.max(1.0)) / length;
+    RELATIVE_TOLERANCE * counted_t(scene, ray, t).max(floor)
 }
 
 /// How two answers for one ray compare.
@@ -96,41 +120,52 @@ pub fn classify_any(scene: &Scene, ray: &Ray, a: &Hit, b: &Hit, reference: &[Hit
 }
 
 /// Compares two all-hits lists (each sorted by t). Hits pair up by triangle, or by equal t
-/// (a shared edge); a hit left without a partner is a tie only at a boundary. When a list
-/// overflowed, only hits nearer than its farthest kept hit are compared.
+/// (a shared edge); a hit left without a partner is a tie only at a boundary. A list that
+/// overflowed holds the hits only as far as its farthest kept one: a hit of the other list
+/// beyond that (within the tolerance on t) needs no partner in it.
 pub fn classify_lists(scene: &Scene, ray: &Ray, a: (&[Hit], bool), b: (&[Hit], bool)) -> Verdict {
-    let cutoff = [a, b]
-        .iter()
-        .filter(|(list, overflow)| *overflow && !list.is_empty())
-        .map(|(list, _)| {
-            let last = list[list.len() - 1].t;
-            last - t_tolerance(scene, ray, last)
-        })
-        .fold(f64::INFINITY, f64::min);
-    let a: Vec<&Hit> = a.0.iter().filter(|h| h.t < cutoff).collect();
-    let b: Vec<&Hit> = b.0.iter().filter(|h| h.t < cutoff).collect();
+    // How far along the ray each list holds every hit.
+    let complete = |(list, overflow): (&[Hit], bool)| match list.last() {
+        Some(last) if overflow => last.t - t_tolerance(scene, ray, last.t),
+        _ => f64::INFINITY,
+    };
+    let (a_complete, b_complete) = (complete(a), complete(b));
+    let (a, b) = (a.0, b.0);
+    // The same triangles pair up first, then what is left by equal t: pairing by t first let a
+    // hit at a vertex take another object's hit at the same t away from its own partner.
     let mut used = vec![false; b.len()];
-    let mut verdict = Verdict::Same;
-    let mut unmatched: Vec<&Hit> = Vec::new();
-    for x in &a {
+    let mut paired = vec![false; a.len()];
+    for (x, done) in a.iter().zip(&mut paired) {
         let same = (0..b.len())
             .find(|&j| !used[j] && (b[j].object, b[j].triangle) == (x.object, x.triangle));
-        let edge = || {
-            (0..b.len()).find(|&j| !used[j] && (b[j].t - x.t).abs() <= t_tolerance(scene, ray, x.t))
-        };
-        match same
-            .map(|j| (j, Verdict::Same))
-            .or_else(|| edge().map(|j| (j, Verdict::SharedEdge)))
-        {
-            Some((j, v)) => {
-                used[j] = true;
-                verdict = verdict.max(v);
-            }
-            None => unmatched.push(x),
+        if let Some(j) = same {
+            (used[j], *done) = (true, true);
         }
     }
-    unmatched.extend(b.iter().zip(&used).filter(|(_, u)| !**u).map(|(h, _)| *h));
-    for h in unmatched {
+    let mut verdict = Verdict::Same;
+    let mut unmatched: Vec<(&Hit, f64)> = Vec::new();
+    for (x, _) in a.iter().zip(&paired).filter(|(_, done)| !**done) {
+        let edge = (0..b.len())
+            .find(|&j| !used[j] && (b[j].t - x.t).abs() <= t_tolerance(scene, ray, x.t));
+        match edge {
+            Some(j) => {
+                used[j] = true;
+                verdict = verdict.max(Verdict::SharedEdge);
+            }
+            None => unmatched.push((x, b_complete)),
+        }
+    }
+    unmatched.extend(
+        b.iter()
+            .zip(&used)
+            .filter(|(_, u)| !**u)
+            .map(|(h, _)| (h, a_complete)),
+    );
+    for (h, other_complete) in unmatched {
+        if h.t >= other_complete {
+            // Past the other list's last kept hit: it could not hold this one.
+            continue;
+        }
         if near_boundary(scene, ray, h) {
             verdict = verdict.max(Verdict::Boundary);
         } else {
@@ -216,11 +251,12 @@ pub fn near_boundary(scene: &Scene, ray: &Ray, hit: &Hit) -> bool {
     let edge_distance = (0..3)
         .map(|k| weights[k] * twice_area / opposite[k].length())
         .fold(f64::INFINITY, f64::min);
-    let dir_length = ray.dir.length();
-    let sine = (normal.dot(ray.dir) / (twice_area * dir_length))
+    let dir_length = dir_length(ray);
+    let sine = (normal.dot(ray.dir / dir_length) / twice_area)
         .abs()
         .max(1e-3);
-    let reach = RELATIVE_TOLERANCE * (counted_t(scene, ray, hit.t) * dir_length).max(1.0) / sine;
+    let floor = coordinate_scale(scene, ray).min(1.0);
+    let reach = RELATIVE_TOLERANCE * (counted_t(scene, ray, hit.t) * dir_length).max(floor) / sine;
     edge_distance.abs() <= reach
 }
 

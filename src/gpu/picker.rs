@@ -28,7 +28,9 @@ const WORKGROUP_SIZE_CONSTANT: &str = "WORKGROUP_SIZE";
 const EXACT_ARITHMETIC_CONSTANT: &str = "EXACT_ARITHMETIC";
 
 /// Whether the kernel must round division and products itself on `context`'s adapter: on every
-/// adapter but Mesa's llvmpipe (lavapipe), whose division is IEEE and which fuses nothing.
+/// adapter but Mesa's llvmpipe (lavapipe), whose division is IEEE and which fuses no product the
+/// kernel leaves to it (Möller–Trumbore's `u + v` it did fuse: the kernel keeps those two
+/// products apart on every adapter, `mul_unfused`).
 pub fn needs_exact_arithmetic(context: &GpuContext) -> bool {
     !(context.is_software() && context.adapter_info.name.starts_with("llvmpipe"))
 }

@@ -50,3 +50,170 @@ fn invalid_rays_are_flagged_misses() {
         assert!(hit.invalid && !hit.hit, "{ray:?}");
     }
 }
+
+/// Every hit of `ray` on `scene` (the oracle's, sorted by t).
+fn every_hit(scene: &Scene, ray: &Ray) -> Vec<Hit> {
+    use raypick::check::oracle::{OracleTriangles, all_hits};
+    all_hits(
+        scene,
+        &OracleTriangles::new(scene),
+        ray,
+        raypick::Cull::None,
+    )
+}
+
+/// A tower's far wall is no tie with its near wall, whatever the length of the ray's direction
+/// or the size of the scene's units. The tolerance on t had a floor of 1 in the ray's own units:
+/// with a direction 10⁶ long that is 10 world units, and the walls 8 apart were a "shared edge";
+/// the same tower in micrometres (a scene 10⁻⁵ across) was a tie of any two of its walls.
+#[test]
+fn a_far_wall_is_a_mismatch_for_long_directions_and_tiny_scenes() {
+    use raypick::check::synthetic::box_mesh;
+    for (scale, dir_length) in [(1.0, 1e6), (1e-6, 1.0), (1e-6, 1e-3)] {
+        let mut scene = Scene::new();
+        let tower = box_mesh(
+            DVec3::new(30.0, 40.0, 0.0) * scale,
+            DVec3::new(38.0, 48.0, 30.0) * scale,
+        );
+        scene.add_mesh("tower", tower).unwrap();
+        let ray = Ray::new(
+            DVec3::new(100.0, 44.0, 10.0) * scale,
+            DVec3::NEG_X * dir_length,
+        );
+        let hits = every_hit(&scene, &ray);
+        assert_eq!(hits.len(), 2, "near and far wall");
+        let (near, far) = (hits[0], hits[1]);
+        assert_eq!(classify(&scene, &ray, &near, &near), Verdict::Same);
+        assert_eq!(
+            classify(&scene, &ray, &near, &far),
+            Verdict::Mismatch,
+            "scale {scale}, direction {dir_length} long"
+        );
+        assert_eq!(
+            classify(&scene, &ray, &near, &Hit::MISS),
+            Verdict::Mismatch,
+            "scale {scale}, direction {dir_length} long"
+        );
+    }
+}
+
+/// All-hits lists that overflowed are compared as far as both are complete: the last hit kept
+/// counts too. Only the hits nearer than the farthest one kept were compared, so with
+/// `--max-hits 1` any two overflowing lists agreed, and a list that skipped the second of three
+/// hits, or stopped after the first with no overflow, agreed with the right one.
+#[test]
+fn all_hits_lists_that_overflowed_are_compared_up_to_their_last_hit() {
+    use raypick::check::compare::classify_lists;
+    let scene = raypick::check::synthetic::example_scene();
+    // Straight down through the tower: its roof, the terrain inside it, its floor.
+    let ray = Ray::new(DVec3::new(33.3, 45.1, 100.0), DVec3::NEG_Z);
+    let hits = every_hit(&scene, &ray);
+    assert_eq!(hits.len(), 3);
+    let [roof, terrain, floor] = [hits[0], hits[1], hits[2]];
+    let same = |a: (&[Hit], bool), b: (&[Hit], bool)| classify_lists(&scene, &ray, a, b);
+    // The right answers agree with themselves.
+    assert_eq!(same((&[roof], true), (&[roof], true)), Verdict::Same);
+    assert_eq!(
+        same((&[roof, terrain], true), (&[roof, terrain], true)),
+        Verdict::Same
+    );
+    assert_eq!(
+        same((&[roof, terrain, floor], false), (&[roof, terrain], true)),
+        Verdict::Same
+    );
+    // Wrong ones do not: a farther hit in the first place, the third hit in the second, or a
+    // list that stopped after one hit of three.
+    let k1: &[Hit] = &[roof];
+    let k2: &[Hit] = &[roof, terrain];
+    for (right, wrong, overflow) in [
+        (k1, &[floor][..], true),
+        (k1, &[terrain][..], true),
+        (k2, &[roof, floor][..], true),
+        (k2, &[roof][..], false),
+    ] {
+        let what = format!("{} hits against {}", wrong.len(), right.len());
+        assert_eq!(
+            same((right, true), (wrong, overflow)),
+            Verdict::Mismatch,
+            "{what}"
+        );
+        assert_eq!(
+            same((wrong, overflow), (right, true)),
+            Verdict::Mismatch,
+            "{what}"
+        );
+    }
+}
+
+/// A hit a hair past the ray's origin, nearer than f32 can place it, against a miss is a tie at
+/// `tmin` whatever the length of the direction: the tolerance on t had a floor of one unit of
+/// t, which along a direction 10⁻³⁰⁰ long is 10⁻³⁰⁵ world units, so a ray starting 10⁻³⁰⁰
+/// above a triangle (which every path answers as starting on it: a miss) was a mismatch.
+#[test]
+fn a_hit_a_hair_past_the_origin_is_a_tie_at_tmin_for_any_direction_length() {
+    let scene = scene();
+    for (height, length) in [(1e-9, 1.0), (1e-9, 1e-6), (1e-9, 1e-300), (1e-300, 1e-300)] {
+        let ray = Ray::new(DVec3::new(0.25, 0.1, height), DVec3::NEG_Z * length);
+        let hit = brute_force(&scene, &ray);
+        assert!(hit.hit, "{height} above, {length} long");
+        assert_eq!(
+            classify(&scene, &ray, &hit, &Hit::MISS),
+            Verdict::Boundary,
+            "{height} above, {length} long"
+        );
+    }
+    // A hit well past the origin is none, however short the direction.
+    for length in [1.0, 1e-300] {
+        let ray = Ray::new(DVec3::new(0.25, 0.1, 1.0), DVec3::NEG_Z * length);
+        let hit = brute_force(&scene, &ray);
+        assert_eq!(
+            classify(&scene, &ray, &hit, &Hit::MISS),
+            Verdict::Mismatch,
+            "{length} long"
+        );
+    }
+}
+
+/// All-hits lists pair the same triangles first: a ray through a fan's centre hits several of
+/// its triangles at the vertex and, at the same t, a triangle of another object. Pairing each
+/// hit in turn with the first hit of the other list at its t let an extra hit at the vertex take
+/// the other object's hit from its own partner, and left that one a mismatch.
+#[test]
+fn all_hits_lists_pair_the_same_triangles_before_hits_at_the_same_t() {
+    use raypick::check::compare::classify_lists;
+    let fan = raypick::Mesh {
+        positions: [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)]
+            .map(|(x, y)| DVec3::new(x, y, 0.0))
+            .to_vec(),
+        triangles: vec![[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]],
+    };
+    let across = raypick::Mesh {
+        positions: vec![
+            DVec3::new(-0.5, -0.5, 0.0),
+            DVec3::new(0.5, -0.5, 0.0),
+            DVec3::new(0.0, 0.5, 0.0),
+        ],
+        triangles: vec![[0, 1, 2]],
+    };
+    let scene =
+        Scene::from_meshes([("fan".to_string(), fan), ("across".to_string(), across)]).unwrap();
+    let ray = Ray::new(DVec3::new(0.0, 0.0, 1.0), DVec3::NEG_Z);
+    let hits = every_hit(&scene, &ray);
+    let hit = |object: u32, triangle: u32| {
+        *hits
+            .iter()
+            .find(|h| (h.object, h.triangle) == (object, triangle))
+            .expect("hit")
+    };
+    // One list met the fan at two of its triangles, the other at a third; both met `across`.
+    let a = [hit(0, 0), hit(0, 1), hit(1, 0)];
+    let b = [hit(0, 2), hit(1, 0)];
+    assert_eq!(
+        classify_lists(&scene, &ray, (&a, false), (&b, false)),
+        Verdict::Boundary
+    );
+    assert_eq!(
+        classify_lists(&scene, &ray, (&b, false), (&a, false)),
+        Verdict::Boundary
+    );
+}

@@ -166,3 +166,50 @@ fn an_overlapping_tracer_that_fails_or_answers_short_fails_the_pick() {
         }
     }
 }
+
+/// Möller–Trumbore on the GPU gives the twin's bits on a ray through the midpoint of a shared
+/// terrain edge (found by `raypick verify --random 8000 --mode all --max-hits 3 --cull front
+/// --intersector moller-trumbore`, an edge-midpoint ray): on lavapipe the kernel, with the
+/// hardware's arithmetic, reported triangle 9682 where the twin and the engine report 9681.
+#[test]
+fn moller_trumbore_through_a_shared_terrain_edge_gives_the_twins_triangle() {
+    use raypick::glam::DVec3;
+    use raypick::{CpuPicker, Intersector};
+    let built = Arc::new(
+        BuiltScene::new(
+            raypick::check::synthetic::example_scene(),
+            &BuildOptions::default(),
+        )
+        .expect("build"),
+    );
+    let rays = [Ray::new(
+        DVec3::new(122.63800912899664, 48.96183905863657, -112.48016798082583),
+        DVec3::new(-31.638009128996643, -4.461839058636571, 119.66226225083899),
+    )];
+    for mode in [Mode::Closest, Mode::All] {
+        let query = Query {
+            mode,
+            intersector: Intersector::MollerTrumbore,
+            ..Query::default()
+        };
+        let twin = ReferencePicker::new(built.clone())
+            .query(&rays, &query)
+            .unwrap();
+        let engine = CpuPicker::new(built.clone()).query(&rays, &query).unwrap();
+        assert!(differences(mode, &engine, &twin).is_empty());
+        assert_eq!(
+            (twin.nearest[0].object, twin.nearest[0].triangle),
+            (0, 9681)
+        );
+        for exact in [false, true] {
+            let mut kernel = GpuPicker::with_options(gpu(), built.clone(), 64, exact).unwrap();
+            let answers = kernel.query(&rays, &query).unwrap();
+            assert_eq!(
+                (answers.nearest[0].object, answers.nearest[0].triangle),
+                (0, 9681),
+                "{mode:?}, the kernel's own arithmetic {exact}"
+            );
+            assert_twins(&format!("exact {exact}"), &query, &rays, &answers, &twin);
+        }
+    }
+}
