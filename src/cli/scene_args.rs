@@ -3,7 +3,7 @@
 
 use clap::{ArgMatches, Args};
 use raypick::check::synthetic::example_scene;
-use raypick::io::scene_files::{SceneFile, load_description, load_instanced, load_scene};
+use raypick::io::scene_files::{Loaded, SceneFile, load_description, load_instanced, load_scene};
 use raypick::{BuildOptions, Builder, BuiltScene, Error, Scene, SplitAxis};
 use std::path::PathBuf;
 
@@ -191,19 +191,13 @@ impl SceneArgs {
             return Ok((built, start.elapsed().as_secs_f64(), 0.0));
         }
         let files = self.files(matches)?;
-        let repeated = files
-            .iter()
-            .enumerate()
-            .any(|(k, f)| files[..k].iter().any(|g| g.file == f.file));
-        let gltf = files.iter().any(|f| {
-            f.file
-                .extension()
-                .and_then(|e| e.to_str())
-                .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"))
-        });
-        if repeated || gltf {
-            let shared = super::progress::phase("loading the scene", || load_instanced(&files))?;
-            if let Some((meshes, instances)) = shared {
+        if files.is_empty() {
+            return self.build_placed(matches, placement, &|_| Ok(()));
+        }
+        let loaded = super::progress::phase("loading the scene", || load_instanced(&files))?;
+        let scene = match loaded {
+            Loaded::Copies(scene) => scene,
+            Loaded::Instanced(meshes, instances) => {
                 let loaded = start.elapsed().as_secs_f64();
                 let options = self.build_options();
                 let built = super::progress::phase("building the trees", || {
@@ -212,8 +206,8 @@ impl SceneArgs {
                 warn_lost(&built);
                 return Ok((built, loaded, start.elapsed().as_secs_f64() - loaded));
             }
-        }
-        self.build_placed(matches, placement, &|_| Ok(()))
+        };
+        self.build_loaded(scene, start, &|_| Ok(()))
     }
 
     /// [`SceneArgs::build`] for a process that lives on (the server, a soak): a saved scene is
@@ -261,6 +255,17 @@ impl SceneArgs {
         } else {
             super::progress::phase("loading the scene", || load_scene(&files))?
         };
+        self.build_loaded(scene, start, check)
+    }
+
+    /// Builds a loaded scene, once `check` has seen it; the seconds from `start` to the build's
+    /// start, and the build's.
+    fn build_loaded(
+        &self,
+        scene: Scene,
+        start: std::time::Instant,
+        check: &dyn Fn(&Scene) -> Result<(), Error>,
+    ) -> Result<(BuiltScene, f64, f64), Error> {
         check(&scene)?;
         let loaded = start.elapsed().as_secs_f64();
         let options = self.build_options();

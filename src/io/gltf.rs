@@ -162,7 +162,7 @@ pub fn load_gltf(path: &Path) -> Result<Vec<(String, Mesh)>, Error> {
 /// such triangles' second and third vertices (`Scene::flip_winding`) so that front faces stay
 /// front faces, as the specification asks.
 pub fn load_gltf_placed(path: &Path) -> Result<Vec<(String, Mesh, bool)>, Error> {
-    with_loader(path, |loader| loader.load())
+    load_gltf_shared(path)?.into_placed()
 }
 
 /// Parses and validates the file at `path`, then runs `load` over it.
@@ -233,15 +233,122 @@ fn with_loader<T>(
         document: &document,
         blob,
         buffers: vec![None; document.buffers().len()],
-        primitives: HashMap::new(),
         input_bytes: bytes.len() as u64,
     };
     load(&mut loader)
 }
 
-/// A glTF file's triangle primitives, each once in its mesh's coordinates (`(name, mesh)`), and
-/// their placements in walk order (`(object name, primitive index, node world transform)`).
-pub type Shared = (Vec<(String, Mesh)>, Vec<(String, usize, DMat4)>);
+/// A glTF file's triangle primitives, each once in its mesh's coordinates, and their placements
+/// in walk order. [`Shared::into_placed`] turns it into [`load_gltf_placed`]'s objects, so a
+/// caller that read a file to find out whether its nodes share a mesh need not read it again.
+#[derive(Debug)]
+pub struct Shared {
+    /// The file, as named in messages.
+    file: String,
+    /// Each triangle primitive once, in walk order of its first placement.
+    primitives: Vec<SharedPrimitive>,
+    /// Every placement, in walk order: the objects [`load_gltf_placed`] makes, in its order.
+    placements: Vec<Placement>,
+}
+
+/// A triangle primitive of a [`Shared`] file, in its mesh's coordinates.
+#[derive(Clone, Debug)]
+pub struct SharedPrimitive {
+    /// `<file>#<mesh>/<primitive>`, the mesh's name (or index) unadorned.
+    pub name: String,
+    /// The primitive's triangles, positions in the mesh's coordinates.
+    pub mesh: Mesh,
+    /// `mesh <index> ('<name>') primitive <index>`, for messages.
+    what: String,
+}
+
+/// One placement of a [`Shared`] file's primitive: one object of the placed scene.
+#[derive(Debug)]
+pub struct Placement {
+    /// The object's name (see [Names](self#names)).
+    pub name: String,
+    /// The primitive placed: an index into [`Shared::into_parts`]'s primitives.
+    pub primitive: usize,
+    /// The node's world transform.
+    pub world: DMat4,
+    /// The node, for messages.
+    node: usize,
+}
+
+impl Shared {
+    /// Every placement, in walk order: the objects [`load_gltf_placed`] makes, in its order.
+    pub fn placements(&self) -> &[Placement] {
+        &self.placements
+    }
+
+    /// Each triangle primitive once (in walk order of its first placement), and every placement
+    /// (in walk order), whose [`Placement::primitive`] indexes the first list.
+    pub fn into_parts(self) -> (Vec<SharedPrimitive>, Vec<Placement>) {
+        (self.primitives, self.placements)
+    }
+
+    /// The placed objects [`load_gltf_placed`] returns: each placement's primitive moved to the
+    /// world by its node's transform (a primitive placed several times is copied for all but its
+    /// last placement), with whether that transform mirrors it.
+    ///
+    /// # Errors
+    /// [`Error::Parse`] naming the file, the mesh, the primitive and the node when a vertex is
+    /// not finite once placed.
+    pub fn into_placed(self) -> Result<Vec<(String, Mesh, bool)>, Error> {
+        let mut left = vec![0usize; self.primitives.len()];
+        for placement in &self.placements {
+            left[placement.primitive] += 1;
+        }
+        let mut primitives: Vec<Option<SharedPrimitive>> =
+            self.primitives.into_iter().map(Some).collect();
+        let mut out = Vec::with_capacity(self.placements.len());
+        for placement in self.placements {
+            let k = placement.primitive;
+            left[k] -= 1;
+            // The last placement of a primitive takes it; earlier ones copy it.
+            let placed = if left[k] == 0 {
+                primitives[k].take()
+            } else {
+                primitives[k].clone()
+            };
+            let Some(SharedPrimitive {
+                what,
+                mesh:
+                    Mesh {
+                        mut positions,
+                        triangles,
+                    },
+                ..
+            }) = placed
+            else {
+                continue; // Each primitive's placements are counted above.
+            };
+            for (i, p) in positions.iter_mut().enumerate() {
+                let w = placement.world.transform_point3(*p);
+                if !w.is_finite() {
+                    return Err(Error::Parse {
+                        path: self.file,
+                        line: None,
+                        message: format!(
+                            "{what}: vertex {i} {p} is not finite after node {}'s world transform",
+                            placement.node
+                        ),
+                    });
+                }
+                *p = w;
+            }
+            out.push((
+                placement.name,
+                Mesh {
+                    positions,
+                    triangles,
+                },
+                placement.world.determinant() < 0.0,
+            ));
+        }
+        Ok(out)
+    }
+}
 
 /// [`load_gltf_placed`] without copying: each primitive once, in its mesh's own coordinates, and
 /// every placement of it with its node's world transform, so that nodes sharing a mesh become
@@ -416,8 +523,6 @@ struct Loader<'a> {
     document: &'a Document,
     blob: Option<&'a [u8]>,
     buffers: Vec<Option<Vec<u8>>>,
-    /// Keyed by `(mesh, primitive)`; `None` for skipped (non-triangle) ones.
-    primitives: HashMap<(usize, usize), Option<LocalPrimitive>>,
     /// The glTF file's size plus the sizes of the external buffers loaded.
     input_bytes: u64,
 }
@@ -431,15 +536,13 @@ impl Loader<'_> {
         }
     }
 
-    /// Each triangle primitive once, in its mesh's coordinates, and its placements in walk order:
-    /// the primitive's index in the first list, the label [`Loader::load`] gives the placed
-    /// object, and the node's world transform.
+    /// Each triangle primitive once, in its mesh's coordinates, and its placements in walk order.
     fn load_shared(&mut self) -> Result<Shared, Error> {
         let instances = self.instances()?;
         self.check_sizes(&instances)?;
         let labels = self.labels(&instances);
         let document = self.document;
-        let mut primitives: Vec<(String, Mesh)> = Vec::new();
+        let mut primitives: Vec<SharedPrimitive> = Vec::new();
         let mut index: HashMap<(usize, usize), Option<usize>> = HashMap::new();
         let mut placements = Vec::new();
         for (instance, label) in instances.iter().zip(labels) {
@@ -457,19 +560,22 @@ impl Loader<'_> {
                                  positions,
                                  triangles,
                              }| {
-                                let name = format!(
-                                    "{}#{}/{}",
-                                    self.file,
-                                    describe_mesh(&mesh),
-                                    primitive.index()
-                                );
-                                primitives.push((
-                                    name,
-                                    Mesh {
+                                let mesh_name = describe_mesh(&mesh);
+                                primitives.push(SharedPrimitive {
+                                    name: format!(
+                                        "{}#{mesh_name}/{}",
+                                        self.file,
+                                        primitive.index()
+                                    ),
+                                    mesh: Mesh {
                                         positions,
                                         triangles,
                                     },
-                                ));
+                                    what: format!(
+                                        "mesh {mesh_name} primitive {}",
+                                        primitive.index()
+                                    ),
+                                });
                                 primitives.len() - 1
                             },
                         );
@@ -478,31 +584,29 @@ impl Loader<'_> {
                     }
                 };
                 if let Some(at) = at {
-                    placements.push((
-                        format!("{}#{label}/{}", self.file, primitive.index()),
-                        at,
-                        instance.world,
-                    ));
+                    placements.push(Placement {
+                        name: format!("{}#{label}/{}", self.file, primitive.index()),
+                        primitive: at,
+                        world: instance.world,
+                        node: instance.node,
+                    });
                 }
             }
         }
         self.warn_if_empty(placements.len(), &instances);
-        Ok((primitives, placements))
+        Ok(Shared {
+            file: self.file.to_owned(),
+            primitives,
+            placements,
+        })
     }
 
     /// Says on standard error when the file places no triangle primitive: it then adds no
-    /// object to the scene, which is otherwise silent (an OBJ file says the same). Once per
-    /// file and process: the command line may read a file twice (for instances, then placed).
+    /// object to the scene, which is otherwise silent (an OBJ file says the same).
     fn warn_if_empty(&self, placed: usize, instances: &[Instance]) {
-        static WARNED: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
         if placed > 0 {
             return;
         }
-        let mut warned = WARNED.lock().unwrap_or_else(|e| e.into_inner());
-        if warned.iter().any(|f| f == self.file) {
-            return;
-        }
-        warned.push(self.file.to_owned());
         let document = self.document;
         let why = if document.meshes().len() == 0 {
             "it has no mesh".to_owned()
@@ -554,68 +658,6 @@ impl Loader<'_> {
                 label
             })
             .collect()
-    }
-
-    fn load(&mut self) -> Result<Vec<(String, Mesh, bool)>, Error> {
-        let instances = self.instances()?;
-        self.check_sizes(&instances)?;
-        let labels = self.labels(&instances);
-        let mut per_mesh_left: HashMap<usize, usize> = HashMap::new();
-        for instance in &instances {
-            *per_mesh_left.entry(instance.mesh).or_default() += 1;
-        }
-        let document = self.document;
-        let mut out = Vec::new();
-        for (instance, label) in instances.iter().zip(labels) {
-            let Some(mesh) = document.meshes().nth(instance.mesh) else {
-                continue; // Validation guarantees the index.
-            };
-            let remaining = per_mesh_left.entry(instance.mesh).or_default();
-            *remaining -= 1;
-            let last = *remaining == 0;
-            for primitive in mesh.primitives() {
-                let key = (instance.mesh, primitive.index());
-                if !self.primitives.contains_key(&key) {
-                    let read = self.read_primitive(&primitive, instance.mesh)?;
-                    self.primitives.insert(key, read);
-                }
-                // The last instance of a mesh takes its primitives; earlier ones copy them.
-                let local = if last {
-                    self.primitives.remove(&key).flatten()
-                } else {
-                    self.primitives.get(&key).cloned().flatten()
-                };
-                let Some(LocalPrimitive {
-                    mut positions,
-                    triangles,
-                }) = local
-                else {
-                    continue;
-                };
-                for (i, p) in positions.iter_mut().enumerate() {
-                    let w = instance.world.transform_point3(*p);
-                    if !w.is_finite() {
-                        return Err(self.parse(format!(
-                            "mesh {} primitive {}: vertex {i} {p} is not finite after node {}'s world transform",
-                            describe_mesh(&mesh),
-                            primitive.index(),
-                            instance.node
-                        )));
-                    }
-                    *p = w;
-                }
-                out.push((
-                    format!("{}#{label}/{}", self.file, primitive.index()),
-                    Mesh {
-                        positions,
-                        triangles,
-                    },
-                    instance.world.determinant() < 0.0,
-                ));
-            }
-        }
-        self.warn_if_empty(out.len(), &instances);
-        Ok(out)
     }
 
     /// Loads every buffer the walked triangle primitives read, then checks

@@ -8,10 +8,11 @@
 //!
 //! Two ways to load a description: [`load_scene`] applies each transform to the file's f64
 //! positions as it is loaded (`Scene::transform_object`), so each listing of a file is its own
-//! copy; [`load_instanced`] stores each mesh once and places it by its transforms (a file listed
-//! several times, glTF nodes sharing a mesh), for an instanced scene
-//! ([`crate::BuiltScene::instanced`]). Both give the same objects in the same order, under the
-//! same names.
+//! copy; [`load_instanced`], when something is placed more than once (a file listed several
+//! times, glTF nodes sharing a mesh), stores each mesh once and places it by its transforms, for
+//! an instanced scene ([`crate::BuiltScene::instanced`]), and otherwise gives [`load_scene`]'s
+//! scene, each file read once either way. Both give the same objects in the same order, under
+//! the same names.
 //!
 //! Every scene file must be a regular file (a FIFO or a device is refused before it is opened),
 //! and the files a description lists must stay inside its folder: relative paths without `..`
@@ -21,7 +22,7 @@
 use crate::dem::{grid_to_mesh, load_elevation};
 use crate::error::{Error, Result};
 use crate::instance::Instance;
-use crate::io::gltf::{load_gltf_placed, load_gltf_shared};
+use crate::io::gltf::{Shared, load_gltf_placed, load_gltf_shared};
 use crate::io::obj::load_obj;
 use crate::io::ply::load_ply;
 use crate::io::stl::load_stl;
@@ -163,6 +164,11 @@ const COPIED_TRIANGLE_BYTES: u64 = 104;
 /// Loads every file into one scene, in order, each with its mask and transform. A file listed
 /// more than once is read once and its objects copied.
 pub fn load_scene(files: &[SceneFile]) -> Result<Scene> {
+    load_scene_reading(files, Vec::new())
+}
+
+/// [`load_scene`], taking the glTF files in `read` as already read rather than reading them.
+fn load_scene_reading(files: &[SceneFile], mut read: Vec<(&Path, Shared)>) -> Result<Scene> {
     let mut scene = Scene::new();
     let mut loaded: Vec<(&Path, Vec<FileObject>)> = Vec::new();
     // The triangles listed so far: a small file listed many times is copied that many times,
@@ -188,7 +194,10 @@ pub fn load_scene(files: &[SceneFile]) -> Result<Scene> {
                 loaded[k].1.clone()
             }
             None => {
-                let objects = read_file(&file.file)?;
+                let objects = match read.iter().position(|(path, _)| *path == file.file) {
+                    Some(k) => gltf_objects(read.swap_remove(k).1.into_placed()?),
+                    None => read_file(&file.file)?,
+                };
                 if files.iter().filter(|f| f.file == file.file).count() > 1 {
                     loaded.push((&file.file, objects.clone()));
                 }
@@ -220,61 +229,50 @@ pub fn load_scene(files: &[SceneFile]) -> Result<Scene> {
     Ok(scene)
 }
 
-/// The meshes and instances of `files` when something in them is placed more than once (a file
-/// listed several times, or glTF nodes sharing a mesh): each file read once, each mesh stored
-/// once in its file's coordinates, and one instance per object [`load_scene`] would make, in the
-/// same order and with the same names, its transform the listing's composed with the glTF
-/// node's. `None` when nothing repeats (a scene of copies is then the same scene, and simpler);
-/// only the glTF files are read to find that out.
-pub fn load_instanced(files: &[SceneFile]) -> Result<Option<(Vec<Scene>, Vec<Instance>)>> {
+/// What [`load_instanced`] made of a scene's files.
+#[derive(Debug)]
+pub enum Loaded {
+    /// Something is placed more than once (a file listed several times, or glTF nodes sharing a
+    /// mesh): each mesh stored once in its file's coordinates, and one instance per object
+    /// [`load_scene`] would make, in the same order and with the same names, its transform the
+    /// listing's composed with the glTF node's.
+    Instanced(Vec<Scene>, Vec<Instance>),
+    /// Nothing repeats: the scene [`load_scene`] makes (a scene of copies is then the same
+    /// scene, and simpler).
+    Copies(Scene),
+}
+
+/// Loads `files` for a scene that may be instanced ([`Loaded`]), reading each file once.
+/// Listed once each, only a glTF file's nodes can repeat a mesh: those files are read first,
+/// and when none repeats one the scene is loaded as [`load_scene`] loads it, from those reads.
+pub fn load_instanced(files: &[SceneFile]) -> Result<Loaded> {
     // Per distinct file: its placements (name, mesh index, file-to-listing transform).
     type Placements = Vec<(String, u32, glam::DMat4)>;
-    let mut meshes: Vec<Scene> = Vec::new();
-    let mut loaded: Vec<(&Path, Placements)> = Vec::new();
-    let mut instances = Vec::new();
-    let mut repeats = files
+    let listed_twice = files
         .iter()
         .enumerate()
         .any(|(k, f)| files[..k].iter().any(|g| g.file == f.file));
-    // Which placements of a file's meshes repeat one.
-    let repeated = |placements: &Placements| {
-        let mut used: Vec<u32> = placements.iter().map(|p| p.1).collect();
-        used.sort_unstable();
-        used.windows(2).any(|w| w[0] == w[1])
-    };
-    // Listed once each, only a glTF file's nodes can repeat a mesh: those files are read first
-    // (each into meshes of its own), and without a repeat nothing else is read (the caller
-    // loads the scene as placed; an OBJ or a grid listed beside a glTF was read twice).
-    let mut early: Vec<(&Path, Vec<Scene>, Placements)> = Vec::new();
-    if !repeats {
+    let mut early: Vec<(&Path, Shared)> = Vec::new();
+    if !listed_twice {
         for file in files.iter().filter(|f| is_gltf(&f.file)) {
-            let mut own = Vec::new();
-            let placements = read_file_shared(&file.file, &mut own)?;
-            repeats |= repeated(&placements);
-            early.push((&file.file, own, placements));
+            early.push((&file.file, read_gltf(&file.file)?));
         }
-        if !repeats {
-            return Ok(None);
+        if !early.iter().any(|(_, shared)| repeats(shared)) {
+            return load_scene_reading(files, early).map(Loaded::Copies);
         }
     }
+    let mut meshes: Vec<Scene> = Vec::new();
+    let mut loaded: Vec<(&Path, Placements)> = Vec::new();
+    let mut instances = Vec::new();
     for file in files {
         let k = match loaded.iter().position(|(path, _)| *path == file.file) {
             Some(k) => k,
             None => {
-                let placements = match early.iter().position(|(path, _, _)| *path == file.file) {
-                    // Read above: its meshes go after those before it, as if read here.
-                    Some(e) => {
-                        let (_, own, placements) = early.swap_remove(e);
-                        let base = meshes.len() as u32;
-                        meshes.extend(own);
-                        placements
-                            .into_iter()
-                            .map(|(name, mesh, world)| (name, base + mesh, world))
-                            .collect()
-                    }
+                // A glTF read above: its meshes go after those before it, as if read here.
+                let placements = match early.iter().position(|(path, _)| *path == file.file) {
+                    Some(e) => share(early.swap_remove(e).1, &mut meshes)?,
                     None => read_file_shared(&file.file, &mut meshes)?,
                 };
-                repeats |= repeated(&placements);
                 loaded.push((&file.file, placements));
                 loaded.len() - 1
             }
@@ -301,7 +299,26 @@ pub fn load_instanced(files: &[SceneFile]) -> Result<Option<(Vec<Scene>, Vec<Ins
             });
         }
     }
-    Ok(repeats.then_some((meshes, instances)))
+    Ok(Loaded::Instanced(meshes, instances))
+}
+
+/// Whether a placement's transform can place an instance: finite, not singular and affine. A
+/// node that flattens its mesh (a zero scale) places a copy instead (see [`share`]).
+fn instanceable(world: &glam::DMat4) -> bool {
+    let affine = [0, 1, 2].map(|r| world.row(r).to_array());
+    crate::scene::check_transform(&affine).is_ok() && world.row(3) == glam::DVec4::W
+}
+
+/// Whether two of a glTF file's instanceable placements place the same primitive.
+fn repeats(shared: &Shared) -> bool {
+    let mut used: Vec<usize> = shared
+        .placements()
+        .iter()
+        .filter(|p| instanceable(&p.world))
+        .map(|p| p.primitive)
+        .collect();
+    used.sort_unstable();
+    used.windows(2).any(|w| w[0] == w[1])
 }
 
 /// Whether `path` names a glTF file (`.gltf` or `.glb`, any case).
@@ -311,44 +328,59 @@ fn is_gltf(path: &Path) -> bool {
         .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"))
 }
 
+/// Reads the glTF file at `path`, each primitive once.
+fn read_gltf(path: &Path) -> Result<Shared> {
+    regular_file(path)?;
+    load_gltf_shared(path)
+}
+
+/// Puts a glTF file's primitives into `meshes` (each a scene of one object, in the mesh's
+/// coordinates) and returns its placements: name, mesh index and the transform that places it.
+fn share(shared: Shared, meshes: &mut Vec<Scene>) -> Result<Vec<(String, u32, glam::DMat4)>> {
+    let base = meshes.len() as u32;
+    let (primitives, placements) = shared.into_parts();
+    for primitive in primitives {
+        let mut scene = Scene::new();
+        scene.add_mesh(primitive.name, primitive.mesh)?;
+        meshes.push(scene);
+    }
+    let mut out = Vec::with_capacity(placements.len());
+    for placement in placements {
+        let mesh = base + placement.primitive as u32;
+        if instanceable(&placement.world) {
+            out.push((placement.name, mesh, placement.world));
+        } else {
+            // A node that flattens its mesh (a zero scale) places a copy, as loaded.
+            let source = &meshes[mesh as usize];
+            let copy = Mesh {
+                positions: source
+                    .positions()
+                    .iter()
+                    .map(|p| placement.world.transform_point3(*p))
+                    .collect(),
+                triangles: source.triangles().to_vec(),
+            };
+            let mut scene = Scene::new();
+            scene.add_mesh(placement.name.clone(), copy)?;
+            meshes.push(scene);
+            out.push((
+                placement.name,
+                meshes.len() as u32 - 1,
+                glam::DMat4::IDENTITY,
+            ));
+        }
+    }
+    Ok(out)
+}
+
 /// Reads `path`'s meshes into `meshes` (each a scene of one object, in the file's coordinates)
 /// and returns its objects' placements: name, mesh index and the transform that places it.
 fn read_file_shared(
     path: &Path,
     meshes: &mut Vec<Scene>,
 ) -> Result<Vec<(String, u32, glam::DMat4)>> {
-    let base = meshes.len() as u32;
     if is_gltf(path) {
-        regular_file(path)?;
-        let (primitives, placements) = load_gltf_shared(path)?;
-        for (name, mesh) in primitives {
-            let mut scene = Scene::new();
-            scene.add_mesh(name, mesh)?;
-            meshes.push(scene);
-        }
-        let mut out = Vec::with_capacity(placements.len());
-        for (name, primitive, world) in placements {
-            let affine = [0, 1, 2].map(|r| world.row(r).to_array());
-            if crate::scene::check_transform(&affine).is_ok() && world.row(3) == glam::DVec4::W {
-                out.push((name, base + primitive as u32, world));
-            } else {
-                // A node that flattens its mesh (a zero scale) places a copy, as loaded.
-                let source = &meshes[(base as usize) + primitive];
-                let copy = Mesh {
-                    positions: source
-                        .positions()
-                        .iter()
-                        .map(|p| world.transform_point3(*p))
-                        .collect(),
-                    triangles: source.triangles().to_vec(),
-                };
-                let mut scene = Scene::new();
-                scene.add_mesh(name.clone(), copy)?;
-                meshes.push(scene);
-                out.push((name, meshes.len() as u32 - 1, glam::DMat4::IDENTITY));
-            }
-        }
-        return Ok(out);
+        return share(read_gltf(path)?, meshes);
     }
     let mut out = Vec::new();
     for (name, mesh, grid, mirrored) in read_file(path)? {
@@ -369,6 +401,14 @@ fn read_file_shared(
 /// One object a file holds: its name, mesh, grid shape (for an elevation grid), and whether
 /// the file's own placement mirrors it (a glTF node with a negative determinant).
 type FileObject = (String, Mesh, Option<GridShape>, bool);
+
+/// A glTF file's placed objects ([`load_gltf_placed`]) as a file's objects.
+fn gltf_objects(placed: Vec<(String, Mesh, bool)>) -> Vec<FileObject> {
+    placed
+        .into_iter()
+        .map(|(name, mesh, mirrored)| (name, mesh, None, mirrored))
+        .collect()
+}
 
 /// Reads `path`'s objects.
 fn read_file(path: &Path) -> Result<Vec<FileObject>> {
@@ -391,10 +431,7 @@ fn read_file(path: &Path) -> Result<Vec<FileObject>> {
         Some("ply") => one(load_ply(path)?),
         Some("gz") if inner_extension.as_deref() == Some("ply") => one(load_ply(path)?),
         Some("stl") => one(load_stl(path)?),
-        Some("gltf" | "glb") => load_gltf_placed(path)?
-            .into_iter()
-            .map(|(object_name, mesh, mirrored)| (object_name, mesh, None, mirrored))
-            .collect(),
+        Some("gltf" | "glb") => gltf_objects(load_gltf_placed(path)?),
         Some("asc" | "tif" | "tiff") => {
             let grid = load_elevation(path)?;
             // The mesh: a vertex (24 bytes) and two triangles (2 × 12 bytes) per sample.

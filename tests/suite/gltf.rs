@@ -892,7 +892,7 @@ fn a_mirrored_node_keeps_its_front_faces_front() {
 
 #[test]
 fn nodes_sharing_a_mesh_load_as_instances_of_it_and_answer_as_the_copies() {
-    use raypick::io::scene_files::{SceneFile, load_instanced, load_scene};
+    use raypick::io::scene_files::{Loaded, SceneFile, load_instanced, load_scene};
     use raypick::{BuildOptions, BuiltScene, Cull, Picker, Query, Ray, ReferencePicker};
     use std::sync::Arc;
     let dir = TempDir::new();
@@ -914,9 +914,9 @@ fn nodes_sharing_a_mesh_load_as_instances_of_it_and_answer_as_the_copies() {
         mask: None,
         transform: None,
     }];
-    let (meshes, instances) = load_instanced(&files)
-        .unwrap()
-        .expect("a mesh placed three times is instanced");
+    let Loaded::Instanced(meshes, instances) = load_instanced(&files).unwrap() else {
+        panic!("a mesh placed three times is instanced");
+    };
     assert_eq!(meshes.len(), 1, "the mesh is stored once");
     assert_eq!(instances.len(), 3);
     let copies = load_scene(&files).unwrap();
@@ -1005,8 +1005,8 @@ fn a_file_that_places_no_triangle_says_so_once() {
 }
 
 #[test]
-fn a_description_without_repeats_reads_only_its_gltf_files_to_say_so() {
-    use raypick::io::scene_files::{SceneFile, load_instanced, load_scene};
+fn a_description_without_repeats_loads_as_copies_from_one_read_of_each_file() {
+    use raypick::io::scene_files::{Loaded, SceneFile, load_instanced, load_scene};
     let dir = TempDir::new();
     let (asset, mesh) = triangle_asset();
     let listing = |path: &std::path::Path| SceneFile {
@@ -1016,9 +1016,11 @@ fn a_description_without_repeats_reads_only_its_gltf_files_to_say_so() {
     };
     let once = dir.write_json(
         "once.gltf",
-        &asset.gltf(
-            json!({"meshes": [mesh.clone()], "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}]}),
-        ),
+        &asset.gltf(json!({
+            "meshes": [mesh.clone()],
+            "nodes": [{"mesh": 0, "scale": [-1.0, 1.0, 1.0]}],
+            "scenes": [{"nodes": [0]}]
+        })),
     );
     let twice = dir.write_json(
         "twice.gltf",
@@ -1028,14 +1030,26 @@ fn a_description_without_repeats_reads_only_its_gltf_files_to_say_so() {
             "scenes": [{"nodes": [0, 1]}]
         })),
     );
-    // An OBJ that cannot be read: nothing repeats, so it is not read here (the caller loads the
-    // scene as placed, and that read says what is wrong with it).
+    let names = |scene: &raypick::Scene| -> Vec<String> {
+        scene.objects().iter().map(|o| o.name.clone()).collect()
+    };
+    // Nothing repeats: the scene of copies, the same as `load_scene`'s (the mirrored node's
+    // triangle wound back), from the one read of the glTF file.
+    let good = dir.write("good.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let plain = [listing(&good), listing(&once)];
+    let Loaded::Copies(copies) = load_instanced(&plain).unwrap() else {
+        panic!("nothing repeats");
+    };
+    let direct = load_scene(&plain).unwrap();
+    assert_eq!(names(&copies), names(&direct));
+    assert_eq!(copies.positions(), direct.positions());
+    assert_eq!(copies.triangles(), direct.triangles());
+    // An OBJ that cannot be read: its own read says so, whichever way the scene is loaded.
     let bad = dir.write("bad.obj", b"v 0 0 0\nf 1 2 3\n");
-    assert!(
-        load_instanced(&[listing(&bad), listing(&once)])
-            .unwrap()
-            .is_none()
-    );
+    let Err(error) = load_instanced(&[listing(&bad), listing(&once)]) else {
+        panic!("the bad OBJ is read");
+    };
+    assert!(error.to_string().contains("bad.obj"), "{error}");
     assert!(load_scene(&[listing(&bad), listing(&once)]).is_err());
     // A glTF whose nodes share a mesh: everything is read, in the listing's order.
     let Err(error) = load_instanced(&[listing(&bad), listing(&twice)]) else {
@@ -1043,16 +1057,16 @@ fn a_description_without_repeats_reads_only_its_gltf_files_to_say_so() {
     };
     let message = error.to_string();
     assert!(message.contains("bad.obj"), "{message}");
-    let good = dir.write("good.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
     let files = [listing(&good), listing(&twice), listing(&once)];
-    let (meshes, instances) = load_instanced(&files).unwrap().expect("instanced");
+    let Loaded::Instanced(meshes, instances) = load_instanced(&files).unwrap() else {
+        panic!("instanced");
+    };
     // The OBJ's mesh first, then each glTF's, as read in order.
     assert_eq!(meshes.len(), 3);
     assert_eq!(meshes[0].objects()[0].name, good.display().to_string());
     let used: Vec<u32> = instances.iter().map(|i| i.mesh).collect();
     assert_eq!(used, [0, 1, 1, 2]);
     let copies = load_scene(&files).unwrap();
-    let names: Vec<&str> = copies.objects().iter().map(|o| o.name.as_str()).collect();
-    let instance_names: Vec<&str> = instances.iter().map(|i| i.name.as_str()).collect();
-    assert_eq!(instance_names, names);
+    let instance_names: Vec<String> = instances.iter().map(|i| i.name.clone()).collect();
+    assert_eq!(instance_names, names(&copies));
 }
