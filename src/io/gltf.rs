@@ -501,7 +501,6 @@ fn validate(root: &json::Root) -> Result<(), String> {
 }
 
 /// A primitive in its own frame: local positions and triangles.
-#[derive(Clone)]
 struct LocalPrimitive {
     positions: Vec<DVec3>,
     triangles: Vec<[u32; 3]>,
@@ -515,8 +514,7 @@ struct Instance {
     world: DMat4,
 }
 
-/// State of one load: the document, its buffers (loaded on first use) and
-/// the primitives read so far.
+/// State of one load: the document and its buffers (loaded on first use).
 struct Loader<'a> {
     file: &'a str,
     dir: PathBuf,

@@ -793,6 +793,19 @@ fn malformed_data_is_a_parse_error_not_a_panic() {
             asset.gltf(json!({"meshes": [mesh], "nodes": nodes, "scenes": [{"nodes": [0]}]})),
             "the world transform (parent · node) is not finite",
         ));
+        // A finite world transform (10¹⁰⁰ on each axis) that sends a vertex past f64's range.
+        let mut asset = Asset::default();
+        let positions = asset.positions(&[[0.0, 0.0, 0.0], [1e10, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        let mesh = json!({"name": "far", "primitives": [{"attributes": {"POSITION": positions}}]});
+        let mut nodes: Vec<Value> = (1..10)
+            .map(|child| json!({"scale": [1e30, 1e30, 1e30], "children": [child]}))
+            .collect();
+        nodes.push(json!({"mesh": 0, "scale": [1e30, 1e30, 1e30]}));
+        list.push((
+            "vertex_overflow",
+            asset.gltf(json!({"meshes": [mesh], "nodes": nodes, "scenes": [{"nodes": [0]}]})),
+            "mesh 0 ('far') primitive 0: vertex 1 [10000000000, 0, 0] is not finite after node 9's world transform",
+        ));
         list
     };
     for (name, doc, expected) in cases {
