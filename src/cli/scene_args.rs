@@ -192,7 +192,7 @@ impl SceneArgs {
         }
         let files = self.files(matches)?;
         if files.is_empty() {
-            return self.build_placed(matches, placement, &|_| Ok(()));
+            return self.build_loaded(example_scene(), start, &|_| Ok(()));
         }
         let loaded = super::progress::phase("loading the scene", || load_instanced(&files))?;
         let scene = match loaded {

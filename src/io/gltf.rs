@@ -165,11 +165,11 @@ pub fn load_gltf_placed(path: &Path) -> Result<Vec<(String, Mesh, bool)>, Error>
     load_gltf_shared(path)?.into_placed()
 }
 
-/// Parses and validates the file at `path`, then runs `load` over it.
-fn with_loader<T>(
-    path: &Path,
-    load: impl FnOnce(&mut Loader<'_>) -> Result<T, Error>,
-) -> Result<T, Error> {
+/// [`load_gltf_placed`] without copying: each primitive once, in its mesh's own coordinates, and
+/// every placement of it with its node's world transform, so that nodes sharing a mesh become
+/// instances of it. The placements name the objects as [`load_gltf_placed`] does, in its order.
+/// The file is parsed and validated first, with the same errors as [`load_gltf`].
+pub fn load_gltf_shared(path: &Path) -> Result<Shared, Error> {
     let name = path.display().to_string();
     let (mut file, length) = crate::io::open_regular(path)?;
     let json_length = glb_json_length(&mut file)
@@ -235,7 +235,7 @@ fn with_loader<T>(
         buffers: vec![None; document.buffers().len()],
         input_bytes: bytes.len() as u64,
     };
-    load(&mut loader)
+    loader.load_shared()
 }
 
 /// A glTF file's triangle primitives, each once in its mesh's coordinates, and their placements
@@ -348,13 +348,6 @@ impl Shared {
         }
         Ok(out)
     }
-}
-
-/// [`load_gltf_placed`] without copying: each primitive once, in its mesh's own coordinates, and
-/// every placement of it with its node's world transform, so that nodes sharing a mesh become
-/// instances of it. The placements name the objects as [`load_gltf_placed`] does, in its order.
-pub fn load_gltf_shared(path: &Path) -> Result<Shared, Error> {
-    with_loader(path, |loader| loader.load_shared())
 }
 
 /// The length of a GLB file's JSON chunk, from its header (the file left at its start); `None`
