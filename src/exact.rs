@@ -29,6 +29,22 @@ pub fn ray_triangle_f64(v: [DVec3; 3], origin: DVec3, dir: DVec3) -> TriangleHit
     if !scales(dir) {
         return test(v, origin, dir);
     }
+    let (dir, scale) = rescaled(dir);
+    let mut hit = test(v, origin, dir);
+    hit.t *= scale;
+    hit
+}
+
+/// The direction [`ray_triangle_f64`] tests `dir` with: `dir` itself, or `dir` scaled into
+/// range when it [`scales`]. The oracle's sweep tests many triangles with it at once.
+#[inline]
+pub fn tested_direction(dir: DVec3) -> DVec3 {
+    if scales(dir) { rescaled(dir).0 } else { dir }
+}
+
+/// `dir` multiplied by powers of two until its largest component is in range, and the product
+/// of those powers (which t is multiplied back by).
+fn rescaled(dir: DVec3) -> (DVec3, f64) {
     let (mut dir, mut scale) = (dir, 1.0);
     while dir.abs().max_element() >= SCALED_BEYOND {
         (dir, scale) = (dir * UNSCALE, scale * UNSCALE);
@@ -36,9 +52,7 @@ pub fn ray_triangle_f64(v: [DVec3; 3], origin: DVec3, dir: DVec3) -> TriangleHit
     while dir.abs().max_element() <= UNSCALE {
         (dir, scale) = (dir * SCALED_BEYOND, scale * SCALED_BEYOND);
     }
-    let mut hit = test(v, origin, dir);
-    hit.t *= scale;
-    hit
+    (dir, scale)
 }
 
 /// [`ray_triangle_f64`]'s test.

@@ -8,10 +8,10 @@ use super::read_rays;
 use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
 use raypick::check::compare::{Tally, compare_answers, differences};
-use raypick::check::oracle::brute_force_query;
+use raypick::check::oracle::brute_force_every;
 use raypick::check::synthetic::mixed_rays;
 use raypick::{
-    Answers, CpuPicker, Error, GpuContext, GpuPicker, Mode, Picker, Query, Ray, ReferencePicker,
+    Answers, CpuPicker, Error, GpuContext, GpuPicker, Picker, Query, Ray, ReferencePicker,
 };
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -161,21 +161,9 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     }
     println!("engine: {engine_name}");
     let oracle = if triangles as f64 * n <= args.oracle_budget {
-        let (answers, s) = super::progress::phase("brute force", || {
-            timed(|| Ok(brute_force_query(world, &rays, &query)))
+        let ((answers, every), s) = super::progress::phase("brute force", || {
+            timed(|| Ok(brute_force_every(world, &rays, &query)))
         })?;
-        let every = if query.mode == Mode::Any {
-            None
-        } else {
-            Some(brute_force_query(
-                world,
-                &rays,
-                &Query {
-                    mode: Mode::Any,
-                    ..query
-                },
-            ))
-        };
         println!("brute force: {} rays in {s:.3} s", rays.len());
         Some((answers, every))
     } else {
@@ -221,9 +209,7 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             .filter(|&i| labelled[i].0 == kind)
             .collect();
         let kind_rays: Vec<Ray> = idx.iter().map(|&i| rays[i]).collect();
-        let reference = oracle
-            .as_ref()
-            .map(|(a, every)| every.as_ref().unwrap_or(a).subset(&idx));
+        let reference = oracle.as_ref().map(|(_, every)| every.subset(&idx));
         let pair = |a: &Answers, b: &Answers| {
             compare_answers(
                 world,

@@ -10,15 +10,14 @@ use proptest::prelude::*;
 use raypick::bvh::binned_sah;
 use raypick::bvh::sah_cost::{TRAVERSAL_COST, TRIANGLE_COST, sah_cost};
 use raypick::check::compare::compare_answers;
-use raypick::check::oracle::brute_force_query;
+use raypick::check::oracle::brute_force_every;
 use raypick::check::synthetic::{
     RayKind, hills, mixed_rays, terrain, thin_and_degenerate, triangle_soup,
 };
 use raypick::io::obj::load_obj;
 use raypick::layout::{GpuNode, KIND_INNER};
 use raypick::{
-    Answers, BuildOptions, BuiltScene, Bvh, CpuPicker, Intersector, Mesh, Mode, Picker, Query, Ray,
-    Scene,
+    Answers, BuildOptions, BuiltScene, Bvh, CpuPicker, Intersector, Mesh, Picker, Query, Ray, Scene,
 };
 use std::path::Path;
 use std::sync::Arc;
@@ -102,15 +101,7 @@ fn assert_sah_agrees_on_cpu(
                 .expect("cpu query")
         };
         let (sah_answers, median_answers) = (answer(&sah), answer(&median));
-        let oracle = brute_force_query(&sah.scene, &plain, &query);
-        let every_hit = brute_force_query(
-            &sah.scene,
-            &plain,
-            &Query {
-                mode: Mode::Any,
-                ..query
-            },
-        );
+        let (oracle, every_hit) = brute_force_every(&sah.scene, &plain, &query);
         for kind in RayKind::ALL {
             let idx: Vec<usize> = (0..rays.len()).filter(|&i| rays[i].0 == kind).collect();
             if idx.is_empty() {

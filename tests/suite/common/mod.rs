@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use raypick::check::compare::{compare_answers, differences};
-use raypick::check::oracle::brute_force_query;
+use raypick::check::oracle::brute_force_every;
 use raypick::check::synthetic::{RayKind, mixed_rays};
 use raypick::engine::Simd;
 use raypick::{
@@ -155,15 +155,7 @@ pub fn assert_query_equivalent(
             plain[differ[0]]
         );
     }
-    let oracle = brute_force_query(scene, &plain, query);
-    let every_hit = brute_force_query(
-        scene,
-        &plain,
-        &Query {
-            mode: Mode::Any,
-            ..*query
-        },
-    );
+    let (oracle, every_hit) = brute_force_every(scene, &plain, query);
     let mut failures = Vec::new();
     for kind in RayKind::ALL {
         let idx: Vec<usize> = (0..rays.len()).filter(|&i| rays[i].0 == kind).collect();
