@@ -153,13 +153,24 @@ pub fn brute_force_query(scene: &Scene, rays: &[Ray], query: &Query) -> Answers 
 /// (no `max_hits` cut in [`Mode::All`]): what the comparisons judge an any-hit or a cut list
 /// against. One brute force for both.
 pub fn brute_force_every(scene: &Scene, rays: &[Ray], query: &Query) -> (Answers, Answers) {
+    brute_force_reporting(scene, rays, query, |_| ())
+}
+
+/// [`brute_force_every`], calling `done(k)` each time another `k` rays are answered (from any
+/// thread): for a progress bar over a brute force of minutes.
+pub fn brute_force_reporting(
+    scene: &Scene,
+    rays: &[Ray],
+    query: &Query,
+    done: impl Fn(usize) + Sync,
+) -> (Answers, Answers) {
     let all = OracleTriangles::new(scene);
     let per_ray: Vec<(Hit, Vec<Hit>)> = rays
         .par_chunks(RAYS_PER_SWEEP)
         .flat_map_iter(|block| {
             let valid: Vec<Ray> = block.iter().copied().filter(Ray::is_valid).collect();
             let mut lists = all_hits_of_block(scene, &all, &valid, query.cull).into_iter();
-            block
+            let answers = block
                 .iter()
                 .map(|ray| {
                     if !ray.is_valid() {
@@ -168,7 +179,9 @@ pub fn brute_force_every(scene: &Scene, rays: &[Ray], query: &Query) -> (Answers
                     let hits = lists.next().expect("one list per valid ray");
                     (nearest(&all, ray, hits.first().copied()), hits)
                 })
-                .collect::<Vec<_>>()
+                .collect::<Vec<_>>();
+            done(block.len());
+            answers
         })
         .collect();
     let k = if query.mode == Mode::All {

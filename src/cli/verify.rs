@@ -8,7 +8,7 @@ use super::read_rays;
 use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
 use raypick::check::compare::{Tally, compare_answers, differences};
-use raypick::check::oracle::brute_force_every;
+use raypick::check::oracle::brute_force_reporting;
 use raypick::check::synthetic::mixed_rays;
 use raypick::{
     Answers, CpuPicker, Error, GpuContext, GpuPicker, Picker, Query, Ray, ReferencePicker,
@@ -162,9 +162,13 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     }
     println!("engine: {engine_name}");
     let oracle = if triangles as f64 * n <= args.oracle_budget {
-        let ((answers, every), s) = super::progress::phase("brute force", || {
-            timed(|| Ok(brute_force_every(world, &rays, &query)))
+        let bar = super::progress::rays_bar(rays.len() as u64, "brute force");
+        let ((answers, every), s) = timed(|| {
+            Ok(brute_force_reporting(world, &rays, &query, |k| {
+                bar.inc(k as u64)
+            }))
         })?;
+        bar.finish_and_clear();
         println!("brute force: {} rays in {s:.3} s", rays.len());
         Some((answers, every))
     } else {
