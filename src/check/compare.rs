@@ -175,8 +175,86 @@ pub fn classify_lists(scene: &Scene, ray: &Ray, a: (&[Hit], bool), b: (&[Hit], b
     verdict
 }
 
+/// Whether an all-hits list's count agrees with `every`, all the ray's hits (the oracle's, in
+/// f64): a list that `overflowed` held more hits than it kept, one that did not held exactly
+/// those. The counts may differ by hits within f32 reach of an edge or a range end
+/// ([`near_boundary`]), which a path in f32 may count where the oracle does not, or the other
+/// way round: those of `every` and of the list. A list that overflowed may also owe its last
+/// hit, unseen, to a triangle beyond its last kept one that the ray passes within reach of an
+/// edge. Past those, a difference is a wrong count: a list that claims more hits than there
+/// are, or hides some.
+pub fn classify_count(
+    scene: &Scene,
+    ray: &Ray,
+    kept: &[Hit],
+    overflowed: bool,
+    every: &[Hit],
+) -> Verdict {
+    let (n, all) = (kept.len(), every.len());
+    let agrees = if overflowed { all > n } else { all == n };
+    if agrees {
+        return Verdict::Same;
+    }
+    let ties = |hits: &[Hit]| hits.iter().filter(|h| near_boundary(scene, ray, h)).count();
+    let ties = ties(every) + ties(kept);
+    let explained = if overflowed {
+        // It counted at least one more than it kept.
+        all + ties > n
+            || kept
+                .last()
+                .is_some_and(|last| edge_within_reach_from(scene, ray, last.t))
+    } else {
+        all.abs_diff(n) <= ties
+    };
+    if explained {
+        Verdict::Boundary
+    } else {
+        Verdict::Mismatch
+    }
+}
+
+/// Whether `ray`, at t from `from` (less the tolerance on t) within its range, passes within f32
+/// reach of an edge of any triangle ([`near_boundary`]), hit in f64 or not: where a path may
+/// count a hit the oracle does not. Every triangle is tested: for the rare list whose count
+/// nothing else explains.
+fn edge_within_reach_from(scene: &Scene, ray: &Ray, from: f64) -> bool {
+    let unbounded = Ray {
+        tmin: f64::NEG_INFINITY,
+        tmax: f64::INFINITY,
+        ..*ray
+    };
+    (0..scene.triangle_count())
+        .filter(|&i| !scene.is_degenerate(i))
+        .any(|i| {
+            let h = crate::exact::ray_triangle_f64(scene.world_triangle(i), ray.origin, ray.dir);
+            let tolerance = t_tolerance(scene, ray, h.t);
+            if !(h.t.is_finite()
+                && h.t >= from - tolerance
+                && h.t > ray.tmin - tolerance
+                && h.t <= ray.tmax + tolerance)
+            {
+                return false;
+            }
+            let (object, triangle) = scene.locate(i as u32);
+            // As the oracle reports it: a mirrored object's u and v swapped.
+            let mirrored = scene.objects()[object as usize].mirrored;
+            let (u, v) = if mirrored { (h.v, h.u) } else { (h.u, h.v) };
+            let near = Hit {
+                hit: true,
+                t: h.t,
+                object,
+                triangle,
+                u,
+                v,
+                ..Hit::MISS
+            };
+            near_boundary(scene, &unbounded, &near)
+        })
+}
+
 /// Compares two batches of answers to the same query, ray by ray. `reference_lists` (all hits
-/// per ray, e.g. the oracle's) backs any-hit ties. Returns the tally and the mismatching rays.
+/// per ray, e.g. the oracle's) backs any-hit ties and checks all-hits counts
+/// ([`classify_count`]). Returns the tally and the mismatching rays.
 pub fn compare_answers(
     scene: &Scene,
     rays: &[Ray],
@@ -205,12 +283,26 @@ pub fn compare_answers(
                 if x.invalid != y.invalid {
                     Verdict::Mismatch
                 } else {
-                    classify_lists(
+                    let lists = classify_lists(
                         scene,
                         ray,
                         (a.hits_of(i), a.overflow[i]),
                         (b.hits_of(i), b.overflow[i]),
-                    )
+                    );
+                    // With every hit at hand, each side's count (its overflow flag) is checked
+                    // too: the lists alone cannot tell a list cut one short of its last hit.
+                    let count = |side: &Answers| {
+                        reference_lists.map_or(Verdict::Same, |r| {
+                            classify_count(
+                                scene,
+                                ray,
+                                side.hits_of(i),
+                                side.overflow[i],
+                                r.hits_of(i),
+                            )
+                        })
+                    };
+                    lists.max(count(a)).max(count(b))
                 }
             }
         };

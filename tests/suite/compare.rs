@@ -145,6 +145,64 @@ fn all_hits_lists_that_overflowed_are_compared_up_to_their_last_hit() {
     }
 }
 
+/// An all-hits list's count is checked against every hit: the lists alone agree on a list
+/// cut one short without its overflow flag (two of three hits, "no more") against the oracle's
+/// two with the flag, and on a list that claims more hits than there are. With every hit at hand
+/// both are mismatches; the right counts are not, and a count off by a hit at a shared edge is
+/// a tie.
+#[test]
+fn all_hits_counts_are_checked_against_every_hit() {
+    use raypick::check::compare::{classify_count, classify_lists};
+    let scene = raypick::check::synthetic::example_scene();
+    let ray = Ray::new(DVec3::new(33.3, 45.1, 100.0), DVec3::NEG_Z);
+    let every = every_hit(&scene, &ray);
+    let (k2, k3) = (&every[..2], &every[..3]);
+    let count =
+        |kept: &[Hit], overflowed: bool| classify_count(&scene, &ray, kept, overflowed, &every);
+    // Right: two kept of three, overflowed; all three, not.
+    assert_eq!(count(k2, true), Verdict::Same);
+    assert_eq!(count(k3, false), Verdict::Same);
+    // Wrong, and the lists alone do not see it.
+    assert_eq!(
+        classify_lists(&scene, &ray, (k2, false), (k2, true)),
+        Verdict::Same
+    );
+    assert_eq!(
+        count(k2, false),
+        Verdict::Mismatch,
+        "two of three, no overflow"
+    );
+    assert_eq!(
+        classify_lists(&scene, &ray, (k3, true), (k3, false)),
+        Verdict::Same
+    );
+    assert_eq!(
+        count(k3, true),
+        Verdict::Mismatch,
+        "three of three, overflowed"
+    );
+
+    // A ray down through the shared edge of two triangles: the oracle finds both, a path may
+    // count one.
+    let mut flat = Scene::new();
+    flat.add_mesh(
+        "square",
+        raypick::check::synthetic::terrain(2, 2, 0.0, 1.0, 1.0, |_, _| 0.0),
+    )
+    .unwrap();
+    let edge = Ray::new(DVec3::new(0.5, 0.5, 10.0), DVec3::NEG_Z);
+    let both = every_hit(&flat, &edge);
+    assert_eq!(both.len(), 2, "{both:?}");
+    assert_eq!(
+        classify_count(&flat, &edge, &both[..1], false, &both),
+        Verdict::Boundary
+    );
+    assert_eq!(
+        classify_count(&flat, &edge, &both[..1], true, &both),
+        Verdict::Same
+    );
+}
+
 /// A hit a hair past the ray's origin, nearer than f32 can place it, against a miss is a tie at
 /// `tmin` whatever the length of the direction: the tolerance on t had a floor of one unit of
 /// t, which along a direction 10⁻³⁰⁰ long is 10⁻³⁰⁵ world units, so a ray starting 10⁻³⁰⁰
