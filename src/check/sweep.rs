@@ -52,8 +52,9 @@ impl Edges {
 
     /// For each ray `(origin, dir)` of `rays`, the indices of the triangles whose u and v the
     /// exact test finds inside (u ≥ 0, v ≥ 0, u + v ≤ 1), in increasing order, appended to the
-    /// ray's list in `out`. A triangle whose plane the ray parallels may be listed too (u or v
-    /// infinite or NaN are never inside; 0 / 0 is NaN): a candidate, not an answer.
+    /// ray's list in `out`: candidates, not answers (the range, mask and cull are the exact
+    /// test's to judge). A triangle whose plane the ray parallels (det = 0, a miss for the exact
+    /// test) is never listed: its u or v is infinite or NaN, never inside.
     pub fn candidates(&self, rays: &[(DVec3, DVec3)], out: &mut [Vec<u32>]) {
         let dirs: Vec<DVec3> = rays.iter().map(|&(_, dir)| tested_direction(dir)).collect();
         let mut inside = [false; CHUNK];
