@@ -20,6 +20,11 @@ pub struct OracleTriangles {
 }
 
 impl OracleTriangles {
+    /// Bytes held per triangle: its world corners, scene index and mask, and its edges for the
+    /// sweep.
+    pub const BYTES_PER_TRIANGLE: u64 =
+        (size_of::<([DVec3; 3], u32, u32)>() + 9 * size_of::<f64>()) as u64;
+
     /// Collects every non-degenerate triangle of `scene`.
     pub fn new(scene: &Scene) -> Self {
         let triangles: Vec<_> = (0..scene.triangle_count())

@@ -8,7 +8,7 @@ use super::read_rays;
 use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
 use raypick::check::compare::{Tally, compare_answers, differences};
-use raypick::check::oracle::brute_force_reporting;
+use raypick::check::oracle::{OracleTriangles, brute_force_reporting};
 use raypick::check::synthetic::mixed_rays;
 use raypick::{
     Answers, CpuPicker, Error, GpuContext, GpuPicker, Picker, Query, Ray, ReferencePicker,
@@ -161,7 +161,17 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         );
     }
     println!("engine: {engine_name}");
-    let oracle = if triangles as f64 * n <= args.oracle_budget {
+    // The oracle's own copy of the triangles must fit the memory budget too: a baked field of
+    // instances can be tens of millions of triangles.
+    let room = raypick::budget::check(
+        "the oracle's copy of the triangles",
+        triangles as u64,
+        OracleTriangles::BYTES_PER_TRIANGLE,
+    );
+    let oracle = if let Err(e) = room {
+        println!("brute force: skipped ({e})");
+        None
+    } else if triangles as f64 * n <= args.oracle_budget {
         let bar = super::progress::rays_bar(rays.len() as u64, "brute force");
         let ((answers, every), s) = timed(|| {
             Ok(brute_force_reporting(world, &rays, &query, |k| {

@@ -404,6 +404,26 @@ fn verify_reports_zero_mismatches_on_the_example() {
     }
 }
 
+/// The oracle's own copy of the triangles is sized against `--max-memory` before it is made:
+/// over the budget, `verify` says so and compares the paths without it; within it, the oracle
+/// runs (its line and the brute force's time).
+#[test]
+fn verify_skips_the_oracle_whose_triangles_are_over_the_memory_budget() {
+    let (code, out, err) = raypick(&["verify", "--random", "100", "--max-memory", "2M"]);
+    assert_eq!(code, 0, "{out}\n{err}");
+    assert!(
+        out.contains("brute force: skipped (the oracle's copy of the triangles would need"),
+        "{out}"
+    );
+    assert!(
+        out.contains("100 rays, 0 differences, 0 mismatches"),
+        "{out}"
+    );
+    let (code, out, err) = raypick(&["verify", "--random", "100", "--max-memory", "64M"]);
+    assert_eq!(code, 0, "{out}\n{err}");
+    assert!(out.contains("brute force: 100 rays in"), "{out}");
+}
+
 #[test]
 fn modes_culling_masks_and_ranges_on_the_command_line() {
     // Through the tower's roof away from every edge, then its floor and the terrain.
