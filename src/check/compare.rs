@@ -175,14 +175,17 @@ pub fn classify_lists(scene: &Scene, ray: &Ray, a: (&[Hit], bool), b: (&[Hit], b
     verdict
 }
 
-/// Whether an all-hits list's count agrees with `every`, all the ray's hits (the oracle's, in
-/// f64): a list that `overflowed` held more hits than it kept, one that did not held exactly
-/// those. The counts may differ by hits within f32 reach of an edge or a range end
-/// ([`near_boundary`]), which a path in f32 may count where the oracle does not, or the other
-/// way round: those of `every` and of the list. A list that overflowed may also owe its last
-/// hit, unseen, to a triangle beyond its last kept one that the ray passes within reach of an
-/// edge. Past those, a difference is a wrong count: a list that claims more hits than there
-/// are, or hides some.
+/// Whether an all-hits list, `kept` (and whether it `overflowed`: held more hits than it kept),
+/// counts the ray's hits as `every`, all of them (the oracle's, in f64), does. The two are paired
+/// as [`classify_lists`] pairs lists: the same triangles, then equal t (a shared edge). A hit left
+/// on either side without a partner is a tie only within f32 reach of an edge or a range end
+/// ([`near_boundary`]), and a hit of `every` past a list that overflowed needs none. A list that
+/// overflowed claims one hit more than it kept: one of `every` past its last kept hit, or else a
+/// triangle passed within reach of an edge (or hit within reach of a range end) past it, which the
+/// list may count where the oracle does not. Past those, the count is wrong: a list cut short
+/// without its flag, or a flag on a list that held every hit. The check is the lists' against
+/// every hit, not the cut one: [`classify_lists`] against the oracle's own cut list cannot see a
+/// list one short of its last hit.
 pub fn classify_count(
     scene: &Scene,
     ray: &Ray,
@@ -190,41 +193,72 @@ pub fn classify_count(
     overflowed: bool,
     every: &[Hit],
 ) -> Verdict {
-    let (n, all) = (kept.len(), every.len());
-    let agrees = if overflowed { all > n } else { all == n };
-    if agrees {
-        return Verdict::Same;
-    }
-    let ties = |hits: &[Hit]| hits.iter().filter(|h| near_boundary(scene, ray, h)).count();
-    let ties = ties(every) + ties(kept);
-    let explained = if overflowed {
-        // It counted at least one more than it kept.
-        all + ties > n
-            || kept
-                .last()
-                .is_some_and(|last| edge_within_reach_from(scene, ray, last.t))
-    } else {
-        all.abs_diff(n) <= ties
+    // How far along the ray the list holds every hit.
+    let horizon = match kept.last() {
+        Some(last) if overflowed => last.t - t_tolerance(scene, ray, last.t),
+        Some(_) => f64::INFINITY,
+        None if overflowed => f64::NEG_INFINITY,
+        None => f64::INFINITY,
     };
-    if explained {
-        Verdict::Boundary
-    } else {
-        Verdict::Mismatch
+    let mut used = vec![false; every.len()];
+    let mut paired = vec![false; kept.len()];
+    for (x, done) in kept.iter().zip(&mut paired) {
+        let same = (0..every.len())
+            .find(|&j| !used[j] && (every[j].object, every[j].triangle) == (x.object, x.triangle));
+        if let Some(j) = same {
+            (used[j], *done) = (true, true);
+        }
     }
+    let mut verdict = Verdict::Same;
+    for (x, _) in kept.iter().zip(&paired).filter(|(_, done)| !**done) {
+        let edge = (0..every.len())
+            .find(|&j| !used[j] && (every[j].t - x.t).abs() <= t_tolerance(scene, ray, x.t));
+        match edge {
+            Some(j) => {
+                used[j] = true;
+                verdict = verdict.max(Verdict::SharedEdge);
+            }
+            None if near_boundary(scene, ray, x) => verdict = verdict.max(Verdict::Boundary),
+            None => return Verdict::Mismatch,
+        }
+    }
+    let mut beyond = false;
+    for (h, _) in every.iter().zip(&used).filter(|(_, u)| !**u) {
+        if h.t >= horizon {
+            beyond = true;
+        } else if near_boundary(scene, ray, h) {
+            verdict = verdict.max(Verdict::Boundary);
+        } else {
+            return Verdict::Mismatch;
+        }
+    }
+    if overflowed && !beyond {
+        let from = kept.last().map_or(f64::NEG_INFINITY, |last| last.t);
+        if !edge_within_reach_from(scene, ray, from, kept) {
+            return Verdict::Mismatch;
+        }
+        verdict = verdict.max(Verdict::Boundary);
+    }
+    verdict
 }
 
-/// Whether `ray`, at t from `from` (less the tolerance on t) within its range, passes within f32
-/// reach of an edge of any triangle ([`near_boundary`]), hit in f64 or not: where a path may
-/// count a hit the oracle does not. Every triangle is tested: for the rare list whose count
-/// nothing else explains.
-fn edge_within_reach_from(scene: &Scene, ray: &Ray, from: f64) -> bool {
+/// Whether `ray`, at t from `from` (less the tolerance on t), passes a triangle not among
+/// `kept`'s that shares a bit of its mask where a path in f32 may count a hit the oracle does not: within reach of one
+/// of its edges ([`near_boundary`]) with t in the ray's range (within the tolerance), or through
+/// it within reach of a range end. Every triangle is tested, on all cores: this runs only for a
+/// list whose last counted hit nothing else explains. (Culling is not applied: a tie it
+/// would have culled is let pass.)
+fn edge_within_reach_from(scene: &Scene, ray: &Ray, from: f64, kept: &[Hit]) -> bool {
+    use rayon::prelude::*;
     let unbounded = Ray {
         tmin: f64::NEG_INFINITY,
         tmax: f64::INFINITY,
         ..*ray
     };
     (0..scene.triangle_count())
-        .filter(|&i| !scene.is_degenerate(i))
+        .into_par_iter()
+        .with_min_len(4096)
+        .filter(|&i| !scene.is_degenerate(i) && scene.triangle_mask(i as u32) & ray.mask != 0)
         .any(|i| {
             let h = crate::exact::ray_triangle_f64(scene.world_triangle(i), ray.origin, ray.dir);
             let tolerance = t_tolerance(scene, ray, h.t);
@@ -236,6 +270,12 @@ fn edge_within_reach_from(scene: &Scene, ray: &Ray, from: f64) -> bool {
                 return false;
             }
             let (object, triangle) = scene.locate(i as u32);
+            if kept
+                .iter()
+                .any(|k| (k.object, k.triangle) == (object, triangle))
+            {
+                return false;
+            }
             // As the oracle reports it: a mirrored object's u and v swapped.
             let mirrored = scene.objects()[object as usize].mirrored;
             let (u, v) = if mirrored { (h.v, h.u) } else { (h.u, h.v) };
@@ -248,7 +288,8 @@ fn edge_within_reach_from(scene: &Scene, ray: &Ray, from: f64) -> bool {
                 v,
                 ..Hit::MISS
             };
-            near_boundary(scene, &unbounded, &near)
+            // Through the triangle: a tie at a range end too; beside it, only at an edge.
+            near_boundary(scene, if h.hit { ray } else { &unbounded }, &near)
         })
 }
 

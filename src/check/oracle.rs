@@ -27,16 +27,20 @@ impl OracleTriangles {
 
     /// Collects every non-degenerate triangle of `scene`.
     pub fn new(scene: &Scene) -> Self {
-        let triangles: Vec<_> = (0..scene.triangle_count())
-            .filter(|&i| !scene.is_degenerate(i))
-            .map(|i| {
-                (
-                    scene.world_triangle(i),
-                    i as u32,
-                    scene.triangle_mask(i as u32),
-                )
-            })
-            .collect();
+        // Room for every triangle at once: collected from a filter, the vector would grow by
+        // doubling, to twice what `BYTES_PER_TRIANGLE` counts.
+        let mut triangles = Vec::with_capacity(scene.triangle_count());
+        triangles.extend(
+            (0..scene.triangle_count())
+                .filter(|&i| !scene.is_degenerate(i))
+                .map(|i| {
+                    (
+                        scene.world_triangle(i),
+                        i as u32,
+                        scene.triangle_mask(i as u32),
+                    )
+                }),
+        );
         Self {
             edges: Edges::new(triangles.iter().map(|t| t.0)),
             triangles,

@@ -241,7 +241,16 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         };
         let engine_diff = differ(engine_answers);
         let gpu_diff = gpu_answers.map(differ);
-        let base = pair(reference_answers, reference_answers);
+        // The kind's rays, hits and invalid rays (the twin against itself: no oracle needed).
+        let base = compare_answers(
+            world,
+            &kind_rays,
+            query.mode,
+            &reference_answers.subset(&idx),
+            &reference_answers.subset(&idx),
+            None,
+        )
+        .0;
         let against = |a: &Answers| oracle.as_ref().map(|(o, _)| pair(a, o));
         let (eo, go, ro) = (
             against(engine_answers),

@@ -201,6 +201,47 @@ fn all_hits_counts_are_checked_against_every_hit() {
         classify_count(&flat, &edge, &both[..1], true, &both),
         Verdict::Same
     );
+    // Hits at an edge explain only themselves: both triangles kept and a flag claiming a third
+    // hit that no triangle offers, or a list one short of a hit away from every edge.
+    assert_eq!(
+        classify_count(&flat, &edge, &both, true, &both),
+        Verdict::Mismatch
+    );
+    assert_eq!(
+        classify_count(&flat, &edge, &both, false, &both),
+        Verdict::Same
+    );
+    let mut tower_and_square = raypick::check::synthetic::example_scene();
+    tower_and_square
+        .add_mesh(
+            "square",
+            raypick::check::synthetic::terrain(2, 2, 33.0, 45.6, 1.0, |_, _| -50.0),
+        )
+        .unwrap();
+    let down = Ray::new(DVec3::new(33.5, 45.1, 100.0), DVec3::NEG_Z);
+    let hits = every_hit(&tower_and_square, &down);
+    assert_eq!(
+        hits.len(),
+        5,
+        "roof, terrain, floor, the square's two at its diagonal: {hits:?}"
+    );
+    assert!(hits[3].t == hits[4].t && hits[3].object == 3, "{hits:?}");
+    let count = |kept: &[Hit], overflowed: bool| {
+        classify_count(&tower_and_square, &down, kept, overflowed, &hits)
+    };
+    assert_eq!(count(&hits, false), Verdict::Same);
+    assert_eq!(count(&hits[..4], true), Verdict::Same);
+    assert_eq!(
+        count(&hits[..4], false),
+        Verdict::Boundary,
+        "one of two at an edge"
+    );
+    let without_second = [hits[0], hits[2], hits[3], hits[4]];
+    assert_eq!(
+        count(&without_second, false),
+        Verdict::Mismatch,
+        "a hit away from edges"
+    );
 }
 
 /// A hit a hair past the ray's origin, nearer than f32 can place it, against a miss is a tie at
