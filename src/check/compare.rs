@@ -131,37 +131,20 @@ pub fn classify_lists(scene: &Scene, ray: &Ray, a: (&[Hit], bool), b: (&[Hit], b
     };
     let (a_complete, b_complete) = (complete(a), complete(b));
     let (a, b) = (a.0, b.0);
-    // The same triangles pair up first, then what is left by equal t: pairing by t first let a
-    // hit at a vertex take another object's hit at the same t away from its own partner.
-    let mut used = vec![false; b.len()];
-    let mut paired = vec![false; a.len()];
-    for (x, done) in a.iter().zip(&mut paired) {
-        let same = (0..b.len())
-            .find(|&j| !used[j] && (b[j].object, b[j].triangle) == (x.object, x.triangle));
-        if let Some(j) = same {
-            (used[j], *done) = (true, true);
-        }
-    }
-    let mut verdict = Verdict::Same;
-    let mut unmatched: Vec<(&Hit, f64)> = Vec::new();
-    for (x, _) in a.iter().zip(&paired).filter(|(_, done)| !**done) {
-        let edge = (0..b.len())
-            .find(|&j| !used[j] && (b[j].t - x.t).abs() <= t_tolerance(scene, ray, x.t));
-        match edge {
-            Some(j) => {
-                used[j] = true;
-                verdict = verdict.max(Verdict::SharedEdge);
-            }
-            None => unmatched.push((x, b_complete)),
-        }
-    }
-    unmatched.extend(
-        b.iter()
-            .zip(&used)
-            .filter(|(_, u)| !**u)
-            .map(|(h, _)| (h, a_complete)),
-    );
-    for (h, other_complete) in unmatched {
+    let (a_paired, b_paired, by_t) = pair_hits(scene, ray, a, b);
+    let mut verdict = if by_t {
+        Verdict::SharedEdge
+    } else {
+        Verdict::Same
+    };
+    // Each hit left without a partner, with how far the other list holds every hit.
+    let unmatched = a
+        .iter()
+        .zip(&a_paired)
+        .map(|(h, &p)| (h, p, b_complete))
+        .chain(b.iter().zip(&b_paired).map(|(h, &p)| (h, p, a_complete)))
+        .filter(|&(_, paired, _)| !paired);
+    for (h, _, other_complete) in unmatched {
         if h.t >= other_complete {
             // Past the other list's last kept hit: it could not hold this one.
             continue;
@@ -173,6 +156,34 @@ pub fn classify_lists(scene: &Scene, ray: &Ray, a: (&[Hit], bool), b: (&[Hit], b
         }
     }
     verdict
+}
+
+/// Two lists' hits paired as the comparisons pair them: the same triangles first, then what is
+/// left by equal t (within the tolerance on t: a shared edge); pairing by t first let a hit at a
+/// vertex take another object's hit at the same t away from its own partner. Returns which hits
+/// of `a` and of `b` found a partner, and whether any pair was made by t.
+fn pair_hits(scene: &Scene, ray: &Ray, a: &[Hit], b: &[Hit]) -> (Vec<bool>, Vec<bool>, bool) {
+    let mut used = vec![false; b.len()];
+    let mut paired = vec![false; a.len()];
+    for (x, done) in a.iter().zip(&mut paired) {
+        let same = (0..b.len())
+            .find(|&j| !used[j] && (b[j].object, b[j].triangle) == (x.object, x.triangle));
+        if let Some(j) = same {
+            (used[j], *done) = (true, true);
+        }
+    }
+    let mut by_t = false;
+    for (x, done) in a.iter().zip(&mut paired) {
+        if *done {
+            continue;
+        }
+        let edge = (0..b.len())
+            .find(|&j| !used[j] && (b[j].t - x.t).abs() <= t_tolerance(scene, ray, x.t));
+        if let Some(j) = edge {
+            (used[j], *done, by_t) = (true, true, true);
+        }
+    }
+    (paired, used, by_t)
 }
 
 /// Whether an all-hits list, `kept` (and whether it `overflowed`: held more hits than it kept),
@@ -200,30 +211,21 @@ pub fn classify_count(
         None if overflowed => f64::NEG_INFINITY,
         None => f64::INFINITY,
     };
-    let mut used = vec![false; every.len()];
-    let mut paired = vec![false; kept.len()];
-    for (x, done) in kept.iter().zip(&mut paired) {
-        let same = (0..every.len())
-            .find(|&j| !used[j] && (every[j].object, every[j].triangle) == (x.object, x.triangle));
-        if let Some(j) = same {
-            (used[j], *done) = (true, true);
-        }
-    }
-    let mut verdict = Verdict::Same;
-    for (x, _) in kept.iter().zip(&paired).filter(|(_, done)| !**done) {
-        let edge = (0..every.len())
-            .find(|&j| !used[j] && (every[j].t - x.t).abs() <= t_tolerance(scene, ray, x.t));
-        match edge {
-            Some(j) => {
-                used[j] = true;
-                verdict = verdict.max(Verdict::SharedEdge);
-            }
-            None if near_boundary(scene, ray, x) => verdict = verdict.max(Verdict::Boundary),
-            None => return Verdict::Mismatch,
+    let (kept_paired, every_paired, by_t) = pair_hits(scene, ray, kept, every);
+    let mut verdict = if by_t {
+        Verdict::SharedEdge
+    } else {
+        Verdict::Same
+    };
+    for (x, _) in kept.iter().zip(&kept_paired).filter(|(_, p)| !**p) {
+        if near_boundary(scene, ray, x) {
+            verdict = verdict.max(Verdict::Boundary);
+        } else {
+            return Verdict::Mismatch;
         }
     }
     let mut beyond = false;
-    for (h, _) in every.iter().zip(&used).filter(|(_, u)| !**u) {
+    for (h, _) in every.iter().zip(&every_paired).filter(|(_, p)| !**p) {
         if h.t >= horizon {
             beyond = true;
         } else if near_boundary(scene, ray, h) {
