@@ -245,11 +245,11 @@ pub fn classify_count(
 }
 
 /// Whether `ray`, at t from `from` (less the tolerance on t), passes a triangle not among
-/// `kept`'s that shares a bit of its mask where a path in f32 may count a hit the oracle does not: within reach of one
-/// of its edges ([`near_boundary`]) with t in the ray's range (within the tolerance), or through
-/// it within reach of a range end. Every triangle is tested, on all cores: this runs only for a
-/// list whose last counted hit nothing else explains. (Culling is not applied: a tie it
-/// would have culled is let pass.)
+/// `kept`'s that shares a bit of its mask where a path in f32 may count a hit the oracle does
+/// not: within reach of one of its edges ([`near_boundary`]) with t in the ray's range (within
+/// the tolerance), or through it within reach of a range end. Every triangle is tested, on all
+/// cores: this runs only for a list whose last counted hit nothing else explains. (Culling is
+/// not applied: a tie it would have culled is let pass.)
 fn edge_within_reach_from(scene: &Scene, ray: &Ray, from: f64, kept: &[Hit]) -> bool {
     use rayon::prelude::*;
     let unbounded = Ray {
@@ -271,16 +271,13 @@ fn edge_within_reach_from(scene: &Scene, ray: &Ray, from: f64, kept: &[Hit]) -> 
             {
                 return false;
             }
-            let (object, triangle) = scene.locate(i as u32);
+            let (object, triangle, u, v) = crate::check::oracle::located(scene, i as u32, &h);
             if kept
                 .iter()
                 .any(|k| (k.object, k.triangle) == (object, triangle))
             {
                 return false;
             }
-            // As the oracle reports it: a mirrored object's u and v swapped.
-            let mirrored = scene.objects()[object as usize].mirrored;
-            let (u, v) = if mirrored { (h.v, h.u) } else { (h.u, h.v) };
             let near = Hit {
                 hit: true,
                 t: h.t,

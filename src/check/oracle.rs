@@ -4,6 +4,7 @@
 //! the triangles, a block of rays at a time; the exact test decides on them.
 
 use super::sweep::{Edges, RAYS_PER_SWEEP};
+use crate::cpu::ray_triangle::TriangleHit;
 use crate::exact::ray_triangle_f64;
 use crate::query::{Answers, Cull, Mode, Query};
 use crate::ray::{Hit, Ray};
@@ -101,14 +102,11 @@ fn exact_hit(
     };
     (h.hit && facing && h.t.is_finite() && h.t > ray.tmin && h.t <= ray.tmax).then(|| {
         let [a, b, c] = vertices;
-        let (object, triangle) = scene.locate(i);
-        let o = &scene.objects()[object as usize];
-        let cell = o.grid.map(|g| {
+        let (object, triangle, u, v) = located(scene, i, &h);
+        let cell = scene.objects()[object as usize].grid.map(|g| {
             let (r, c) = g.cell_of(triangle);
             [r, c]
         });
-        // A mirrored object's triangles are stored with vertices 2 and 3 swapped.
-        let (u, v) = if o.mirrored { (h.v, h.u) } else { (h.u, h.v) };
         Hit {
             hit: true,
             invalid: false,
@@ -124,6 +122,19 @@ fn exact_hit(
             triangle_tests: all.total,
         }
     })
+}
+
+/// Scene triangle `i`'s object and own triangle id, and the exact test's u and v as the oracle
+/// reports them: a mirrored object's triangles are stored with vertices 2 and 3 swapped, so its
+/// u and v are swapped back.
+pub(crate) fn located(scene: &Scene, i: u32, h: &TriangleHit<f64>) -> (u32, u32, f64, f64) {
+    let (object, triangle) = scene.locate(i);
+    let (u, v) = if scene.objects()[object as usize].mirrored {
+        (h.v, h.u)
+    } else {
+        (h.u, h.v)
+    };
+    (object, triangle, u, v)
 }
 
 /// The nearest hit of `ray` over all non-degenerate triangles of `scene`.

@@ -161,17 +161,20 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         );
     }
     println!("engine: {engine_name}");
-    // The oracle's own copy of the triangles must fit the memory budget too: a baked field of
-    // instances can be tens of millions of triangles.
-    let room = raypick::budget::check(
-        "the oracle's copy of the triangles",
-        triangles as u64,
-        OracleTriangles::BYTES_PER_TRIANGLE,
-    );
-    let oracle = if let Err(e) = room {
+    // Within the budget of triangle tests, the oracle's own copy of the triangles must fit the
+    // memory budget too: a baked field of instances can be tens of millions of triangles.
+    let tests_fit = triangles as f64 * n <= args.oracle_budget;
+    let room = tests_fit.then(|| {
+        raypick::budget::check(
+            "the oracle's copy of the triangles",
+            triangles as u64,
+            OracleTriangles::BYTES_PER_TRIANGLE,
+        )
+    });
+    let oracle = if let Some(Err(e)) = room {
         println!("brute force: skipped ({e})");
         None
-    } else if triangles as f64 * n <= args.oracle_budget {
+    } else if tests_fit {
         let bar = super::progress::rays_bar(rays.len() as u64, "brute force");
         let ((answers, every), s) = timed(|| {
             Ok(brute_force_reporting(world, &rays, &query, |k| {
