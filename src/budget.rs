@@ -1,8 +1,10 @@
 //! The memory budget: one limit on every allocation whose size comes from user input (argument
 //! values, sizes read from file headers, request bodies), checked before allocating.
 //!
-//! The default is half the machine's physical memory (or 4 GiB where it cannot be read);
-//! `--max-memory` on the command line sets it for the process. A size over the budget is an
+//! The default is half of what the process can have ([`ceiling`]: the machine's physical
+//! memory, the process's address-space limit (`ulimit -v`) and its control group's memory limit,
+//! the least of them; 4 GiB where none can be read); `--max-memory` on the command line sets it
+//! for the process, up to the ceiling (with swap). A size over the budget is an
 //! [`Error::OverBudget`] naming what needed the memory, the size and the limit.
 
 use crate::error::{Error, Result};
@@ -27,16 +29,69 @@ pub fn limit() -> u64 {
     }
 }
 
-/// Half the machine's physical memory (Linux `/proc/meminfo`), or 4 GiB.
+/// Half of [`ceiling`] without swap, or 4 GiB where nothing can be read. A budget of the
+/// machine's memory alone let an allocation within it fail under a smaller address-space limit
+/// (`ulimit -v`): the process aborted instead of saying what was too large.
 pub fn default_limit() -> u64 {
-    let total = std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|text| {
-            let line = text.lines().find(|l| l.starts_with("MemTotal:"))?;
-            let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-            Some(kib.saturating_mul(1024))
-        });
-    total.map_or(FALLBACK, |t| t / 2)
+    ceiling(false).map_or(FALLBACK, |t| t / 2)
+}
+
+/// The most memory this process can have, in bytes: the least of the machine's physical memory
+/// (with its swap when `with_swap`; Linux `/proc/meminfo`), the process's address-space limit
+/// (`RLIMIT_AS`) and its control group's memory limit; `None` where none of them can be read.
+pub fn ceiling(with_swap: bool) -> Option<u64> {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok();
+    let field = |name: &str| {
+        let line = meminfo.as_deref()?.lines().find(|l| l.starts_with(name))?;
+        let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+        Some(kib.saturating_mul(1024))
+    };
+    let physical = field("MemTotal:").map(|total| {
+        let swap = if with_swap { field("SwapTotal:") } else { None };
+        total.saturating_add(swap.unwrap_or(0))
+    });
+    [physical, address_space_limit(), cgroup_limit()]
+        .into_iter()
+        .flatten()
+        .min()
+}
+
+/// Limits at or above this are no limit (cgroup v1 writes "unlimited" as a huge number).
+const UNLIMITED: u64 = 1 << 60;
+
+/// The process's address-space limit (`RLIMIT_AS`, `ulimit -v`), when it has one.
+fn address_space_limit() -> Option<u64> {
+    #[cfg(unix)]
+    {
+        let mut limit = libc::rlimit {
+            rlim_cur: 0,
+            rlim_max: 0,
+        };
+        // SAFETY: getrlimit writes the one struct it is given.
+        let read = unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut limit) } == 0;
+        let bytes = u64::try_from(limit.rlim_cur).ok()?;
+        (read && limit.rlim_cur != libc::RLIM_INFINITY && bytes < UNLIMITED).then_some(bytes)
+    }
+    #[cfg(not(unix))]
+    None
+}
+
+/// The memory limit of the control group this process runs in (cgroup v2's `memory.max`, or
+/// v1's `memory.limit_in_bytes`), when it has one.
+fn cgroup_limit() -> Option<u64> {
+    [
+        "/sys/fs/cgroup/memory.max",
+        "/sys/fs/cgroup/memory/memory.limit_in_bytes",
+    ]
+    .into_iter()
+    .filter_map(|path| {
+        std::fs::read_to_string(path)
+            .ok()?
+            .trim()
+            .parse::<u64>()
+            .ok()
+    })
+    .find(|&bytes| bytes < UNLIMITED)
 }
 
 /// Checks that `count` items of `item_bytes` each fit the budget; `what` names them in the

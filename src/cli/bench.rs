@@ -25,7 +25,8 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 1_000_000, value_parser = clap::value_parser!(u64).range(1..))]
     pub rays: u64,
     /// Repetitions per timed figure (builds, batches, end to end); the median is reported.
-    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..))]
+    /// At most 1000.
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub repeat: u32,
     /// Single-ray picks timed per path for the latency percentiles (after a warm-up).
     #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..))]

@@ -216,11 +216,54 @@ fn all_hits_mode_stays_within_the_budget_under_an_address_space_limit() {
     assert!(rows > 20_000, "{rows} rows");
 }
 
+/// The default budget is half of what the process can have: under a 1 GB address-space limit
+/// (`ulimit -v`) a 3000 × 3000 render (3.3 GB of answers) is refused by name. With half the
+/// machine's memory as the budget it passed the check and the process aborted when the
+/// allocation failed. And `--max-memory` over what the process can have is refused.
+#[cfg(target_os = "linux")]
+#[test]
+fn the_default_budget_keeps_within_an_address_space_limit() {
+    let script = format!(
+        "ulimit -v 1000000 && exec '{}' render --width 3000 --height 3000 --backend cpu \
+         --out /dev/null",
+        env!("CARGO_BIN_EXE_raypick")
+    );
+    let out = Command::new("sh")
+        .args(["-c", &script])
+        .env("RAYON_NUM_THREADS", "2")
+        .output()
+        .expect("run sh");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{}", &err[..err.len().min(300)]);
+    assert!(
+        err.starts_with("error:")
+            && err.contains("3000 x 3000")
+            && err.contains("memory budget")
+            && !err.contains("panicked"),
+        "{err}"
+    );
+    let (code, _, err) = raypick(&["--max-memory", "1000000T", "pick"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("1000000T") && err.contains("more memory than this process can have"),
+        "{err}"
+    );
+}
+
 #[test]
 fn zero_counts_and_counts_that_overflow_are_refused() {
     assert_refused(&["soak", "--rays", "0"], &["--rays 0"]);
     assert_refused(&["soak", "--batch", "0"], &["--batch 0"]);
     assert_refused(&["probe", "--probes", "0"], &["--probes 0"]);
+    // verify of no rays said `b = NaN` and passed; a repeat count of billions never ended.
+    for (args, named) in [
+        (&["verify", "--random", "0"][..], "'0'"),
+        (&["bench", "--repeat", "4294967295"][..], "'4294967295'"),
+    ] {
+        let (code, out, err) = raypick(args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(out.is_empty() && err.contains(named), "{args:?}: {err}");
+    }
     // Argument errors come before any output.
     assert_refused(
         &["pick", "--mode", "all", "--max-hits", "0"],
@@ -936,33 +979,34 @@ fn inputs_of_unknown_length_are_refused_when_too_long_or_over_the_budget() {
         ],
         &["/dev/zero is longer than 1.0 MiB", "camera file"],
     );
-    // Many short lines: each parsed line costs ten times its bytes.
-    let pairs = temp_file("many-pairs.txt", &"0 0 0 1 1 1\n".repeat(20_000));
+    // Many short lines: each parsed line costs ten times its bytes (a budget that holds the
+    // example scene's tree, 2.5 MiB, but not the 40,000 parsed lines, 4.8 MB).
+    let pairs = temp_file("many-pairs.txt", &"0 0 0 1 1 1\n".repeat(40_000));
     assert_refused(
         &[
             "los",
             "--pairs",
             &pairs,
             "--max-memory",
-            "1M",
+            "3M",
             "--backend",
             "cpu",
         ],
-        &["20000 lines of", "many-pairs.txt", "memory budget"],
+        &["40000 lines of", "many-pairs.txt", "memory budget"],
     );
     // A file longer than the budget is refused before it is read.
-    let longer = temp_file("more-pairs.txt", &"0 0 0 1 1 1\n".repeat(100_000));
+    let longer = temp_file("more-pairs.txt", &"0 0 0 1 1 1\n".repeat(300_000));
     assert_refused(
         &[
             "los",
             "--pairs",
             &longer,
             "--max-memory",
-            "1M",
+            "3M",
             "--backend",
             "cpu",
         ],
-        &["more-pairs.txt is longer than 1.0 MiB, the memory budget"],
+        &["more-pairs.txt is longer than 3.0 MiB, the memory budget"],
     );
     // A line over 1 MiB is refused wherever it ends (here its line break falls in the block
     // where it crosses the limit), naming its line.

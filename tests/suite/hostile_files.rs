@@ -986,3 +986,41 @@ fn compressed_ply_bombs_are_refused_before_inflating_much() {
         assert_scene_refused(file, expected);
     }
 }
+
+/// What a file turns into, not only what its header claims, is checked against the memory
+/// budget before the tree is built: a 4 KB OBJ of 1000-sided polygons is 200,000 triangles, a
+/// 1.3 MB grid 720,000; their builds (about 29 MB and 58 MB) are refused under a 24 MiB budget,
+/// naming the file, where the build used to run past any `--max-memory` (and, over a process's
+/// address-space limit, abort).
+#[test]
+fn what_a_file_expands_to_is_checked_against_the_memory_budget_before_the_build() {
+    let dir = TempDir::new("expands");
+    let mut obj = String::new();
+    for k in 0..1000 {
+        let a = k as f64 * std::f64::consts::TAU / 1000.0;
+        obj.push_str(&format!("v {} {} 0\n", a.cos(), a.sin()));
+    }
+    let face: Vec<String> = (1..=1000).map(|i| i.to_string()).collect();
+    let face = format!("f {}\n", face.join(" "));
+    obj.push_str(&face.repeat(200));
+    let polygons = dir.write("polygons.obj", obj.as_bytes());
+    let side = 601;
+    let mut asc = format!("ncols {side}\nnrows {side}\nxllcorner 0\nyllcorner 0\ncellsize 1\n");
+    let row: Vec<String> = (0..side).map(|c| (c % 7).to_string()).collect();
+    asc.push_str(&format!("{}\n", row.join(" ")).repeat(side));
+    let grid = dir.write("grid.asc", asc.as_bytes());
+    for (file, triangles) in [(&polygons, "199600 ×"), (&grid, "720000 ×")] {
+        let name = file.display().to_string();
+        let args = ["pick", "--backend", "cpu", "--scene", &name];
+        let outcome = run(&[&args[..], &["--max-memory", "24M"]].concat());
+        assert_refused(&outcome, &name, "building the tree over the triangles of");
+        assert!(
+            outcome.stderr.contains(triangles) && outcome.stderr.contains("memory budget"),
+            "{}",
+            outcome.stderr
+        );
+        // Within the default budget the same file is picked.
+        let outcome = run(&args);
+        assert_eq!(outcome.code, Some(0), "{name}: {}", outcome.stderr);
+    }
+}
