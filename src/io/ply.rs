@@ -19,6 +19,9 @@
 //!   and the first one's index). Other face properties are skipped.
 //! - Every other element is skipped, whatever its properties. A file without a `face` element
 //!   gives an empty mesh.
+//! - In an ascii body each item is a line of its own, as the format says: a line with more or
+//!   fewer values than the header's properties, and anything after the last item, are errors
+//!   naming the line (blank lines, spaces and CRLF line ends are not values).
 //!
 //! # Sizes
 //!
@@ -206,8 +209,30 @@ fn read_ply<R: BufRead>(input: &Input, mut reader: R) -> Result<Mesh, Error> {
     let mut short = None;
     match header.format {
         Format::Ascii => {
-            let mut body = Tokens::new(reader, header.lines + 1);
+            let mut body = Ascii {
+                tokens: Tokens::new(reader, header.lines + 1),
+                item_line: None,
+            };
             read_body(input, &header, &plan, &mut body, &mut mesh, &mut short)?;
+            // Nothing may follow the last element's last item.
+            match body.tokens.next_token() {
+                Ok(None) => {}
+                Ok(Some(token)) => {
+                    let text = String::from_utf8_lossy(token).into_owned();
+                    return Err(input.parse(
+                        Some(body.tokens.line()),
+                        format!(
+                            "'{}' follows the last element's items (the header's counts ask \
+                             for fewer)",
+                            quote(&text)
+                        ),
+                    ));
+                }
+                Err(TokenError::Io(e)) => return Err(input.io(e, "reading past the data")),
+                Err(e @ TokenError::TooLong(_)) => {
+                    return Err(input.parse(Some(body.tokens.line()), e.to_string()));
+                }
+            }
         }
         Format::BinaryLittleEndian | Format::BinaryBigEndian => {
             let mut body = Binary {
@@ -762,6 +787,12 @@ trait Body {
     fn skip_fixed(&mut self, count: u64, bytes: u64) -> Result<bool, Problem>;
     /// The 1-based line of the last value read, for text.
     fn line(&self) -> Option<usize>;
+    /// An element's next item starts here (text: on a line of its own).
+    fn start_item(&mut self) {}
+    /// The item's values have been read (text: nothing else is on its line).
+    fn end_item(&mut self) -> Result<(), Problem> {
+        Ok(())
+    }
 }
 
 /// A binary body.
@@ -815,14 +846,41 @@ impl<R: BufRead> Body for Binary<R> {
     }
 }
 
-impl<R: BufRead> Body for Tokens<R> {
-    fn scalar(&mut self, s: Scalar) -> Result<f64, Problem> {
-        let token = match self.next_token() {
-            Ok(Some(token)) => token,
+/// An ascii body: its tokens, each element item on a line of its own (the format's rule). Read
+/// as one stream of tokens, a line with a value too many followed by one with a value too few
+/// loaded as different triangles without a word.
+struct Ascii<R> {
+    tokens: Tokens<R>,
+    /// The line the current item's first value is on (`None` before it).
+    item_line: Option<usize>,
+}
+
+impl<R: BufRead> Ascii<R> {
+    /// The next token of the current item, on the item's line.
+    fn token(&mut self) -> Result<&[u8], Problem> {
+        let line = match self.tokens.next_token() {
+            Ok(Some(_)) => self.tokens.line(),
             Ok(None) => return Err(Problem::End),
             Err(TokenError::Io(e)) => return Err(e.into()),
             Err(e @ TokenError::TooLong(_)) => return Err(Problem::Bad(e.to_string())),
         };
+        match self.item_line {
+            None => self.item_line = Some(line),
+            Some(first) if first != line => {
+                return Err(Problem::Bad(format!(
+                    "line {first} ends before the item's last value (the header's properties \
+                     ask for more)"
+                )));
+            }
+            Some(_) => {}
+        }
+        Ok(self.tokens.last())
+    }
+}
+
+impl<R: BufRead> Body for Ascii<R> {
+    fn scalar(&mut self, s: Scalar) -> Result<f64, Problem> {
+        let token = self.token()?;
         let text = String::from_utf8_lossy(token);
         if s.is_integer() {
             let value: i64 = text.parse().map_err(|_| {
@@ -857,14 +915,9 @@ impl<R: BufRead> Body for Tokens<R> {
     }
 
     fn skip(&mut self, _s: Scalar, count: u64) -> Result<(), Problem> {
-        // Every value is a token, so this ends with the data.
+        // Every value is a token on the item's line, so this ends with the line.
         for _ in 0..count {
-            match self.next_token() {
-                Ok(Some(_)) => {}
-                Ok(None) => return Err(Problem::End),
-                Err(TokenError::Io(e)) => return Err(e.into()),
-                Err(e @ TokenError::TooLong(_)) => return Err(Problem::Bad(e.to_string())),
-            }
+            self.token()?;
         }
         Ok(())
     }
@@ -875,7 +928,24 @@ impl<R: BufRead> Body for Tokens<R> {
     }
 
     fn line(&self) -> Option<usize> {
-        Some(self.line())
+        // The item's own line: where a value is missing or wrong.
+        Some(self.item_line.unwrap_or(self.tokens.line()))
+    }
+
+    fn start_item(&mut self) {
+        self.item_line = None;
+    }
+
+    fn end_item(&mut self) -> Result<(), Problem> {
+        match self.tokens.rest_of_line_is_blank() {
+            Ok(true) => Ok(()),
+            Ok(false) => Err(Problem::Bad(format!(
+                "line {} holds more values than the header's properties",
+                self.tokens.line()
+            ))),
+            Err(TokenError::Io(e)) => Err(e.into()),
+            Err(e @ TokenError::TooLong(_)) => Err(Problem::Bad(e.to_string())),
+        }
     }
 }
 
@@ -946,6 +1016,7 @@ fn read_body<B: Body>(
         }
         let vertices = plan.vertices;
         for item in 0..element.count {
+            body.start_item();
             let mut position = [0.0f64; 3];
             for (property, action) in element.properties.iter().zip(actions) {
                 let result = match (*action, property.kind) {
@@ -979,6 +1050,8 @@ fn read_body<B: Body>(
                 };
                 result.map_err(|problem| fail(body, problem, Some(item)))?;
             }
+            body.end_item()
+                .map_err(|problem| fail(body, problem, Some(item)))?;
             if vertex {
                 let p = DVec3::from_array(position);
                 if !p.is_finite() {
@@ -1151,6 +1224,44 @@ impl<R: BufRead> Tokens<R> {
             self.reader.consume(i);
             if ended {
                 return Ok(Some(self.token.as_slice()));
+            }
+        }
+    }
+
+    /// The last token read.
+    fn last(&self) -> &[u8] {
+        &self.token
+    }
+
+    /// Whether the rest of the last token's line is blank: read past it (its newline included)
+    /// when it is; when it is not, nothing past the blanks is read.
+    fn rest_of_line_is_blank(&mut self) -> Result<bool, TokenError> {
+        loop {
+            let buf = match self.reader.fill_buf() {
+                Ok(buf) => buf,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(TokenError::Io(e)),
+            };
+            if buf.is_empty() {
+                return Ok(true);
+            }
+            let blanks = buf
+                .iter()
+                .position(|&b| b == b'\n' || !b.is_ascii_whitespace());
+            match blanks.map(|k| (k, buf[k])) {
+                Some((k, b'\n')) => {
+                    self.reader.consume(k + 1);
+                    self.current += 1;
+                    return Ok(true);
+                }
+                Some((k, _)) => {
+                    self.reader.consume(k);
+                    return Ok(false);
+                }
+                None => {
+                    let n = buf.len();
+                    self.reader.consume(n);
+                }
             }
         }
     }

@@ -731,7 +731,7 @@ fn bad_ply_files_give_one_sentence_naming_the_file_and_line() {
     );
 
     let dir = TempDir::new("bad-ply");
-    let cases: [(&str, &str, Option<usize>, &str); 12] = [
+    let cases: [(&str, &str, Option<usize>, &str); 16] = [
         ("not-ply.ply", "solid x\n", None, "not a PLY file"),
         (
             "no-format.ply",
@@ -810,12 +810,56 @@ fn bad_ply_files_give_one_sentence_naming_the_file_and_line() {
             Some(9),
             "the data ends inside vertex 1 of 2",
         ),
+        // Each item on a line of its own: read as one stream of values, a value too many on
+        // one line and one too few on the next loaded a different triangle without a word.
+        (
+            "value-too-many.ply",
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+             property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+             end_header\n0 0 0 0\n1 0 0\n0 1\n3 0 1 2\n",
+            Some(10),
+            "vertex 0 of 3: line 10 holds more values than the header's properties",
+        ),
+        (
+            "value-too-few.ply",
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+             property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+             end_header\n0 0 0\n1 0\n0 1 0\n3 0 1 2\n",
+            Some(11),
+            "vertex 1 of 3: line 11 ends before the item's last value",
+        ),
+        (
+            "face-over-two-lines.ply",
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+             property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+             end_header\n0 0 0\n1 0 0\n0 1 0\n3\n0 1 2\n",
+            Some(13),
+            "face 0 of 1: line 13 ends before the item's last value",
+        ),
+        (
+            "data-after-the-last-item.ply",
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+             property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+             end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n\nGARBAGE\n",
+            Some(15),
+            "'GARBAGE' follows the last element's items",
+        ),
     ];
     for (name, text, line, expected) in cases {
         let file = dir.write(name, text.as_bytes());
         let e = error_naming(load_ply(&file), &file, line);
         assert!(e.contains(expected), "{name}: {expected:?} in {e}");
     }
+
+    // Blank lines, spaces at the ends of lines and CRLF line ends are no values.
+    let file = dir.write(
+        "crlf-blank-lines.ply",
+        b"ply\r\nformat ascii 1.0\r\nelement vertex 3\r\nproperty float x\r\nproperty float y\r\n\
+          property float z\r\nelement face 1\r\nproperty list uchar int vertex_indices\r\n\
+          end_header\r\n0 0 0  \r\n1 0 0\r\n\r\n0 1 0\t\r\n3 0 1 2\r\n\r\n\n",
+    );
+    let mesh = load_ply(&file).unwrap();
+    assert_eq!((mesh.positions.len(), mesh.triangles.len()), (3, 1));
 
     // A 100 000-digit number is quoted short.
     let mut text = b"ply\nformat ascii 1.0\nelement vertex 1\nproperty double x\n\
