@@ -18,10 +18,12 @@
 //!   [`crate::Scene::from_meshes`] the object ids follow it too.
 //! - A node's world transform is `parent world · node local` composed in
 //!   f64, where the local transform is its `matrix` or
-//!   `translation · rotation · scale` (the quaternion is normalised in f64;
-//!   the bottom row of a `matrix` is ignored, as glTF requires it to be
-//!   affine). A node reached twice within one scene (a cycle, or a node
-//!   with two parents) is an error.
+//!   `translation · rotation · scale` (the quaternion is normalised in f64).
+//!   A `matrix` whose last row is not `0 0 0 1`, or a node with both a
+//!   `matrix` and TRS properties, is an error (glTF asks for one affine
+//!   transform); so is a node reached twice within one scene (a cycle, or a
+//!   node with two parents). Files whose `asset.version` is not 2.x are
+//!   refused, and a `byteStride` less than its elements' size.
 //!
 //! # Names
 //!
@@ -442,6 +444,35 @@ const SHOWN_ERRORS: usize = 3;
 /// panic itself), dropping what this loader handles on its own.
 fn validate(root: &json::Root) -> Result<(), String> {
     use json::validation::Validate;
+    // glTF 1.0 is another format; 2.x files read alike.
+    if !root.asset.version.starts_with("2.") {
+        return Err(format!(
+            "asset.version is '{}': only glTF 2.x files are read",
+            crate::budget::quote(&root.asset.version)
+        ));
+    }
+    // A node's transform is a matrix or translation, rotation and scale, never both; and a
+    // matrix must be affine (its last row 0 0 0 1): the spec's MUSTs, which the crate does not
+    // check, and which left a node's placement to whichever was read.
+    for (k, node) in root.nodes.iter().enumerate() {
+        let Some(matrix) = node.matrix else {
+            continue;
+        };
+        if node.translation.is_some() || node.rotation.is_some() || node.scale.is_some() {
+            return Err(format!(
+                "node {k} has both a matrix and a translation, rotation or scale (glTF allows \
+                 one or the other)"
+            ));
+        }
+        let last_row = [matrix[3], matrix[7], matrix[11], matrix[15]];
+        if last_row != [0.0, 0.0, 0.0, 1.0] {
+            let [a, b, c, d] = last_row;
+            return Err(format!(
+                "node {k}: the matrix's last row is {a} {b} {c} {d}, not 0 0 0 1 (glTF asks for \
+                 an affine matrix)"
+            ));
+        }
+    }
     // The crate's primitive check indexes `accessors` with the POSITION
     // index before bounds are checked.
     for (m, mesh) in root.meshes.iter().enumerate() {
@@ -1137,6 +1168,14 @@ impl Loader<'_> {
                 )
             })?;
         let view_data = &data[view.offset()..view_end];
+        // Elements closer than their size overlap: the spec asks for a stride of at least the
+        // element's size.
+        if let Some(stride) = view.stride().filter(|&stride| stride < size) {
+            return Err(format!(
+                "bufferView {} has a byteStride of {stride}, less than its elements' {size} bytes",
+                view.index()
+            ));
+        }
         let stride = view.stride().unwrap_or(size);
         let needed = if count == 0 {
             Some(offset)

@@ -806,6 +806,53 @@ fn malformed_data_is_a_parse_error_not_a_panic() {
             asset.gltf(json!({"meshes": [mesh], "nodes": nodes, "scenes": [{"nodes": [0]}]})),
             "mesh 0 ('far') primitive 0: vertex 1 [10000000000, 0, 0] is not finite after node 9's world transform",
         ));
+        // What the spec asks and the crate does not check, which loaded with exit 0 and other
+        // geometry: elements closer than their size, a matrix that is not affine, a matrix
+        // beside TRS, and a glTF 1.0 file.
+        let (mut asset, mesh) = triangle_asset();
+        asset.views[0]["byteStride"] = json!(4);
+        asset.views[0]["target"] = json!(34962);
+        let one = json!({"meshes": [mesh], "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}]});
+        list.push((
+            "stride",
+            asset.gltf(one.clone()),
+            "bufferView 0 has a byteStride of 4, less than its elements' 12 bytes",
+        ));
+        let (asset, mesh) = triangle_asset();
+        let mut projective = [0.0; 16];
+        for k in [0, 5, 10, 15] {
+            projective[k] = 1.0;
+        }
+        projective[11] = -1.0;
+        list.push((
+            "projective",
+            asset.gltf(
+                json!({"meshes": [mesh], "nodes": [{"mesh": 0, "matrix": projective}],
+                "scenes": [{"nodes": [0]}]}),
+            ),
+            "node 0: the matrix's last row is 0 0 -1 1, not 0 0 0 1",
+        ));
+        let (asset, mesh) = triangle_asset();
+        let identity = [
+            1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0,
+        ];
+        list.push((
+            "matrix_and_trs",
+            asset.gltf(
+                json!({"meshes": [mesh], "nodes": [{"mesh": 0, "matrix": identity, "scale": [2.0, 2.0, 2.0]}],
+                "scenes": [{"nodes": [0]}]}),
+            ),
+            "node 0 has both a matrix and a translation, rotation or scale",
+        ));
+        let (asset, mesh) = triangle_asset();
+        let mut old = asset
+            .gltf(json!({"meshes": [mesh], "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}]}));
+        old["asset"]["version"] = json!("1.0");
+        list.push((
+            "version",
+            old,
+            "asset.version is '1.0': only glTF 2.x files are read",
+        ));
         list
     };
     for (name, doc, expected) in cases {
