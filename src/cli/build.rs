@@ -21,6 +21,13 @@ pub struct BuildArgs {
 }
 
 pub fn run(args: BuildArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    // Before the scene is built: a folder made the save fail with "Not a directory".
+    if args.out.is_dir() {
+        return Err(Error::Invalid(format!(
+            "--out {} is a folder; name the .rpk file to write",
+            args.out.display()
+        )));
+    }
     // A description placing a file several times, or glTF nodes sharing a mesh, is saved as
     // instances (each mesh once).
     let (built, load_s, build_s) = args.scene.build_instanced(matches, false)?;

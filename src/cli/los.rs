@@ -110,6 +110,16 @@ fn visible(
         .collect())
 }
 
+/// The length of `d`, scaled by its largest component first, so that no square overflows
+/// (infinite only when `d` is).
+fn length(d: DVec3) -> f64 {
+    let largest = d.abs().max_element();
+    if largest == 0.0 || !largest.is_finite() {
+        return largest;
+    }
+    largest * (d / largest).length()
+}
+
 /// Warns when segments ignore ends longer than a thousandth of the scene's size: ε is a part
 /// of each segment's length, so from an observer 10⁹ units out the default ε skips the last
 /// 1,000 units of every segment, more than a 100-unit scene, and everything reads visible.
@@ -118,18 +128,21 @@ fn warn_long_ends(built: &BuiltScene, segments: &[(DVec3, DVec3)], eps: f64, wha
         return;
     };
     let size = (hi - lo).length();
-    let ends = |&(a, b): &(DVec3, DVec3)| eps * (b - a).length();
+    let ends = |&(a, b): &(DVec3, DVec3)| eps * length(b - a);
     let long = segments.iter().filter(|s| ends(s) > size * 1e-3).count();
     if long > 0 {
-        let longest = segments
-            .iter()
-            .map(ends)
-            .filter(|e| e.is_finite())
-            .fold(0.0, f64::max);
+        let longest = segments.iter().map(ends).fold(0.0, f64::max);
+        // A segment longer than f64 holds (ends 10^200 apart: its squared length overflowed,
+        // and the warning said "up to 0.000e0 units").
+        let longest = if longest.is_finite() {
+            format!("{longest:.3e} units")
+        } else {
+            "more units than f64 holds".to_owned()
+        };
         eprintln!(
             "warning: {long} {what}(s) ignore more than a thousandth of the scene's size at each \
-             end (--epsilon {} of their length: up to {longest:.3e} units, the scene being \
-             {size:.3e} across); give a smaller --epsilon for ends this far apart",
+             end (--epsilon {} of their length: up to {longest}, the scene being {size:.3e} \
+             across); give a smaller --epsilon for ends this far apart",
             csv_number(eps)
         );
     }

@@ -652,7 +652,11 @@ fn tiff_error(name: &str, what: &str, e: TiffError) -> Error {
         TiffError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
             format!("file is truncated (unexpected end of file while {what})")
         }
-        TiffError::IoError(io) => return io_error(name, io),
+        // The file was opened and sized: a read failing now follows an offset in it (a
+        // BigTIFF's 64-bit first IFD offset gave only "Invalid argument").
+        TiffError::IoError(io) => {
+            format!("{what} failed: {io} (an offset in the file may point outside it)")
+        }
         TiffError::FormatError(f) => format!("not a valid TIFF ({what}): {f}"),
         TiffError::UnsupportedError(u) => format!("unsupported TIFF feature ({what}): {u}"),
         TiffError::LimitsExceeded => format!("image too large for the decoder ({what})"),

@@ -69,4 +69,12 @@ fn misuse_and_damage_are_exit_2_naming_the_file() {
         assert!(err.contains(name), "{err}");
         assert!(!err.contains("panicked"), "{err}");
     }
+    // A folder as --out is named as one (the save said "Not a directory (os error 20)").
+    let folder = std::env::temp_dir().display().to_string();
+    let (code, _, err) = raypick(&["build", "-q", "--out", &folder]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains(&format!("--out {folder} is a folder")),
+        "{err}"
+    );
 }

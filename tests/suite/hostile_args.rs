@@ -918,6 +918,25 @@ fn segments_whose_ignored_ends_outgrow_the_scene_are_warned_about() {
             "{x}: {err}"
         );
     }
+    // Ends 10^200 apart: the squared length overflowed and the warning said "up to 0.000e0
+    // units"; now the length is taken without squares that overflow.
+    let args = [
+        "viewshed",
+        "--observer",
+        "1e200",
+        "50",
+        "150",
+        "--backend",
+        "cpu",
+    ];
+    let (code, _, err) = raypick(&args);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("give a smaller --epsilon")
+            && err.contains("up to 1.000e194 units")
+            && !err.contains("0.000e0"),
+        "{err}"
+    );
 }
 
 /// Inputs whose size no header gives (a device, a pipe, a file of endless short lines, a small

@@ -1024,3 +1024,23 @@ fn what_a_file_expands_to_is_checked_against_the_memory_budget_before_the_build(
         assert_eq!(outcome.code, Some(0), "{name}: {}", outcome.stderr);
     }
 }
+
+/// A BigTIFF header whose first directory lies 2^48 bytes in: refused with what failed, not
+/// only the OS's "Invalid argument".
+#[test]
+fn a_tiff_offset_past_its_file_says_what_failed() {
+    let dir = TempDir::new("bigtiff");
+    let mut bytes = b"II+\0\x08\0\0\0".to_vec();
+    bytes.extend_from_slice(&0xffff_ffff_ffffu64.to_le_bytes());
+    let file = dir.write("far.tif", &bytes);
+    let name = file.display().to_string();
+    let outcome = run(&["pick", "--backend", "cpu", "--scene", &name]);
+    assert_refused(&outcome, &name, "reading the TIFF header failed");
+    assert!(
+        outcome
+            .stderr
+            .contains("an offset in the file may point outside it"),
+        "{}",
+        outcome.stderr
+    );
+}
