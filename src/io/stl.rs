@@ -51,6 +51,19 @@ const BINARY_FACET: u64 = 50;
 /// files the line; a mesh over the memory budget is an [`Error::OverBudget`] naming the file; a
 /// file that cannot be read is an [`Error::Io`].
 pub fn load_stl(path: &Path) -> Result<Mesh, Error> {
+    let mesh = read_stl_file(path)?;
+    if mesh.triangles.is_empty() {
+        // As the OBJ and PLY readers say of theirs.
+        eprintln!(
+            "warning: {}: no facet was read, so its object is empty",
+            path.display()
+        );
+    }
+    Ok(mesh)
+}
+
+/// [`load_stl`] without the warning.
+fn read_stl_file(path: &Path) -> Result<Mesh, Error> {
     let name = path.display().to_string();
     let (file, length) = crate::io::open_regular(path)?;
     let io = |source| Error::Io {

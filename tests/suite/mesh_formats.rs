@@ -1255,6 +1255,33 @@ fn the_command_line_reads_ply_and_stl_scenes() {
         stderr.contains(&bad) && stderr.contains("memory budget"),
         "{stderr}"
     );
+
+    // A PLY without faces and an STL without facets say their objects are empty, as an OBJ
+    // without faces does (they loaded without a word).
+    let points = dir.write(
+        "points.ply",
+        b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n\
+          property float z\nend_header\n1 2 3\n",
+    );
+    let empty = dir.write("empty.stl", b"solid empty\nendsolid empty\n");
+    for (file, said) in [
+        (
+            &points,
+            "1 vertex but no face was read, so its object is empty",
+        ),
+        (&empty, "no facet was read, so its object is empty"),
+    ] {
+        let name = file.display().to_string();
+        let args = ["pick", "-q", "--backend", "cpu", "--scene", &name];
+        let (code, _, stderr) =
+            raypick(&[&args[..], &["--scene", &obj_path.display().to_string()]].concat());
+        assert_eq!(code, Some(0), "{stderr}");
+        assert_eq!(
+            stderr.trim_end(),
+            format!("warning: {name}: {said}"),
+            "{stderr}"
+        );
+    }
 }
 
 // --- Peak memory while loading (issue 14) ---------------------------------------------------
