@@ -76,6 +76,32 @@ pub fn transform_row(r: &[f64; 4], p: DVec3) -> f64 {
     r[0] * p.x + r[1] * p.y + r[2] * p.z + r[3]
 }
 
+/// Reads an optional `"transform"` (3 rows of 4 numbers), saying what shape it has when it is
+/// another: read as `[[f64; 4]; 3]`, a 4 × 4 matrix was refused as "trailing characters".
+/// For `#[serde(default, deserialize_with = "crate::scene::transform_rows")]`.
+pub(crate) fn transform_rows<'de, D: serde::Deserializer<'de>>(
+    deserializer: D,
+) -> std::result::Result<Option<[[f64; 4]; 3]>, D::Error> {
+    use serde::Deserialize;
+    let Some(rows) = Option::<Vec<Vec<f64>>>::deserialize(deserializer)? else {
+        return Ok(None);
+    };
+    let shape_ok = rows.len() == 3 && rows.iter().all(|row| row.len() == 4);
+    if !shape_ok {
+        let lengths: Vec<String> = rows.iter().take(5).map(|r| r.len().to_string()).collect();
+        let more = if rows.len() > 5 { ", …" } else { "" };
+        return Err(serde::de::Error::custom(format!(
+            "the transform must be 3 rows of 4 numbers ([[a, b, c, tx], [d, e, f, ty], [g, h, \
+             i, tz]]), not {} rows (of {}{more} numbers)",
+            rows.len(),
+            lengths.join(", ")
+        )));
+    }
+    Ok(Some(std::array::from_fn(|r| {
+        std::array::from_fn(|c| rows[r][c])
+    })))
+}
+
 /// The determinant of `transform`'s 3 × 3 part, or why the transform cannot place an object: a
 /// number that is not finite, or a singular matrix (which flattens the object) or one so nearly
 /// singular that rounding decides its determinant's sign.

@@ -44,7 +44,7 @@ pub struct SceneFile {
     /// (`[[a, b, c, tx], [d, e, f, ty], [g, h, i, tz]]`: world = M·[x, y, z, 1]); none: the
     /// identity. Finite and not singular; a negative determinant mirrors the file's objects and
     /// keeps their front faces front ([`Scene::transform_object`]).
-    #[serde(default)]
+    #[serde(default, deserialize_with = "crate::scene::transform_rows")]
     pub transform: Option<[[f64; 4]; 3]>,
 }
 

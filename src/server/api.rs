@@ -714,6 +714,7 @@ struct AddRequest {
     mesh: Option<u32>,
     vertices: Option<Vec<[f64; 3]>>,
     triangles: Option<Vec<[u32; 3]>>,
+    #[serde(default, deserialize_with = "crate::scene::transform_rows")]
     transform: Option<[[f64; 4]; 3]>,
     mask: Option<u32>,
 }
@@ -723,6 +724,7 @@ struct AddRequest {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct ChangeRequest {
+    #[serde(default, deserialize_with = "crate::scene::transform_rows")]
     transform: Option<[[f64; 4]; 3]>,
     mask: Option<u32>,
 }

@@ -304,6 +304,18 @@ fn edits_follow_on(scene: Arc<BuiltScene>, backend: Backend) {
             json!({"transform": [[1, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]]}),
             "not a valid",
         ),
+        (
+            "PATCH",
+            "/objects/1",
+            json!({"transform": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}),
+            "the transform must be 3 rows of 4 numbers",
+        ),
+        (
+            "POST",
+            "/objects",
+            json!({"mesh": 1, "transform": [[1, 0, 0, 0], [0, 1, 0, 0]]}),
+            "not 2 rows (of 4, 4 numbers)",
+        ),
         ("PATCH", "/objects/1", json!({"colour": 3}), "not a valid"),
         (
             "POST",

@@ -260,6 +260,13 @@ fn bad_transforms_are_refused_with_a_sentence_naming_the_object() {
             "[[1e999, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]]",
             "scene-huge.json",
         ),
+        // A 4 × 4 matrix: its shape named (it was "trailing characters").
+        (
+            "four-rows",
+            "[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]",
+            "the transform must be 3 rows of 4 numbers ([[a, b, c, tx], [d, e, f, ty], [g, h, \
+             i, tz]]), not 4 rows (of 4, 4, 4, 4 numbers)",
+        ),
     ] {
         let description = dir.join(format!("scene-{name}.json"));
         std::fs::write(
