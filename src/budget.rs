@@ -69,6 +69,8 @@ fn address_space_limit() -> Option<u64> {
         };
         // SAFETY: getrlimit writes the one struct it is given.
         let read = unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut limit) } == 0;
+        // `rlim_t` is u64 here, narrower on some targets.
+        #[allow(clippy::useless_conversion)]
         let bytes = u64::try_from(limit.rlim_cur).ok()?;
         (read && limit.rlim_cur != libc::RLIM_INFINITY && bytes < UNLIMITED).then_some(bytes)
     }
