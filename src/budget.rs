@@ -33,7 +33,9 @@ pub fn limit() -> u64 {
 /// machine's memory alone let an allocation within it fail under a smaller address-space limit
 /// (`ulimit -v`): the process aborted instead of saying what was too large.
 pub fn default_limit() -> u64 {
-    ceiling(false).map_or(FALLBACK, |t| t / 2)
+    // Read once: three files and a system call, and `limit` is asked often.
+    static DEFAULT: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
+    *DEFAULT.get_or_init(|| ceiling(false).map_or(FALLBACK, |t| t / 2))
 }
 
 /// The most memory this process can have, in bytes: the least of the machine's physical memory
@@ -78,22 +80,50 @@ fn address_space_limit() -> Option<u64> {
     None
 }
 
-/// The memory limit of the control group this process runs in (cgroup v2's `memory.max`, or
-/// v1's `memory.limit_in_bytes`), when it has one.
+/// The memory limit of the control groups this process runs in, the least of them: cgroup v2's
+/// `memory.max` of its own group (from `/proc/self/cgroup`) and of each group above it, or v1's
+/// `memory.limit_in_bytes` of its memory group; and the mount's root files (a container's
+/// namespace shows its own group as the root).
 fn cgroup_limit() -> Option<u64> {
-    [
-        "/sys/fs/cgroup/memory.max",
-        "/sys/fs/cgroup/memory/memory.limit_in_bytes",
-    ]
-    .into_iter()
-    .filter_map(|path| {
-        std::fs::read_to_string(path)
+    use std::path::{Path, PathBuf};
+    let read = |path: &Path| -> Option<u64> {
+        let bytes = std::fs::read_to_string(path)
             .ok()?
             .trim()
             .parse::<u64>()
-            .ok()
-    })
-    .find(|&bytes| bytes < UNLIMITED)
+            .ok()?;
+        (bytes < UNLIMITED).then_some(bytes)
+    };
+    let mut files: Vec<PathBuf> = vec![
+        "/sys/fs/cgroup/memory.max".into(),
+        "/sys/fs/cgroup/memory/memory.limit_in_bytes".into(),
+    ];
+    let groups = std::fs::read_to_string("/proc/self/cgroup").unwrap_or_default();
+    for line in groups.lines().take(64) {
+        let mut parts = line.splitn(3, ':');
+        let (Some(_), Some(controllers), Some(group)) = (parts.next(), parts.next(), parts.next())
+        else {
+            continue;
+        };
+        let group = group.trim_start_matches('/');
+        if controllers.is_empty() {
+            // v2: the group and every group above it (at most 64 levels).
+            let mut dir = Path::new("/sys/fs/cgroup").join(group);
+            for _ in 0..64 {
+                files.push(dir.join("memory.max"));
+                if !dir.pop() || dir == Path::new("/sys/fs/cgroup") {
+                    break;
+                }
+            }
+        } else if controllers.split(',').any(|c| c == "memory") {
+            files.push(
+                Path::new("/sys/fs/cgroup/memory")
+                    .join(group)
+                    .join("memory.limit_in_bytes"),
+            );
+        }
+    }
+    files.iter().filter_map(|f| read(f)).min()
 }
 
 /// Checks that `count` items of `item_bytes` each fit the budget; `what` names them in the

@@ -77,29 +77,97 @@ pub fn transform_row(r: &[f64; 4], p: DVec3) -> f64 {
 }
 
 /// Reads an optional `"transform"` (3 rows of 4 numbers), saying what shape it has when it is
-/// another: read as `[[f64; 4]; 3]`, a 4 × 4 matrix was refused as "trailing characters".
-/// For `#[serde(default, deserialize_with = "crate::scene::transform_rows")]`.
+/// another: read as `[[f64; 4]; 3]`, a 4 × 4 matrix was refused as "trailing characters". Rows
+/// and numbers past the shape are counted, not kept (a request's body of empty rows takes no
+/// memory for them). For `#[serde(default, deserialize_with = "crate::scene::transform_rows")]`.
 pub(crate) fn transform_rows<'de, D: serde::Deserializer<'de>>(
     deserializer: D,
 ) -> std::result::Result<Option<[[f64; 4]; 3]>, D::Error> {
-    use serde::Deserialize;
-    let Some(rows) = Option::<Vec<Vec<f64>>>::deserialize(deserializer)? else {
-        return Ok(None);
-    };
-    let shape_ok = rows.len() == 3 && rows.iter().all(|row| row.len() == 4);
-    if !shape_ok {
-        let lengths: Vec<String> = rows.iter().take(5).map(|r| r.len().to_string()).collect();
-        let more = if rows.len() > 5 { ", …" } else { "" };
-        return Err(serde::de::Error::custom(format!(
-            "the transform must be 3 rows of 4 numbers ([[a, b, c, tx], [d, e, f, ty], [g, h, \
-             i, tz]]), not {} rows (of {}{more} numbers)",
-            rows.len(),
-            lengths.join(", ")
-        )));
+    use serde::de::{Deserialize, Deserializer, Error, IgnoredAny, SeqAccess, Visitor};
+    use std::fmt;
+
+    /// One row: its first four numbers and how many it has.
+    struct Row([f64; 4], usize);
+
+    impl<'de> Deserialize<'de> for Row {
+        fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+            struct Numbers;
+            impl<'de> Visitor<'de> for Numbers {
+                type Value = Row;
+                fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                    f.write_str("a row of 4 numbers")
+                }
+                fn visit_seq<A: SeqAccess<'de>>(
+                    self,
+                    mut seq: A,
+                ) -> std::result::Result<Row, A::Error> {
+                    let mut row = Row([0.0; 4], 0);
+                    while row.1 < 4 {
+                        let Some(x) = seq.next_element::<f64>()? else {
+                            return Ok(row);
+                        };
+                        row.0[row.1] = x;
+                        row.1 += 1;
+                    }
+                    while seq.next_element::<IgnoredAny>()?.is_some() {
+                        row.1 += 1;
+                    }
+                    Ok(row)
+                }
+            }
+            d.deserialize_seq(Numbers)
+        }
     }
-    Ok(Some(std::array::from_fn(|r| {
-        std::array::from_fn(|c| rows[r][c])
-    })))
+
+    /// The whole matrix.
+    struct Matrix([[f64; 4]; 3]);
+
+    impl<'de> Deserialize<'de> for Matrix {
+        fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+            struct Rows;
+            impl<'de> Visitor<'de> for Rows {
+                type Value = Matrix;
+                fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                    f.write_str("3 rows of 4 numbers")
+                }
+                fn visit_seq<A: SeqAccess<'de>>(
+                    self,
+                    mut seq: A,
+                ) -> std::result::Result<Matrix, A::Error> {
+                    let mut matrix = [[0.0; 4]; 3];
+                    let (mut rows, mut shaped) = (0usize, true);
+                    let mut lengths = Vec::new();
+                    while let Some(Row(values, len)) = seq.next_element::<Row>()? {
+                        if let Some(slot) = matrix.get_mut(rows) {
+                            *slot = values;
+                        }
+                        if lengths.len() < 5 {
+                            lengths.push(len.to_string());
+                        }
+                        shaped &= len == 4;
+                        rows += 1;
+                    }
+                    if rows == 3 && shaped {
+                        return Ok(Matrix(matrix));
+                    }
+                    let of = match rows {
+                        0 => String::new(),
+                        n => {
+                            let more = if n > 5 { ", …" } else { "" };
+                            format!(" (of {}{more} numbers)", lengths.join(", "))
+                        }
+                    };
+                    Err(A::Error::custom(format!(
+                        "the transform must be 3 rows of 4 numbers ([[a, b, c, tx], [d, e, f, \
+                         ty], [g, h, i, tz]]), not {rows} rows{of}"
+                    )))
+                }
+            }
+            d.deserialize_seq(Rows)
+        }
+    }
+
+    Ok(Option::<Matrix>::deserialize(deserializer)?.map(|m| m.0))
 }
 
 /// The determinant of `transform`'s 3 × 3 part, or why the transform cannot place an object: a

@@ -20,6 +20,10 @@ pub fn to_py(error: Error) -> PyErr {
             ErrorKind::IsADirectory => PyIsADirectoryError::new_err(sentence),
             _ => PyOSError::new_err(sentence),
         },
+        // Python has no --max-memory to name.
+        Error::OverBudget(_) => {
+            PyValueError::new_err(sentence.replace(" (set it with --max-memory)", ""))
+        }
         _ => PyValueError::new_err(sentence),
     }
 }

@@ -55,7 +55,16 @@ const BUILD_BYTES_SAH: u64 = 176;
 
 impl Bvh {
     /// Builds the tree over every traceable triangle of `scene` with the builder `options` name.
+    /// An [`Error::OverBudget`](crate::Error::OverBudget) when what the build holds at its peak
+    /// ([`BUILD_BYTES_GRID`] and the others, per triangle) is over the memory budget
+    /// ([`crate::budget`]), after the options themselves are checked.
     pub fn build(scene: &Scene, options: &BuildOptions) -> Result<Bvh> {
+        // What is wrong with the options is said first (a grid builder asked of a scene that
+        // is not one grid, a leaf size out of range).
+        check_leaf_size(options)?;
+        if options.builder == Builder::Grid && terrain_blocks::single_grid(scene).is_none() {
+            return terrain_blocks::build(scene, options);
+        }
         let grid = match options.builder {
             Builder::Grid => true,
             Builder::Auto => terrain_blocks::single_grid(scene).is_some(),

@@ -654,9 +654,10 @@ fn tiff_error(name: &str, what: &str, e: TiffError) -> Error {
         }
         // The file was opened and sized: a read failing now follows an offset in it (a
         // BigTIFF's 64-bit first IFD offset gave only "Invalid argument").
-        TiffError::IoError(io) => {
+        TiffError::IoError(io) if io.kind() == std::io::ErrorKind::InvalidInput => {
             format!("{what} failed: {io} (an offset in the file may point outside it)")
         }
+        TiffError::IoError(io) => return io_error(name, io),
         TiffError::FormatError(f) => format!("not a valid TIFF ({what}): {f}"),
         TiffError::UnsupportedError(u) => format!("unsupported TIFF feature ({what}): {u}"),
         TiffError::LimitsExceeded => format!("image too large for the decoder ({what})"),

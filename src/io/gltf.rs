@@ -445,7 +445,7 @@ const SHOWN_ERRORS: usize = 3;
 fn validate(root: &json::Root) -> Result<(), String> {
     use json::validation::Validate;
     // glTF 1.0 is another format; 2.x files read alike.
-    if !root.asset.version.starts_with("2.") {
+    if root.asset.version.split('.').next() != Some("2") {
         return Err(format!(
             "asset.version is '{}': only glTF 2.x files are read",
             crate::budget::quote(&root.asset.version)
@@ -458,14 +458,25 @@ fn validate(root: &json::Root) -> Result<(), String> {
         let Some(matrix) = node.matrix else {
             continue;
         };
-        if node.translation.is_some() || node.rotation.is_some() || node.scale.is_some() {
+        // TRS properties that place the node elsewhere than where they default to (an
+        // exporter may write identity ones beside the matrix).
+        let moved = node.translation.is_some_and(|t| t != [0.0; 3])
+            || node.rotation.is_some_and(|r| r.0 != [0.0, 0.0, 0.0, 1.0])
+            || node.scale.is_some_and(|s| s != [1.0; 3]);
+        if moved {
             return Err(format!(
                 "node {k} has both a matrix and a translation, rotation or scale (glTF allows \
                  one or the other)"
             ));
         }
+        // Within a millionth: a matrix made by a general inversion may keep rounding noise
+        // there.
         let last_row = [matrix[3], matrix[7], matrix[11], matrix[15]];
-        if last_row != [0.0, 0.0, 0.0, 1.0] {
+        let affine = last_row
+            .iter()
+            .zip([0.0, 0.0, 0.0, 1.0])
+            .all(|(&got, want)| (got - want).abs() <= 1e-6);
+        if !affine {
             let [a, b, c, d] = last_row;
             return Err(format!(
                 "node {k}: the matrix's last row is {a} {b} {c} {d}, not 0 0 0 1 (glTF asks for \

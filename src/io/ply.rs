@@ -18,7 +18,7 @@
 //!   vertices give no triangle: they are skipped with one warning on standard error (their count
 //!   and the first one's index). Other face properties are skipped.
 //! - Every other element is skipped, whatever its properties. A file without a `face` element
-//!   gives an empty mesh.
+//!   gives an empty mesh (with a warning, as an OBJ without faces).
 //! - In an ascii body each item is a line of its own, as the format says: a line with more or
 //!   fewer values than the header's properties, and anything after the last item, are errors
 //!   naming the line (blank lines, spaces and CRLF line ends are not values).
@@ -792,7 +792,7 @@ trait Body {
     /// Reads past `count` items of `bytes` each, when every item has that size; `false` when
     /// the encoding has no fixed item size (then nothing is read).
     fn skip_fixed(&mut self, count: u64, bytes: u64) -> Result<bool, Problem>;
-    /// The 1-based line of the last value read, for text.
+    /// The 1-based line of the current item (text; the last value's before any item).
     fn line(&self) -> Option<usize>;
     /// An element's next item starts here (text: on a line of its own).
     fn start_item(&mut self) {}
@@ -874,10 +874,10 @@ impl<R: BufRead> Ascii<R> {
         match self.item_line {
             None => self.item_line = Some(line),
             Some(first) if first != line => {
-                return Err(Problem::Bad(format!(
-                    "line {first} ends before the item's last value (the header's properties \
-                     ask for more)"
-                )));
+                return Err(Problem::Bad(
+                    "its line ends before its last value (the header's properties ask for more)"
+                        .to_owned(),
+                ));
             }
             Some(_) => {}
         }
@@ -946,10 +946,9 @@ impl<R: BufRead> Body for Ascii<R> {
     fn end_item(&mut self) -> Result<(), Problem> {
         match self.tokens.rest_of_line_is_blank() {
             Ok(true) => Ok(()),
-            Ok(false) => Err(Problem::Bad(format!(
-                "line {} holds more values than the header's properties",
-                self.tokens.line()
-            ))),
+            Ok(false) => Err(Problem::Bad(
+                "its line holds more values than the header's properties".to_owned(),
+            )),
             Err(TokenError::Io(e)) => Err(e.into()),
             Err(e @ TokenError::TooLong(_)) => Err(Problem::Bad(e.to_string())),
         }

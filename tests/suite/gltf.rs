@@ -324,6 +324,28 @@ fn matrix_transform_is_column_major() {
     );
 }
 
+/// What exporters write and the spec allows stays readable beside the new refusals: an identity
+/// translation, rotation and scale beside a matrix, rounding noise in a matrix's last row, and
+/// `asset.version` "2".
+#[test]
+fn a_matrix_with_identity_trs_or_rounding_noise_still_loads() {
+    let dir = TempDir::new();
+    let mut asset = Asset::default();
+    let p = asset.positions(&[[1.0, 1.0, 1.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]);
+    let matrix = [
+        1.0, 0.0, 0.0, 1e-9, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, -0.0, 5.0, 6.0, 7.0, 1.0,
+    ];
+    let mut doc = asset.gltf(json!({
+        "meshes": [{"primitives": [{"attributes": {"POSITION": p}}]}],
+        "nodes": [{"mesh": 0, "matrix": matrix, "translation": [0.0, 0.0, 0.0],
+                   "rotation": [0.0, 0.0, 0.0, 1.0], "scale": [1.0, 1.0, 1.0]}],
+        "scenes": [{"nodes": [0]}]
+    }));
+    doc["asset"]["version"] = json!("2");
+    let objects = load_gltf(&dir.write_json("exported.gltf", &doc)).unwrap();
+    assert_eq!(objects[0].1.positions[1], DVec3::new(5.0, 6.0, 7.0));
+}
+
 #[test]
 fn quaternion_rotation_turns_counter_clockwise() {
     let dir = TempDir::new();

@@ -818,7 +818,7 @@ fn bad_ply_files_give_one_sentence_naming_the_file_and_line() {
              property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
              end_header\n0 0 0 0\n1 0 0\n0 1\n3 0 1 2\n",
             Some(10),
-            "vertex 0 of 3: line 10 holds more values than the header's properties",
+            "vertex 0 of 3: its line holds more values than the header's properties",
         ),
         (
             "value-too-few.ply",
@@ -826,7 +826,7 @@ fn bad_ply_files_give_one_sentence_naming_the_file_and_line() {
              property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
              end_header\n0 0 0\n1 0\n0 1 0\n3 0 1 2\n",
             Some(11),
-            "vertex 1 of 3: line 11 ends before the item's last value",
+            "vertex 1 of 3: its line ends before its last value",
         ),
         (
             "face-over-two-lines.ply",
@@ -834,7 +834,7 @@ fn bad_ply_files_give_one_sentence_naming_the_file_and_line() {
              property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
              end_header\n0 0 0\n1 0 0\n0 1 0\n3\n0 1 2\n",
             Some(13),
-            "face 0 of 1: line 13 ends before the item's last value",
+            "face 0 of 1: its line ends before its last value",
         ),
         (
             "data-after-the-last-item.ply",
