@@ -8,7 +8,7 @@ use super::{
 use clap::{ArgMatches, Args};
 use glam::DVec3;
 use raypick::apps::camera::Camera;
-use raypick::io::output::{AnswerWriter, Format, OutputOptions};
+use raypick::io::output::{AnswerWriter, Format, OutputOptions, csv_number};
 use raypick::io::pixel_file::load_pixel_indices_as_centers;
 use raypick::io::ray_file::{RayReader, count_rays};
 use raypick::{Answers, Backend, BuiltScene, Error, Ray};
@@ -65,6 +65,7 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         (None, Some(camera), Some(pixels)) => {
             let camera = Camera::from_json_file(camera)?;
             let pixels_read = load_pixel_indices_as_centers(pixels)?;
+            warn_outside(&camera, &pixels_read, &pixels.display().to_string());
             super::check_rays(
                 &format!("the {} pixels of {}", pixels_read.len(), pixels.display()),
                 pixels_read.len() as u64,
@@ -210,4 +211,27 @@ fn scene_summary(args: &SceneArgs, built: &BuiltScene) -> String {
         n => format!(" and {n} more"),
     };
     format!("{}{more} ({counts})", files[..shown].join(", "))
+}
+
+/// Warns once when pixels (centres, as read) lie outside the camera's image: their rays are
+/// made all the same, through where those pixels would be, but a pixel file for another
+/// image size gives picks the user did not mean.
+fn warn_outside(camera: &Camera, centres: &[(f64, f64)], file: &str) {
+    let (w, h) = (f64::from(camera.width()), f64::from(camera.height()));
+    let outside = |&(x, y): &(f64, f64)| !(0.0..=w).contains(&x) || !(0.0..=h).contains(&y);
+    let count = centres.iter().filter(|c| outside(c)).count();
+    if let Some(k) = centres.iter().position(outside) {
+        let (x, y) = centres[k];
+        eprintln!(
+            "warning: {count} of the {} pixels of {file} lie outside the camera's {} x {} image \
+             (the first: pixel {} {}, number {} in the file); their rays go through where they \
+             would be",
+            centres.len(),
+            camera.width(),
+            camera.height(),
+            csv_number(x - 0.5),
+            csv_number(y - 0.5),
+            k + 1
+        );
+    }
 }

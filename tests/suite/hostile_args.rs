@@ -940,6 +940,41 @@ fn segments_whose_ignored_ends_outgrow_the_scene_are_warned_about() {
     );
 }
 
+/// Pixels outside the camera's image (a pixel file made for another size) are picked through
+/// where they would be, with one warning naming how many and the first; inside, no word.
+#[test]
+fn pixels_outside_the_image_are_warned_about() {
+    let camera = camera_file("outside-camera.json", 8, 6);
+    for (text, warned) in [
+        ("3 4\n-1 -1\n100000 100000\n", Some("2 of the 3 pixels")),
+        ("0 0\n7 5\n7.49 5.49\n", None),
+    ] {
+        let pixels = temp_file("outside-pixels.txt", text);
+        let args = [
+            "pick",
+            "--backend",
+            "cpu",
+            "--camera",
+            &camera,
+            "--pixels",
+            &pixels,
+        ];
+        let (code, out, err) = raypick(&args);
+        assert_eq!(code, 0, "{err}");
+        assert_eq!(out.lines().count(), 4, "{out}");
+        match warned {
+            Some(count) => assert!(
+                err.contains(&format!("warning: {count} of"))
+                    && err.contains(
+                        "lie outside the camera's 8 x 6 image (the first: pixel -1 -1, number 2"
+                    ),
+                "{err}"
+            ),
+            None => assert!(!err.contains("outside"), "{err}"),
+        }
+    }
+}
+
 /// Inputs whose size no header gives (a device, a pipe, a file of endless short lines, a small
 /// file listed thousands of times) are refused as soon as the reading shows them too long or
 /// over the budget: before, `/dev/zero` as a pair, pixel, target, camera or verify ray file
