@@ -1161,6 +1161,20 @@ impl std::fmt::Display for TokenError {
     }
 }
 
+/// `reader`'s buffer, filled (empty at the end), a read interrupted by a signal tried again.
+fn filled<R: BufRead>(reader: &mut R) -> Result<&[u8], TokenError> {
+    loop {
+        match reader.fill_buf() {
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(TokenError::Io(e)),
+            Ok(_) => break,
+        }
+    }
+    // Asked again for the borrow returned (the compiler does not let the loop return it): a
+    // filled buffer is handed back without reading.
+    reader.fill_buf().map_err(TokenError::Io)
+}
+
 /// The whitespace-separated tokens of a text stream, with line numbers, in bounded memory
 /// (however long a line is): for the ascii bodies of PLY and STL files.
 pub(crate) struct Tokens<R> {
@@ -1193,11 +1207,7 @@ impl<R: BufRead> Tokens<R> {
         self.token.clear();
         let mut inside = false;
         loop {
-            let buf = match self.reader.fill_buf() {
-                Ok(buf) => buf,
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-                Err(e) => return Err(TokenError::Io(e)),
-            };
+            let buf = filled(&mut self.reader)?;
             if buf.is_empty() {
                 // At the end, `line` stays the last token's.
                 return Ok(inside.then_some(self.token.as_slice()));
@@ -1243,11 +1253,7 @@ impl<R: BufRead> Tokens<R> {
     /// when it is; when it is not, nothing past the blanks is read.
     fn rest_of_line_is_blank(&mut self) -> Result<bool, TokenError> {
         loop {
-            let buf = match self.reader.fill_buf() {
-                Ok(buf) => buf,
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-                Err(e) => return Err(TokenError::Io(e)),
-            };
+            let buf = filled(&mut self.reader)?;
             if buf.is_empty() {
                 return Ok(true);
             }
@@ -1275,11 +1281,7 @@ impl<R: BufRead> Tokens<R> {
     /// Reads past the rest of the current line (its newline included).
     pub(crate) fn skip_line(&mut self) -> Result<(), TokenError> {
         loop {
-            let buf = match self.reader.fill_buf() {
-                Ok(buf) => buf,
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-                Err(e) => return Err(TokenError::Io(e)),
-            };
+            let buf = filled(&mut self.reader)?;
             if buf.is_empty() {
                 return Ok(());
             }
