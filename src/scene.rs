@@ -204,7 +204,7 @@ pub fn check_transform(transform: &[[f64; 4]; 3]) -> std::result::Result<f64, St
 
 /// `v`'s length without overflow: scaled by its largest component first (a row or a diagonal
 /// of 10²⁰⁰s squared is past f64's range); that component itself when it is 0 or not finite.
-pub(crate) fn scaled_length(v: DVec3) -> f64 {
+pub fn scaled_length(v: DVec3) -> f64 {
     let largest = v.abs().max_element();
     if largest == 0.0 || !largest.is_finite() {
         return largest;

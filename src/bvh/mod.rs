@@ -62,12 +62,13 @@ impl Bvh {
         // What is wrong with the options is said first (a grid builder asked of a scene that
         // is not one grid, a leaf size out of range).
         check_leaf_size(options)?;
-        if options.builder == Builder::Grid && terrain_blocks::single_grid(scene).is_none() {
+        let one_grid = terrain_blocks::single_grid(scene).is_some();
+        if options.builder == Builder::Grid && !one_grid {
             return terrain_blocks::build(scene, options);
         }
         let grid = match options.builder {
             Builder::Grid => true,
-            Builder::Auto => terrain_blocks::single_grid(scene).is_some(),
+            Builder::Auto => one_grid,
             Builder::MedianCut | Builder::BinnedSah => false,
         };
         let bytes = match options.builder {
@@ -86,13 +87,9 @@ impl Bvh {
         };
         crate::budget::check(&what, scene.triangle_count() as u64, bytes)?;
         match options.builder {
-            Builder::MedianCut => median_cut::build(scene, options),
+            _ if grid => terrain_blocks::build(scene, options),
             Builder::BinnedSah => binned_sah::build(scene, options),
-            Builder::Grid => terrain_blocks::build(scene, options),
-            Builder::Auto if terrain_blocks::single_grid(scene).is_some() => {
-                terrain_blocks::build(scene, options)
-            }
-            Builder::Auto => median_cut::build(scene, options),
+            _ => median_cut::build(scene, options),
         }
     }
 

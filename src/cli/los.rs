@@ -110,16 +110,6 @@ fn visible(
         .collect())
 }
 
-/// The length of `d`, scaled by its largest component first, so that no square overflows
-/// (infinite only when `d` is).
-fn length(d: DVec3) -> f64 {
-    let largest = d.abs().max_element();
-    if largest == 0.0 || !largest.is_finite() {
-        return largest;
-    }
-    largest * (d / largest).length()
-}
-
 /// Warns when segments ignore ends longer than a thousandth of the scene's size: ε is a part
 /// of each segment's length, so from an observer 10⁹ units out the default ε skips the last
 /// 1,000 units of every segment, more than a 100-unit scene, and everything reads visible.
@@ -128,7 +118,8 @@ fn warn_long_ends(built: &BuiltScene, segments: &[(DVec3, DVec3)], eps: f64, wha
         return;
     };
     let size = (hi - lo).length();
-    let ends = |&(a, b): &(DVec3, DVec3)| eps * length(b - a);
+    // Scaled first, so that no square overflows.
+    let ends = |&(a, b): &(DVec3, DVec3)| eps * raypick::scene::scaled_length(b - a);
     let long = segments.iter().filter(|s| ends(s) > size * 1e-3).count();
     if long > 0 {
         let longest = segments.iter().map(ends).fold(0.0, f64::max);

@@ -27,7 +27,9 @@ pub struct VerifyArgs {
     pub rays: Option<PathBuf>,
     /// Number of synthetic rays, spread over every ray kind (camera, random, vertex,
     /// edge-midpoint, grazing, axis-parallel, inside-box, tmax-cutoff).
-    #[arg(long, default_value_t = 100_000, value_parser = at_least_one)]
+    /// At least 1 (verifying no rays reported `b = NaN` and passed).
+    #[arg(long, default_value_t = 100_000,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
     pub random: usize,
     /// Seed for the synthetic rays.
     #[arg(long, default_value_t = 1)]
@@ -38,15 +40,6 @@ pub struct VerifyArgs {
     pub oracle_budget: f64,
     #[command(flatten)]
     pub query: QueryArgs,
-}
-
-/// `--random`: a count of at least 1 (verifying no rays reported `b = NaN` and passed).
-fn at_least_one(text: &str) -> Result<usize, String> {
-    match text.trim().parse::<usize>() {
-        Ok(n) if n >= 1 => Ok(n),
-        Ok(_) => Err("at least 1 ray is needed".to_owned()),
-        Err(_) => Err(format!("'{}' is not a count", raypick::budget::quote(text))),
-    }
 }
 
 /// The answers verify holds per ray: three paths and two oracle runs.

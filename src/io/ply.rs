@@ -773,6 +773,16 @@ enum Problem {
     Fatal(Error),
 }
 
+/// A token that could not be read, as a body's problem.
+impl From<TokenError> for Problem {
+    fn from(e: TokenError) -> Self {
+        match e {
+            TokenError::Io(e) => e.into(),
+            e @ TokenError::TooLong(_) => Problem::Bad(e.to_string()),
+        }
+    }
+}
+
 impl From<std::io::Error> for Problem {
     fn from(e: std::io::Error) -> Self {
         if e.kind() == std::io::ErrorKind::UnexpectedEof {
@@ -865,12 +875,10 @@ struct Ascii<R> {
 impl<R: BufRead> Ascii<R> {
     /// The next token of the current item, on the item's line.
     fn token(&mut self) -> Result<&[u8], Problem> {
-        let line = match self.tokens.next_token() {
-            Ok(Some(_)) => self.tokens.line(),
-            Ok(None) => return Err(Problem::End),
-            Err(TokenError::Io(e)) => return Err(e.into()),
-            Err(e @ TokenError::TooLong(_)) => return Err(Problem::Bad(e.to_string())),
-        };
+        if self.tokens.next_token()?.is_none() {
+            return Err(Problem::End);
+        }
+        let line = self.tokens.line();
         match self.item_line {
             None => self.item_line = Some(line),
             Some(first) if first != line => {
@@ -944,14 +952,12 @@ impl<R: BufRead> Body for Ascii<R> {
     }
 
     fn end_item(&mut self) -> Result<(), Problem> {
-        match self.tokens.rest_of_line_is_blank() {
-            Ok(true) => Ok(()),
-            Ok(false) => Err(Problem::Bad(
-                "its line holds more values than the header's properties".to_owned(),
-            )),
-            Err(TokenError::Io(e)) => Err(e.into()),
-            Err(e @ TokenError::TooLong(_)) => Err(Problem::Bad(e.to_string())),
+        if self.tokens.rest_of_line_is_blank()? {
+            return Ok(());
         }
+        Err(Problem::Bad(
+            "its line holds more values than the header's properties".to_owned(),
+        ))
     }
 }
 
