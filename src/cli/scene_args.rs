@@ -280,7 +280,7 @@ impl SceneArgs {
 /// does not resolve an object or an instance ([`raypick::frame::reach`]): picks on them would
 /// be missed or off without a word.
 fn warn_lost(built: &BuiltScene) {
-    use raypick::frame::reach::{f32_step, unresolved_objects};
+    use raypick::frame::reach::{f32_step, unresolved_objects, unresolved_triangles};
     let lost = built.lost_triangles();
     if lost.triangles > 0 {
         let (lo, hi) = built.bounds().unwrap_or_default();
@@ -308,6 +308,32 @@ fn warn_lost(built: &BuiltScene) {
             n => format!("{n} {kind}s are too small for where they lie; the first, "),
         };
         eprintln!("warning: {others}{}", first.describe(&what));
+        return;
+    }
+    if lost.triangles > 0 {
+        return;
+    }
+    // Each object resolved as a whole, and nothing lost: its triangles may still be rounded
+    // out of shape (a grid's stray spike makes the frame tall). An instanced scene's meshes lie
+    // in frames of their own.
+    let frames: Vec<(&Scene, glam::DVec3, bool)> = match built.instances() {
+        None => vec![(&built.scene, built.bvh.origin, false)],
+        Some(i) => i
+            .meshes()
+            .iter()
+            .map(|m| (&m.scene, m.bvh.origin, true))
+            .collect(),
+    };
+    for (scene, origin, mesh) in frames {
+        let small = unresolved_triangles(scene, origin);
+        let object = |id: u32| match mesh {
+            false => format!("object {id}"),
+            true => format!("the mesh of {}", scene.objects()[id as usize].name),
+        };
+        if small.count > 0 {
+            eprintln!("warning: {}", small.describe(object));
+            return;
+        }
     }
 }
 

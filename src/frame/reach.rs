@@ -11,8 +11,13 @@
 //! the command line warns about parts left unresolved, the server refuses edits that leave
 //! more unresolved ([`unresolved_objects`]), and an
 //! instanced scene refuses to place an instance so (`Instances::add`, `set_transform`).
+//!
+//! An object can be resolved as a whole while its triangles are not: a height grid with one
+//! undeclared NODATA spike of 10¹⁰ is 10¹⁰ units tall, so its frame's centre lies 5 × 10⁹ from
+//! the ground, where positions round to 512 units, and its 10-unit cells are rounded out of
+//! shape. [`unresolved_triangles`] counts such triangles, for the command line's warning.
 
-use crate::scene::{Scene, box_of, scaled_length};
+use crate::scene::{Scene, box_of, scaled_length, zero_area};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -103,6 +108,71 @@ pub fn unresolved_objects(scene: &Scene, origin: DVec3) -> Vec<Unresolved> {
         .collect()
 }
 
+/// The triangles of a scene that its frame does not resolve ([`unresolved_triangles`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct UnresolvedTriangles {
+    /// How many: triangles with area in f64, of objects that can be hit, whose box spans fewer
+    /// than [`RESOLVED_STEPS`] steps where it lies.
+    pub count: usize,
+    /// The first in scene order: its object, its triangle within the object, and where it lies
+    /// ([`Unresolved::part`] is the object).
+    pub first: Option<(u32, u32, Unresolved)>,
+}
+
+impl UnresolvedTriangles {
+    /// The sentence for a warning, naming the first triangle's object as `object` does (an
+    /// instanced scene's mesh is object 0 of a scene of its own); empty when every triangle is
+    /// resolved.
+    pub fn describe(&self, object: impl Fn(u32) -> String) -> String {
+        let Some((id, triangle, first)) = self.first else {
+            return String::new();
+        };
+        let lies = first.describe(&format!("{}'s triangle {triangle}", object(id)));
+        // `describe` ends in a question about other coordinates; a grid's stray value is the
+        // other common cause.
+        let lies = lies.trim_end_matches(" (are some objects in other coordinates?)");
+        format!(
+            "{} triangle(s) are too small for where they lie, so picks on them may miss or name a \
+             neighbour; the first, {lies} (are some objects in other coordinates, or does a grid \
+             hold a NODATA value it does not declare?)",
+            self.count
+        )
+    }
+}
+
+/// The triangles of `scene` that its f32 frame, centred on `origin`, does not resolve
+/// ([`Unresolved::of`] with [`f32_step`], on each triangle's box): degenerate triangles (no area
+/// in f64) and those of objects with layer mask 0 are not counted. One pass over the triangles
+/// (a second to find the first, only when there is one).
+pub fn unresolved_triangles(scene: &Scene, origin: DVec3) -> UnresolvedTriangles {
+    let masks: Vec<bool> = scene.objects().iter().map(|o| o.mask != 0).collect();
+    let unresolved = |i: usize| -> Option<Unresolved> {
+        let (object, _) = scene.locate(i as u32);
+        let corners = scene.world_triangle(i);
+        if !masks[object as usize] || zero_area(corners) {
+            return None;
+        }
+        Unresolved::of(object, box_of(corners), origin, f32_step)
+    };
+    let n = scene.triangle_count();
+    let count = (0..n)
+        .into_par_iter()
+        .filter(|&i| unresolved(i).is_some())
+        .count();
+    let first = (count > 0)
+        .then(|| {
+            (0..n)
+                .into_par_iter()
+                .find_first(|&i| unresolved(i).is_some())
+        })
+        .flatten()
+        .and_then(|i| {
+            let (object, triangle) = scene.locate(i as u32);
+            Some((object, triangle, unresolved(i)?))
+        });
+    UnresolvedTriangles { count, first }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -158,5 +228,55 @@ mod tests {
         // units").
         let point = (DVec3::splat(1e8), DVec3::splat(1e8));
         assert_eq!(Unresolved::of(0, point, DVec3::ZERO, f32_step), None);
+    }
+
+    /// A 10 × 10 grid of unit cells, resolved as an object with or without a spike of 10¹⁰ at
+    /// one vertex; with it, the frame's centre lies 5 × 10⁹ above the ground (512-unit steps)
+    /// and every cell not touching the spike is too small there. Objects with mask 0 are not
+    /// counted.
+    #[test]
+    fn cells_of_a_grid_with_a_spike_are_unresolved_though_the_grid_is_not() {
+        let grid = |spike: f64| {
+            let positions = (0..121)
+                .map(|k| {
+                    let z = if k == 60 { spike } else { 0.0 };
+                    DVec3::new(f64::from(k % 11), f64::from(k / 11), z)
+                })
+                .collect();
+            let triangles = (0..100u32)
+                .flat_map(|c| {
+                    let k = c / 10 * 11 + c % 10;
+                    [[k, k + 1, k + 12], [k, k + 12, k + 11]]
+                })
+                .collect();
+            let mut scene = Scene::new();
+            let mesh = crate::scene::Mesh {
+                positions,
+                triangles,
+            };
+            scene.add_mesh("grid", mesh).unwrap();
+            scene
+        };
+        let plain = grid(0.0);
+        assert_eq!(unresolved_objects(&plain, plain.origin()), vec![]);
+        assert_eq!(
+            unresolved_triangles(&plain, plain.origin()),
+            UnresolvedTriangles::default()
+        );
+        let mut spiked = grid(1e10);
+        assert_eq!(unresolved_objects(&spiked, spiked.origin()), vec![]);
+        let small = unresolved_triangles(&spiked, spiked.origin());
+        // The six triangles around the spike's vertex are 10¹⁰ tall.
+        assert_eq!(small.count, 200 - 6);
+        let (object, triangle, first) = small.first.unwrap();
+        assert_eq!((object, triangle, first.step), (0, 0, 512.0));
+        let text = small.describe(|o| format!("object {o}"));
+        assert!(text.starts_with("194 triangle(s) are too small"), "{text}");
+        assert!(
+            text.contains("object 0's triangle 0 lies 5.000e9"),
+            "{text}"
+        );
+        spiked.set_object_mask(0, 0).unwrap();
+        assert_eq!(unresolved_triangles(&spiked, spiked.origin()).count, 0);
     }
 }
