@@ -164,13 +164,42 @@ pub fn parse_size(text: &str) -> std::result::Result<u64, String> {
         )
     })?;
     if !(value.is_finite() && value >= 1.0) {
-        return Err(format!("{t:?} is not a positive size"));
+        return Err(format!("{:?} is not a positive size", quote(t)));
     }
     let bytes = value * (1u64 << shift) as f64;
     if bytes >= u64::MAX as f64 {
-        return Err(format!("{t:?} is too large"));
+        return Err(format!("{:?} is too large", quote(t)));
     }
     Ok(bytes as u64)
+}
+
+/// The least budget a user may set: 1 MiB.
+pub const LEAST: u64 = 1 << 20;
+
+/// A budget a user asked for (`--max-memory`, Python's `raypick.set_max_memory`): `bytes`, as
+/// the user wrote it (`written`, for the message), when it is at least [`LEAST`] and no more
+/// than the process can have ([`ceiling`] with swap: more would let an allocation within the
+/// budget abort the process).
+pub fn check_limit(bytes: u64, written: &str) -> std::result::Result<u64, String> {
+    let written = quote(written.trim());
+    if bytes < LEAST {
+        return Err(format!("{written:?} is below the least memory budget, 1M"));
+    }
+    if let Some(most) = ceiling(true)
+        && bytes > most
+    {
+        return Err(format!(
+            "{written:?} is more memory than this process can have ({}: the machine's memory \
+             and swap, `ulimit -v` and the control group's limit, the least of them)",
+            human(most)
+        ));
+    }
+    Ok(bytes)
+}
+
+/// [`parse_size`], then [`check_limit`]: a budget as the command line's `--max-memory` takes it.
+pub fn parse_limit(text: &str) -> std::result::Result<u64, String> {
+    check_limit(parse_size(text)?, text)
 }
 
 /// A user token for an error message: at most 60 characters, with "…" when cut, and its

@@ -30,7 +30,7 @@ struct Cli {
     /// bytes, or a number with K, M, G or T (powers of 1024), e.g. 8G or 512M. A size over it
     /// is an error naming the value and the limit [default: half the machine's memory, or of
     /// `ulimit -v` or the control group's limit where less].
-    #[arg(long, global = true, value_name = "SIZE", value_parser = parse_budget)]
+    #[arg(long, global = true, value_name = "SIZE", value_parser = raypick::budget::parse_limit)]
     max_memory: Option<u64>,
     #[command(subcommand)]
     command: Command,
@@ -118,29 +118,4 @@ fn main() -> ExitCode {
             ExitCode::from(2)
         }
     }
-}
-
-/// `--max-memory`: a size ([`raypick::budget::parse_size`]) of at least 1 MiB, the least budget
-/// (a smaller one was taken as 1 MiB without a word), and at most what the process can have with
-/// swap ([`raypick::budget::ceiling`]): a budget over it let allocations fail, and the process
-/// abort, instead of saying what was too large.
-fn parse_budget(text: &str) -> Result<u64, String> {
-    let bytes = raypick::budget::parse_size(text)?;
-    if bytes < 1 << 20 {
-        return Err(format!(
-            "{:?} is below the least memory budget, 1M",
-            raypick::budget::quote(text.trim())
-        ));
-    }
-    if let Some(most) = raypick::budget::ceiling(true)
-        && bytes > most
-    {
-        return Err(format!(
-            "{:?} is more memory than this process can have ({}: the machine's memory and swap, \
-             `ulimit -v` and the control group's limit, the least of them)",
-            raypick::budget::quote(text.trim()),
-            raypick::budget::human(most)
-        ));
-    }
-    Ok(bytes)
 }

@@ -21,6 +21,8 @@
 - ``scene.viewshed(observer, targets=None, target_height=0.0)``: which targets (default: every
   terrain grid sample) the observer sees.
 - ``camera_rays(camera, pixels=None)``: (N, 6) rays through pixels of the CLI's camera JSON.
+- ``set_max_memory(size)``: the memory budget for everything sized by files and arguments, in
+  bytes or as the CLI's ``--max-memory`` writes it ("8G"); ``max_memory()`` reads it.
 - ``raypick.dask.pick(scene_paths, dask_rays, **query)``: the same answers as dask arrays,
   computed on a Dask cluster whose worker processes each load the scene once.
 
@@ -28,9 +30,9 @@ Tracing releases the GIL. Bad shapes or dtypes raise ValueError; unreadable file
 other refusals ValueError, each with one sentence.
 """
 
-from ._raypick import Scene, _set_threads, _threads, camera_rays
+from ._raypick import Scene, _set_threads, _threads, camera_rays, max_memory, set_max_memory
 
-__all__ = ["Scene", "camera_rays", "dask"]
+__all__ = ["Scene", "camera_rays", "dask", "max_memory", "set_max_memory"]
 
 
 def __getattr__(name):

@@ -74,9 +74,7 @@ pub fn camera_rays<'py>(
         None => {
             let (w, h) = (camera.width(), camera.height());
             let count = u64::from(w) * u64::from(h);
-            raypick::budget::check("the camera's pixel rays", count, 6 * 8).map_err(|e| {
-                value_error(e.to_string().replace(" (set it with --max-memory)", ""))
-            })?;
+            raypick::budget::check("the camera's pixel rays", count, 6 * 8).map_err(to_py)?;
             let mut out = vec_for::<f64>(6 * count as usize, "the camera rays")?;
             crate::threads::run(|| {
                 out.par_extend((0..count).into_par_iter().flat_map_iter(|k| {

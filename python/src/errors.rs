@@ -20,10 +20,11 @@ pub fn to_py(error: Error) -> PyErr {
             ErrorKind::IsADirectory => PyIsADirectoryError::new_err(sentence),
             _ => PyOSError::new_err(sentence),
         },
-        // Python has no --max-memory to name.
-        Error::OverBudget(_) => {
-            PyValueError::new_err(sentence.replace(" (set it with --max-memory)", ""))
-        }
+        // Python sets the budget with `raypick.set_max_memory`, not --max-memory.
+        Error::OverBudget(_) => PyValueError::new_err(sentence.replace(
+            "(set it with --max-memory)",
+            "(set it with raypick.set_max_memory)",
+        )),
         _ => PyValueError::new_err(sentence),
     }
 }

@@ -12,7 +12,8 @@
 //! - [`columns`]: hits out, as numpy columns named like the CLI's CSV columns;
 //! - [`errors`]: the library's errors as Python exceptions (`OSError` for files, `ValueError`
 //!   otherwise, with the library's sentence);
-//! - [`threads`]: how many threads a process traces with (the Dask workers' share of a machine).
+//! - [`threads`]: how many threads a process traces with (the Dask workers' share of a machine);
+//! - [`memory`]: the process's memory budget (the command line's `--max-memory`).
 //!
 //! Tracing runs with the interpreter released (`Python::detach`), so other Python threads run
 //! meanwhile; nothing here panics on user input.
@@ -21,6 +22,7 @@ mod arrays;
 mod camera;
 mod columns;
 mod errors;
+mod memory;
 mod pick;
 mod scene;
 mod sight;
@@ -34,6 +36,8 @@ fn _raypick(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<scene::Scene>()?;
     m.add_function(wrap_pyfunction!(camera::camera_rays, m)?)?;
     m.add_function(wrap_pyfunction!(threads::set_threads, m)?)?;
+    m.add_function(wrap_pyfunction!(memory::set_max_memory, m)?)?;
+    m.add_function(wrap_pyfunction!(memory::max_memory, m)?)?;
     m.add_function(wrap_pyfunction!(threads::threads, m)?)?;
     Ok(())
 }

@@ -179,6 +179,41 @@ def test_bad_cameras_and_pixels():
     with pytest.raises(ValueError, match="over the memory budget") as e:
         raypick.camera_rays(huge)
     assert "--max-memory" not in one_sentence(e)
+    assert "(set it with raypick.set_max_memory)" in one_sentence(e)
+
+
+def test_the_memory_budget_is_set_and_checked_as_the_command_line_does():
+    default = raypick.max_memory()
+    assert default >= 1 << 20
+    eight = {"perspective": {"eye": [0, 0, 10], "target": [0, 0, 0], "up": [0, 1, 0],
+                             "fov_y_deg": 45, "width": 1000, "height": 1000}}
+    try:
+        assert raypick.set_max_memory("2M") == 2 << 20
+        assert raypick.max_memory() == 2 << 20
+        # A million pixel rays (48 MB) are over 2 MiB now; they were within the default.
+        with pytest.raises(ValueError, match="over the memory budget") as e:
+            raypick.camera_rays(eight)
+        assert "2.0 MiB" in one_sentence(e)
+        assert raypick.set_max_memory(64 << 20) == 64 << 20
+        assert raypick.camera_rays(eight).shape == (1_000_000, 6)
+        for size, words in [
+            ("100", '"100" is below the least memory budget, 1M'),
+            (-5, '"-5" is below the least memory budget, 1M'),
+            ("lots", '"lots" is not a size (e.g. 8G, 512M, 1000000)'),
+            ("999999T", '"999999T" is more memory than this process can have'),
+            (1 << 200, "is more memory than this process can have"),
+        ]:
+            with pytest.raises(ValueError) as e:
+                raypick.set_max_memory(size)
+            assert one_sentence(e).startswith("max_memory: "), one_sentence(e)
+            assert words in one_sentence(e)
+        assert raypick.max_memory() == 64 << 20, "a refused size changes nothing"
+        for size in [2.5, None, True]:
+            with pytest.raises(TypeError, match="a size is an int of bytes or a str"):
+                raypick.set_max_memory(size)
+    finally:
+        raypick.set_max_memory(default)
+    assert raypick.max_memory() == default
 
 
 def test_bad_sight_arguments(bunny, dem):
