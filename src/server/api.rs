@@ -198,6 +198,7 @@ pub(crate) fn router(state: Arc<AppState>) -> Router {
         .route("/objects/{id}", patch(change_object).delete(remove_object))
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
+        .layer(axum::middleware::from_fn(super::origin::same_origin_only))
         .with_state(state)
 }
 
@@ -209,7 +210,7 @@ pub(crate) struct ApiError {
 }
 
 impl ApiError {
-    fn new(status: StatusCode, message: impl Into<String>) -> Self {
+    pub(crate) fn new(status: StatusCode, message: impl Into<String>) -> Self {
         Self {
             status,
             message: message.into(),

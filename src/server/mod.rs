@@ -3,7 +3,7 @@
 //!
 //! This module owns the [`Server`] (its configuration, start-up and serving); the routes and
 //! their JSON live in `api`, the picking worker and its batching in [`batcher`], the page in
-//! [`page`].
+//! [`page`], the refusal of other sites' requests in `origin`.
 //!
 //! # Threads
 //!
@@ -20,7 +20,8 @@
 //! malformed JSON, unknown fields, a bad camera or option; 413 for a body over
 //! [`ServerConfig::max_body_bytes`], more than [`ServerConfig::max_rays`] rays, or in mode `all`
 //! more than [`ServerConfig::max_hit_entries`] rays x `max_hits`; 404; 405; 408 for a body not
-//! sent whole within [`ServerConfig::body_timeout`]), 503 when the request's memory does not
+//! sent whole within [`ServerConfig::body_timeout`]; 403 for a `POST`, `PATCH` or `DELETE` from
+//! another web site, by its `Origin` header: `origin`), 503 when the request's memory does not
 //! fit the server's memory budget (see below) or its work the process's
 //! ([`crate::Error::OverBudget`]), and 500 when picking itself fails. A sentence
 //! quotes at most 60 characters of any token of the request (a field name, a value), then "…".
@@ -121,6 +122,7 @@
 mod api;
 pub mod batcher;
 mod frame_faults;
+mod origin;
 pub mod page;
 
 pub use batcher::Stats;

@@ -565,3 +565,68 @@ fn removals_give_back_the_bounds() {
 fn removals_give_back_the_bounds_on_instances() {
     removals_give_back_the_bounds_on(instanced_scene(), true);
 }
+
+/// Sends `body` with `method` and headers `Origin: origin` (when given) and `Content-Type:
+/// content_type`: status and JSON answer.
+fn call_from(method: &str, url: &str, body: &str, origin: Option<&str>) -> (u16, Value) {
+    let agent = agent();
+    let mut request = axum::http::Request::builder()
+        .method(method)
+        .uri(url)
+        .header("content-type", "text/plain");
+    if let Some(origin) = origin {
+        request = request.header("origin", origin);
+    }
+    let mut response = agent
+        .run(request.body(body.to_owned()).unwrap())
+        .expect(method);
+    let status = response.status().as_u16();
+    let text = response.body_mut().read_to_string().expect("body");
+    (
+        status,
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}")),
+    )
+}
+
+/// A page of another web site can send a `text/plain` POST to a server on the user's machine
+/// without a preflight: before this, such a request added, moved or removed objects (or kept
+/// the worker busy with picks). Now every state-changing request whose `Origin` is another site
+/// (or `null`) gets 403 with a sentence and changes nothing; the server's own page (same
+/// origin), clients without an `Origin` (curl, scripts) and reads are served as before.
+#[test]
+fn requests_from_other_web_sites_cannot_change_the_scene() {
+    let base = start_on(scene(), Backend::Cpu);
+    let host = base.trim_start_matches("http://");
+    let add = json!({"mesh": 1, "transform": translate(10.0)}).to_string();
+    let pick = json!({"rays": [{"origin": [0.5, 0.5, 10.0], "dir": [0.0, 0.0, -1.0]}]}).to_string();
+    let evil = "http://evil.example";
+    for (method, path, body) in [
+        ("POST", "/objects", add.as_str()),
+        ("PATCH", "/objects/1", r#"{"mask": 0}"#),
+        ("DELETE", "/objects/1", ""),
+        ("POST", "/pick", pick.as_str()),
+    ] {
+        for origin in [evil, "null", &format!("http://{host}0")] {
+            let (status, answer) = call_from(method, &format!("{base}{path}"), body, Some(origin));
+            assert_eq!(status, 403, "{method} {path} from {origin}: {answer}");
+            let error = answer["error"].as_str().unwrap();
+            assert!(
+                error.starts_with(&format!("a {method} from another web site is refused")),
+                "{error}"
+            );
+            assert!(error.contains(origin) && error.contains(host), "{error}");
+        }
+    }
+    let (_, scene) = call("GET", &format!("{base}/scene"), None);
+    assert_eq!(scene["objects"].as_array().unwrap().len(), 2, "{scene}");
+    assert_eq!(down(&base, &[0.5, 10.5], u32::MAX), [Some(1), Some(0)]);
+    // Reads from anywhere, and changes from the server's own page or without an Origin.
+    let (status, _) = call_from("GET", &format!("{base}/scene"), "", Some(evil));
+    assert_eq!(status, 200);
+    let own = format!("http://{host}");
+    let (status, answer) = call_from("POST", &format!("{base}/objects"), &add, Some(&own));
+    assert_eq!((status, &answer), (200, &json!({"object": 2})));
+    let (status, answer) = call_from("POST", &format!("{base}/pick"), &pick, None);
+    assert_eq!(status, 200, "{answer}");
+    assert_eq!(down(&base, &[0.5, 10.5], u32::MAX), [Some(1), Some(2)]);
+}
