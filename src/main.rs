@@ -89,7 +89,8 @@ fn main() -> ExitCode {
         raypick::budget::set_limit(bytes);
     }
     let (_, sub) = matches.subcommand().expect("a subcommand is required");
-    let result = match cli.command {
+    // An --out that is also an input is refused before anything is read or written.
+    let result = cli::out_guard::refuse_inputs(sub).and_then(|()| match cli.command {
         Command::Pick(args) => cli::pick::run(args, sub),
         Command::Verify(args) => cli::verify::run(args, sub),
         Command::Los(args) => cli::los::run_los(args, sub),
@@ -103,7 +104,7 @@ fn main() -> ExitCode {
         Command::Example(args) => cli::example::run(args),
         Command::Bench(args) => cli::bench::run(args, sub),
         Command::Build(args) => cli::build::run(args, sub),
-    };
+    });
     match result {
         Ok(code) => code,
         Err(e) => {

@@ -21,7 +21,15 @@ pub struct BuildArgs {
 }
 
 pub fn run(args: BuildArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
-    // Before the scene is built: a folder made the save fail with "Not a directory".
+    // Before the scene is built: a folder made the save fail with "Not a directory", and `-`
+    // wrote a file of that name (a .rpk is read mapped from a file, not from a stream).
+    if args.out.as_os_str() == "-" {
+        return Err(Error::Invalid(
+            "--out - (standard output) cannot hold a built scene: a .rpk is loaded mapped from \
+             a file; name the .rpk file to write"
+                .into(),
+        ));
+    }
     if args.out.is_dir() {
         return Err(Error::Invalid(format!(
             "--out {} is a folder; name the .rpk file to write",

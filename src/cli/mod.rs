@@ -7,6 +7,7 @@ pub mod choice;
 pub mod example;
 pub mod los;
 pub mod mapped_file_guard;
+pub mod out_guard;
 pub mod pick;
 pub mod probe;
 pub mod progress;

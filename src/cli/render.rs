@@ -17,7 +17,7 @@ pub struct RenderArgs {
     pub scene: SceneArgs,
     #[command(flatten)]
     pub view: CameraArgs,
-    /// The PNG file to write.
+    /// The PNG file to write (`-`: standard output).
     #[arg(long)]
     pub out: PathBuf,
     /// How pixels are coloured (misses show the sky).
@@ -29,6 +29,16 @@ pub struct RenderArgs {
 }
 
 pub fn run(args: RenderArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
+    // A name of another picture format got PNG bytes without a word.
+    if let Some(extension) = args.out.extension()
+        && !extension.eq_ignore_ascii_case("png")
+    {
+        return Err(Error::Invalid(format!(
+            "--out {} names a .{} file, but render writes PNG only; name it .png",
+            args.out.display(),
+            extension.to_string_lossy()
+        )));
+    }
     // The size is checked (against the memory budget too) before the scene is loaded.
     let view = args.view.view()?;
     check_size(view.width, view.height)?;
@@ -38,6 +48,7 @@ pub fn run(args: RenderArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let image = render(picker.as_mut(), &camera, args.shade)?;
     let size = (camera.width(), camera.height());
     warn_invalid_rays(&built, &camera, ((0, 0), size, 1), u32::MAX);
-    image.save_png(&args.out)?;
+    let png = image.to_png()?;
+    super::write_output(Some(&args.out), |out| out.write_all(&png))?;
     Ok(ExitCode::SUCCESS)
 }

@@ -70,7 +70,9 @@ impl SceneArgs {
     /// with the `--scene` before it.
     pub fn files(&self, matches: &ArgMatches) -> Result<Vec<SceneFile>, Error> {
         if let Some(path) = &self.scenes {
-            return load_description(path);
+            let files = load_description(path)?;
+            super::out_guard::refuse_listed(matches, path, files.iter().map(|f| f.file.as_path()))?;
+            return Ok(files);
         }
         let scene_at: Vec<usize> = matches
             .indices_of("scene")

@@ -848,7 +848,133 @@ fn out_dash_is_standard_output() {
         String::from_utf8_lossy(&plain)
     );
     assert_eq!(run(&["pick", "--out", "-"]), plain);
+    // `render --out -` wrote a file named `-`: the PNG goes to standard output now, the same
+    // bytes as the file.
+    let size = ["--width", "16", "--height", "12"];
+    let png = run(&[&["render", "--out", "-"][..], &size].concat());
+    assert!(png.starts_with(b"\x89PNG\r\n\x1a\n"), "not a PNG on stdout");
+    run(&[&["render", "--out", "file.png"][..], &size].concat());
+    assert_eq!(std::fs::read(dir.join("file.png")).unwrap(), png);
     assert!(!dir.join("-").exists(), "a file named - was written");
+    // `build --out -` wrote a file named `-` too: a .rpk is read mapped from a file, so it is
+    // refused; and a render named as another picture format got PNG bytes.
+    for (args, words) in [
+        (
+            &["build", "--out", "-"][..],
+            "--out - (standard output) cannot hold a built scene",
+        ),
+        (
+            &["render", "--out", "view.jpg"][..],
+            "--out view.jpg names a .jpg file, but render writes PNG only",
+        ),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
+            .args(args)
+            .current_dir(&dir)
+            .output()
+            .expect("run raypick");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.starts_with(&format!("error: {words}")), "{err}");
+        assert_eq!(err.lines().count(), 1, "{err}");
+    }
+    assert!(!dir.join("-").exists() && !dir.join("view.jpg").exists());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// An `--out` naming one of the command's inputs replaced the input with the output and exited
+/// 0 (an OBJ overwritten by a .rpk or a PNG, a ray file by its answers, a description's file by
+/// the built scene). It is refused before anything is read or written, however the file is
+/// named (another spelling, a symbolic link, a file a description lists), and the input is
+/// left as it was.
+#[test]
+fn an_out_file_that_is_one_of_the_inputs_is_refused_and_left_as_it_was() {
+    let dir = std::env::temp_dir().join(format!("raypick-cli-out-in-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (code, _, err) = raypick(&["example", "--out", &dir.join("ex").display().to_string()]);
+    assert_eq!(code, 0, "{err}");
+    std::fs::write(dir.join("rays.txt"), "10 10 500 0 0 -1\n").unwrap();
+    #[cfg(unix)]
+    std::os::unix::fs::symlink("rays.txt", dir.join("link.txt")).unwrap();
+    let cases: &[(&[&str], &str)] = &[
+        (
+            &["build", "--scene", "ex/tower.obj", "--out", "ex/tower.obj"],
+            "(--scene ex/tower.obj)",
+        ),
+        (
+            &[
+                "build",
+                "--scenes",
+                "ex/scene.json",
+                "--out",
+                "ex/scene.json",
+            ],
+            "(--scenes ex/scene.json)",
+        ),
+        (
+            &["build", "--scenes", "ex/scene.json", "--out", "ex/hall.obj"],
+            "(ex/hall.obj, listed by ex/scene.json)",
+        ),
+        (
+            &[
+                "render",
+                "--scene",
+                "ex/tower.obj",
+                "--out",
+                "./ex/../ex/tower.obj",
+            ],
+            "(--scene ex/tower.obj)",
+        ),
+        (
+            &["pick", "--rays", "rays.txt", "--out", "rays.txt"],
+            "(--rays rays.txt)",
+        ),
+        #[cfg(unix)]
+        (
+            &["pick", "--rays", "link.txt", "--out", "rays.txt"],
+            "(--rays link.txt)",
+        ),
+    ];
+    let before: Vec<Vec<u8>> = ["ex/tower.obj", "ex/hall.obj", "ex/scene.json", "rays.txt"]
+        .iter()
+        .map(|f| std::fs::read(dir.join(f)).unwrap())
+        .collect();
+    for (args, input) in cases {
+        let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
+            .args(*args)
+            .current_dir(&dir)
+            .output()
+            .expect("run raypick");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        let out_name = args[args.len() - 1];
+        assert!(
+            err.starts_with(&format!("error: --out {out_name} is also an input {input}")),
+            "{args:?}: {err}"
+        );
+        assert_eq!(err.lines().count(), 1, "{err}");
+    }
+    let after: Vec<Vec<u8>> = ["ex/tower.obj", "ex/hall.obj", "ex/scene.json", "rays.txt"]
+        .iter()
+        .map(|f| std::fs::read(dir.join(f)).unwrap())
+        .collect();
+    assert!(before == after, "an input was changed");
+    // Another file is written as before.
+    let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
+        .args(["pick", "--rays", "rays.txt", "--out", "hits.csv"])
+        .current_dir(&dir)
+        .output()
+        .expect("run raypick");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        std::fs::read_to_string(dir.join("hits.csv"))
+            .unwrap()
+            .starts_with("ray,hit,")
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
 
