@@ -8,6 +8,7 @@
 //! publishes the new version ([`SceneView`]) for `GET /scene`.
 
 use super::frame_faults::{self, FrameFaults};
+use super::steps::query_in_steps;
 use crate::apps::camera::Camera;
 use crate::apps::render::{Image, Shade, render};
 use crate::error::{Error, Result};
@@ -1008,6 +1009,10 @@ impl Batcher {
                     // `run` applies edits itself, between the batches it answers here.
                     let _ = reply.send(Err(EditError::Invalid("an edit reached a batch".into())));
                 }
+                // A client gone while its job waited (its handler dropped with its
+                // connection): nothing to answer.
+                Job::Pick { reply, .. } if reply.is_closed() => {}
+                Job::Render { reply, .. } if reply.is_closed() => {}
                 Job::Pick { rays, query, reply } => {
                     let key = group_key(query);
                     let pending = PendingPick { rays, reply };
@@ -1048,9 +1053,15 @@ impl Batcher {
             }
             stats.largest_batch = stats.largest_batch.max(count);
         }
+        // In steps, until no member waits any longer (`steps`).
+        let wanted = || members.iter().any(|m| !m.reply.is_closed());
         if let [single] = members.as_slice() {
-            let answers = catch_unwind(AssertUnwindSafe(|| picker.query(&single.rays, query)));
-            let answers = flatten(answers, "picking");
+            let answers = catch_unwind(AssertUnwindSafe(|| {
+                query_in_steps(picker, &single.rays, query, wanted)
+            }));
+            let Some(answers) = flatten(answers, "picking").transpose() else {
+                return;
+            };
             let Some(member) = members.into_iter().next() else {
                 return;
             };
@@ -1064,8 +1075,13 @@ impl Batcher {
             rays.extend_from_slice(&member.rays);
             ranges.push(start..rays.len());
         }
-        let answers = catch_unwind(AssertUnwindSafe(|| picker.query(&rays, query)));
-        match flatten(answers, "picking") {
+        let answers = catch_unwind(AssertUnwindSafe(|| {
+            query_in_steps(picker, &rays, query, wanted)
+        }));
+        let Some(answers) = flatten(answers, "picking").transpose() else {
+            return;
+        };
+        match answers {
             Ok(answers) => {
                 for (member, range) in members.into_iter().zip(ranges) {
                     let _ = member.reply.send(Ok(slice_answers(&answers, range)));

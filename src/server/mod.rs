@@ -3,7 +3,8 @@
 //!
 //! This module owns the [`Server`] (its configuration, start-up and serving); the routes and
 //! their JSON live in `api`, the picking worker and its batching in [`batcher`], the page in
-//! [`page`], the refusal of other sites' requests in `origin`.
+//! [`page`], the refusal of other sites' requests in `origin`, picks answered in steps (and
+//! dropped when their client is gone) in `steps`.
 //!
 //! # Threads
 //!
@@ -41,6 +42,8 @@
 //!   answered 503 at once; one that must wait for others to finish waits up to
 //!   [`ServerConfig::memory_wait`] (default 5 s), then gets 503. After large requests the
 //!   allocator is asked to give freed memory back to the system.
+//! - A pick whose client is gone (its connection closed, its handler dropped) is not answered:
+//!   the worker skips it, or stops it between two of its steps (`steps`).
 //!
 //! ## `POST /pick`
 //!
@@ -124,6 +127,7 @@ pub mod batcher;
 mod frame_faults;
 mod origin;
 pub mod page;
+mod steps;
 
 pub use batcher::Stats;
 

@@ -396,3 +396,66 @@ fn a_server_with_limits_that_refuse_everything_is_not_made() {
         assert!(made.is_err(), "{config:?} made a server");
     }
 }
+
+/// A client that sends a costly pick and goes away no longer holds the picking worker until
+/// the pick is done: before, a request of a few thousand rays through a stack of 100,000
+/// triangles at one place (what `POST /objects` lets a client add) kept every other client
+/// waiting for all of it, its client long gone. Now the worker picks in steps and stops when
+/// no one waits for the answer, so the next client is answered within a few steps of the first
+/// one's leaving. Timed against one step measured in the same run (the machine's speed cancels
+/// out): the abandoned pick is 200 steps' work, and the next client may wait a few steps and
+/// the step in flight (steps double on a fast machine, up to the work done so far).
+#[test]
+fn a_costly_pick_whose_client_left_stops_holding_the_worker() {
+    use raypick::Scene;
+    use raypick::scene::Mesh;
+    let mut scene = Scene::new();
+    let stack = Mesh {
+        positions: vec![
+            glam::DVec3::new(0.0, 0.0, 0.0),
+            glam::DVec3::new(1.0, 0.0, 0.0),
+            glam::DVec3::new(0.0, 1.0, 0.0),
+        ],
+        triangles: vec![[0, 1, 2]; 100_000],
+    };
+    scene.add_mesh("stack", stack).unwrap();
+    let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
+    let addr = crate::common::serve(built, Backend::Cpu, ServerConfig::default());
+    let rays = |n: usize| {
+        let ray = r#"{"origin": [0.2, 0.2, 5], "dir": [0, 0, -1]}"#;
+        format!(r#"{{"rays": [{}]}}"#, vec![ray; n].join(","))
+    };
+    // One step's work (256 rays), answered whole: the yardstick.
+    let start = Instant::now();
+    let (status, _) = request(addr, "POST", "/pick", &rays(256));
+    assert_eq!(status, 200);
+    let step = start.elapsed();
+    // 200 steps' work, from a client that gives up after two steps (at least half a second).
+    let patience = (step * 2).max(Duration::from_millis(500));
+    let body = rays(256 * 200);
+    let mut stream = connect(addr, patience);
+    let head = format!(
+        "POST /pick HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\
+         Content-Type: application/json\r\nContent-Length: {}\r\n\r\n",
+        body.len()
+    );
+    stream.write_all(head.as_bytes()).unwrap();
+    stream.write_all(body.as_bytes()).unwrap();
+    let mut answer = [0u8; 16];
+    let left = stream.read(&mut answer);
+    assert!(
+        left.is_err(),
+        "the costly pick answered within {patience:?}"
+    );
+    drop(stream);
+    let gone = Instant::now();
+    let (status, _) = request(addr, "POST", "/pick", &rays(1));
+    let waited = gone.elapsed();
+    assert_eq!(status, 200);
+    assert!(
+        waited < step * 8 + patience * 2,
+        "the next pick waited {waited:?}, {:.1} steps of {step:?}: the worker went on with the \
+         abandoned pick",
+        waited.as_secs_f64() / step.as_secs_f64()
+    );
+}
