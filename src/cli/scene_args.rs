@@ -294,9 +294,9 @@ fn warn_lost(built: &BuiltScene) {
             "more than single precision holds".into()
         };
         eprintln!(
-            "warning: {}; the scene spans {span:.3e} units, {frame} (are some objects in other \
-             coordinates?)",
+            "warning: {}; the scene spans {}, {frame} (are some objects in other coordinates?)",
             lost.describe(),
+            raypick::frame::reach::units(span),
         );
     }
     let (unresolved, kind) = match built.instances() {

@@ -40,6 +40,16 @@ pub fn ray_step(reach: f64) -> f64 {
     f32_step(reach) / 2048.0
 }
 
+/// A distance for a message: `1.000e12 units`; one past f64's range (the difference of
+/// vertices near ±1.8e308) read "inf units".
+pub fn units(distance: f64) -> String {
+    if distance.is_finite() {
+        format!("{distance:.3e} units")
+    } else {
+        "more than 1.8e308 units (past f64's range)".into()
+    }
+}
+
 /// A part that its frame does not resolve: where it lies, the step there and its size.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Unresolved {
@@ -84,11 +94,16 @@ impl Unresolved {
         } else {
             "cannot hold positions at all".into()
         };
+        let reach = units(self.reach);
+        let size = if self.size.is_finite() {
+            format!("its {:.3e} units", self.size)
+        } else {
+            "a size past f64's range".into()
+        };
         format!(
-            "{what} lies {:.3e} units from the centre of the scene, where its \
-             single-precision frame {rounds}: too coarse for its {:.3e} units (are some objects \
-             in other coordinates?)",
-            self.reach, self.size
+            "{what} lies {reach} from the centre of the scene, where its \
+             single-precision frame {rounds}: too coarse for {size} (are some objects in other \
+             coordinates?)"
         )
     }
 }

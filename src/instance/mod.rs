@@ -421,7 +421,8 @@ impl Instances {
                 .bounds()
                 .map_or(0.0, |(lo, hi)| (hi - lo).max_element());
             return Err(Error::Invalid(format!(
-                "the mesh spans {span:.3e} units, more than its single-precision frame holds"
+                "the mesh spans {}, more than its single-precision frame holds",
+                crate::frame::reach::units(span)
             )));
         }
         let bvh = Bvh::build(&mesh, options)?;

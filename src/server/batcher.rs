@@ -535,7 +535,7 @@ impl Batcher {
                         // leave any object far from the new centre.
                         let now = scene_of(picker.as_ref())?;
                         let refused = if refit == crate::picker::Refit::Rebuilt {
-                            before.after(&now)
+                            before.after(&now, Some(object))
                         } else {
                             let there = box_of(moved.iter().copied());
                             match frame_faults::moved(object, here, there, &now, before) {
@@ -566,7 +566,7 @@ impl Batcher {
                         scene
                             .transform_object(object, &transform)
                             .map_err(invalid)?;
-                        self.rebuild(picker, scene, &options, before)?;
+                        self.rebuild(picker, scene, &options, before, Some(object))?;
                     }
                     objects[object as usize].0 = Some(transform);
                 }
@@ -644,7 +644,7 @@ impl Batcher {
                 if options.builder == crate::bvh::Builder::Grid {
                     options.builder = crate::bvh::Builder::Auto;
                 }
-                self.rebuild(picker, scene, &options, before)?;
+                self.rebuild(picker, scene, &options, before, Some(id))?;
                 // Only now that the object exists: its positions before its transform.
                 if self.loaded.len() <= id as usize {
                     self.loaded.resize(id as usize + 1, None);
@@ -928,25 +928,26 @@ impl Batcher {
         }
         // A smaller frame resolves what is left at least as finely; a refusal or a failure
         // leaves the masked scene serving.
-        let _ = self.rebuild(picker, gathered, &options, before);
+        let _ = self.rebuild(picker, gathered, &options, before, None);
     }
 
     /// Builds `scene` with `options` and puts a new picker over it in `picker`'s place; refused,
     /// with nothing changed, when its frame fails to hold more than `before` (the scene's
-    /// before the edit: [`FrameFaults::after`]).
+    /// before the edit of object `edited`: [`FrameFaults::after`]).
     fn rebuild(
         &mut self,
         picker: &mut Box<dyn Picker>,
         scene: crate::scene::Scene,
         options: &crate::bvh::BuildOptions,
         before: FrameFaults,
+        edited: Option<u32>,
     ) -> std::result::Result<(), EditError> {
         let failed = |e: Error| match e {
             Error::TooLargeForGpu { .. } => EditError::TooLarge(e.to_string()),
             e => EditError::of(e, EditError::Failed),
         };
         let rebuilt = BuiltScene::new(scene, options).map_err(failed)?;
-        let (after, refused) = before.after(&rebuilt);
+        let (after, refused) = before.after(&rebuilt, edited);
         if let Some(refused) = refused {
             return Err(refused);
         }

@@ -32,8 +32,15 @@ impl FrameFaults {
     }
 
     /// `built`'s faults, and the refusal of the edit that made it when it has more of either
-    /// kind than `self` (the scene's before the edit).
-    pub(crate) fn after(&self, built: &BuiltScene) -> (Self, Option<EditError>) {
+    /// kind than `self` (the scene's before the edit). The refusal names the edited object
+    /// `edited` where it is one the frame does not resolve (a far move re-centres the frame
+    /// half-way, so the objects left behind are as far from its centre as the moved one); else
+    /// the first that is not, with the edited object beside it.
+    pub(crate) fn after(
+        &self,
+        built: &BuiltScene,
+        edited: Option<u32>,
+    ) -> (Self, Option<EditError>) {
         let lost = built.lost_triangles();
         let unresolved = unresolved_objects(&built.scene, built.bvh.origin);
         let now = FrameFaults {
@@ -41,14 +48,22 @@ impl FrameFaults {
             unresolved: unresolved.len(),
         };
         let why = if now.unresolved > self.unresolved {
-            let u = &unresolved[0];
-            Some(u.describe(&format!("object {}", u.part)))
+            match edited.and_then(|e| unresolved.iter().find(|u| u.part == e)) {
+                Some(u) => Some(u.describe(&format!("object {}", u.part))),
+                None => {
+                    let u = &unresolved[0];
+                    let by =
+                        edited.map_or(String::new(), |e| format!(" (by the edit of object {e})"));
+                    Some(u.describe(&format!("object {}{by}", u.part)))
+                }
+            }
         } else if now.lost > self.lost {
             let span = built
                 .bounds()
                 .map_or(0.0, |(lo, hi)| (hi - lo).max_element());
             Some(format!(
-                "the scene would span {span:.3e} units, and {}",
+                "the scene would span {}, and {}",
+                crate::frame::reach::units(span),
                 lost.describe()
             ))
         } else {

@@ -458,19 +458,26 @@ fn far_edits_are_refused_on(scene: Arc<BuiltScene>, instanced: bool) {
         error
     };
     let far_box = |x: f64| json!({"mesh": 1, "transform": translate(x)});
+    // The refusal names the object edited (the new one, 2, or the moved one, 1): a far move
+    // re-centres the frame half-way, and the sentence named object 0, left behind as far from
+    // the centre, for every edit.
     let error = refused("POST", "/objects", far_box(1e12));
     assert!(error.contains("single-precision frame"), "{error}");
+    let kind = if instanced { "instance" } else { "object" };
+    assert!(error.contains(&format!("{kind} 2 ")), "{error}");
     refused("POST", "/objects", far_box(1e300));
-    refused(
+    let error = refused(
         "POST",
         "/objects",
         json!({
-            "vertices": [[1e300, 0.0, 0.0], [-1e300, 0.0, 0.0], [0.0, 1e300, 0.0]],
+            "vertices": [[1e308, 0.0, 0.0], [-1e308, 0.0, 0.0], [0.0, 1e308, 0.0]],
             "triangles": [[0, 1, 2]],
         }),
     );
+    assert!(!error.contains("inf"), "{error}");
     for x in [1e12, 1e300] {
-        refused("PATCH", "/objects/1", json!({"transform": translate(x)}));
+        let error = refused("PATCH", "/objects/1", json!({"transform": translate(x)}));
+        assert!(error.contains(&format!("{kind} 1 ")), "{error}");
     }
     if !instanced {
         // After a refused move that had re-centred the frame, the frame is as it was: a move
