@@ -236,7 +236,17 @@ impl BuiltScene {
                     .position(|p| p.mesh as usize == m)
                     .map(|k| (k as u32, triangle));
             }
+            if all.first_degenerate.is_none()
+                && let Some((_, triangle)) = lost.first_degenerate
+            {
+                all.first_degenerate = i
+                    .instances()
+                    .iter()
+                    .position(|p| p.mesh as usize == m)
+                    .map(|k| (k as u32, triangle));
+            }
             all.triangles += lost.triangles;
+            all.degenerate += lost.degenerate;
         }
         all
     }

@@ -7,23 +7,44 @@
 //! to 32 units, so a one-unit triangle at one end of it collapses. Slivers (long, but flatter
 //! than f32 resolves wherever they lie) and triangles of objects with layer mask 0 (never hit)
 //! are not counted. The command line warns about lost triangles; the server refuses an edit
-//! that would lose more.
+//! that would lose more. The triangles with no area in f64 that the tree leaves out are
+//! counted beside them, for the command line's warning.
 
 use super::Bvh;
 use crate::frame::reach::{Unresolved, f32_step};
 use crate::scene::{Scene, box_of};
 use rayon::prelude::*;
 
-/// What a tree loses of its scene (see the module docs).
+/// What a tree loses of its scene (see the module docs), and the triangles with no area it
+/// leaves out besides.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Lost {
     /// Triangles with area in f64 that the frame loses (see the module docs).
     pub triangles: usize,
     /// The first of them, as `(object id, triangle id within the object)`.
     pub first: Option<(u32, u32)>,
+    /// Triangles of objects that can be hit with no area in f64 (corners on one line, a corner
+    /// repeated: faces a file may hold), which no ray hits either: not the frame's doing, but
+    /// the command line says so too.
+    pub degenerate: usize,
+    /// The first of them, as `first`.
+    pub first_degenerate: Option<(u32, u32)>,
 }
 
 impl Lost {
+    /// A sentence naming how many triangles have no area and the first, each object named as
+    /// `object` does; empty when none has.
+    pub fn describe_degenerate(&self, object: impl Fn(u32) -> String) -> String {
+        match (self.degenerate, self.first_degenerate) {
+            (0, _) | (_, None) => String::new(),
+            (n, Some((o, triangle))) => format!(
+                "{n} triangle(s) have no area (their corners on one line; the first: {}'s \
+                 triangle {triangle}), so they can never be hit",
+                object(o)
+            ),
+        }
+    }
+
     /// A sentence naming how many triangles are lost and the first, for a message; empty when
     /// none is.
     pub fn describe(&self) -> String {
@@ -53,24 +74,36 @@ pub fn lost_triangles(scene: &Scene, bvh: &Bvh) -> Lost {
             *h = true;
         }
     }
-    let lost: Vec<u32> = (0..n)
+    // Each triangle left out, of an object that can be hit: lost (true) or with no area (false).
+    let left_out = |i: usize| -> Option<bool> {
+        let (object, _) = scene.locate(i as u32);
+        if held[i] || scene.objects()[object as usize].mask == 0 {
+            return None;
+        }
+        if scene.is_degenerate(i) {
+            return Some(false);
+        }
+        // Collapsed by the frame: its box spans few of the frame's steps where it lies (a
+        // sliver, long but flat, collapses wherever it lies: not the frame's doing).
+        let b = box_of(scene.world_triangle(i));
+        Unresolved::of(0, b, bvh.origin, f32_step).map(|_| true)
+    };
+    let kinds: Vec<(u32, bool)> = (0..n)
         .into_par_iter()
-        .filter(|&i| {
-            if held[i] || scene.is_degenerate(i) {
-                return false;
-            }
-            let (object, _) = scene.locate(i as u32);
-            // Collapsed by the frame: its box spans few of the frame's steps where it lies (a
-            // sliver, long but flat, collapses wherever it lies: not the frame's doing).
-            let b = box_of(scene.world_triangle(i));
-            let resolved = Unresolved::of(0, b, bvh.origin, f32_step).is_none();
-            scene.objects()[object as usize].mask != 0 && !resolved
-        })
-        .map(|i| i as u32)
+        .filter_map(|i| left_out(i).map(|lost| (i as u32, lost)))
         .collect();
+    let first = |lost: bool| {
+        kinds
+            .iter()
+            .find(|k| k.1 == lost)
+            .map(|k| scene.locate(k.0))
+    };
+    let lost = kinds.iter().filter(|k| k.1).count();
     Lost {
-        triangles: lost.len(),
-        first: lost.first().map(|&i| scene.locate(i)),
+        triangles: lost,
+        first: first(true),
+        degenerate: kinds.len() - lost,
+        first_degenerate: first(false),
     }
 }
 
@@ -144,20 +177,35 @@ mod tests {
     /// origin's offsets overflow f32 (the far one has no area in f64 there: 10³⁰⁰ + 1 is 10³⁰⁰).
     #[test]
     fn a_scene_too_wide_for_its_frame_loses_its_small_triangles() {
-        assert_eq!(lost(10.0), Lost::default());
+        // Triangle 1 has its corners on one line: no area in f64 either.
+        let degenerate = Lost {
+            degenerate: 1,
+            first_degenerate: Some((0, 1)),
+            ..Lost::default()
+        };
+        assert_eq!(lost(10.0), degenerate);
         assert_eq!(
             lost(1e9),
             Lost {
                 triangles: 2,
-                first: Some((0, 0))
+                first: Some((0, 0)),
+                ..degenerate
             }
         );
+        // At 10³⁰⁰ the far triangle has no area in f64 either.
         assert_eq!(
             lost(1e300),
             Lost {
                 triangles: 1,
-                first: Some((0, 0))
+                first: Some((0, 0)),
+                degenerate: 2,
+                ..degenerate
             }
+        );
+        assert_eq!(
+            degenerate.describe_degenerate(|o| format!("object {o}")),
+            "1 triangle(s) have no area (their corners on one line; the first: object 0's \
+             triangle 1), so they can never be hit"
         );
         assert!(
             lost(1e9)

@@ -283,7 +283,35 @@ impl SceneArgs {
 /// be missed or off without a word.
 fn warn_lost(built: &BuiltScene) {
     use raypick::frame::reach::{f32_step, unresolved_objects, unresolved_triangles};
+    // Frames too wide or too narrow for the f32 tests' products: the scene's, or each mesh's.
+    let reach = |bounds: Option<(glam::DVec3, glam::DVec3)>, origin: glam::DVec3| {
+        bounds.map_or(0.0, |(lo, hi)| {
+            (lo - origin).abs().max((hi - origin).abs()).max_element()
+        })
+    };
+    let reaches: Vec<f64> = match built.instances() {
+        None => vec![reach(built.scene.bounds(), built.bvh.origin)],
+        Some(i) => i
+            .meshes()
+            .iter()
+            .map(|m| reach(m.scene.bounds(), m.bvh.origin))
+            .collect(),
+    };
+    if let Some(fault) = reaches
+        .into_iter()
+        .find_map(raypick::frame::reach::scale_fault)
+    {
+        eprintln!("warning: {fault}");
+    }
     let lost = built.lost_triangles();
+    if lost.degenerate > 0 {
+        // An instanced scene's first is an instance placing the mesh.
+        let object = |id: u32| match built.instances() {
+            None => format!("object {id} ({})", built.scene.objects()[id as usize].name),
+            Some(i) => format!("instance {id} ({})", i.instances()[id as usize].name),
+        };
+        eprintln!("warning: {}", lost.describe_degenerate(object));
+    }
     if lost.triangles > 0 {
         let (lo, hi) = built.bounds().unwrap_or_default();
         let span = (hi - lo).max_element();

@@ -40,6 +40,41 @@ pub fn ray_step(reach: f64) -> f64 {
     f32_step(reach) / 2048.0
 }
 
+/// The widest reach from a frame's centre at which the single-precision triangle tests keep
+/// their products finite. The watertight test's `t · det` grows as the cube of the distances
+/// in the frame (a triangle's size squared, times the distance along the ray, up to 17 reaches
+/// before the origin is moved in): a tetrahedron 10¹³ units across (a reach of 5 × 10¹²) gave
+/// `raypick verify` 2,709 mismatches of 4,000 rays, every one a miss of a hit; 3 × 10¹² gave
+/// none. Frames of wider reach are warned about ([`scale_fault`]).
+pub const WIDEST_REACH: f64 = 1e12;
+
+/// The narrowest reach at which those products stay clear of f32's subnormals: 10⁻¹⁴ across
+/// gave 30 mismatches of 4,000 rays, 10⁻¹³ none.
+pub const NARROWEST_REACH: f64 = 1e-12;
+
+/// A sentence when a frame reaching `reach` units from its centre is too wide or too narrow
+/// for the single-precision tests ([`WIDEST_REACH`], [`NARROWEST_REACH`]); `None` otherwise
+/// (and for a frame of no size).
+pub fn scale_fault(reach: f64) -> Option<String> {
+    if reach > WIDEST_REACH {
+        Some(format!(
+            "the scene reaches {} from its centre: past {WIDEST_REACH:.0e}, the single-precision \
+             triangle tests overflow and miss hits (measure it in larger units: kilometres, not \
+             metres)",
+            units(reach)
+        ))
+    } else if reach > 0.0 && reach < NARROWEST_REACH {
+        Some(format!(
+            "the scene reaches only {} from its centre: under {NARROWEST_REACH:.0e}, the \
+             single-precision triangle tests lose their products to underflow and miss hits \
+             (measure it in smaller units)",
+            units(reach)
+        ))
+    } else {
+        None
+    }
+}
+
 /// A distance for a message: `1.000e12 units`; one past f64's range (the difference of
 /// vertices near ±1.8e308) read "inf units".
 pub fn units(distance: f64) -> String {

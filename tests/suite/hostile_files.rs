@@ -917,6 +917,85 @@ fn obj_files_that_give_no_triangle_are_warned_about_once() {
     assert!(!outcome.stderr.contains("warning"), "{}", outcome.stderr);
 }
 
+/// Faces with no area (a corner repeated, corners on one line) can never be hit; they loaded
+/// without a word. One warning names how many and the first, in every format.
+#[test]
+fn faces_with_no_area_are_warned_about_once() {
+    let dir = TempDir::new("degenerate");
+    let obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 1 2\nf 1 2 4\n";
+    let ply = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+               property float z\nelement face 2\nproperty list uchar int vertex_indices\n\
+               end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 0 0 1\n";
+    for (file, text, count, first) in [
+        ("flat.obj", obj, 2, "triangle 1"),
+        ("flat.ply", ply, 1, "triangle 1"),
+    ] {
+        let path = dir.write(file, text.as_bytes());
+        let outcome = run(&[
+            "pick",
+            "--backend",
+            "cpu",
+            "--scene",
+            &path.display().to_string(),
+        ]);
+        let err = &outcome.stderr;
+        assert_eq!(outcome.code, Some(0), "{file}: {err}");
+        let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("warning:")).collect();
+        assert_eq!(warnings.len(), 1, "{file}: one warning: {err}");
+        let expected = format!("warning: {count} triangle(s) have no area");
+        assert!(warnings[0].starts_with(&expected), "{file}: {err}");
+        assert!(
+            warnings[0].contains(file)
+                && warnings[0].contains(&format!("{first}), so they can never be hit")),
+            "{file}: {err}"
+        );
+    }
+}
+
+/// A scene 10¹³ units across (reach 5 × 10¹² from its centre) makes the f32 watertight test's
+/// `t · det` overflow, and rays miss what they hit (`raypick verify`: 2,709 of 4,000 rays); one
+/// 10⁻¹⁴ across loses its products to underflow (30 of 4,000). Neither was said. Now a warning
+/// says how far the scene reaches and what to do; 10¹⁰ and 10⁻¹⁰ across are not warned about.
+#[test]
+fn scenes_too_wide_or_too_narrow_for_the_f32_tests_are_warned_about() {
+    let dir = TempDir::new("scale");
+    for (size, warned) in [
+        (
+            "1e13",
+            Some("reaches 5.000e12 units from its centre: past 1e12"),
+        ),
+        (
+            "1e-14",
+            Some("reaches only 5.000e-15 units from its centre: under 1e-12"),
+        ),
+        ("1e10", None),
+        ("1e-10", None),
+    ] {
+        let text = format!(
+            "v 0 0 0\nv {size} 0 0\nv 0 {size} 0\nv 0 0 {size}\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n"
+        );
+        let path = dir.write(&format!("tet{size}.obj"), text.as_bytes());
+        let outcome = run(&[
+            "pick",
+            "--backend",
+            "cpu",
+            "--scene",
+            &path.display().to_string(),
+        ]);
+        let err = &outcome.stderr;
+        assert_eq!(outcome.code, Some(0), "{size}: {err}");
+        let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("warning:")).collect();
+        match warned {
+            Some(words) => {
+                assert_eq!(warnings.len(), 1, "{size}: {err}");
+                assert!(warnings[0].contains(words), "{size}: {err}");
+                assert!(warnings[0].contains("miss hits"), "{size}: {err}");
+            }
+            None => assert!(warnings.is_empty(), "{size}: {err}"),
+        }
+    }
+}
+
 // --- Compressed PLY bombs ------------------------------------------------------------------
 
 fn gzip(bytes: &[u8]) -> Vec<u8> {
