@@ -5,7 +5,7 @@
 //! be a silent copy of what may be a large array, and a loss of precision hidden from the
 //! caller for float32. Python lists and tuples are converted (they are copied anyway).
 
-use crate::errors::{value_error, vec_for};
+use crate::errors::{collect_for, to_py, value_error, vec_for};
 use numpy::ndarray::ArrayView2;
 use numpy::{
     PyArray2, PyArrayDescrMethods, PyArrayMethods, PyReadonlyArray2, PyUntypedArray,
@@ -120,6 +120,9 @@ pub fn rows<'py>(
                 }
             )));
         }
+        // numpy's copy is made before anything else is checked: its size first.
+        let count = shape.iter().product::<usize>() as u64;
+        raypick::budget::check(&format!("{name} as float64"), count, 8).map_err(to_py)?;
         array = array
             .call_method1("astype", ("float64",))?
             .cast_into::<PyUntypedArray>()?;
@@ -176,6 +179,8 @@ pub fn triangles(obj: &Bound<'_, PyAny>) -> PyResult<Vec<[u32; 3]>> {
     let descr = array.dtype();
     let count = shape[0];
     let mut out = vec_for::<[u32; 3]>(count, "the triangles")?;
+    // numpy's widened copy below, before it is made.
+    raypick::budget::check("the triangles as 64-bit integers", count as u64, 24).map_err(to_py)?;
     let bad = |t: usize, value: String| {
         value_error(format!(
             "triangles must hold vertex indices in 0 ..= 4294967295; triangle {t} has {value}"
@@ -217,12 +222,14 @@ pub fn triangles(obj: &Bound<'_, PyAny>) -> PyResult<Vec<[u32; 3]>> {
     Ok(out)
 }
 
-/// The rows of `view` as points.
-pub fn points(view: ArrayView2<'_, f64>) -> Vec<DVec3> {
-    view.rows()
-        .into_iter()
-        .map(|r| DVec3::new(r[0], r[1], r[2]))
-        .collect()
+/// The rows of `view` as points (`what`, for the memory budget's message).
+pub fn points(view: ArrayView2<'_, f64>, what: &str) -> PyResult<Vec<DVec3>> {
+    let rows = view.rows().into_iter();
+    collect_for(
+        view.nrows(),
+        what,
+        rows.map(|r| DVec3::new(r[0], r[1], r[2])),
+    )
 }
 
 /// The ray argument of `pick`: `(N, 6)` float64 rows (origin, direction), or a tuple

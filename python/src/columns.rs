@@ -336,8 +336,12 @@ pub struct Lists {
     col: Vec<i64>,
 }
 
-/// Makes room for `more` items in `v`, or says the memory is not there.
+/// Makes room for `more` items in `v`, or says they are over the memory budget (all of `v`'s
+/// items then), or that the memory is not there.
 fn grow<T>(v: &mut Vec<T>, more: usize) -> PyResult<()> {
+    let items = v.len().saturating_add(more) as u64;
+    raypick::budget::check("the hit lists", items, size_of::<T>() as u64)
+        .map_err(crate::errors::to_py)?;
     v.try_reserve(more).map_err(|_| {
         pyo3::exceptions::PyMemoryError::new_err(format!(
             "the hit lists would need {more} more entries of {} bytes, more than this process \

@@ -29,14 +29,29 @@ pub fn to_py(error: Error) -> PyErr {
     }
 }
 
+/// `items` (at most `n` of them) in a vector made by [`vec_for`]: checked against the memory
+/// budget before anything is allocated (a zero-copy view, `numpy.broadcast_to`, may claim
+/// billions of rows).
+pub fn collect_for<T>(
+    n: usize,
+    what: &str,
+    items: impl IntoIterator<Item = T>,
+) -> Result<Vec<T>, PyErr> {
+    let mut v = vec_for(n, what)?;
+    v.extend(items.into_iter().take(n));
+    Ok(v)
+}
+
 /// A `ValueError` with one sentence.
 pub fn value_error(sentence: impl Into<String>) -> PyErr {
     PyValueError::new_err(sentence.into())
 }
 
-/// A vector with room for `n` items, advised onto huge pages when large; a `MemoryError`
-/// instead of an abort when the memory is not there.
+/// A vector with room for `n` items, advised onto huge pages when large: a `ValueError` when
+/// they are over the memory budget (`raypick.set_max_memory`), a `MemoryError` instead of an
+/// abort when the memory is not there.
 pub fn vec_for<T>(n: usize, what: &str) -> Result<Vec<T>, PyErr> {
+    raypick::budget::check(what, n as u64, size_of::<T>() as u64).map_err(to_py)?;
     let mut v = Vec::new();
     v.try_reserve_exact(n).map_err(|_| {
         PyMemoryError::new_err(format!(

@@ -3,7 +3,9 @@
 //! Rays are answered in batches: on the CPU of [`CPU_BATCH`] rays (converted, traced and
 //! written out one batch after the other, so a batch stays in the processor's cache), on a GPU
 //! of as many as fit half the library's memory budget. Every batch fits that budget, as the
-//! CLI's `--mode all` does, so a large all-hits query runs in bounded memory.
+//! CLI's `--mode all` does; the answer columns are checked against it before they are made, and
+//! the all-hits lists, which grow with the hits found, each time they grow (a `ValueError`
+//! naming the budget once they would pass it).
 
 use crate::arrays;
 use crate::columns::{Columns, Lists, Shape};

@@ -334,7 +334,7 @@ impl Scene {
     ) -> PyResult<Scene> {
         let options = build_options(builder, leaf_size)?;
         let vertices = arrays::rows(vertices, "vertices", 3, Dtype::Float64, false)?;
-        let positions = arrays::points(vertices.as_array());
+        let positions = arrays::points(vertices.as_array(), "the vertices")?;
         let triangles = arrays::triangles(triangles)?;
         let mesh = Mesh {
             positions,

@@ -7,7 +7,7 @@
 //! counts them (the CLI's warning).
 
 use crate::arrays::{self, Dtype};
-use crate::errors::{value_error, vec_for};
+use crate::errors::{collect_for, value_error, vec_for};
 use crate::pick::{QueryArgs, answer};
 use crate::scene::{Scene, mask, parse_name};
 use numpy::{IntoPyArray, PyArrayMethods};
@@ -94,11 +94,15 @@ pub fn los<'py>(
 ) -> PyResult<Bound<'py, PyAny>> {
     let a = arrays::rows(a, "a", 3, Dtype::Float64, true)?;
     let b = arrays::rows(b, "b", 3, Dtype::Float64, true)?;
-    let (a, b) = (arrays::points(a.as_array()), arrays::points(b.as_array()));
+    let (a, b) = (
+        arrays::points(a.as_array(), "the points a")?,
+        arrays::points(b.as_array(), "the points b")?,
+    );
+    let what = "the segments";
     let segments: Vec<(DVec3, DVec3)> = match (a.len(), b.len()) {
-        (n, m) if n == m => a.into_iter().zip(b).collect(),
-        (1, _) => b.iter().map(|&q| (a[0], q)).collect(),
-        (_, 1) => a.iter().map(|&p| (p, b[0])).collect(),
+        (n, m) if n == m => collect_for(n, what, a.into_iter().zip(b))?,
+        (1, m) => collect_for(m, what, b.iter().map(|&q| (a[0], q)))?,
+        (n, 1) => collect_for(n, what, a.iter().map(|&p| (p, b[0])))?,
         (n, m) => {
             return Err(value_error(format!(
                 "a has {n} points but b has {m}; give as many, or one point for every segment"
@@ -120,7 +124,7 @@ pub fn viewshed<'py>(
     args: &SightArgs,
 ) -> PyResult<Bound<'py, PyDict>> {
     let observer = arrays::rows(observer, "observer", 3, Dtype::Float64, true)?;
-    let observer = arrays::points(observer.as_array());
+    let observer = arrays::points(observer.as_array(), "the observer")?;
     let [observer] = observer.as_slice() else {
         return Err(value_error(format!(
             "observer must be one point (x, y, z); got {} points",
@@ -143,21 +147,33 @@ pub fn viewshed<'py>(
     let targets: Vec<(DVec3, [i64; 3])> = match targets.filter(|t| !t.is_none()) {
         Some(given) => {
             let given = arrays::rows(given, "targets", 3, Dtype::Float64, true)?;
-            arrays::points(given.as_array())
-                .into_iter()
-                .map(|p| (p + lift, [-1; 3]))
-                .collect()
+            let given = given.as_array();
+            let rows = given.rows().into_iter();
+            let labelled = rows.map(|r| (DVec3::new(r[0], r[1], r[2]) + lift, [-1; 3]));
+            collect_for(given.nrows(), "the targets", labelled)?
         }
         None => grid_targets(scene.built(), lift)?,
     };
-    let segments: Vec<(DVec3, DVec3)> = targets.iter().map(|(t, _)| (*observer, *t)).collect();
-    let seen = visible(py, scene, &segments, args, "target")?;
     let n = targets.len();
+    let segments = collect_for(
+        n,
+        "the segments",
+        targets.iter().map(|(t, _)| (*observer, *t)),
+    )?;
+    let seen = visible(py, scene, &segments, args, "target")?;
     let dict = PyDict::new(py);
-    let position: Vec<f64> = targets.iter().flat_map(|(p, _)| p.to_array()).collect();
+    let position = collect_for(
+        3 * n,
+        "the position column",
+        targets.iter().flat_map(|(p, _)| p.to_array()),
+    )?;
     dict.set_item("position", position.into_pyarray(py).reshape([n, 3])?)?;
     for (k, key) in ["object", "row", "col"].into_iter().enumerate() {
-        let column: Vec<i64> = targets.iter().map(|(_, label)| label[k]).collect();
+        let column = collect_for(
+            n,
+            "a label column",
+            targets.iter().map(|(_, label)| label[k]),
+        )?;
         dict.set_item(key, column.into_pyarray(py))?;
     }
     dict.set_item("visible", seen.into_pyarray(py))?;

@@ -252,3 +252,40 @@ def test_hostile_files_are_refused_or_read_never_fatal():
             raypick.Scene.load(folder / name)
         except (OSError, ValueError) as e:
             assert "\n" not in str(e), (name, str(e))
+
+
+def test_zero_copy_views_of_billions_of_rows_are_refused_by_the_budget(bunny, dem):
+    """numpy.broadcast_to makes a view of any number of rows without the memory: the points,
+    segments and answer columns made from it were collected without a check, and a view of 2e9
+    rows aborted the interpreter (48 GB asked of the allocator). Every such array is checked
+    against the memory budget before it is made (1 GiB here, whatever the machine), and under
+    a small budget sizes a large machine could hold are refused too."""
+    huge = 2_000_000_000
+    ray = np.array([0.0, 0.1, 1, 0, 0, -1])
+    cases = [
+        (lambda: bunny.los([0.0, 0, 0], np.broadcast_to([0.0, 0, 1], (huge, 3))), "the points b"),
+        (lambda: bunny.los(np.broadcast_to([0.0, 0, 0], (huge, 3)), [0.0, 0, 1]), "the points a"),
+        (lambda: dem.viewshed([518775.0, 4030000, 4000], targets=np.broadcast_to([0.0, 0, 1], (huge, 3))), "the targets"),
+        (lambda: raypick.Scene.from_arrays(np.broadcast_to([0.0, 0, 0], (huge, 3)), [[0, 1, 2]]), "the vertices"),
+        (lambda: bunny.pick(np.broadcast_to(ray, (huge, 6))), "columns"),
+        (lambda: raypick.Scene.from_arrays(np.zeros((3, 3)), np.broadcast_to(np.array([0, 1, 2], dtype=np.int32), (huge, 3))), "the triangles"),
+    ]
+    default = raypick.max_memory()
+    try:
+        raypick.set_max_memory("1G")
+        for call, words in cases:
+            with pytest.raises(ValueError, match="over the memory budget of 1.0 GiB") as e:
+                call()
+            assert words in one_sentence(e), one_sentence(e)
+        raypick.set_max_memory("16M")
+        with pytest.raises(ValueError, match="over the memory budget of 16.0 MiB"):
+            bunny.pick(np.broadcast_to(ray, (4_000_000, 6)))
+        with pytest.raises(ValueError, match="over the memory budget of 16.0 MiB"):
+            bunny.los([0.0, 0, 0], np.broadcast_to([0.0, 0, 1], (4_000_000, 3)))
+        # Within it, the same view answers as its copy.
+        view = np.broadcast_to(ray, (1000, 6))
+        copy = bunny.pick(np.ascontiguousarray(view))
+        for key, column in bunny.pick(view).items():
+            assert np.array_equal(column, copy[key], equal_nan=True), key
+    finally:
+        raypick.set_max_memory(default)
