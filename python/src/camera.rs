@@ -69,6 +69,23 @@ pub fn camera_rays<'py>(
                     row(camera.pixel_ray(view[[i, 0]] + 0.5, view[[i, 1]] + 0.5))
                 }))
             });
+            // A pixel so far out that its ray has no direction (a perspective camera's at
+            // 1e200: (0, 0, -0)) or no finite origin (an orthographic one's at 1e308) came back
+            // as such a ray, documented as a unit direction.
+            if let Some(i) = out
+                .chunks_exact(6)
+                .position(|r| !r.iter().all(|c| c.is_finite()) || r[3..].iter().all(|&c| c == 0.0))
+            {
+                return Err(value_error(format!(
+                    "pixels row {i} is ({}, {}), too far outside the camera's {} x {} image to \
+                     make a ray",
+                    view[[i, 0]],
+                    view[[i, 1]],
+                    camera.width(),
+                    camera.height()
+                )));
+            }
+            warn_outside(py, &camera, view)?;
             out
         }
         None => {
@@ -87,6 +104,37 @@ pub fn camera_rays<'py>(
     };
     let n = rays.len() / 6;
     Ok(rays.into_pyarray(py).reshape([n, 6])?.into_any())
+}
+
+/// Warns once (a `UserWarning`) when pixels lie outside the camera's image, as the CLI does
+/// for a pixel file: their rays go through where those pixels would be, but pixels for another
+/// image size give picks the user did not mean.
+fn warn_outside(
+    py: Python<'_>,
+    camera: &Camera,
+    view: numpy::ndarray::ArrayView2<'_, f64>,
+) -> PyResult<()> {
+    let (w, h) = (f64::from(camera.width()), f64::from(camera.height()));
+    // Centres, as the CLI checks them.
+    let outside = |i: &usize| {
+        let (x, y) = (view[[*i, 0]] + 0.5, view[[*i, 1]] + 0.5);
+        !(0.0..=w).contains(&x) || !(0.0..=h).contains(&y)
+    };
+    let count = (0..view.nrows()).filter(outside).count();
+    if let Some(k) = (0..view.nrows()).find(outside) {
+        let message = format!(
+            "{count} of the {} pixels lie outside the camera's {} x {} image (the first: row \
+             {k}, ({}, {})); their rays go through where they would be",
+            view.nrows(),
+            camera.width(),
+            camera.height(),
+            view[[k, 0]],
+            view[[k, 1]]
+        );
+        let category = py.get_type::<pyo3::exceptions::PyUserWarning>();
+        PyErr::warn(py, &category, &std::ffi::CString::new(message)?, 1)?;
+    }
+    Ok(())
 }
 
 /// A ray as its row (origin, direction).

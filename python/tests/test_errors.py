@@ -175,6 +175,23 @@ def test_bad_cameras_and_pixels():
     with pytest.raises(ValueError) as e:
         raypick.camera_rays(good, np.array([[0, 0], [np.nan, 1]]))
     assert one_sentence(e) == "pixels row 1 is (NaN, 1), not a finite pixel"
+    # A pixel so far out that its ray has no direction (perspective) or no finite origin
+    # (orthographic) came back as such a ray; pixels outside the image are warned about, as
+    # the CLI warns about a pixel file's.
+    ortho = {"orthographic": {"eye": [0, 0, 10], "target": [0, 0, 0], "up": [0, 1, 0],
+                              "view_height": 2.0, "width": 4, "height": 3}}
+    for camera, pixel in [(good, 1e200), (ortho, 1e308)]:
+        with pytest.raises(ValueError) as e:
+            raypick.camera_rays(camera, np.array([[0, 0], [pixel, 0.0]]))
+        assert one_sentence(e).startswith("pixels row 1 is ("), one_sentence(e)
+        assert "too far outside the camera's 4 x 3 image to make a ray" in one_sentence(e)
+    with pytest.warns(UserWarning, match=r"2 of the 3 pixels lie outside the camera's 4 x 3 image \(the first: row 1, \(-5, 1\)\)"):
+        rays = raypick.camera_rays(good, np.array([[0, 0], [-5, 1], [3, 1000]]))
+    assert rays.shape == (3, 6) and np.isfinite(rays).all()
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        raypick.camera_rays(good, np.array([[0, 0], [3, 2], [-0.5, 2.5]]))
     huge = {"perspective": dict(good["perspective"], width=4_000_000_000, height=4_000_000_000)}
     with pytest.raises(ValueError, match="over the memory budget") as e:
         raypick.camera_rays(huge)
