@@ -163,6 +163,10 @@ pub fn parse_size(text: &str) -> std::result::Result<u64, String> {
             crate::budget::quote(t)
         )
     })?;
+    // A number past f64's range ("9" × 500) reads as infinite: too large, not "not positive".
+    if value == f64::INFINITY {
+        return Err(format!("{:?} is too large", quote(t)));
+    }
     if !(value.is_finite() && value >= 1.0) {
         return Err(format!("{:?} is not a positive size", quote(t)));
     }

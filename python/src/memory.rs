@@ -8,7 +8,7 @@
 
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::{PyBool, PyInt, PyString};
+use pyo3::types::{PyBool, PyString};
 
 /// `set_max_memory(size)`: the budget from now on, in bytes (an int) or as the command line
 /// writes it (a str: "8G", "512M", "1000000"); at least 1 MiB and at most what the process can
@@ -18,11 +18,16 @@ pub fn set_max_memory(size: &Bound<'_, PyAny>) -> PyResult<u64> {
     let refused = |why: String| PyValueError::new_err(format!("max_memory: {why}"));
     let bytes = if let Ok(text) = size.cast::<PyString>() {
         raypick::budget::parse_limit(&text.to_cow()?).map_err(refused)?
-    } else if size.is_instance_of::<PyInt>() && !size.is_instance_of::<PyBool>() {
+    } else if !size.is_instance_of::<PyBool>() && size.hasattr("__index__")? {
+        // An int, or a numpy integer: past u64 it is more than any process can have, below 0
+        // below the least budget.
         let written = size.str()?.to_cow()?.into_owned();
-        // Past i128 (or u64) it is more than any process can have; below 0, below the least.
-        let bytes = size.extract::<i128>().unwrap_or(i128::MAX).max(0);
-        let bytes = u64::try_from(bytes).unwrap_or(u64::MAX);
+        let negative = size.lt(0)?;
+        let bytes = match size.extract::<u64>() {
+            Ok(bytes) => bytes,
+            Err(_) if negative => 0,
+            Err(_) => u64::MAX,
+        };
         raypick::budget::check_limit(bytes, &written).map_err(refused)?
     } else {
         return Err(PyTypeError::new_err(format!(

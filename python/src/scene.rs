@@ -121,6 +121,18 @@ pub enum Note {
     Fell(String),
 }
 
+/// Warns (a `UserWarning` each) about what the scene's single-precision frames cannot hold, as
+/// the CLI warns on standard error ([`raypick::frame::faults`]): picks on those parts would be
+/// missed or off without a word (a scene 10¹⁴ units across missed most of its hits).
+fn warn_frame(py: Python<'_>, built: &BuiltScene) -> PyResult<()> {
+    let warnings = py.detach(|| raypick::frame::faults::frame_warnings(built));
+    let category = py.get_type::<pyo3::exceptions::PyUserWarning>();
+    for warning in warnings {
+        PyErr::warn(py, &category, &std::ffi::CString::new(warning)?, 1)?;
+    }
+    Ok(())
+}
+
 /// Logs each note of the automatic backend once per process through
 /// `logging.getLogger("raypick")`, where the CLI says them on standard error: its choices at
 /// INFO (silent unless logging is configured), its fallbacks at WARNING.
@@ -317,6 +329,7 @@ impl Scene {
                 BuiltScene::new(scene, &options).map_err(to_py)
             })
         })?;
+        warn_frame(py, &built)?;
         Ok(Scene::new(built))
     }
 
@@ -348,6 +361,7 @@ impl Scene {
                 })
             })
             .map_err(to_py)?;
+        warn_frame(py, &built)?;
         Ok(Scene::new(built))
     }
 

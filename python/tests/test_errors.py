@@ -219,12 +219,16 @@ def test_the_memory_budget_is_set_and_checked_as_the_command_line_does():
             ("lots", '"lots" is not a size (e.g. 8G, 512M, 1000000)'),
             ("999999T", '"999999T" is more memory than this process can have'),
             (1 << 200, "is more memory than this process can have"),
+            (-(1 << 200), "is below the least memory budget, 1M"),
+            ("9" * 500, "is too large"),
         ]:
             with pytest.raises(ValueError) as e:
                 raypick.set_max_memory(size)
             assert one_sentence(e).startswith("max_memory: "), one_sentence(e)
             assert words in one_sentence(e)
         assert raypick.max_memory() == 64 << 20, "a refused size changes nothing"
+        assert raypick.set_max_memory(np.int64(3 << 20)) == 3 << 20
+        assert raypick.set_max_memory(64 << 20) == 64 << 20
         for size in [2.5, None, True]:
             with pytest.raises(TypeError, match="a size is an int of bytes or a str"):
                 raypick.set_max_memory(size)
@@ -306,3 +310,20 @@ def test_zero_copy_views_of_billions_of_rows_are_refused_by_the_budget(bunny, de
             assert np.array_equal(column, copy[key], equal_nan=True), key
     finally:
         raypick.set_max_memory(default)
+
+
+def test_scenes_that_single_precision_cannot_hold_are_warned_about():
+    """A triangle 10¹⁴ units across made its f32 test overflow: rays from 10¹¹ above missed it
+    on every backend, without a word. The CLI's frame warnings reach Python as UserWarnings;
+    the same triangle at a sane size loads without one."""
+    triangles = [[0, 1, 2]]
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float64)
+    with pytest.warns(UserWarning, match="past 1e12, the single-precision triangle tests overflow"):
+        raypick.Scene.from_arrays(corners * 1e14, triangles)
+    with pytest.warns(UserWarning, match=r"1 triangle\(s\) have no area"):
+        raypick.Scene.from_arrays(corners, [[0, 1, 2], [0, 0, 1]])
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        raypick.Scene.from_arrays(corners * 1e3, triangles)
+

@@ -278,92 +278,11 @@ impl SceneArgs {
     }
 }
 
-/// Warns when the scene's single-precision frame loses triangles ([`raypick::bvh::lost`]) or
-/// does not resolve an object or an instance ([`raypick::frame::reach`]): picks on them would
-/// be missed or off without a word.
+/// Warns about what the scene's single-precision frames cannot hold
+/// ([`raypick::frame::faults`]): picks on those parts would be missed or off without a word.
 fn warn_lost(built: &BuiltScene) {
-    use raypick::frame::reach::{f32_step, unresolved_objects, unresolved_triangles};
-    // Frames too wide or too narrow for the f32 tests' products: the scene's, or each mesh's.
-    let reach = |bounds: Option<(glam::DVec3, glam::DVec3)>, origin: glam::DVec3| {
-        bounds.map_or(0.0, |(lo, hi)| {
-            (lo - origin).abs().max((hi - origin).abs()).max_element()
-        })
-    };
-    let reaches: Vec<f64> = match built.instances() {
-        None => vec![reach(built.scene.bounds(), built.bvh.origin)],
-        Some(i) => i
-            .meshes()
-            .iter()
-            .map(|m| reach(m.scene.bounds(), m.bvh.origin))
-            .collect(),
-    };
-    if let Some(fault) = reaches
-        .into_iter()
-        .find_map(raypick::frame::reach::scale_fault)
-    {
-        eprintln!("warning: {fault}");
-    }
-    let lost = built.lost_triangles();
-    if lost.degenerate > 0 {
-        // An instanced scene's first is an instance placing the mesh.
-        let object = |id: u32| match built.instances() {
-            None => format!("object {id} ({})", built.scene.objects()[id as usize].name),
-            Some(i) => format!("instance {id} ({})", i.instances()[id as usize].name),
-        };
-        eprintln!("warning: {}", lost.describe_degenerate(object));
-    }
-    if lost.triangles > 0 {
-        let (lo, hi) = built.bounds().unwrap_or_default();
-        let span = (hi - lo).max_element();
-        let step = f32_step(span * 0.5);
-        let frame = if step.is_finite() {
-            format!("in a frame that wide offsets are rounded to about {step:.1e} units")
-        } else {
-            "more than single precision holds".into()
-        };
-        eprintln!(
-            "warning: {}; the scene spans {}, {frame} (are some objects in other coordinates?)",
-            lost.describe(),
-            raypick::frame::reach::units(span),
-        );
-    }
-    let (unresolved, kind) = match built.instances() {
-        None => (unresolved_objects(&built.scene, built.bvh.origin), "object"),
-        Some(i) => (i.unresolved(), "instance"),
-    };
-    if let Some(first) = unresolved.first() {
-        let what = format!("{kind} {}", first.part);
-        let others = match unresolved.len() {
-            1 => String::new(),
-            n => format!("{n} {kind}s are too small for where they lie; the first, "),
-        };
-        eprintln!("warning: {others}{}", first.describe(&what));
-        return;
-    }
-    if lost.triangles > 0 {
-        return;
-    }
-    // Each object resolved as a whole, and nothing lost: its triangles may still be rounded
-    // out of shape (a grid's stray spike makes the frame tall). An instanced scene's meshes lie
-    // in frames of their own.
-    let frames: Vec<(&Scene, glam::DVec3, bool)> = match built.instances() {
-        None => vec![(&built.scene, built.bvh.origin, false)],
-        Some(i) => i
-            .meshes()
-            .iter()
-            .map(|m| (&m.scene, m.bvh.origin, true))
-            .collect(),
-    };
-    for (scene, origin, mesh) in frames {
-        let small = unresolved_triangles(scene, origin);
-        let object = |id: u32| match mesh {
-            false => format!("object {id}"),
-            true => format!("the mesh of {}", scene.objects()[id as usize].name),
-        };
-        if small.count > 0 {
-            eprintln!("warning: {}", small.describe(object));
-            return;
-        }
+    for warning in raypick::frame::faults::frame_warnings(built) {
+        eprintln!("warning: {warning}");
     }
 }
 

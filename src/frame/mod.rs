@@ -12,6 +12,7 @@ use crate::scene::Scene;
 use glam::DVec3;
 use rayon::prelude::*;
 
+pub mod faults;
 mod four;
 pub mod reach;
 pub(crate) use four::refine_four;

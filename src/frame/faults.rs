@@ -1,0 +1,95 @@
+//! What a built scene's single-precision frames cannot hold, as the sentences its user is
+//! warned with (the command line on standard error, Python as `UserWarning`s): frames too wide
+//! or too narrow for the f32 tests' products ([`reach::scale_fault`]), triangles with no area
+//! and triangles the frame loses ([`crate::bvh::lost`]), objects or instances it rounds too
+//! coarsely, and triangles of a resolved object rounded out of shape
+//! ([`reach::unresolved_triangles`]). Without them, picks on those parts would be missed or
+//! off without a word.
+
+use super::reach::{self, f32_step, unresolved_objects, unresolved_triangles};
+use crate::picker::BuiltScene;
+use crate::scene::Scene;
+use glam::DVec3;
+
+/// The warnings for `built`, each one sentence, most basic first; empty for a sound scene.
+pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
+    let mut said = Vec::new();
+    // Frames too wide or too narrow for the f32 tests' products: the scene's, or each mesh's.
+    let reach_of = |bounds: Option<(DVec3, DVec3)>, origin: DVec3| {
+        bounds.map_or(0.0, |(lo, hi)| {
+            (lo - origin).abs().max((hi - origin).abs()).max_element()
+        })
+    };
+    let reaches: Vec<f64> = match built.instances() {
+        None => vec![reach_of(built.scene.bounds(), built.bvh.origin)],
+        Some(i) => i
+            .meshes()
+            .iter()
+            .map(|m| reach_of(m.scene.bounds(), m.bvh.origin))
+            .collect(),
+    };
+    said.extend(reaches.into_iter().find_map(reach::scale_fault));
+    let lost = built.lost_triangles();
+    if lost.degenerate > 0 {
+        // An instanced scene's first is an instance placing the mesh.
+        let object = |id: u32| match built.instances() {
+            None => format!("object {id} ({})", built.scene.objects()[id as usize].name),
+            Some(i) => format!("instance {id} ({})", i.instances()[id as usize].name),
+        };
+        said.push(lost.describe_degenerate(object));
+    }
+    if lost.triangles > 0 {
+        let (lo, hi) = built.bounds().unwrap_or_default();
+        let span = (hi - lo).max_element();
+        let step = f32_step(span * 0.5);
+        let frame = if step.is_finite() {
+            format!("in a frame that wide offsets are rounded to about {step:.1e} units")
+        } else {
+            "more than single precision holds".into()
+        };
+        said.push(format!(
+            "{}; the scene spans {}, {frame} (are some objects in other coordinates?)",
+            lost.describe(),
+            reach::units(span),
+        ));
+    }
+    let (unresolved, kind) = match built.instances() {
+        None => (unresolved_objects(&built.scene, built.bvh.origin), "object"),
+        Some(i) => (i.unresolved(), "instance"),
+    };
+    if let Some(first) = unresolved.first() {
+        let what = format!("{kind} {}", first.part);
+        let others = match unresolved.len() {
+            1 => String::new(),
+            n => format!("{n} {kind}s are too small for where they lie; the first, "),
+        };
+        said.push(format!("{others}{}", first.describe(&what)));
+        return said;
+    }
+    if lost.triangles > 0 {
+        return said;
+    }
+    // Each object resolved as a whole, and nothing lost: its triangles may still be rounded
+    // out of shape (a grid's stray spike makes the frame tall). An instanced scene's meshes lie
+    // in frames of their own.
+    let frames: Vec<(&Scene, DVec3, bool)> = match built.instances() {
+        None => vec![(&built.scene, built.bvh.origin, false)],
+        Some(i) => i
+            .meshes()
+            .iter()
+            .map(|m| (&m.scene, m.bvh.origin, true))
+            .collect(),
+    };
+    for (scene, origin, mesh) in frames {
+        let small = unresolved_triangles(scene, origin);
+        let object = |id: u32| match mesh {
+            false => format!("object {id}"),
+            true => format!("the mesh of {}", scene.objects()[id as usize].name),
+        };
+        if small.count > 0 {
+            said.push(small.describe(object));
+            break;
+        }
+    }
+    said
+}
