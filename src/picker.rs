@@ -227,24 +227,16 @@ impl BuiltScene {
         let mut all = crate::bvh::Lost::default();
         for (m, mesh) in i.meshes().iter().enumerate() {
             let lost = crate::bvh::lost_triangles(&mesh.scene, &mesh.bvh);
-            if all.first.is_none()
-                && let Some((_, triangle)) = lost.first
-            {
-                all.first = i
-                    .instances()
-                    .iter()
-                    .position(|p| p.mesh as usize == m)
-                    .map(|k| (k as u32, triangle));
-            }
-            if all.first_degenerate.is_none()
-                && let Some((_, triangle)) = lost.first_degenerate
-            {
-                all.first_degenerate = i
-                    .instances()
-                    .iter()
-                    .position(|p| p.mesh as usize == m)
-                    .map(|k| (k as u32, triangle));
-            }
+            // A mesh's first, as the first instance placing it and the mesh's triangle.
+            let placed = |first: Option<(u32, u32)>| {
+                let (_, triangle) = first?;
+                let k = i.instances().iter().position(|p| p.mesh as usize == m)?;
+                Some((k as u32, triangle))
+            };
+            all.first = all.first.or_else(|| placed(lost.first));
+            all.first_degenerate = all
+                .first_degenerate
+                .or_else(|| placed(lost.first_degenerate));
             all.triangles += lost.triangles;
             all.degenerate += lost.degenerate;
         }

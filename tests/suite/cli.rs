@@ -823,24 +823,32 @@ fn huge_pages_off_changes_no_answer() {
     std::fs::remove_file(&obj).ok();
 }
 
+/// Runs the binary with `args` in the folder `dir`.
+fn run_in(dir: &std::path::Path, args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_raypick"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("run raypick")
+}
+
+/// [`run_in`], which must succeed: its standard output.
+fn stdout_in(dir: &std::path::Path, args: &[&str]) -> Vec<u8> {
+    let out = run_in(dir, args);
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out.stdout
+}
+
 /// `--out -` is standard output, as the help says, and never a file named `-`.
 #[test]
 fn out_dash_is_standard_output() {
     let dir = std::env::temp_dir().join(format!("raypick-cli-dash-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let run = |args: &[&str]| {
-        let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
-            .args(args)
-            .current_dir(&dir)
-            .output()
-            .expect("run raypick");
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        out.stdout
-    };
+    let run = |args: &[&str]| stdout_in(&dir, args);
     let plain = run(&["pick"]);
     assert!(
         plain.starts_with(b"ray,hit,"),
@@ -868,11 +876,7 @@ fn out_dash_is_standard_output() {
             "--out view.jpg names a .jpg file, but render writes PNG only",
         ),
     ] {
-        let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
-            .args(args)
-            .current_dir(&dir)
-            .output()
-            .expect("run raypick");
+        let out = run_in(&dir, args);
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
         assert!(err.starts_with(&format!("error: {words}")), "{err}");
@@ -940,11 +944,7 @@ fn an_out_file_that_is_one_of_the_inputs_is_refused_and_left_as_it_was() {
         .map(|f| std::fs::read(dir.join(f)).unwrap())
         .collect();
     for (args, input) in cases {
-        let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
-            .args(*args)
-            .current_dir(&dir)
-            .output()
-            .expect("run raypick");
+        let out = run_in(&dir, args);
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
         let out_name = args[args.len() - 1];
@@ -960,16 +960,7 @@ fn an_out_file_that_is_one_of_the_inputs_is_refused_and_left_as_it_was() {
         .collect();
     assert!(before == after, "an input was changed");
     // Another file is written as before.
-    let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
-        .args(["pick", "--rays", "rays.txt", "--out", "hits.csv"])
-        .current_dir(&dir)
-        .output()
-        .expect("run raypick");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    stdout_in(&dir, &["pick", "--rays", "rays.txt", "--out", "hits.csv"]);
     assert!(
         std::fs::read_to_string(dir.join("hits.csv"))
             .unwrap()

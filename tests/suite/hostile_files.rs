@@ -873,6 +873,24 @@ fn ply_headers_of_many_elements_or_properties_are_read_in_linear_time() {
     );
 }
 
+/// Picks (the CPU engine, the default rays) on the scene file `path`, which must load (exit 0):
+/// its warning lines. `label` names the case in assertion messages.
+fn warnings_of(path: &Path, label: &str) -> Vec<String> {
+    let outcome = run(&[
+        "pick",
+        "--backend",
+        "cpu",
+        "--scene",
+        &path.display().to_string(),
+    ]);
+    let err = &outcome.stderr;
+    assert_eq!(outcome.code, Some(0), "{label}: {err}");
+    err.lines()
+        .filter(|l| l.starts_with("warning:"))
+        .map(str::to_owned)
+        .collect()
+}
+
 // --- OBJ files with nothing an OBJ reader knows --------------------------------------------
 
 /// A file with no `v` or `f` line (not an OBJ file, perhaps) loads as an empty object, with one
@@ -931,23 +949,14 @@ fn faces_with_no_area_are_warned_about_once() {
         ("flat.ply", ply, 1, "triangle 1"),
     ] {
         let path = dir.write(file, text.as_bytes());
-        let outcome = run(&[
-            "pick",
-            "--backend",
-            "cpu",
-            "--scene",
-            &path.display().to_string(),
-        ]);
-        let err = &outcome.stderr;
-        assert_eq!(outcome.code, Some(0), "{file}: {err}");
-        let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("warning:")).collect();
-        assert_eq!(warnings.len(), 1, "{file}: one warning: {err}");
+        let warnings = warnings_of(&path, file);
+        assert_eq!(warnings.len(), 1, "{file}: one warning: {warnings:?}");
         let expected = format!("warning: {count} triangle(s) have no area");
-        assert!(warnings[0].starts_with(&expected), "{file}: {err}");
+        assert!(warnings[0].starts_with(&expected), "{file}: {warnings:?}");
         assert!(
             warnings[0].contains(file)
                 && warnings[0].contains(&format!("{first}), so they can never be hit")),
-            "{file}: {err}"
+            "{file}: {warnings:?}"
         );
     }
 }
@@ -975,23 +984,14 @@ fn scenes_too_wide_or_too_narrow_for_the_f32_tests_are_warned_about() {
             "v 0 0 0\nv {size} 0 0\nv 0 {size} 0\nv 0 0 {size}\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n"
         );
         let path = dir.write(&format!("tet{size}.obj"), text.as_bytes());
-        let outcome = run(&[
-            "pick",
-            "--backend",
-            "cpu",
-            "--scene",
-            &path.display().to_string(),
-        ]);
-        let err = &outcome.stderr;
-        assert_eq!(outcome.code, Some(0), "{size}: {err}");
-        let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("warning:")).collect();
+        let warnings = warnings_of(&path, size);
         match warned {
             Some(words) => {
-                assert_eq!(warnings.len(), 1, "{size}: {err}");
-                assert!(warnings[0].contains(words), "{size}: {err}");
-                assert!(warnings[0].contains("miss hits"), "{size}: {err}");
+                assert_eq!(warnings.len(), 1, "{size}: {warnings:?}");
+                assert!(warnings[0].contains(words), "{size}: {warnings:?}");
+                assert!(warnings[0].contains("miss hits"), "{size}: {warnings:?}");
             }
-            None => assert!(warnings.is_empty(), "{size}: {err}"),
+            None => assert!(warnings.is_empty(), "{size}: {warnings:?}"),
         }
     }
 }
@@ -1152,29 +1152,23 @@ fn grids_with_a_stray_spike_warn_that_their_cells_are_too_small_for_the_frame() 
     };
     for (file, spike, warned) in [("spike.asc", "1e10", true), ("plain.asc", "104", false)] {
         let path = dir.write(file, grid(spike).as_bytes());
-        let outcome = run(&[
-            "pick",
-            "--backend",
-            "cpu",
-            "--scene",
-            &path.display().to_string(),
-        ]);
-        let err = &outcome.stderr;
-        assert_eq!(outcome.code, Some(0), "{file}: {err}");
-        let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("warning:")).collect();
+        let warnings = warnings_of(&path, file);
         match warned {
             true => {
-                assert_eq!(warnings.len(), 1, "{file}: one warning: {err}");
+                assert_eq!(warnings.len(), 1, "{file}: one warning: {warnings:?}");
                 for part in [
                     "triangle(s) are too small for where they lie",
                     "object 0's triangle 0 lies 5.000e9 units from the centre",
                     "rounds positions to 5.1e2 units",
                     "NODATA",
                 ] {
-                    assert!(warnings[0].contains(part), "{file}: {part:?} in {err}");
+                    assert!(
+                        warnings[0].contains(part),
+                        "{file}: {part:?} in {warnings:?}"
+                    );
                 }
             }
-            false => assert!(warnings.is_empty(), "{file}: {err}"),
+            false => assert!(warnings.is_empty(), "{file}: {warnings:?}"),
         }
     }
 }
