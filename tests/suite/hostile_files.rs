@@ -913,26 +913,16 @@ fn obj_files_that_give_no_triangle_are_warned_about_once() {
     ] {
         let path = dir.write(file, text.as_bytes());
         let name = path.display().to_string();
-        let outcome = run(&["pick", "--backend", "cpu", "--scene", &name]);
-        let err = &outcome.stderr;
-        assert_eq!(outcome.code, Some(0), "{file}: {err}");
-        let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("warning:")).collect();
-        assert_eq!(warnings.len(), 1, "{file}: one warning: {err}");
+        let warnings = warnings_of(&path, file);
+        assert_eq!(warnings.len(), 1, "{file}: one warning: {warnings:?}");
         assert!(
             warnings[0].contains(&name) && warnings[0].contains(expected),
-            "{file}: {err}"
+            "{file}: {warnings:?}"
         );
     }
     let path = dir.write("triangle.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
-    let outcome = run(&[
-        "pick",
-        "--backend",
-        "cpu",
-        "--scene",
-        &path.display().to_string(),
-    ]);
-    assert_eq!(outcome.code, Some(0), "{}", outcome.stderr);
-    assert!(!outcome.stderr.contains("warning"), "{}", outcome.stderr);
+    let warnings = warnings_of(&path, "triangle.obj");
+    assert!(warnings.is_empty(), "{warnings:?}");
 }
 
 /// Faces with no area (a corner repeated, corners on one line) can never be hit; they loaded
