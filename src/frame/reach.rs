@@ -192,34 +192,45 @@ impl UnresolvedTriangles {
 
 /// The triangles of `scene` that its f32 frame, centred on `origin`, does not resolve
 /// ([`Unresolved::of`] with [`f32_step`], on each triangle's box): degenerate triangles (no area
-/// in f64) and those of objects with layer mask 0 are not counted. One pass over the triangles
-/// (a second to find the first, only when there is one).
+/// in f64) and those of objects with layer mask 0 are not counted. One pass over each object's
+/// vertices (its box) and one over its triangles (a second to find the first, only in the first
+/// object with one).
 pub fn unresolved_triangles(scene: &Scene, origin: DVec3) -> UnresolvedTriangles {
-    let masks: Vec<bool> = scene.objects().iter().map(|o| o.mask != 0).collect();
-    let unresolved = |i: usize| -> Option<Unresolved> {
-        let (object, _) = scene.locate(i as u32);
-        let corners = scene.world_triangle(i);
-        if !masks[object as usize] || zero_area(corners) {
-            return None;
+    let mut count = 0;
+    let mut first = None;
+    for o in scene.objects().iter().filter(|o| o.mask != 0) {
+        let range = o.first_triangle as usize..(o.first_triangle + o.triangle_count) as usize;
+        if range.is_empty() {
+            continue;
         }
-        Unresolved::of(object, box_of(corners), origin, f32_step)
-    };
-    let n = scene.triangle_count();
-    let count = (0..n)
-        .into_par_iter()
-        .filter(|&i| unresolved(i).is_some())
-        .count();
-    let first = (count > 0)
-        .then(|| {
-            (0..n)
+        // No triangle of the object lies farther out than its box, so none sees a coarser step
+        // than its box's: a triangle whose longest side of box spans RESOLVED_STEPS of those is
+        // resolved without the exact test (a cheap pass for every sound scene; the exact test,
+        // a diagonal and the step where the triangle lies, took 13% of a DEM's whole `pick`).
+        let (lo, hi) = box_of(scene.object_vertices(o.id).map(|v| scene.position(v)));
+        let widest = (lo - origin).abs().max((hi - origin).abs()).max_element();
+        let enough = RESOLVED_STEPS * f32_step(widest);
+        let unresolved = |i: usize| -> Option<Unresolved> {
+            let corners = scene.world_triangle(i);
+            let (a, b) = box_of(corners);
+            if (b - a).max_element() >= enough || zero_area(corners) {
+                return None;
+            }
+            Unresolved::of(o.id, (a, b), origin, f32_step)
+        };
+        let here = range
+            .clone()
+            .into_par_iter()
+            .filter(|&i| unresolved(i).is_some())
+            .count();
+        if here > 0 && first.is_none() {
+            first = range
                 .into_par_iter()
                 .find_first(|&i| unresolved(i).is_some())
-        })
-        .flatten()
-        .and_then(|i| {
-            let (object, triangle) = scene.locate(i as u32);
-            Some((object, triangle, unresolved(i)?))
-        });
+                .and_then(|i| Some((o.id, i as u32 - o.first_triangle, unresolved(i)?)));
+        }
+        count += here;
+    }
     UnresolvedTriangles { count, first }
 }
 
