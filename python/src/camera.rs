@@ -114,14 +114,9 @@ fn warn_outside(
     camera: &Camera,
     view: numpy::ndarray::ArrayView2<'_, f64>,
 ) -> PyResult<()> {
-    let (w, h) = (f64::from(camera.width()), f64::from(camera.height()));
     // Centres, as the CLI checks them.
-    let outside = |i: &usize| {
-        let (x, y) = (view[[*i, 0]] + 0.5, view[[*i, 1]] + 0.5);
-        !(0.0..=w).contains(&x) || !(0.0..=h).contains(&y)
-    };
-    let count = (0..view.nrows()).filter(outside).count();
-    if let Some(k) = (0..view.nrows()).find(outside) {
+    let centres = view.rows().into_iter().map(|r| (r[0] + 0.5, r[1] + 0.5));
+    if let Some((count, k)) = camera.outside_image(centres) {
         let message = format!(
             "{count} of the {} pixels lie outside the camera's {} x {} image (the first: row \
              {k}, ({}, {})); their rays go through where they would be",

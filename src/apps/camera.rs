@@ -309,6 +309,25 @@ impl Camera {
         self.spec.size().1
     }
 
+    /// Of the pixel `centres` (continuous image coordinates, as [`Camera::pixel_ray`] takes
+    /// them), how many lie outside the image, and the first of them (its index); `None` when
+    /// all lie inside (edges included). What the command line and Python warn about: a pixel
+    /// file made for another image size gives picks the user did not mean.
+    pub fn outside_image(
+        &self,
+        centres: impl IntoIterator<Item = (f64, f64)>,
+    ) -> Option<(usize, usize)> {
+        let (w, h) = (f64::from(self.width()), f64::from(self.height()));
+        let mut found: Option<(usize, usize)> = None;
+        for (k, (x, y)) in centres.into_iter().enumerate() {
+            if !(0.0..=w).contains(&x) || !(0.0..=h).contains(&y) {
+                let (count, first) = found.unwrap_or((0, k));
+                found = Some((count + 1, first));
+            }
+        }
+        found
+    }
+
     /// The world ray through pixel-space point `(x, y)`: `x` in pixels right of the image's left
     /// edge, `y` in pixels *down* from its top edge, so the centre of pixel `(i, j)` is
     /// `(i + 0.5, j + 0.5)` and `(width / 2, height / 2)` is the image centre (see

@@ -217,10 +217,7 @@ fn scene_summary(args: &SceneArgs, built: &BuiltScene) -> String {
 /// made all the same, through where those pixels would be, but a pixel file for another
 /// image size gives picks the user did not mean.
 fn warn_outside(camera: &Camera, centres: &[(f64, f64)], file: &str) {
-    let (w, h) = (f64::from(camera.width()), f64::from(camera.height()));
-    let outside = |&(x, y): &(f64, f64)| !(0.0..=w).contains(&x) || !(0.0..=h).contains(&y);
-    let count = centres.iter().filter(|c| outside(c)).count();
-    if let Some(k) = centres.iter().position(outside) {
+    if let Some((count, k)) = camera.outside_image(centres.iter().copied()) {
         let (x, y) = centres[k];
         eprintln!(
             "warning: {count} of the {} pixels of {file} lie outside the camera's {} x {} image \

@@ -14,21 +14,20 @@ use glam::DVec3;
 /// The warnings for `built`, each one sentence, most basic first; empty for a sound scene.
 pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
     let mut said = Vec::new();
-    // Frames too wide or too narrow for the f32 tests' products: the scene's, or each mesh's.
-    let reach_of = |bounds: Option<(DVec3, DVec3)>, origin: DVec3| {
-        bounds.map_or(0.0, |(lo, hi)| {
-            (lo - origin).abs().max((hi - origin).abs()).max_element()
-        })
-    };
-    let reaches: Vec<f64> = match built.instances() {
-        None => vec![reach_of(built.scene.bounds(), built.bvh.origin)],
+    // The frames: the scene's, or each of an instanced scene's meshes' (a mesh lies in a frame
+    // of its own), with whether it is a mesh's.
+    let frames: Vec<(&Scene, DVec3, bool)> = match built.instances() {
+        None => vec![(&built.scene, built.bvh.origin, false)],
         Some(i) => i
             .meshes()
             .iter()
-            .map(|m| reach_of(m.scene.bounds(), m.bvh.origin))
+            .map(|m| (&m.scene, m.bvh.origin, true))
             .collect(),
     };
-    said.extend(reaches.into_iter().find_map(reach::scale_fault));
+    // Frames too wide or too narrow for the f32 tests' products.
+    said.extend(frames.iter().find_map(|(scene, origin, _)| {
+        reach::scale_fault(scene.bounds().map_or(0.0, |b| reach::reach_of(b, *origin)))
+    }));
     let lost = built.lost_triangles();
     if lost.degenerate > 0 {
         // An instanced scene's first is an instance placing the mesh.
@@ -70,16 +69,7 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
         return said;
     }
     // Each object resolved as a whole, and nothing lost: its triangles may still be rounded
-    // out of shape (a grid's stray spike makes the frame tall). An instanced scene's meshes lie
-    // in frames of their own.
-    let frames: Vec<(&Scene, DVec3, bool)> = match built.instances() {
-        None => vec![(&built.scene, built.bvh.origin, false)],
-        Some(i) => i
-            .meshes()
-            .iter()
-            .map(|m| (&m.scene, m.bvh.origin, true))
-            .collect(),
-    };
+    // out of shape (a grid's stray spike makes the frame tall).
     for (scene, origin, mesh) in frames {
         let small = unresolved_triangles(scene, origin);
         let object = |id: u32| match mesh {

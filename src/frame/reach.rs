@@ -75,6 +75,11 @@ pub fn scale_fault(reach: f64) -> Option<String> {
     }
 }
 
+/// How far the box `(lo, hi)` reaches from `origin`: its farthest corner's largest offset.
+pub fn reach_of((lo, hi): (DVec3, DVec3), origin: DVec3) -> f64 {
+    (lo - origin).abs().max((hi - origin).abs()).max_element()
+}
+
 /// A distance for a message: `1.000e12 units`; one past f64's range (the difference of
 /// vertices near ±1.8e308) read "inf units".
 pub fn units(distance: f64) -> String {
@@ -107,7 +112,7 @@ impl Unresolved {
         origin: DVec3,
         step: fn(f64) -> f64,
     ) -> Option<Self> {
-        let reach = (lo - origin).abs().max((hi - origin).abs()).max_element();
+        let reach = reach_of((lo, hi), origin);
         let (size, step) = (scaled_length(hi - lo), step(reach));
         // Past f32's range nothing is resolved, however large (a box 10²⁰⁰ across, whose
         // diagonal is as infinite as the step there, was counted as resolved).
@@ -122,8 +127,14 @@ impl Unresolved {
         })
     }
 
-    /// The sentence for a message: where the part lies, the step there and its size.
+    /// The sentence for a message: where the part lies, the step there and its size, and a
+    /// question about the likely cause (parts in other coordinates).
     pub fn describe(&self, what: &str) -> String {
+        self.describe_asking(what, "are some objects in other coordinates?")
+    }
+
+    /// [`Unresolved::describe`] with the question `question` at its end.
+    pub fn describe_asking(&self, what: &str, question: &str) -> String {
         let rounds = if self.step.is_finite() {
             format!("rounds positions to {:.1e} units", self.step)
         } else {
@@ -137,8 +148,7 @@ impl Unresolved {
         };
         format!(
             "{what} lies {reach} from the centre of the scene, where its \
-             single-precision frame {rounds}: too coarse for {size} (are some objects in other \
-             coordinates?)"
+             single-precision frame {rounds}: too coarse for {size} ({question})"
         )
     }
 }
@@ -177,14 +187,15 @@ impl UnresolvedTriangles {
         let Some((id, triangle, first)) = self.first else {
             return String::new();
         };
-        let lies = first.describe(&format!("{}'s triangle {triangle}", object(id)));
-        // `describe` ends in a question about other coordinates; a grid's stray value is the
-        // other common cause.
-        let lies = lies.trim_end_matches(" (are some objects in other coordinates?)");
+        // A grid's stray value is the other common cause.
+        let lies = first.describe_asking(
+            &format!("{}'s triangle {triangle}", object(id)),
+            "are some objects in other coordinates, or does a grid hold a NODATA value it does \
+             not declare?",
+        );
         format!(
             "{} triangle(s) are too small for where they lie, so picks on them may miss or name a \
-             neighbour; the first, {lies} (are some objects in other coordinates, or does a grid \
-             hold a NODATA value it does not declare?)",
+             neighbour; the first, {lies}",
             self.count
         )
     }
@@ -207,9 +218,8 @@ pub fn unresolved_triangles(scene: &Scene, origin: DVec3) -> UnresolvedTriangles
         // than its box's: a triangle whose longest side of box spans RESOLVED_STEPS of those is
         // resolved without the exact test (a cheap pass for every sound scene; the exact test,
         // a diagonal and the step where the triangle lies, took 13% of a DEM's whole `pick`).
-        let (lo, hi) = box_of(scene.object_vertices(o.id).map(|v| scene.position(v)));
-        let widest = (lo - origin).abs().max((hi - origin).abs()).max_element();
-        let enough = RESOLVED_STEPS * f32_step(widest);
+        let object_box = box_of(scene.object_vertices(o.id).map(|v| scene.position(v)));
+        let enough = RESOLVED_STEPS * f32_step(reach_of(object_box, origin));
         let unresolved = |i: usize| -> Option<Unresolved> {
             let corners = scene.world_triangle(i);
             let (a, b) = box_of(corners);

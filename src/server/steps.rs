@@ -47,7 +47,7 @@ pub(crate) fn query_in_steps(
             )));
         }
         let took = start.elapsed();
-        append(&mut out, answers, done == 0);
+        append(&mut out, answers);
         done = end;
         step = if took < FAST {
             step.saturating_mul(2)
@@ -60,9 +60,9 @@ pub(crate) fn query_in_steps(
     Ok(Some(out))
 }
 
-/// Appends `more` (the answers of the rays after `out`'s) to `out`; `first`: `out` is empty.
-fn append(out: &mut Answers, more: Answers, first: bool) {
-    if first {
+/// Appends `more` (the answers of the rays after `out`'s, at least one) to `out`.
+fn append(out: &mut Answers, more: Answers) {
+    if out.nearest.is_empty() {
         *out = more;
         return;
     }
