@@ -16,7 +16,7 @@
 set -uo pipefail
 cd "$(dirname "$0")/.."
 # Modules of the one integration-test binary (tests/suite), run one by one.
-tests="csv_identity engine equivalence instances modes precision refit semantics transforms watertight gpu_pipeline render"
+tests="csv_identity engine equivalence instances modes precision refit semantics transforms watertight gpu_pipeline render workgroup_size gpu_limits server_edits"
 scenes="tests/data/bunny.obj d/dragon_res2.obj tests/data/jacksboro_fault_dem_utm.asc"
 
 bundle() {
