@@ -145,9 +145,23 @@ impl Image {
 /// no culling, all layers) in one batch; pixel `(i, j)` of the image shows ray
 /// `j * width + i`. Misses (and invalid rays) are [`SKY`]. Errors are the picker's.
 pub fn render(picker: &mut dyn Picker, camera: &Camera, shade: Shade) -> Result<Image> {
+    render_with(camera, shade, |rays| Ok(Ok::<_, ()>(picker.pick(rays)?)))
+        .map(|image| image.unwrap_or_else(|()| unreachable!("the pick gives up on nothing")))
+}
+
+/// [`render`] with the pixel rays' closest hits from `pick`, which may give up (`Err(why)`,
+/// handed back): the server picks them in steps and stops for a client who is gone.
+pub fn render_with<E>(
+    camera: &Camera,
+    shade: Shade,
+    pick: impl FnOnce(&[Ray]) -> Result<std::result::Result<Vec<Hit>, E>>,
+) -> Result<std::result::Result<Image, E>> {
     check_size(camera.width(), camera.height())?;
     let rays: Vec<Ray> = camera.pixel_center_ray_batch(u32::MAX);
-    let hits = picker.pick(&rays)?;
+    let hits = match pick(&rays)? {
+        Ok(hits) => hits,
+        Err(why) => return Ok(Err(why)),
+    };
     if hits.len() != rays.len() {
         return Err(Error::Invalid(format!(
             "the picker answered {} of {} rays",
@@ -163,11 +177,11 @@ pub fn render(picker: &mut dyn Picker, camera: &Camera, shade: Shade) -> Result<
             .flat_map(|h| if h.hit { object_color(h.object) } else { SKY })
             .collect(),
     };
-    Ok(Image {
+    Ok(Ok(Image {
         width: camera.width(),
         height: camera.height(),
         rgba,
-    })
+    }))
 }
 
 /// Checks that a render of `width × height` pixels (one ray, one hit and 4 bytes each, in one

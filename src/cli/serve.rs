@@ -47,6 +47,16 @@ pub struct ServeArgs {
     /// past it).
     #[arg(long, default_value_t = ServerConfig::default().max_added_triangles)]
     pub max_added_triangles: usize,
+    /// A host name the server answers to besides IP addresses and localhost (repeatable; `*`
+    /// for any): a name of this machine, or a reverse proxy's public name. Requests naming
+    /// another `Host` get 403, so that no web page can reach the server through a name of its
+    /// own (DNS rebinding).
+    #[arg(long = "allow-host", value_name = "NAME")]
+    pub allow_hosts: Vec<String>,
+    /// Seconds of the worker's time one pick or render request may take; past it the work
+    /// stops and the request gets 413 (the count of rays answered, and to send fewer).
+    #[arg(long, default_value_t = ServerConfig::default().max_work.as_secs_f64())]
+    pub max_work_seconds: f64,
 }
 
 /// `seconds` as a timeout: a positive, finite number of seconds.
@@ -94,6 +104,15 @@ pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             )));
         }
     }
+    let allowed_hosts = args
+        .allow_hosts
+        .iter()
+        .map(|name| {
+            raypick::server::host::check_allowed_host(name)
+                .map_err(|why| Error::Invalid(format!("--allow-host {why}")))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let no_names_allowed = allowed_hosts.is_empty();
     let config = ServerConfig {
         max_rays: args.max_rays,
         max_body_bytes: args.max_body_bytes,
@@ -102,6 +121,8 @@ pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         body_timeout: timeout("--body-timeout", args.body_timeout)?,
         memory_budget: memory_budget(args.memory_budget)?,
         max_added_triangles: args.max_added_triangles,
+        allowed_hosts,
+        max_work: timeout("--max-work-seconds", args.max_work_seconds)?,
         ..ServerConfig::default()
     };
     let built = Arc::new(args.scene.build_instanced(matches, true)?.0);
@@ -133,6 +154,12 @@ pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
                 "warning: listening on {bound}, which is not a loopback address: anyone who can \
                  reach it can use this server"
             );
+            if no_names_allowed {
+                eprintln!(
+                    "note: requests that reach it by a host name get 403 unless the name is \
+                     given with --allow-host NAME (IP addresses and localhost are answered)"
+                );
+            }
         }
         println!(
             "raypick serve: {triangles} on {}; listening on http://{bound}/",

@@ -199,6 +199,10 @@ pub(crate) fn router(state: Arc<AppState>) -> Router {
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
         .layer(axum::middleware::from_fn(super::origin::same_origin_only))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            super::host::known_hosts_only,
+        ))
         .with_state(state)
 }
 
@@ -233,6 +237,8 @@ impl ApiError {
     fn of_job(error: JobError) -> Self {
         let status = if error.over_budget {
             StatusCode::SERVICE_UNAVAILABLE
+        } else if error.over_time {
+            StatusCode::PAYLOAD_TOO_LARGE
         } else {
             StatusCode::INTERNAL_SERVER_ERROR
         };
@@ -493,9 +499,7 @@ async fn pick(
         )
         .await?;
     let bytes = read_body(&headers, body, limit, state.config.body_timeout).await?;
-    let request: PickRequest = serde_json::from_slice(&bytes).map_err(|e| {
-        ApiError::bad_request(format!("the request body is not a valid pick request: {e}"))
-    })?;
+    let request: PickRequest = parse_body(&bytes, "pick request")?;
     drop(bytes);
     let (rays, query) = request.into_rays(&state.config)?;
     let _pick_memory = state
@@ -751,8 +755,26 @@ async fn edit_body<T: serde::de::DeserializeOwned>(
         )
         .await?;
     let bytes = read_body(headers, body, limit, state.config.body_timeout).await?;
-    serde_json::from_slice(&bytes)
-        .map_err(|e| ApiError::bad_request(format!("the request body is not a valid {what}: {e}")))
+    parse_body(&bytes, what)
+}
+
+/// A JSON request body as `T`, or 400 with a sentence naming where it went wrong: the field's
+/// path (`rays[3].origin[2]`) where there is one, then serde's reason and the place in the
+/// body.
+fn parse_body<T: serde::de::DeserializeOwned>(bytes: &[u8], what: &str) -> Result<T, ApiError> {
+    let bad = |reason: String| {
+        ApiError::bad_request(format!("the request body is not a valid {what}: {reason}"))
+    };
+    let mut json = serde_json::Deserializer::from_slice(bytes);
+    let value: T = serde_path_to_error::deserialize(&mut json).map_err(|e| {
+        let path = e.path().to_string();
+        match path.as_str() {
+            "" | "." => bad(e.into_inner().to_string()),
+            _ => bad(format!("{path}: {}", e.into_inner())),
+        }
+    })?;
+    json.end().map_err(|e| bad(e.to_string()))?;
+    Ok(value)
 }
 
 /// Checks a transform from a request.

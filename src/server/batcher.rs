@@ -8,9 +8,9 @@
 //! publishes the new version ([`SceneView`]) for `GET /scene`.
 
 use super::frame_faults::{self, FrameFaults};
-use super::steps::query_in_steps;
+use super::steps::{Stepped, query_in_steps};
 use crate::apps::camera::Camera;
-use crate::apps::render::{Image, Shade, render};
+use crate::apps::render::{Image, Shade, render_with};
 use crate::error::{Error, Result};
 use crate::picker::{Backend, BuiltScene, Picker};
 use crate::query::{Answers, Mode, Query};
@@ -52,6 +52,8 @@ pub(crate) struct JobError {
     /// The work would have needed more than the process's memory budget
     /// ([`Error::OverBudget`]: 503); otherwise the picker failed (500).
     pub(crate) over_budget: bool,
+    /// The work took longer than the server's work limit and was stopped (413).
+    pub(crate) over_time: bool,
     /// What went wrong.
     pub(crate) message: String,
 }
@@ -308,6 +310,7 @@ impl Worker {
         caps: (usize, usize),
         view: SharedView,
         max_added_triangles: usize,
+        max_work: Duration,
     ) -> Result<Worker> {
         let (sender, receiver) = mpsc::channel::<Job>();
         let (ready_tx, ready_rx) = mpsc::sync_channel::<Result<String>>(1);
@@ -342,6 +345,7 @@ impl Worker {
                     faults: None,
                     added_triangles: 0,
                     max_added_triangles,
+                    max_work,
                     notes_shown: Default::default(),
                 };
                 batcher.run(&mut picker);
@@ -431,6 +435,8 @@ struct Batcher {
     added_triangles: usize,
     /// ...and at most.
     max_added_triangles: usize,
+    /// The longest one query call's steps may run ([`super::ServerConfig::max_work`]).
+    max_work: Duration,
     /// The pickers' notes printed so far ([`show_notes`]).
     notes_shown: std::collections::HashSet<String>,
 }
@@ -1033,8 +1039,36 @@ impl Batcher {
             self.answer_group(picker, &query, members);
         }
         for (camera, shade, reply) in renders {
-            let image = catch_unwind(AssertUnwindSafe(|| render(picker, &camera, shade)));
-            let _ = reply.send(flatten(image, "rendering"));
+            // In steps too, stopped when the client is gone or past the work limit.
+            let image = catch_unwind(AssertUnwindSafe(|| {
+                render_with(&camera, shade, |rays| {
+                    let stepped = query_in_steps(
+                        picker,
+                        rays,
+                        &Query::default(),
+                        || !reply.is_closed(),
+                        self.max_work,
+                    )?;
+                    Ok(match stepped {
+                        Stepped::Done(answers) => Ok(answers.nearest),
+                        Stepped::Unwanted => Err(None),
+                        Stepped::OverTime { answered } => Err(Some(answered.nearest.len())),
+                    })
+                })
+            }));
+            let image = match image {
+                Ok(Ok(Err(None))) => continue,
+                Ok(Ok(Err(Some(answered)))) => Err(self.over_time(
+                    "this render",
+                    answered,
+                    camera.width() as usize * camera.height() as usize,
+                    "pixels",
+                )),
+                Ok(Ok(Ok(image))) => Ok(image),
+                Ok(Err(e)) => flatten(Ok(Err(e)), "rendering"),
+                Err(panic) => flatten(Err(panic), "rendering"),
+            };
+            let _ = reply.send(image);
             if let Ok(mut stats) = self.stats.lock() {
                 stats.renders += 1;
             }
@@ -1054,38 +1088,48 @@ impl Batcher {
             }
             stats.largest_batch = stats.largest_batch.max(count);
         }
-        // In steps, until no member waits any longer (`steps`).
+        // In steps, until no member waits any longer, or past the work limit (`steps`).
         let wanted = || members.iter().any(|m| !m.reply.is_closed());
-        if let [single] = members.as_slice() {
-            let answers = catch_unwind(AssertUnwindSafe(|| {
-                query_in_steps(picker, &single.rays, query, wanted)
-            }));
-            let Some(answers) = flatten(answers, "picking").transpose() else {
-                return;
-            };
-            let Some(member) = members.into_iter().next() else {
-                return;
-            };
-            let _ = member.reply.send(answers);
-            return;
-        }
-        let mut rays = Vec::with_capacity(ray_total);
-        let mut ranges = Vec::with_capacity(members.len());
-        for member in &members {
-            let start = rays.len();
-            rays.extend_from_slice(&member.rays);
-            ranges.push(start..rays.len());
-        }
+        let mut rays;
+        let all: &[Ray] = if let [single] = members.as_slice() {
+            &single.rays
+        } else {
+            rays = Vec::with_capacity(ray_total);
+            for member in &members {
+                rays.extend_from_slice(&member.rays);
+            }
+            &rays
+        };
         let answers = catch_unwind(AssertUnwindSafe(|| {
-            query_in_steps(picker, &rays, query, wanted)
+            query_in_steps(picker, all, query, wanted, self.max_work)
         }));
-        let Some(answers) = flatten(answers, "picking").transpose() else {
-            return;
+        let (answers, answered) = match flatten(answers, "picking") {
+            Ok(Stepped::Unwanted) => return,
+            Ok(Stepped::Done(answers)) => (Ok(answers), ray_total),
+            Ok(Stepped::OverTime { answered }) => {
+                let n = answered.nearest.len();
+                (Ok(answered), n)
+            }
+            Err(error) => (Err(error), 0),
         };
         match answers {
+            Ok(answers) if members.len() == 1 && answered == ray_total => {
+                if let Some(member) = members.into_iter().next() {
+                    let _ = member.reply.send(Ok(answers));
+                }
+            }
             Ok(answers) => {
-                for (member, range) in members.into_iter().zip(ranges) {
-                    let _ = member.reply.send(Ok(slice_answers(&answers, range)));
+                let mut start = 0;
+                for member in members {
+                    let range = start..start + member.rays.len();
+                    start = range.end;
+                    let reply = if range.end <= answered {
+                        Ok(slice_answers(&answers, range))
+                    } else {
+                        let own = answered.saturating_sub(range.start).min(range.len());
+                        Err(self.over_time("this pick", own, range.len(), "rays"))
+                    };
+                    let _ = member.reply.send(reply);
                 }
             }
             Err(error) => {
@@ -1093,6 +1137,20 @@ impl Batcher {
                     let _ = member.reply.send(Err(error.clone()));
                 }
             }
+        }
+    }
+
+    /// The error of work stopped at the work limit after `answered` of `total` `items`.
+    fn over_time(&self, what: &str, answered: usize, total: usize, items: &str) -> JobError {
+        JobError {
+            over_budget: false,
+            over_time: true,
+            message: format!(
+                "{what} was stopped after {answered} of its {total} {items}: it passed this \
+                 server's work limit of {} s for one request (--max-work-seconds); send fewer \
+                 {items} at a time",
+                crate::io::output::csv_number(self.max_work.as_secs_f64())
+            ),
         }
     }
 }
@@ -1119,10 +1177,12 @@ fn flatten<T>(
         Ok(Ok(value)) => Ok(value),
         Ok(Err(e)) => Err(JobError {
             over_budget: matches!(e, Error::OverBudget(_)),
+            over_time: false,
             message: format!("{what} failed: {e}"),
         }),
         Err(_) => Err(JobError {
             over_budget: false,
+            over_time: false,
             message: format!("{what} failed: the picker panicked"),
         }),
     }

@@ -18,11 +18,13 @@
 //! # Routes
 //!
 //! Errors are JSON `{"error": "sentence"}` with a 4xx status for the client's mistakes (400 for
-//! malformed JSON, unknown fields, a bad camera or option; 413 for a body over
+//! malformed JSON, unknown fields, a bad camera or option, naming the field's path; 413 for a body over
 //! [`ServerConfig::max_body_bytes`], more than [`ServerConfig::max_rays`] rays, or in mode `all`
 //! more than [`ServerConfig::max_hit_entries`] rays x `max_hits`; 404; 405; 408 for a body not
 //! sent whole within [`ServerConfig::body_timeout`]; 403 for a `POST`, `PATCH` or `DELETE` from
-//! another web site, by its `Origin` header: `origin`), 503 when the request's memory does not
+//! another web site, by its `Origin` header: `origin`, and for any request through a host name
+//! the server was not given, against DNS rebinding: [`host`]; 413 for a pick or render whose
+//! steps pass [`ServerConfig::max_work`]), 503 when the request's memory does not
 //! fit the server's memory budget (see below) or its work the process's
 //! ([`crate::Error::OverBudget`]), and 500 when picking itself fails. A sentence
 //! quotes at most 60 characters of any token of the request (a field name, a value), then "…".
@@ -125,6 +127,7 @@
 mod api;
 pub mod batcher;
 mod frame_faults;
+pub mod host;
 mod origin;
 pub mod page;
 mod steps;
@@ -178,6 +181,15 @@ pub struct ServerConfig {
     /// an object that would pass it is refused with 413, so clients cannot grow the scene
     /// without bound.
     pub max_added_triangles: usize,
+    /// Host names the server answers to besides IP addresses, `localhost` and names under
+    /// `.localhost` (lower case; [`host::ANY_HOST`] for any): requests with another `Host` get
+    /// 403, against pages that point their own names at the server ([`host`]).
+    pub allowed_hosts: Vec<String>,
+    /// The longest the worker spends on one pick or render request (or one batch of picks
+    /// asked together): past it the work stops between two steps and the requests not yet
+    /// answered in full get 413 with the count answered, so one costly request cannot hold
+    /// every other client's picks for hours.
+    pub max_work: Duration,
 }
 
 impl ServerConfig {
@@ -210,6 +222,8 @@ impl Default for ServerConfig {
             memory_budget: Self::default_memory_budget(),
             memory_wait: Duration::from_secs(5),
             max_added_triangles: 1 << 23,
+            allowed_hosts: Vec::new(),
+            max_work: Duration::from_secs(60),
         }
     }
 }
@@ -254,6 +268,7 @@ impl Server {
             ),
             view.clone(),
             config.max_added_triangles,
+            config.max_work,
         )?;
         Ok(Server {
             state: Arc::new(api::AppState {

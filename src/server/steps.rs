@@ -8,6 +8,12 @@
 //! [`FAST`] (so a large batch on a fast scene is soon one call of many rays, as before), and
 //! halve, down to [`FIRST`], when one takes over [`SLOW`]. Each ray's answer does not depend on
 //! the rays beside it, so the answers are those of one call.
+//!
+//! A pick that is wanted but costs too much (a client's million rays through a scene where each
+//! costs milliseconds) would hold the worker for hours; once its steps have taken longer than
+//! the server's work limit ([`super::ServerConfig::max_work`]) they stop, and what was answered
+//! is handed back with the count, so the requests answered in full are served and the rest are
+//! told to send fewer rays.
 
 use crate::picker::Picker;
 use crate::query::{Answers, Query};
@@ -22,19 +28,36 @@ const FAST: Duration = Duration::from_millis(50);
 /// A step that took more than this halves the next one.
 const SLOW: Duration = Duration::from_millis(200);
 
-/// `picker.query(rays, query)` in steps (see the module docs); `None` as soon as `wanted` says,
-/// between two steps, that no one waits for the answers.
+/// How a stepped query ended.
+#[derive(Debug)]
+pub(crate) enum Stepped {
+    /// Every ray was answered.
+    Done(Answers),
+    /// No one waited for the answers any longer.
+    Unwanted,
+    /// The steps took longer than the work limit: the answers of the first `answered` rays.
+    OverTime { answered: Answers },
+}
+
+/// `picker.query(rays, query)` in steps (see the module docs); [`Stepped::Unwanted`] as soon as
+/// `wanted` says, between two steps, that no one waits for the answers; [`Stepped::OverTime`]
+/// once the steps have taken longer than `max_work` with rays left.
 pub(crate) fn query_in_steps(
     picker: &mut dyn Picker,
     rays: &[Ray],
     query: &Query,
     wanted: impl Fn() -> bool,
-) -> Result<Option<Answers>> {
+    max_work: Duration,
+) -> Result<Stepped> {
     let mut out = Answers::default();
     let (mut done, mut step) = (0, FIRST);
+    let began = Instant::now();
     while done < rays.len() {
         if !wanted() {
-            return Ok(None);
+            return Ok(Stepped::Unwanted);
+        }
+        if done > 0 && began.elapsed() > max_work {
+            return Ok(Stepped::OverTime { answered: out });
         }
         let end = (done + step).min(rays.len());
         let start = Instant::now();
@@ -57,7 +80,7 @@ pub(crate) fn query_in_steps(
             step
         };
     }
-    Ok(Some(out))
+    Ok(Stepped::Done(out))
 }
 
 /// Appends `more` (the answers of the rays after `out`'s, at least one) to `out`.
@@ -99,18 +122,37 @@ mod tests {
                 ..Query::default()
             };
             let whole = picker.query(&rays, &query).unwrap();
-            let stepped = query_in_steps(&mut picker, &rays, &query, || true)
-                .unwrap()
-                .unwrap();
+            let stepped = query_in_steps(&mut picker, &rays, &query, || true, FOREVER).unwrap();
+            let Stepped::Done(stepped) = stepped else {
+                panic!("{stepped:?}");
+            };
             assert_eq!(format!("{whole:?}"), format!("{stepped:?}"), "{mode:?}");
+            // Over the work limit after the first step: its answers, the whole call's first.
+            let over = query_in_steps(&mut picker, &rays, &query, || true, Duration::ZERO);
+            let Ok(Stepped::OverTime { answered }) = over else {
+                panic!("{over:?}");
+            };
+            let n = answered.nearest.len();
+            assert_eq!(n, FIRST, "{mode:?}");
+            let first = picker.query(&rays[..n], &query).unwrap();
+            assert_eq!(format!("{first:?}"), format!("{answered:?}"), "{mode:?}");
         }
         let asked = Cell::new(0);
-        let gone = query_in_steps(&mut picker, &rays, &Query::default(), || {
-            asked.set(asked.get() + 1);
-            asked.get() < 2
-        })
+        let gone = query_in_steps(
+            &mut picker,
+            &rays,
+            &Query::default(),
+            || {
+                asked.set(asked.get() + 1);
+                asked.get() < 2
+            },
+            FOREVER,
+        )
         .unwrap();
-        assert!(gone.is_none());
+        assert!(matches!(gone, Stepped::Unwanted), "{gone:?}");
         assert_eq!(asked.get(), 2, "stopped after the first step");
     }
+
+    /// No work limit to speak of.
+    const FOREVER: Duration = Duration::from_secs(3600);
 }

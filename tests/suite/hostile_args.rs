@@ -619,7 +619,7 @@ fn server_answers_name_objects_by_file_name_only() {
         let mut stream = std::net::TcpStream::connect(addr).unwrap();
         write!(
             stream,
-            "{head} HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+            "{head} HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
             body.len()
         )
         .unwrap();
@@ -814,6 +814,24 @@ fn outputs_that_cannot_be_what_their_name_says_are_refused() {
     // A server limit of 0 would refuse every request: refused, not raised to 1 in silence.
     for flag in ["--max-rays", "--max-body-bytes", "--max-connections"] {
         assert_refused(&["serve", flag, "0"], &[flag, "at least 1"]);
+    }
+    // The server's timeouts and work limit are positive, finite seconds.
+    for flag in ["--idle-timeout", "--body-timeout", "--max-work-seconds"] {
+        for bad in ["0", "nan", "inf", "1e10"] {
+            assert_refused(&["serve", flag, bad], &[flag, "positive number of seconds"]);
+        }
+    }
+    // `--allow-host` takes a bare host name (no scheme, no port), or `*`.
+    for bad in [
+        "http://picks.example",
+        "picks.example:8080",
+        "*.example",
+        "",
+    ] {
+        assert_refused(
+            &["serve", "--allow-host", bad],
+            &["--allow-host", "not a host name"],
+        );
     }
     // `--max-hits` outside `--mode all` would be ignored: refused.
     for args in [

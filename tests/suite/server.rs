@@ -482,6 +482,15 @@ fn bad_requests_get_clear_4xx_json_errors() {
         ("not json".into(), 400, "not a valid pick request"),
         (format!("{{\"rays\": [{ray}], \"colour\": 1}}"), 400, "unknown field"),
         (format!("{{\"rays\": [{ray}], \"mode\": \"nearest\"}}"), 400, "unknown variant"),
+        // The field's path is named (serde's own sentence named none).
+        (
+            format!("{{\"rays\": [{ray}, {{\"origin\": [0, 0, \"x\"], \"dir\": [0, 0, 1]}}]}}"),
+            400,
+            "rays[1].origin[2]: invalid type: string",
+        ),
+        (format!("{{\"rays\": [{ray}], \"mode\": 1}}"), 400, "pick request: mode: "),
+        (format!("{{\"rays\": [{ray}], \"mask\": -1}}"), 400, "mask: invalid value"),
+        (format!("{{\"rays\": [{ray}]}} x"), 400, "trailing characters"),
         (
             format!("{{\"rays\": [{ray}], \"mode\": \"all\", \"max_hits\": 0}}"),
             400,
@@ -550,7 +559,7 @@ fn bad_requests_get_clear_4xx_json_errors() {
     let chunk = "x".repeat(4096);
     let answer = raw_request(
         &base,
-        "POST /pick HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\n",
+        "POST /pick HTTP/1.1\r\nHost: localhost\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\n",
         &(0..6)
             .map(|_| format!("{:x}\r\n{chunk}\r\n", chunk.len()))
             .chain(["0\r\n\r\n".to_owned()])
@@ -564,7 +573,7 @@ fn bad_requests_get_clear_4xx_json_errors() {
     // A declared length over the limit is refused before the body is sent.
     let answer = raw_request(
         &base,
-        "POST /pick HTTP/1.1\r\nHost: x\r\nContent-Length: 9000000\r\nConnection: close\r\n\r\n",
+        "POST /pick HTTP/1.1\r\nHost: localhost\r\nContent-Length: 9000000\r\nConnection: close\r\n\r\n",
         "",
     );
     assert!(answer.starts_with("HTTP/1.1 413"), "{answer}");
@@ -771,4 +780,85 @@ fn a_long_all_hits_request_never_breaks_a_gpu_server() {
             "a render after max_hits {max_hits}"
         );
     }
+}
+
+/// A web page can point a name of its own at a server on the user's machine (DNS rebinding):
+/// the browser then sends the page's requests with that name as `Host`, and with the page's
+/// own origin, which the `Origin` check takes for the server's. Before the `Host` check such a
+/// page read the scene and its picks and edited it. Now a request whose `Host` is not an IP
+/// address, `localhost` (or under `.localhost`) or a name given with `--allow-host` gets 403
+/// with a sentence naming it and the flag; every path and method is refused, the allowed names
+/// are served, and a request without a `Host` (HTTP/1.0) is not a browser's and is served.
+#[test]
+fn requests_through_a_name_the_server_was_not_given_are_refused() {
+    let built = example();
+    let base = start(built.clone(), Backend::Cpu, ServerConfig::default());
+    let port = base.rsplit(':').next().unwrap();
+    let pick = r#"{"rays": [{"origin": [0, 0, 50], "dir": [0, 0, -1]}]}"#;
+    let ask = |base: &str, host: Option<&str>, method: &str, path: &str, body: &str| {
+        let host = host.map_or(String::new(), |h| format!("Host: {h}\r\n"));
+        let origin = if host.is_empty() {
+            String::new()
+        } else {
+            format!("Origin: http://{}\r\n", &host[6..host.len() - 2])
+        };
+        let version = if host.is_empty() { "1.0" } else { "1.1" };
+        raw_request(
+            base,
+            &format!(
+                "{method} {path} HTTP/{version}\r\n{host}{origin}Content-Type: text/plain\r\n\
+                 Content-Length: {}\r\nConnection: close\r\n\r\n",
+                body.len()
+            ),
+            body,
+        )
+    };
+    let evil = format!("rebound.evil.example:{port}");
+    for (method, path, body) in [
+        ("GET", "/scene", ""),
+        ("GET", "/", ""),
+        ("GET", "/render", ""),
+        ("POST", "/pick", pick),
+        ("DELETE", "/objects/0", ""),
+    ] {
+        let answer = ask(&base, Some(&evil), method, path, body);
+        assert!(
+            answer.starts_with("HTTP/1.1 403"),
+            "{method} {path}: {answer}"
+        );
+        assert!(
+            answer.contains(&format!("does not answer to the name \\\"{evil}\\\""))
+                && answer.contains("--allow-host rebound.evil.example"),
+            "{answer}"
+        );
+    }
+    for host in [
+        format!("127.0.0.1:{port}"),
+        format!("localhost:{port}"),
+        format!("[::1]:{port}"),
+        format!("viewer.localhost:{port}"),
+    ] {
+        let answer = ask(&base, Some(&host), "POST", "/pick", pick);
+        assert!(answer.starts_with("HTTP/1.1 200"), "{host}: {answer}");
+    }
+    let answer = ask(&base, None, "GET", "/scene", "");
+    assert!(answer.starts_with("HTTP/1.0 200"), "{answer}");
+    // A name given to the server (as `--allow-host` gives it) is served.
+    let named = start(
+        built,
+        Backend::Cpu,
+        ServerConfig {
+            allowed_hosts: vec!["rebound.evil.example".to_owned()],
+            ..ServerConfig::default()
+        },
+    );
+    let port = named.rsplit(':').next().unwrap();
+    let answer = ask(
+        &named,
+        Some(&format!("Rebound.Evil.Example:{port}")),
+        "POST",
+        "/pick",
+        pick,
+    );
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
 }

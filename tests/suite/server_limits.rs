@@ -459,3 +459,39 @@ fn a_costly_pick_whose_client_left_stops_holding_the_worker() {
         waited.as_secs_f64() / step.as_secs_f64()
     );
 }
+
+/// A client that stays connected could hold the worker for hours with one costly request (a
+/// million rays through a scene where each costs milliseconds: every other client's picks
+/// waited). The worker now stops a request's steps once they pass the work limit
+/// (`--max-work-seconds`): the request gets 413 with the count answered and what to do, and the
+/// next request is answered. Here the limit is a nanosecond, so every request stops after its
+/// first step of 256 rays: one of 256 rays or fewer is answered, a larger pick and a render are
+/// stopped.
+#[test]
+fn requests_past_the_work_limit_are_stopped_with_413() {
+    let addr = start(ServerConfig {
+        max_work: Duration::from_nanos(1),
+        ..ServerConfig::default()
+    });
+    let rays = |n: usize| {
+        let ray = r#"{"origin": [10, 10, 50], "dir": [0, 0, -1]}"#;
+        format!("{{\"rays\": [{}]}}", vec![ray; n].join(","))
+    };
+    let (status, body) = request(addr, "POST", "/pick", &rays(1000));
+    assert_eq!(status, 413, "{body}");
+    assert!(
+        body.contains("this pick was stopped after 256 of its 1000 rays")
+            && body.contains("--max-work-seconds")
+            && body.contains("send fewer rays"),
+        "{body}"
+    );
+    let (status, body) = request(addr, "GET", "/render", "");
+    assert_eq!(status, 413, "{body}");
+    assert!(
+        body.contains("this render was stopped after 256 of its 307200 pixels"),
+        "{body}"
+    );
+    let (status, body) = request(addr, "POST", "/pick", &rays(256));
+    assert_eq!(status, 200, "{body}");
+    assert_eq!(body.matches("\"hit\":true").count(), 256, "{body:.200}");
+}
