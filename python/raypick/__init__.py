@@ -5,9 +5,11 @@
 >>> hits = scene.pick(np.array([[0, 0.1, 1, 0, 0, -1.0]]))        # doctest: +SKIP
 >>> hits["hit"], hits["triangle"], hits["position"]               # doctest: +SKIP
 
-- ``Scene.load(paths, masks=None, builder="auto", leaf_size=8)``: the files the CLI reads
+- ``Scene.load(paths, masks=None, builder=None, leaf_size=None)``: the files the CLI reads
   (OBJ, PLY, STL, glTF, ESRI ASCII grid, GeoTIFF, a ``.json`` scene description, a saved
-  ``.rpk``); ``Scene.from_arrays(vertices, triangles)``; ``scene.save(path)`` writes an ``.rpk``.
+  ``.rpk``); ``builder`` and ``leaf_size`` (by default "auto" and 8) choose how the tree is
+  built, and a saved ``.rpk``, already built, refuses them. ``Scene.from_arrays(vertices,
+  triangles)``; ``scene.save(path)`` writes an ``.rpk``.
 - ``scene.pick(rays, mode="closest", max_hits=16, cull="none", tmin=0.0, tmax=inf,
   ray_mask=0xFFFFFFFF, intersector="watertight", backend="auto")``: ``rays`` is (N, 6) float64
   (origin, direction) or a tuple (origins, directions); the answer is a dict of numpy arrays
@@ -26,8 +28,9 @@
 - ``raypick.dask.pick(scene_paths, dask_rays, **query)``: the same answers as dask arrays,
   computed on a Dask cluster whose worker processes each load the scene once.
 
-Tracing releases the GIL. Bad shapes or dtypes raise ValueError; unreadable files OSError;
-other refusals ValueError, each with one sentence.
+Tracing releases the GIL, and Ctrl-C stops a long pick (KeyboardInterrupt). Bad shapes or
+dtypes raise ValueError; unreadable files OSError; an integer argument given something else
+(a bool included) TypeError; other refusals ValueError, each with one sentence.
 """
 
 from ._raypick import Scene, _set_threads, _threads, camera_rays, max_memory, set_max_memory

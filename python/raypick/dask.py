@@ -34,7 +34,8 @@ How it runs:
   arrays have unknown chunk sizes until computed (``.compute_chunk_sizes()`` finds them).
 
 Extra keyword arguments ``masks``, ``builder`` and ``leaf_size`` are passed to
-``Scene.load`` on the workers; all others to ``Scene.pick``.
+``Scene.load`` on the workers (``builder`` and ``leaf_size`` only when given: a saved ``.rpk``
+refuses them); all others to ``Scene.pick``.
 """
 
 import operator
@@ -139,7 +140,7 @@ def _layout(key, query, caller_pid):
     ]
 
 
-def pick(scene, rays, *, masks=None, builder="auto", leaf_size=8, **query):
+def pick(scene, rays, *, masks=None, builder=None, leaf_size=None, **query):
     """Answers the dask array `rays` (N, 6) against the scene at `scene` (a path or a list of
     paths) on the current Dask scheduler; returns a dict of dask arrays with the keys
     ``raypick.Scene.pick`` gives for `query`."""

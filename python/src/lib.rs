@@ -9,7 +9,10 @@
 //!   and `raypick viewshed` do);
 //! - [`camera`]: `raypick.camera_rays` — the CLI's camera JSON, pixels to rays;
 //! - [`arrays`]: numpy arrays in, checked: shapes and dtypes, one `ValueError` sentence each;
+//! - [`int_arg`]: integer arguments in (`leaf_size`, `max_hits`, masks, …): ints and numpy
+//!   integers, not bools, checked against their ranges;
 //! - [`columns`]: hits out, as numpy columns named like the CLI's CSV columns;
+//! - [`interrupt`]: Ctrl-C during a long pick, checked for between its batches;
 //! - [`errors`]: the library's errors as Python exceptions (`OSError` for files, `ValueError`
 //!   otherwise, with the library's sentence);
 //! - [`threads`]: how many threads a process traces with (the Dask workers' share of a machine);
@@ -22,6 +25,8 @@ mod arrays;
 mod camera;
 mod columns;
 mod errors;
+mod int_arg;
+mod interrupt;
 mod memory;
 mod pick;
 mod scene;

@@ -1,22 +1,34 @@
 //! `Scene.pick`: the query's settings, the rays in, the answers out.
 //!
-//! Rays are answered in batches: on the CPU of [`CPU_BATCH`] rays (converted, traced and
+//! Rays are answered in batches: on the CPU of up to [`CPU_BATCH`] rays (converted, traced and
 //! written out one batch after the other, so a batch stays in the processor's cache), on a GPU
-//! of as many as fit half the library's memory budget. Every batch fits that budget, as the
-//! CLI's `--mode all` does; the answer columns are checked against it before they are made, and
-//! the all-hits lists, which grow with the hits found, each time they grow (a `ValueError`
-//! naming the budget once they would pass it).
+//! of up to [`GPU_BATCH`]. Every batch fits half the library's memory budget, as the CLI's
+//! `--mode all` does; the answer columns are checked against it before they are made, and the
+//! all-hits lists, which grow with the hits found, each time they grow (a `ValueError` naming
+//! the budget once they would pass it).
+//!
+//! Between batches a pick runs Python's signal handlers ([`crate::interrupt`]), so Ctrl-C stops
+//! it soon: a pick starts with a batch of [`FIRST`] rays, and each batch after is sized from
+//! the one before to take about [`BATCH_TIME`], within [`FEWEST`] and the sizes above. Batches of those sizes
+//! took seconds on costly rays: in a stack of 20,000 triangles that a ray passes beside, each
+//! ray cost 80 µs on two cores (2.6 s a 32,768-ray batch); on a software GPU (lavapipe), a
+//! batch of 3M bunny rays took over 45 s. Each ray's answer does not depend on the rays beside
+//! it (the automatic backend answers batches below its crossover on the CPU, with the GPU's
+//! bits), so the answers are those of one call.
 
 use crate::arrays;
 use crate::columns::{Columns, Lists, Shape};
-use crate::errors::{to_py, value_error, vec_for};
-use crate::scene::{Scene, log_notes, mask, parse_name};
+use crate::errors::{to_py, vec_for};
+use crate::int_arg;
+use crate::interrupt::Interrupts;
+use crate::scene::{Scene, log_notes, parse_name};
 use crate::threads;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use raypick::query::MAX_HITS_LIMIT;
 use raypick::{Backend, Mode, Query, Ray};
 use std::ops::Range;
+use std::time::{Duration, Instant};
 
 /// The checked settings of one pick.
 pub struct QueryArgs {
@@ -29,23 +41,15 @@ pub struct QueryArgs {
 }
 
 impl QueryArgs {
-    /// Parses the names (as the CLI spells them) and checks the numbers.
+    /// Parses the names (as the CLI spells them) and checks the query.
     pub fn parse(
         mode: &str,
-        max_hits: i64,
+        max_hits: u32,
         cull: &str,
-        ray_mask: i64,
+        ray_mask: u32,
         intersector: &str,
         backend: &str,
     ) -> PyResult<Self> {
-        let max_hits = u32::try_from(max_hits)
-            .ok()
-            .filter(|k| (1..=MAX_HITS_LIMIT).contains(k))
-            .ok_or_else(|| {
-                value_error(format!(
-                    "max hits {max_hits} is out of range; it must be 1 ..= {MAX_HITS_LIMIT}"
-                ))
-            })?;
         let query = Query {
             mode: parse_name("mode", mode)?,
             cull: parse_name("cull", cull)?,
@@ -56,9 +60,16 @@ impl QueryArgs {
         Ok(Self {
             query,
             backend: parse_name("backend", backend)?,
-            ray_mask: mask("ray_mask", ray_mask)?,
+            ray_mask,
         })
     }
+}
+
+/// `max_hits=`: an integer in 1 ..= 1024.
+pub fn max_hits(value: &Bound<'_, PyAny>) -> PyResult<u32> {
+    int_arg::integer(value, "max_hits", 1..=MAX_HITS_LIMIT, |v| {
+        format!("max hits {v} is out of range; it must be 1 ..= {MAX_HITS_LIMIT}")
+    })
 }
 
 /// Rays per batch: as many as fit half the memory budget.
@@ -110,11 +121,56 @@ pub fn pick<'py>(
 /// camera and incoherent sets of the bunny, the dragon and the DEM (BENCHMARKS.md): 32,768 rays
 /// a batch picked 1.1–1.3× as fast as one 1M batch, and as fast as 16,384 or 65,535; it is
 /// below the batch size from which the pipeline reorders rays, which on these sets cost more
-/// than it gained. A GPU gets the largest batch that fits the memory budget.
+/// than it gained.
 pub const CPU_BATCH: usize = 1 << 15;
 
+/// Rays per batch of a pick on a GPU, at most (fewer when half the memory budget holds fewer):
+/// about 60 ms of an NVIDIA H200's picking at 15 ns a ray (BENCHMARKS.md, "A real GPU"), next to
+/// which a batch's dispatch and readback (0.7 ms) are small.
+pub const GPU_BATCH: usize = 1 << 22;
+
+/// The first batch's rays: a pick of up to 4,096 rays (an interactive one) is one batch, and a
+/// first batch of costly rays still ends soon (0.3 s at 80 µs a ray).
+pub const FIRST: usize = 1 << 12;
+
+/// The fewest rays in a batch after the first: a batch of rays that cost a millisecond each (a
+/// scene the tree cannot cut up, many hits wanted, a software GPU) still ends soon.
+pub const FEWEST: usize = 256;
+
+/// What a batch after the first is sized to take, from the time per ray of the one before
+/// (within [`FEWEST`] ..= [`CPU_BATCH`] or [`GPU_BATCH`]).
+pub const BATCH_TIME: Duration = Duration::from_millis(100);
+
+/// The rays of each batch of a pick.
+struct Batches {
+    /// The most rays in a batch.
+    most: usize,
+    /// The next batch's rays.
+    next: usize,
+}
+
+impl Batches {
+    /// The batches of `query` on the CPU, or on a GPU when `gpu`.
+    fn new(query: &Query, gpu: bool) -> Self {
+        let most = if gpu { GPU_BATCH } else { CPU_BATCH }.min(batch_rays(query));
+        Self {
+            most,
+            next: FIRST.min(most),
+        }
+    }
+
+    /// After a batch of `rays` that took `time`: the next batch takes about [`BATCH_TIME`].
+    fn took(&mut self, rays: usize, time: Duration) {
+        let per_ray = time.as_secs_f64() / rays.max(1) as f64;
+        // A float past usize (no time measured) saturates.
+        let fit = (BATCH_TIME.as_secs_f64() / per_ray) as usize;
+        self.next = fit.clamp(FEWEST.min(self.most), self.most);
+    }
+}
+
 /// Answers rays `0..n`, made by `read` a batch at a time, without the interpreter, handing
-/// each batch's answers to `sink` in ray order (the same buffers, batch after batch).
+/// each batch's answers to `sink` in ray order (the same buffers, batch after batch); between
+/// batches, runs Python's signal handlers and stops with what they raise (Ctrl-C).
 pub fn answer(
     py: Python<'_>,
     scene: &Scene,
@@ -125,24 +181,34 @@ pub fn answer(
 ) -> PyResult<()> {
     let query = args.query;
     let (result, notes) = py.detach(|| {
-        threads::run(|| {
-            scene.trace(args.backend, |picker, gpu| {
-                let most = batch_rays(&query);
-                let batch = if gpu { most } else { most.min(CPU_BATCH) };
-                let mut rays = vec_for::<Ray>(batch.min(n), "the rays")?;
-                // One answer buffer for every batch: a fresh one per batch faulted its pages in
-                // anew wherever the allocator returns such blocks to the OS on free, as in a
-                // Dask worker (`MALLOC_TRIM_THRESHOLD_`): 23% of a 1M-ray pick.
-                let mut answers = raypick::Answers::default();
-                for start in (0..n).step_by(batch) {
-                    read(start..(start + batch).min(n), &mut rays);
+        scene.trace(args.backend, |picker, gpu| {
+            let mut batches = Batches::new(&query, gpu);
+            let mut rays = vec_for::<Ray>(batches.most.min(n), "the rays")?;
+            // One answer buffer for every batch: a fresh one per batch faulted its pages in
+            // anew wherever the allocator returns such blocks to the OS on free, as in a
+            // Dask worker (`MALLOC_TRIM_THRESHOLD_`): 23% of a 1M-ray pick.
+            let mut answers = raypick::Answers::default();
+            let mut interrupts = Interrupts::new();
+            let mut start = 0;
+            while start < n {
+                let end = start + batches.next.min(n - start);
+                let began = Instant::now();
+                // On the process's pool; the signal checks stay on this thread, which may be
+                // Python's main thread.
+                threads::run(|| -> PyResult<()> {
+                    read(start..end, &mut rays);
                     picker
                         .query_into(&rays, &query, &mut answers)
                         .map_err(to_py)?;
-                    sink(&answers)?;
+                    sink(&answers)
+                })?;
+                batches.took(end - start, began.elapsed());
+                start = end;
+                if start < n {
+                    interrupts.check()?;
                 }
-                Ok(())
-            })
+            }
+            Ok(())
         })
     });
     log_notes(py, notes)?;

@@ -3,6 +3,7 @@
 
 use crate::arrays::{self, Dtype};
 use crate::errors::{to_py, value_error};
+use crate::int_arg::{self, Integer};
 use crate::pick::{self, QueryArgs};
 use crate::sight::{self, SightArgs};
 use crate::threads;
@@ -65,7 +66,7 @@ impl Scene {
     pub fn trace<R>(
         &self,
         backend: Backend,
-        work: impl FnOnce(&mut dyn Picker, bool) -> PyResult<R>,
+        work: impl FnOnce(&mut (dyn Picker + Send), bool) -> PyResult<R>,
     ) -> (PyResult<R>, Vec<Note>) {
         let mut notes = Vec::new();
         let built = &self.built;
@@ -164,29 +165,45 @@ pub fn parse_name<T: std::str::FromStr<Err = String>>(argument: &str, value: &st
         .map_err(|e: String| value_error(format!("{argument}: {e}")))
 }
 
-/// The builder settings of `builder=` and `leaf_size=`.
-fn build_options(builder: &str, leaf_size: i64) -> PyResult<BuildOptions> {
-    let builder: Builder = parse_name("builder", builder)?;
-    let leaf_size = u32::try_from(leaf_size).map_err(|_| {
-        value_error(format!(
-            "leaf size {leaf_size} is out of range; it must be 1 ..= {}",
-            raypick::layout::MAX_LEAF_SIZE
-        ))
-    })?;
+/// The builder settings of `builder=` and `leaf_size=`, the defaults for those not given.
+fn build_options(builder: Option<&str>, leaf_size: Option<u32>) -> PyResult<BuildOptions> {
+    let default = BuildOptions::default();
     Ok(BuildOptions {
-        builder,
-        leaf_size,
-        ..BuildOptions::default()
+        builder: match builder {
+            Some(name) => parse_name::<Builder>("builder", name)?,
+            None => default.builder,
+        },
+        leaf_size: leaf_size.unwrap_or(default.leaf_size),
+        ..default
     })
 }
 
-/// A layer mask argument: an integer in 0 ..= 0xFFFFFFFF.
-pub fn mask(argument: &str, value: i64) -> PyResult<u32> {
-    u32::try_from(value).map_err(|_| {
-        value_error(format!(
-            "{argument} {value} is out of range; it must be 0 ..= 0xFFFFFFFF"
-        ))
+/// `leaf_size=`: an integer in 1 ..= 15.
+fn leaf_size(value: &Bound<'_, PyAny>) -> PyResult<u32> {
+    let most = raypick::layout::MAX_LEAF_SIZE;
+    int_arg::integer(value, "leaf_size", 1..=most, |v| {
+        format!("leaf size {v} is out of range; it must be 1 ..= {most}")
     })
+}
+
+/// `leaf_size=` of `Scene.load`: as [`leaf_size`], or None (not given).
+fn leaf_size_or_none(value: &Bound<'_, PyAny>) -> PyResult<Option<u32>> {
+    if value.is_none() {
+        return Ok(None);
+    }
+    leaf_size(value).map(Some)
+}
+
+/// A layer mask argument: an integer in 0 ..= 0xFFFFFFFF.
+pub fn mask(argument: &str, value: &Bound<'_, PyAny>) -> PyResult<u32> {
+    int_arg::integer(value, argument, 0..=u32::MAX, |v| {
+        format!("{argument} {v} is out of range; it must be 0 ..= 0xFFFFFFFF")
+    })
+}
+
+/// `ray_mask=`: every ray's layer mask.
+pub fn ray_mask(value: &Bound<'_, PyAny>) -> PyResult<u32> {
+    mask("ray_mask", value)
 }
 
 /// `paths`: one path (str or os.PathLike) or a sequence of them.
@@ -220,11 +237,16 @@ fn mask_list(masks: Option<&Bound<'_, PyAny>>, count: usize) -> PyResult<Vec<Opt
             "masks must be a list of {count} masks (an integer or None each), one per path"
         ))
     };
-    if let Ok(one) = masks.extract::<i64>() {
+    let within = |one: Integer| {
+        one.within(0..=u32::MAX, |v| {
+            format!("mask {v} is out of range; it must be 0 ..= 0xFFFFFFFF")
+        })
+    };
+    if let Some(one) = Integer::of(masks, "mask")? {
         if count != 1 {
             return Err(wrong());
         }
-        return Ok(vec![Some(mask("mask", one)?)]);
+        return Ok(vec![Some(within(one)?)]);
     }
     if masks.is_instance_of::<PyString>() {
         return Err(wrong());
@@ -240,10 +262,11 @@ fn mask_list(masks: Option<&Bound<'_, PyAny>>, count: usize) -> PyResult<Vec<Opt
         .iter()
         .map(|m| {
             if m.is_none() {
-                Ok(None)
-            } else {
-                let v: i64 = m.extract().map_err(|_| wrong())?;
-                mask("mask", v).map(Some)
+                return Ok(None);
+            }
+            match Integer::of(m, "mask")? {
+                Some(one) => within(one).map(Some),
+                None => Err(wrong()),
             }
         })
         .collect()
@@ -257,26 +280,27 @@ fn is_description(path: &std::path::Path) -> bool {
 
 #[pymethods]
 impl Scene {
-    /// Scene.load(paths, masks=None, builder="auto", leaf_size=8)
+    /// Scene.load(paths, masks=None, builder=None, leaf_size=None)
     ///
     /// Loads the files the CLI reads (OBJ, PLY, STL, glTF, ESRI ASCII grids, GeoTIFF; a `.json`
     /// scene description; a saved `.rpk`, alone) and builds the tree. `masks` gives each path's
-    /// layer mask (an integer or None). Object ids follow the order of the files.
+    /// layer mask (an integer or None). Object ids follow the order of the files. `builder`
+    /// and `leaf_size` (by default "auto" and 8) choose how the tree is built; a saved `.rpk`
+    /// is already built, with its trees, and refuses them.
     #[staticmethod]
-    #[pyo3(signature = (paths, masks=None, builder="auto", leaf_size=8))]
+    #[pyo3(signature = (paths, masks=None, builder=None, leaf_size=None))]
     fn load(
         py: Python<'_>,
         paths: &Bound<'_, PyAny>,
         masks: Option<&Bound<'_, PyAny>>,
-        builder: &str,
-        leaf_size: i64,
+        builder: Option<&str>,
+        #[pyo3(from_py_with = leaf_size_or_none)] leaf_size: Option<u32>,
     ) -> PyResult<Scene> {
         let paths = path_list(paths)?;
         if paths.is_empty() {
             return Err(value_error("paths is empty; give at least one scene file"));
         }
         let masks = mask_list(masks, paths.len())?;
-        let options = build_options(builder, leaf_size)?;
         if paths.iter().any(|p| rpk::has_rpk_extension(p)) {
             if paths.len() > 1 {
                 return Err(value_error(
@@ -288,15 +312,34 @@ impl Scene {
                     "an .rpk file keeps the masks it was saved with; load it without masks",
                 ));
             }
+            let given: Vec<&str> = [
+                ("builder", builder.is_some()),
+                ("leaf_size", leaf_size.is_some()),
+            ]
+            .into_iter()
+            .filter_map(|(name, given)| given.then_some(name))
+            .collect();
+            if !given.is_empty() {
+                // As the CLI refuses --builder and --leaf-size with a `.rpk`.
+                return Err(value_error(format!(
+                    "{} is a built scene (.rpk) with its trees: {} {} when building from a \
+                     scene's files, not to a saved scene; load it without {}",
+                    paths[0].display(),
+                    given.join(" and "),
+                    if given.len() == 1 { "applies" } else { "apply" },
+                    given.join(" or ")
+                )));
+            }
             let path = paths[0].clone();
             let built = py
                 .detach(|| {
                     threads::run(|| {
                         let built = rpk::load(&path)?;
                         // A saved instanced scene is picked here as copies, as a description
-                        // loads (the same object ids and names).
+                        // loads (the same object ids and names), built as by default (as the
+                        // CLI's commands that bake one build it).
                         match built.instances() {
-                            Some(i) => BuiltScene::new(i.baked()?, &options),
+                            Some(i) => BuiltScene::new(i.baked()?, &BuildOptions::default()),
                             None => Ok(built),
                         }
                     })
@@ -304,6 +347,7 @@ impl Scene {
                 .map_err(to_py)?;
             return Ok(Scene::new(built));
         }
+        let options = build_options(builder, leaf_size)?;
         let built = py.detach(|| {
             threads::run(|| -> PyResult<BuiltScene> {
                 let mut files = Vec::new();
@@ -343,9 +387,9 @@ impl Scene {
         vertices: &Bound<'_, PyAny>,
         triangles: &Bound<'_, PyAny>,
         builder: &str,
-        leaf_size: i64,
+        #[pyo3(from_py_with = leaf_size)] leaf_size: u32,
     ) -> PyResult<Scene> {
-        let options = build_options(builder, leaf_size)?;
+        let options = build_options(Some(builder), Some(leaf_size))?;
         let vertices = arrays::rows(vertices, "vertices", 3, Dtype::Float64, false)?;
         let positions = arrays::points(vertices.as_array(), "the vertices")?;
         let triangles = arrays::triangles(triangles)?;
@@ -391,11 +435,11 @@ impl Scene {
         py: Python<'py>,
         rays: &Bound<'py, PyAny>,
         mode: &str,
-        max_hits: i64,
+        #[pyo3(from_py_with = pick::max_hits)] max_hits: u32,
         cull: &str,
         tmin: f64,
         tmax: f64,
-        ray_mask: i64,
+        #[pyo3(from_py_with = ray_mask)] ray_mask: u32,
         intersector: &str,
         backend: &str,
     ) -> PyResult<Bound<'py, PyDict>> {
@@ -414,7 +458,7 @@ impl Scene {
         a: &Bound<'py, PyAny>,
         b: &Bound<'py, PyAny>,
         epsilon: f64,
-        ray_mask: i64,
+        #[pyo3(from_py_with = ray_mask)] ray_mask: u32,
         backend: &str,
     ) -> PyResult<Bound<'py, PyAny>> {
         let args = SightArgs::parse(epsilon, ray_mask, backend)?;
@@ -436,7 +480,7 @@ impl Scene {
         targets: Option<&Bound<'py, PyAny>>,
         target_height: f64,
         epsilon: f64,
-        ray_mask: i64,
+        #[pyo3(from_py_with = ray_mask)] ray_mask: u32,
         backend: &str,
     ) -> PyResult<Bound<'py, PyDict>> {
         let args = SightArgs::parse(epsilon, ray_mask, backend)?;

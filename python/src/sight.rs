@@ -9,7 +9,7 @@
 use crate::arrays::{self, Dtype};
 use crate::errors::{collect_for, value_error, vec_for};
 use crate::pick::{QueryArgs, answer};
-use crate::scene::{Scene, mask, parse_name};
+use crate::scene::{Scene, parse_name};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::exceptions::PyRuntimeWarning;
 use pyo3::prelude::*;
@@ -26,7 +26,7 @@ pub struct SightArgs {
 }
 
 impl SightArgs {
-    pub fn parse(epsilon: f64, ray_mask: i64, backend: &str) -> PyResult<Self> {
+    pub fn parse(epsilon: f64, ray_mask: u32, backend: &str) -> PyResult<Self> {
         if !(0.0..0.5).contains(&epsilon) {
             return Err(value_error(format!(
                 "epsilon {epsilon} must be in [0, 0.5)"
@@ -34,7 +34,7 @@ impl SightArgs {
         }
         Ok(Self {
             epsilon,
-            ray_mask: mask("ray_mask", ray_mask)?,
+            ray_mask,
             backend: parse_name("backend", backend)?,
         })
     }

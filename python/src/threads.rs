@@ -5,6 +5,7 @@
 //! the cores, so `raypick.dask` sets a pool of that many threads once per worker process
 //! (`_set_threads`); every trace of the process then runs inside it.
 
+use crate::int_arg;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use std::sync::{Arc, Mutex, PoisonError};
@@ -28,26 +29,28 @@ pub fn run<R: Send>(work: impl FnOnce() -> R + Send) -> R {
 /// thread per core.
 #[pyfunction]
 #[pyo3(name = "_set_threads")]
-pub fn set_threads(threads: i64) -> PyResult<()> {
+pub fn set_threads(#[pyo3(from_py_with = thread_count)] threads: usize) -> PyResult<()> {
     let new = match threads {
         0 => None,
-        1..=4096 => Some(Arc::new(
+        _ => Some(Arc::new(
             rayon::ThreadPoolBuilder::new()
-                .num_threads(threads as usize)
+                .num_threads(threads)
                 .thread_name(|i| format!("raypick-{i}"))
                 .build()
                 .map_err(|e| {
                     PyValueError::new_err(format!("cannot start {threads} threads: {e}"))
                 })?,
         )),
-        _ => {
-            return Err(PyValueError::new_err(format!(
-                "threads {threads} is out of range; it must be 0 (one per core) ..= 4096"
-            )));
-        }
     };
     *POOL.lock().unwrap_or_else(PoisonError::into_inner) = new;
     Ok(())
+}
+
+/// `threads` of `_set_threads`: an integer in 0 ..= 4096.
+fn thread_count(value: &Bound<'_, PyAny>) -> PyResult<usize> {
+    int_arg::integer(value, "threads", 0..=4096, |v| {
+        format!("threads {v} is out of range; it must be 0 (one per core) ..= 4096")
+    })
 }
 
 /// `_threads()`: how many threads a pick runs on in this process.

@@ -3,7 +3,9 @@ forms, the backends, masks, culling, ranges, .rpk round trips, cameras, line of 
 viewsheds, threads and the GIL."""
 
 import json
+import os
 import shutil
+import signal
 import threading
 import time
 import warnings
@@ -319,16 +321,7 @@ def test_batches_join_seamlessly(bunny):
         for key in whole:
             assert same_bits(whole[key], np.concatenate([p[key] for p in parts])), (mode, key)
     whole = bunny.pick(rays, mode="all", max_hits=2)
-    parts = [bunny.pick(p, mode="all", max_hits=2) for p in pieces]
-    starts = np.cumsum([0] + [len(p) for p in pieces])
-    hit_starts = np.cumsum([0] + [len(p["ray"]) for p in parts])
-    joined = {
-        key: np.concatenate([p[key] for p in parts])
-        for key in whole if key not in ("offsets", "ray")
-    }
-    joined["ray"] = np.concatenate([p["ray"] + s for p, s in zip(parts, starts)])
-    joined["offsets"] = np.concatenate(
-        [[0]] + [p["offsets"][1:] + h for p, h in zip(parts, hit_starts)])
+    joined = joined_lists([bunny.pick(p, mode="all", max_hits=2) for p in pieces])
     for key in whole:
         assert same_bits(whole[key], joined[key]), key
 
@@ -344,3 +337,98 @@ def test_unaligned_and_read_only_arrays(bunny):
     frozen = rays.copy()
     frozen.flags.writeable = False
     assert_same_answers(expected, bunny.pick(frozen))
+
+
+def joined_lists(parts):
+    """The all-hits answers of pieces of rays, joined as one pick's."""
+    starts = np.cumsum([0] + [len(p["hit"]) for p in parts])
+    hit_starts = np.cumsum([0] + [len(p["ray"]) for p in parts])
+    joined = {
+        key: np.concatenate([p[key] for p in parts])
+        for key in parts[0] if key not in ("offsets", "ray")
+    }
+    joined["ray"] = np.concatenate([p["ray"] + s for p, s in zip(parts, starts)])
+    joined["offsets"] = np.concatenate(
+        [[0]] + [p["offsets"][1:] + h for p, h in zip(parts, hit_starts)])
+    return joined
+
+
+def stacked_scene(layers):
+    """`layers` copies of the triangle (0, 0), (1, 0), (0, 1), stacked from z = 0 to 1: a ray
+    down through the square's other half enters every box of the tree and passes beside every
+    triangle, so it costs a test of each (80 µs with 20,000 layers on two cores)."""
+    corners = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    vertices = np.tile(corners, (layers, 1))
+    vertices[:, 2] = np.repeat(np.arange(layers) / layers, 3)
+    return raypick.Scene.from_arrays(vertices, np.arange(3 * layers).reshape(layers, 3))
+
+
+def beside_rays(n, seed=1, hits=0.0):
+    """`n` rays down beside the stack (x + y > 1.1), a share `hits` of them onto its top."""
+    rng = np.random.default_rng(seed)
+    xy = 0.55 + 0.4 * rng.random((n, 2))
+    onto = rng.random(n) < hits
+    xy[onto] = 0.45 * rng.random((onto.sum(), 2))
+    return np.hstack([xy, np.full((n, 1), 2.0), np.tile([0.0, 0, -1], (n, 1))])
+
+
+def test_costly_rays_answer_as_pieces():
+    """Batches are sized by the time their rays take (a first batch of 4,096 rays, then about
+    0.1 s each): on costly rays they are cut at other places than on cheap ones, and the
+    answers are still those of the same rays picked in pieces."""
+    stack = stacked_scene(2000)
+    rays = beside_rays(40_000, hits=0.3)
+    pieces = np.array_split(rays, 41)
+    whole = stack.pick(rays)
+    assert 0 < whole["hit"].sum() < len(rays)
+    parts = [stack.pick(p) for p in pieces]
+    for key in whole:
+        assert same_bits(whole[key], np.concatenate([p[key] for p in parts])), key
+    whole = stack.pick(rays, mode="all", max_hits=3)
+    assert whole["overflow"].any()
+    joined = joined_lists([stack.pick(p, mode="all", max_hits=3) for p in pieces])
+    for key in whole:
+        assert same_bits(whole[key], joined[key]), key
+
+
+@pytest.fixture(scope="module")
+def stack():
+    return stacked_scene(20_000)
+
+
+@pytest.mark.parametrize("query", ["pick", "los"])
+@pytest.mark.parametrize("delay", [0.05, 0.5])
+def test_ctrl_c_stops_a_long_pick(stack, query, delay):
+    """Tracing ran to its end without the interpreter, so Ctrl-C (SIGINT) waited for the whole
+    pick: minutes for a large one. Between batches the pick runs Python's signal handlers, so
+    the KeyboardInterrupt comes within a batch's time (about 0.1 s after a first batch of
+    0.3 s here) of the signal, whether it comes during the first batch or a later one."""
+
+    def run(rays):
+        if query == "pick":
+            return stack.pick(rays)
+        return stack.los(rays[:, :3], rays[:, :3] - [0, 0, 3.0])
+
+    run(beside_rays(10))
+    sample = beside_rays(1000)
+    start = time.perf_counter()
+    run(sample)
+    per_ray = (time.perf_counter() - start) / len(sample)
+    rays = beside_rays(int(min(2_000_000, 30 / per_ray)))
+    whole = per_ray * len(rays)
+    assert whole > 15, f"the whole pick would take only {whole:.1f} s"
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    timer = threading.Timer(delay, os.kill, (os.getpid(), signal.SIGINT))
+    try:
+        start = time.perf_counter()
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            run(rays)
+            time.sleep(1)  # a signal that the pick took for nothing would be raised here
+        stopped = time.perf_counter() - start
+    finally:
+        timer.cancel()
+        timer.join()
+        signal.signal(signal.SIGINT, previous)
+    assert stopped < delay + 2.0, f"stopped after {stopped:.1f} s of a {whole:.0f} s pick"

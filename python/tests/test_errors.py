@@ -327,3 +327,107 @@ def test_scenes_that_single_precision_cannot_hold_are_warned_about():
         warnings.simplefilter("error")
         raypick.Scene.from_arrays(corners * 1e3, triangles)
 
+
+
+def integer_arguments(bunny, dem):
+    """Every integer argument, as (its name in messages, a call giving it `value`)."""
+    rays = rays_at(bunny, 3)
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    return [
+        ("leaf size", lambda value: raypick.Scene.load(BUNNY, leaf_size=value)),
+        ("leaf size", lambda value: raypick.Scene.from_arrays(v, [[0, 1, 2]], leaf_size=value)),
+        ("max hits", lambda value: bunny.pick(rays, max_hits=value)),
+        ("max hits", lambda value: bunny.pick(rays, mode="all", max_hits=value)),
+        ("ray_mask", lambda value: bunny.pick(rays, ray_mask=value)),
+        ("ray_mask", lambda value: bunny.los(rays[:, :3], rays[:, 3:], ray_mask=value)),
+        ("ray_mask", lambda value: dem.viewshed([518775.0, 4030000, 4000], ray_mask=value)),
+        ("mask", lambda value: raypick.Scene.load(BUNNY, masks=value)),
+        ("mask", lambda value: raypick.Scene.load([BUNNY, BUNNY], masks=[None, value])),
+        ("threads", lambda value: raypick._set_threads(value)),
+    ]
+
+
+@pytest.mark.parametrize(
+    "value",
+    [2**63, 2**64, 2**70, -(2**63) - 1, -(2**70), 10**400, -(10**400)],
+    ids=["2**63", "2**64", "2**70", "-2**63-1", "-2**70", "10**400", "-10**400"],
+)
+def test_integers_past_64_bits_are_refused_as_out_of_range(bunny, dem, value):
+    """pyo3's conversion to a 64-bit integer raised OverflowError ("Python int too large to
+    convert to C long") for every integer argument from 2**63 on; they are out of range like
+    any other, a ValueError naming the argument, and a huge value is not quoted whole."""
+    try:
+        for name, call in integer_arguments(bunny, dem):
+            with pytest.raises(ValueError) as e:
+                call(value)
+            text = one_sentence(e)
+            assert text.startswith(f"{name} "), text
+            assert "is out of range; it must be " in text, text
+            assert len(text) < 120, text
+            if abs(value) < 2**127:
+                assert f" {value} is out of range" in text, text
+            else:
+                negative = "a negative" if value < 0 else "an"
+                assert f" ({negative} integer of 1329 bits) is out of range" in text, text
+    finally:
+        raypick._set_threads(0)
+
+
+def test_bools_are_not_integer_arguments(bunny, dem):
+    """True was taken as 1 and False as 0 (a leaf size of 1, a ray mask of 0 that hits
+    nothing); a bool for an integer argument is a TypeError naming it. numpy integers are
+    integers."""
+    for name, call in integer_arguments(bunny, dem):
+        argument = {"leaf size": "leaf_size", "max hits": "max_hits"}.get(name, name)
+        for value in [True, False, np.True_, np.bool_(False)]:
+            with pytest.raises(TypeError) as e:
+                call(value)
+            assert one_sentence(e) == f"{argument} must be an integer, not bool"
+        for value in [1.0, "1"]:
+            if name == "mask":  # masks takes a list too: "masks must be a list of …"
+                with pytest.raises(ValueError):
+                    call(value)
+            else:
+                with pytest.raises(TypeError) as e:
+                    call(value)
+                assert one_sentence(e) == f"{argument} must be an integer, not {type(value).__name__}"
+    rays = rays_at(bunny, 50)
+    expected = bunny.pick(rays, mode="all", max_hits=3, ray_mask=3)
+    for max_hits, ray_mask in [(np.int64(3), np.uint32(3)), (np.uint8(3), np.int16(3)), (3, np.int64(3))]:
+        got = bunny.pick(rays, mode="all", max_hits=max_hits, ray_mask=ray_mask)
+        for key in expected:
+            assert np.array_equal(expected[key], got[key], equal_nan=True), key
+    assert raypick.Scene.load(BUNNY, leaf_size=np.int64(4), masks=np.uint32(3)).objects[0]["mask"] == 3
+    assert raypick.Scene.load([BUNNY, BUNNY], masks=[np.int8(1), None]).objects[0]["mask"] == 1
+    assert raypick.Scene.from_arrays(np.eye(3), [[0, 1, 2]], leaf_size=np.uint64(2)).triangle_count == 1
+    assert bunny.los(rays[:, :3], rays[:, 3:], ray_mask=np.uint32(0)).all()
+    try:
+        raypick._set_threads(np.int32(1))
+        assert raypick._threads() == 1
+    finally:
+        raypick._set_threads(0)
+
+
+def test_a_saved_scene_refuses_builder_options(bunny, tmp_path):
+    """`Scene.load` of an .rpk said nothing of builder= and leaf_size= and picked with the
+    saved trees; as the CLI refuses --builder and --leaf-size with a .rpk, so does it."""
+    path = tmp_path / "bunny.rpk"
+    bunny.save(path)
+    for kwargs, given in [
+        ({"builder": "sah"}, "builder applies"),
+        ({"builder": "auto"}, "builder applies"),
+        ({"leaf_size": 8}, "leaf_size applies"),
+        ({"builder": "median-cut", "leaf_size": 2}, "builder and leaf_size apply"),
+    ]:
+        with pytest.raises(ValueError) as e:
+            raypick.Scene.load(path, **kwargs)
+        assert one_sentence(e).startswith(
+            f"{path} is a built scene (.rpk) with its trees: {given} when building from a "
+            "scene's files, not to a saved scene; load it without "), one_sentence(e)
+    rays = rays_at(bunny, 100)
+    for saved in [raypick.Scene.load(path), raypick.Scene.load(path, builder=None, leaf_size=None)]:
+        for key, column in bunny.pick(rays).items():
+            assert np.array_equal(column, saved.pick(rays)[key], equal_nan=True), key
+    # The scene's own files still take them, and None means the defaults.
+    assert raypick.Scene.load(BUNNY, builder="sah", leaf_size=4).triangle_count == bunny.triangle_count
+    assert raypick.Scene.load(BUNNY, builder=None, leaf_size=None).triangle_count == bunny.triangle_count
