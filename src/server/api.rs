@@ -768,9 +768,16 @@ fn parse_body<T: serde::de::DeserializeOwned>(bytes: &[u8], what: &str) -> Resul
     let mut json = serde_json::Deserializer::from_slice(bytes);
     let value: T = serde_path_to_error::deserialize(&mut json).map_err(|e| {
         let path = e.path().to_string();
-        match path.as_str() {
-            "" | "." => bad(e.into_inner().to_string()),
-            _ => bad(format!("{path}: {}", e.into_inner())),
+        let reason = e.into_inner().to_string();
+        // An unknown field's own name ends the path and is in serde's sentence already.
+        let path = match reason.starts_with("unknown field") {
+            true => path.rsplit_once('.').map_or("", |(parent, _)| parent),
+            false => path.as_str(),
+        };
+        match path {
+            "" | "." => bad(reason),
+            // A field name is the client's token: quoted, and cut as every token is.
+            _ => bad(format!("`{}`: {reason}", crate::budget::quote(path))),
         }
     })?;
     json.end().map_err(|e| bad(e.to_string()))?;

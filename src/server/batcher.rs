@@ -1088,7 +1088,25 @@ impl Batcher {
             }
             stats.largest_batch = stats.largest_batch.max(count);
         }
-        // In steps, until no member waits any longer, or past the work limit (`steps`).
+        // In steps, until no member waits any longer, or past the work limit (`steps`). The
+        // limit is each request's: when the steps stop inside one member's rays, that member
+        // gets 413, those before it their answers, and those after it start again with a clock
+        // of their own (a request batched behind a costly one is not refused for its time).
+        let mut members = members;
+        while !members.is_empty() {
+            members = self.answer_members(picker, query, members);
+        }
+    }
+
+    /// One stepped query call over `members`' rays: answers (or refuses) the members it
+    /// reached and returns those it did not start before the work limit stopped it.
+    fn answer_members(
+        &self,
+        picker: &mut dyn Picker,
+        query: &Query,
+        members: Vec<PendingPick>,
+    ) -> Vec<PendingPick> {
+        let ray_total: usize = members.iter().map(|m| m.rays.len()).sum();
         let wanted = || members.iter().any(|m| !m.reply.is_closed());
         let mut rays;
         let all: &[Ray] = if let [single] = members.as_slice() {
@@ -1104,40 +1122,41 @@ impl Batcher {
             query_in_steps(picker, all, query, wanted, self.max_work)
         }));
         let (answers, answered) = match flatten(answers, "picking") {
-            Ok(Stepped::Unwanted) => return,
-            Ok(Stepped::Done(answers)) => (Ok(answers), ray_total),
+            Ok(Stepped::Unwanted) => return Vec::new(),
+            Ok(Stepped::Done(answers)) => (answers, ray_total),
             Ok(Stepped::OverTime { answered }) => {
                 let n = answered.nearest.len();
-                (Ok(answered), n)
-            }
-            Err(error) => (Err(error), 0),
-        };
-        match answers {
-            Ok(answers) if members.len() == 1 && answered == ray_total => {
-                if let Some(member) = members.into_iter().next() {
-                    let _ = member.reply.send(Ok(answers));
-                }
-            }
-            Ok(answers) => {
-                let mut start = 0;
-                for member in members {
-                    let range = start..start + member.rays.len();
-                    start = range.end;
-                    let reply = if range.end <= answered {
-                        Ok(slice_answers(&answers, range))
-                    } else {
-                        let own = answered.saturating_sub(range.start).min(range.len());
-                        Err(self.over_time("this pick", own, range.len(), "rays"))
-                    };
-                    let _ = member.reply.send(reply);
-                }
+                (answered, n)
             }
             Err(error) => {
                 for member in members {
                     let _ = member.reply.send(Err(error.clone()));
                 }
+                return Vec::new();
+            }
+        };
+        if members.len() == 1 && answered == ray_total {
+            if let Some(member) = members.into_iter().next() {
+                let _ = member.reply.send(Ok(answers));
+            }
+            return Vec::new();
+        }
+        let mut start = 0;
+        let mut not_started = Vec::new();
+        for member in members {
+            let range = start..start + member.rays.len();
+            start = range.end;
+            if range.end <= answered {
+                let _ = member.reply.send(Ok(slice_answers(&answers, range)));
+            } else if range.start >= answered {
+                not_started.push(member);
+            } else {
+                let own = answered - range.start;
+                let refused = self.over_time("this pick", own, range.len(), "rays");
+                let _ = member.reply.send(Err(refused));
             }
         }
+        not_started
     }
 
     /// The error of work stopped at the work limit after `answered` of `total` `items`.

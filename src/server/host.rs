@@ -15,7 +15,7 @@ use axum::extract::{Request, State};
 use axum::http::{StatusCode, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
-use std::net::IpAddr;
+use std::net::{IpAddr, Ipv6Addr};
 use std::sync::Arc;
 
 /// The `--allow-host` value that allows every name.
@@ -27,18 +27,30 @@ pub(crate) async fn known_hosts_only(
     request: Request,
     next: Next,
 ) -> Response {
-    if let Some(host) = request.headers().get(header::HOST) {
-        let host = String::from_utf8_lossy(host.as_bytes());
-        if !allowed(&host, &state.config.allowed_hosts) {
+    // The `Host` header, and the target's own authority where the request names one
+    // (`GET http://name/path`, which a server must take over the header).
+    let header = request
+        .headers()
+        .get(header::HOST)
+        .map(|h| String::from_utf8_lossy(h.as_bytes()).into_owned());
+    let target = request.uri().authority().map(|a| a.as_str().to_owned());
+    for host in header.iter().chain(&target) {
+        if !allowed(host, &state.config.allowed_hosts) {
+            let name = name_of(host);
+            let advice = match check_allowed_host(name) {
+                Ok(_) => format!(
+                    "; start it with --allow-host {} if that is one of its names",
+                    crate::budget::quote(name)
+                ),
+                Err(_) => String::new(),
+            };
             return ApiError::new(
                 StatusCode::FORBIDDEN,
                 format!(
                     "this server does not answer to the name {:?} (only to IP addresses, \
                      localhost and names given with --allow-host, against pages of other web \
-                     sites that point their own names at it); start it with --allow-host {} if \
-                     that is one of its names",
-                    crate::budget::quote(&host),
-                    crate::budget::quote(name_of(&host))
+                     sites that point their own names at it){advice}",
+                    crate::budget::quote(host),
                 ),
             )
             .into_response();
@@ -53,8 +65,13 @@ pub(crate) fn allowed(host: &str, allowed_hosts: &[String]) -> bool {
     if name.is_empty() {
         return false;
     }
-    let bare = name.trim_start_matches('[').trim_end_matches(']');
-    bare.parse::<IpAddr>().is_ok()
+    let address = match name.strip_prefix('[') {
+        Some(inner) => inner
+            .strip_suffix(']')
+            .is_some_and(|v6| v6.parse::<Ipv6Addr>().is_ok()),
+        None => name.parse::<IpAddr>().is_ok(),
+    };
+    address
         || name == "localhost"
         || name.ends_with(".localhost")
         || allowed_hosts
@@ -64,15 +81,27 @@ pub(crate) fn allowed(host: &str, allowed_hosts: &[String]) -> bool {
 
 /// The name of a `Host` header without its port: `example.com` of `example.com:8080`,
 /// `[::1]` of `[::1]:8080`.
+/// A bracketed IPv6 address followed by anything but a port is returned whole (and is then no
+/// address).
 fn name_of(host: &str) -> &str {
     let host = host.trim();
+    let port = |rest: &str| rest.is_empty() || is_port(rest);
     if host.starts_with('[') {
-        return host.find(']').map_or(host, |end| &host[..=end]);
+        return match host.find(']') {
+            Some(end) if port(&host[end + 1..]) => &host[..=end],
+            _ => host,
+        };
     }
     match host.rsplit_once(':') {
-        Some((name, port)) if port.bytes().all(|b| b.is_ascii_digit()) => name,
+        Some((name, rest)) if is_port(&format!(":{rest}")) => name,
         _ => host,
     }
+}
+
+/// Whether `rest` is `:` and a port number's digits.
+fn is_port(rest: &str) -> bool {
+    rest.strip_prefix(':')
+        .is_some_and(|digits| !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()))
 }
 
 /// Checks a `--allow-host` value: a host name (letters, digits, `-`, `.`, `_`) or `*`, without
@@ -122,6 +151,9 @@ mod tests {
             "127.0.0.1.evil.example",
             "",
             ":8080",
+            "[::1]evil.example",
+            "[::1",
+            "[::1]:80x",
         ] {
             assert!(!allowed(host, &none), "{host}");
         }

@@ -6,7 +6,7 @@
 //! whether anyone still waits for the answer (a reply's receiver is dropped with the request's
 //! handler when its connection closes). Steps start small and double while each takes under
 //! [`FAST`] (so a large batch on a fast scene is soon one call of many rays, as before), and
-//! halve, down to [`FIRST`], when one takes over [`SLOW`]. Each ray's answer does not depend on
+//! halve, down to [`FIRST`], when one takes over [`SLOW`]; none has more than [`MOST`]. Each ray's answer does not depend on
 //! the rays beside it, so the answers are those of one call.
 //!
 //! A pick that is wanted but costs too much (a client's million rays through a scene where each
@@ -23,6 +23,9 @@ use std::time::{Duration, Instant};
 
 /// The first step's rays, and the fewest in any step.
 pub(crate) const FIRST: usize = 256;
+/// The most rays in any step: the work limit is checked between steps, so a step that grew on
+/// cheap rays (misses) cannot run on for long over costly ones after them unchecked.
+pub(crate) const MOST: usize = 1 << 18;
 /// A step that took less than this doubles the next one.
 const FAST: Duration = Duration::from_millis(50);
 /// A step that took more than this halves the next one.
@@ -73,7 +76,7 @@ pub(crate) fn query_in_steps(
         append(&mut out, answers);
         done = end;
         step = if took < FAST {
-            step.saturating_mul(2)
+            step.saturating_mul(2).min(MOST)
         } else if took > SLOW {
             (step / 2).max(FIRST)
         } else {

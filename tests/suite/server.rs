@@ -476,27 +476,58 @@ fn bad_requests_get_clear_4xx_json_errors() {
     let ray = r#"{"origin": [0, 0, 50], "dir": [0, 0, -1]}"#;
     let camera = Camera::frame_bounds(DVec3::ZERO, DVec3::ONE, 8, 8);
     let camera_json = serde_json::to_string(camera.spec()).unwrap();
-    let cases: Vec<(String, u16, &str)> =
-        vec![
+    let cases: Vec<(String, u16, &str)> = vec![
         ("{\"rays\": [".into(), 400, "not a valid pick request"),
         ("not json".into(), 400, "not a valid pick request"),
-        (format!("{{\"rays\": [{ray}], \"colour\": 1}}"), 400, "unknown field"),
-        (format!("{{\"rays\": [{ray}], \"mode\": \"nearest\"}}"), 400, "unknown variant"),
+        (
+            format!("{{\"rays\": [{ray}], \"colour\": 1}}"),
+            400,
+            "unknown field",
+        ),
+        (
+            format!("{{\"rays\": [{ray}], \"mode\": \"nearest\"}}"),
+            400,
+            "unknown variant",
+        ),
         // The field's path is named (serde's own sentence named none).
         (
             format!("{{\"rays\": [{ray}, {{\"origin\": [0, 0, \"x\"], \"dir\": [0, 0, 1]}}]}}"),
             400,
-            "rays[1].origin[2]: invalid type: string",
+            "`rays[1].origin[2]`: invalid type: string",
         ),
-        (format!("{{\"rays\": [{ray}], \"mode\": 1}}"), 400, "pick request: mode: "),
-        (format!("{{\"rays\": [{ray}], \"mask\": -1}}"), 400, "mask: invalid value"),
-        (format!("{{\"rays\": [{ray}]}} x"), 400, "trailing characters"),
+        (
+            format!("{{\"rays\": [{ray}], \"mode\": 1}}"),
+            400,
+            "pick request: `mode`: ",
+        ),
+        (
+            format!("{{\"rays\": [{ray}], \"mask\": -1}}"),
+            400,
+            "`mask`: invalid value",
+        ),
+        (
+            format!(
+                "{{\"rays\": [{ray}], \"camera\": {{\"perspective\": {{\"{}\": 1}}}}}}",
+                "xx ".repeat(200)
+            ),
+            400,
+            "`camera.perspective`: unknown field `xx xx",
+        ),
+        (
+            format!("{{\"rays\": [{ray}]}} x"),
+            400,
+            "trailing characters",
+        ),
         (
             format!("{{\"rays\": [{ray}], \"mode\": \"all\", \"max_hits\": 0}}"),
             400,
             "max hits 0",
         ),
-        (format!("{{\"rays\": [{ray}], \"intersector\": \"fast\"}}"), 400, "intersector"),
+        (
+            format!("{{\"rays\": [{ray}], \"intersector\": \"fast\"}}"),
+            400,
+            "intersector",
+        ),
         (
             r#"{"rays": [{"origin": [0, 0], "dir": [0, 0, 1]}]}"#.into(),
             400,
@@ -843,6 +874,15 @@ fn requests_through_a_name_the_server_was_not_given_are_refused() {
     }
     let answer = ask(&base, None, "GET", "/scene", "");
     assert!(answer.starts_with("HTTP/1.0 200"), "{answer}");
+    // A request target's own name counts over the `Host` header's (RFC 9112, 3.2.2).
+    let answer = ask(
+        &base,
+        Some(&format!("127.0.0.1:{port}")),
+        "GET",
+        &format!("http://rebound.evil.example:{port}/scene"),
+        "",
+    );
+    assert!(answer.starts_with("HTTP/1.1 403"), "{answer}");
     // A name given to the server (as `--allow-host` gives it) is served.
     let named = start(
         built,

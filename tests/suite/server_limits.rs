@@ -495,3 +495,35 @@ fn requests_past_the_work_limit_are_stopped_with_413() {
     assert_eq!(status, 200, "{body}");
     assert_eq!(body.matches("\"hit\":true").count(), 256, "{body:.200}");
 }
+
+/// The work limit is each request's: a small pick batched behind a costly one (the two asked
+/// within the batch window) is answered on a clock of its own, not refused for the other's
+/// time (it was: "stopped after 0 of its 1 rays").
+#[test]
+fn the_work_limit_is_each_requests_own_in_a_batch() {
+    let addr = start(ServerConfig {
+        max_work: Duration::from_nanos(1),
+        batch_window: Duration::from_millis(400),
+        ..ServerConfig::default()
+    });
+    let rays = |n: usize| {
+        let ray = r#"{"origin": [10, 10, 50], "dir": [0, 0, -1]}"#;
+        format!("{{\"rays\": [{}]}}", vec![ray; n].join(","))
+    };
+    let big = rays(1000);
+    let costly = std::thread::spawn(move || request(addr, "POST", "/pick", &big));
+    std::thread::sleep(Duration::from_millis(100));
+    let (status, body) = request(addr, "POST", "/pick", &rays(1));
+    assert_eq!(status, 200, "{body}");
+    let (status, body) = costly.join().unwrap();
+    assert_eq!(status, 413, "{body}");
+    assert!(
+        body.contains("stopped after 256 of its 1000 rays"),
+        "{body}"
+    );
+    let stats = request(addr, "GET", "/stats", "").1;
+    assert!(
+        stats.contains("\"batched_requests\":2"),
+        "batched together: {stats}"
+    );
+}
