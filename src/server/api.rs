@@ -765,6 +765,11 @@ fn parse_body<T: serde::de::DeserializeOwned>(bytes: &[u8], what: &str) -> Resul
     let bad = |reason: String| {
         ApiError::bad_request(format!("the request body is not a valid {what}: {reason}"))
     };
+    // serde takes a struct's fields from an array too, in order: a body is an object.
+    match bytes.iter().find(|b| !b.is_ascii_whitespace()) {
+        Some(b'{') | None => {}
+        Some(_) => return Err(bad("it must be a JSON object ({…})".to_owned())),
+    }
     let mut json = serde_json::Deserializer::from_slice(bytes);
     let value: T = serde_path_to_error::deserialize(&mut json).map_err(|e| {
         let path = e.path().to_string();

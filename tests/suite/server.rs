@@ -476,7 +476,8 @@ fn bad_requests_get_clear_4xx_json_errors() {
     let ray = r#"{"origin": [0, 0, 50], "dir": [0, 0, -1]}"#;
     let camera = Camera::frame_bounds(DVec3::ZERO, DVec3::ONE, 8, 8);
     let camera_json = serde_json::to_string(camera.spec()).unwrap();
-    let cases: Vec<(String, u16, &str)> = vec![
+    let cases: Vec<(String, u16, &str)> =
+        vec![
         ("{\"rays\": [".into(), 400, "not a valid pick request"),
         ("not json".into(), 400, "not a valid pick request"),
         (
@@ -518,6 +519,8 @@ fn bad_requests_get_clear_4xx_json_errors() {
             400,
             "trailing characters",
         ),
+        (format!("[[{ray}]]"), 400, "pick request: it must be a JSON object"),
+        ("  [1".into(), 400, "it must be a JSON object"),
         (
             format!("{{\"rays\": [{ray}], \"mode\": \"all\", \"max_hits\": 0}}"),
             400,

@@ -317,6 +317,13 @@ fn edits_follow_on(scene: Arc<BuiltScene>, backend: Backend) {
             "not 2 rows (of 4, 4 numbers)",
         ),
         ("PATCH", "/objects/1", json!({"colour": 3}), "not a valid"),
+        // An edit body is an object: serde took `[transform, mask]` for one.
+        (
+            "PATCH",
+            "/objects/1",
+            json!([null, 0]),
+            "not a valid object change: it must be a JSON object",
+        ),
         (
             "POST",
             "/objects",
