@@ -73,7 +73,7 @@ impl Integer {
 
     /// The value for a message: whole when it fits 128 bits, else its size (a 400-digit
     /// integer is not quoted whole; Python would not even print one of 4,300 digits).
-    fn quoted(&self) -> String {
+    pub fn quoted(&self) -> String {
         match *self {
             Self::Fits(v) => v.to_string(),
             Self::Huge { negative, bits } => format!(

@@ -25,6 +25,7 @@ mod arrays;
 mod camera;
 mod columns;
 mod errors;
+mod float_arg;
 mod int_arg;
 mod interrupt;
 mod memory;

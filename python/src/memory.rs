@@ -6,6 +6,7 @@
 //! `raypick.set_max_memory` raises or lowers it for the whole process, with the command line's
 //! checks and sentences.
 
+use crate::int_arg::Integer;
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyString};
@@ -18,17 +19,22 @@ pub fn set_max_memory(size: &Bound<'_, PyAny>) -> PyResult<u64> {
     let refused = |why: String| PyValueError::new_err(format!("max_memory: {why}"));
     let bytes = if let Ok(text) = size.cast::<PyString>() {
         raypick::budget::parse_limit(&text.to_cow()?).map_err(refused)?
-    } else if !size.is_instance_of::<PyBool>() && size.hasattr("__index__")? {
-        // An int, or a numpy integer: past u64 it is more than any process can have, below 0
-        // below the least budget.
-        let written = size.str()?.to_cow()?.into_owned();
-        let negative = size.lt(0)?;
-        let bytes = match size.extract::<u64>() {
-            Ok(bytes) => bytes,
-            Err(_) if negative => 0,
-            Err(_) => u64::MAX,
+    } else if !size.is_instance_of::<PyBool>()
+        && let Some(integer) = Integer::of(size, "max_memory")?
+    {
+        // An int, a numpy integer or another `__index__`: past u64 it is more than any process
+        // can have, below 0 below the least budget.
+        let bytes = match integer {
+            Integer::Fits(v) => u64::try_from(v).unwrap_or(if v < 0 { 0 } else { u64::MAX }),
+            Integer::Huge { negative, .. } => {
+                if negative {
+                    0
+                } else {
+                    u64::MAX
+                }
+            }
         };
-        raypick::budget::check_limit(bytes, &written).map_err(refused)?
+        raypick::budget::check_limit(bytes, &integer.quoted()).map_err(refused)?
     } else {
         return Err(PyTypeError::new_err(format!(
             "max_memory: a size is an int of bytes or a str such as \"8G\", not {}",

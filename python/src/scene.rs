@@ -3,6 +3,7 @@
 
 use crate::arrays::{self, Dtype};
 use crate::errors::{to_py, value_error};
+use crate::float_arg;
 use crate::int_arg::{self, Integer};
 use crate::pick::{self, QueryArgs};
 use crate::sight::{self, SightArgs};
@@ -70,6 +71,14 @@ impl Scene {
     ) -> (PyResult<R>, Vec<Note>) {
         let mut notes = Vec::new();
         let built = &self.built;
+        // A pick from a signal handler that runs between this thread's batches of another
+        // pick ([`crate::interrupt`]) would wait for the picker that pick holds, for ever: it is
+        // answered on the CPU engine instead (the same answers, bit for bit).
+        let backend = match HOLDS_PICKER.get() {
+            true => Backend::Cpu,
+            false => backend,
+        };
+        let _holds = HoldsPicker::new();
         let result = match backend {
             Backend::Cpu => work(&mut CpuPicker::new(built.clone()), false),
             Backend::Reference => work(&mut ReferencePicker::new(built.clone()), false),
@@ -111,6 +120,26 @@ impl Scene {
             }
         };
         (result, notes)
+    }
+}
+
+thread_local! {
+    /// Whether this thread is inside [`Scene::trace`] (and may hold a shared picker's lock).
+    static HOLDS_PICKER: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Marks this thread as inside [`Scene::trace`] until dropped (restoring what it was).
+struct HoldsPicker(bool);
+
+impl HoldsPicker {
+    fn new() -> Self {
+        Self(HOLDS_PICKER.replace(true))
+    }
+}
+
+impl Drop for HoldsPicker {
+    fn drop(&mut self) {
+        HOLDS_PICKER.set(self.0);
     }
 }
 
@@ -437,8 +466,8 @@ impl Scene {
         mode: &str,
         #[pyo3(from_py_with = pick::max_hits)] max_hits: u32,
         cull: &str,
-        tmin: f64,
-        tmax: f64,
+        #[pyo3(from_py_with = float_arg::tmin)] tmin: f64,
+        #[pyo3(from_py_with = float_arg::tmax)] tmax: f64,
         #[pyo3(from_py_with = ray_mask)] ray_mask: u32,
         intersector: &str,
         backend: &str,
@@ -457,7 +486,7 @@ impl Scene {
         py: Python<'py>,
         a: &Bound<'py, PyAny>,
         b: &Bound<'py, PyAny>,
-        epsilon: f64,
+        #[pyo3(from_py_with = float_arg::epsilon)] epsilon: f64,
         #[pyo3(from_py_with = ray_mask)] ray_mask: u32,
         backend: &str,
     ) -> PyResult<Bound<'py, PyAny>> {
@@ -478,8 +507,8 @@ impl Scene {
         py: Python<'py>,
         observer: &Bound<'py, PyAny>,
         targets: Option<&Bound<'py, PyAny>>,
-        target_height: f64,
-        epsilon: f64,
+        #[pyo3(from_py_with = float_arg::target_height)] target_height: f64,
+        #[pyo3(from_py_with = float_arg::epsilon)] epsilon: f64,
         #[pyo3(from_py_with = ray_mask)] ray_mask: u32,
         backend: &str,
     ) -> PyResult<Bound<'py, PyDict>> {

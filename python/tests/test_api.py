@@ -432,3 +432,41 @@ def test_ctrl_c_stops_a_long_pick(stack, query, delay):
         timer.join()
         signal.signal(signal.SIGINT, previous)
     assert stopped < delay + 2.0, f"stopped after {stopped:.1f} s of a {whole:.0f} s pick"
+
+
+def test_a_signal_handler_may_pick_during_a_gpu_pick(stack):
+    """Between batches a pick runs Python's signal handlers; a handler that picked on the same
+    scene with the GPU (or automatic) backend waited for the GPU picker the interrupted pick
+    held, for ever. It is answered on the CPU engine instead: the same answers."""
+    import faulthandler
+
+    few = beside_rays(50)
+    want = stack.pick(few, backend="cpu")
+    stack.pick(few, backend="gpu")
+    start = time.perf_counter()
+    stack.pick(beside_rays(1000), backend="gpu")
+    per_ray = (time.perf_counter() - start) / 1000
+    # A pick of about 3 s, the signal 0.3 s into it.
+    rays = np.vstack([few, beside_rays(int(3.0 / per_ray))])
+    got = []
+
+    def handler(signum, frame):
+        got.append((stack.pick(few, backend="gpu"), time.perf_counter()))
+
+    previous = signal.signal(signal.SIGUSR1, handler)
+    timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGUSR1))
+    # A deadlock would hang the test run: end the process instead, with the threads' stacks.
+    faulthandler.dump_traceback_later(120, exit=True)
+    try:
+        timer.start()
+        whole = stack.pick(rays, backend="gpu")
+        ended = time.perf_counter()
+    finally:
+        faulthandler.cancel_dump_traceback_later()
+        timer.cancel()
+        timer.join()
+        signal.signal(signal.SIGUSR1, previous)
+    assert len(got) == 1 and got[0][1] < ended, "the handler ran during the pick"
+    for key in want:
+        assert same_bits(got[0][0][key], want[key]), key
+    assert same_bits(whole["triangle"][:50], want["triangle"])

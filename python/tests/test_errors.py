@@ -408,6 +408,56 @@ def test_bools_are_not_integer_arguments(bunny, dem):
         raypick._set_threads(0)
 
 
+def test_float_arguments_refuse_bools_and_ints_past_a_float(bunny, dem):
+    """`tmax=10**400` raised OverflowError and `tmin=True` was taken as 1; a float argument
+    given a bool is a TypeError, an int too large for a float a ValueError, each naming it.
+    Ints and numpy floats that fit are taken as before."""
+    rays = rays_at(bunny, 20)
+    calls = {
+        "tmin": lambda v: bunny.pick(rays, tmin=v),
+        "tmax": lambda v: bunny.pick(rays, tmax=v),
+        "epsilon": lambda v: bunny.los(rays[:, :3], rays[:, 3:], epsilon=v),
+        "target_height": lambda v: dem.viewshed([0.0, 0.0, 1e4], [[1.0, 1.0, 0.0]], target_height=v),
+    }
+    for argument, call in calls.items():
+        for value in [True, np.False_]:
+            with pytest.raises(TypeError) as e:
+                call(value)
+            assert one_sentence(e) == f"{argument} must be a number, not {type(value).__name__}"
+        for value in [10**400, -(10**400)]:
+            with pytest.raises(ValueError) as e:
+                call(value)
+            assert one_sentence(e).startswith(f"{argument} is out of range"), one_sentence(e)
+    want = bunny.pick(rays, tmin=0.0, tmax=1e9)
+    for tmin, tmax in [(0, 10**9), (np.float32(0), np.float64(1e9)), (np.int64(0), 1e9)]:
+        got = bunny.pick(rays, tmin=tmin, tmax=tmax)
+        for key in want:
+            assert np.array_equal(want[key], got[key], equal_nan=True), key
+
+
+def test_set_max_memory_takes_any_integer_and_names_itself():
+    """`set_max_memory(10**5000)` failed in Python's own int-to-str limit and an `__index__`
+    object with a TypeError about `<`; both are read as integers now."""
+
+    class Index:
+        def __init__(self, v):
+            self.v = v
+
+        def __index__(self):
+            return self.v
+
+    before = raypick.max_memory()
+    try:
+        assert raypick.set_max_memory(Index(1 << 30)) == 1 << 30
+        for huge in [10**5000, -(10**5000)]:
+            with pytest.raises(ValueError) as e:
+                raypick.set_max_memory(huge)
+            assert one_sentence(e).startswith("max_memory: "), one_sentence(e)
+            assert len(one_sentence(e)) < 300
+    finally:
+        raypick.set_max_memory(before)
+
+
 def test_a_saved_scene_refuses_builder_options(bunny, tmp_path):
     """`Scene.load` of an .rpk said nothing of builder= and leaf_size= and picked with the
     saved trees; as the CLI refuses --builder and --leaf-size with a .rpk, so does it."""
