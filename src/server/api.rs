@@ -6,6 +6,7 @@ use super::ServerConfig;
 use super::batcher::{
     Edit, EditError, Job, JobError, MeshSource, SceneView, SharedView, Stats, Worker,
 };
+use super::object_only::ObjectOnly;
 use super::page;
 use crate::apps::camera::{Camera, CameraSpec};
 use crate::apps::render::Shade;
@@ -305,7 +306,7 @@ async fn method_not_allowed() -> ApiError {
 #[serde(deny_unknown_fields)]
 struct PickRequest {
     /// Explicit world rays.
-    rays: Option<Vec<RayRequest>>,
+    rays: Option<Vec<ObjectOnly<RayRequest>>>,
     /// A camera whose `pixels` are picked.
     camera: Option<CameraSpec>,
     /// Pixel indices `[x, y]` of `camera` (integers name whole pixels, picked at their centres).
@@ -385,7 +386,7 @@ impl PickRequest {
             (Some(rays), None, None) => {
                 check_count(rays.len())?;
                 rays.into_iter()
-                    .map(|r| {
+                    .map(|ObjectOnly(r)| {
                         Ray::new(DVec3::from_array(r.origin), DVec3::from_array(r.dir))
                             .with_range(r.tmin.unwrap_or(tmin), r.tmax.unwrap_or(tmax))
                             .with_mask(r.mask.unwrap_or(mask))

@@ -128,6 +128,7 @@ mod api;
 pub mod batcher;
 mod frame_faults;
 pub mod host;
+mod object_only;
 mod origin;
 pub mod page;
 mod steps;

@@ -522,6 +522,11 @@ fn bad_requests_get_clear_4xx_json_errors() {
         (format!("[[{ray}]]"), 400, "pick request: it must be a JSON object"),
         ("  [1".into(), 400, "it must be a JSON object"),
         (
+            r#"{"rays": [[[0, 0, 50], [0, 0, -1], 0, null, 1]]}"#.into(),
+            400,
+            "`rays[0]`: invalid type: sequence, expected a JSON object",
+        ),
+        (
             format!("{{\"rays\": [{ray}], \"mode\": \"all\", \"max_hits\": 0}}"),
             400,
             "max hits 0",
