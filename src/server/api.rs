@@ -931,7 +931,7 @@ struct RenderParams {
     height: Option<u32>,
     /// Ignored: a page adds its own count of scene edits so that it asks again after one.
     #[allow(dead_code, reason = "accepted and ignored")]
-    version: Option<u64>,
+    version: Option<String>,
 }
 
 /// `GET /render`.

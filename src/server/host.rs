@@ -29,20 +29,29 @@ pub(crate) async fn known_hosts_only(
 ) -> Response {
     // The `Host` header, and the target's own authority where the request names one
     // (`GET http://name/path`, which a server must take over the header).
-    let header = request
-        .headers()
-        .get(header::HOST)
+    let mut hosts = request.headers().get_all(header::HOST).iter();
+    let header = hosts
+        .next()
         .map(|h| String::from_utf8_lossy(h.as_bytes()).into_owned());
+    if hosts.next().is_some() {
+        // Which one a proxy in front read is anyone's guess (RFC 9112, 3.2: a 400).
+        return ApiError::new(
+            StatusCode::BAD_REQUEST,
+            "the request has more than one Host header; send one",
+        )
+        .into_response();
+    }
     let target = request.uri().authority().map(|a| a.as_str().to_owned());
     for host in header.iter().chain(&target) {
         if !allowed(host, &state.config.allowed_hosts) {
             let name = name_of(host);
+            // Advice only where the flag would take the name as quoted (whole).
             let advice = match check_allowed_host(name) {
-                Ok(_) => format!(
+                Ok(_) if name.chars().count() <= 60 => format!(
                     "; start it with --allow-host {} if that is one of its names",
                     crate::budget::quote(name)
                 ),
-                Err(_) => String::new(),
+                _ => String::new(),
             };
             return ApiError::new(
                 StatusCode::FORBIDDEN,

@@ -669,6 +669,12 @@ fn renders_pngs() {
     let (status, _, png) = get(&format!("{base}/render?width=40&height=30&shade=depth"));
     assert_eq!(status, 200);
     assert_eq!(png_size(&png), (40, 30));
+    // The viewer's edit count is accepted and ignored, however large (a u64 refused 10^30).
+    let (status, _, png) = get(&format!(
+        "{base}/render?width=40&height=30&version=999999999999999999999999999999"
+    ));
+    assert_eq!(status, 200);
+    assert_eq!(png_size(&png), (40, 30));
     let (lo, hi) = built.scene.bounds().unwrap();
     let camera = Camera::frame_bounds(lo, hi, 32, 24);
     for shade in ["normal", "depth", "object"] {
@@ -882,6 +888,19 @@ fn requests_through_a_name_the_server_was_not_given_are_refused() {
     }
     let answer = ask(&base, None, "GET", "/scene", "");
     assert!(answer.starts_with("HTTP/1.0 200"), "{answer}");
+    // Two Host headers: which one a proxy in front read is unknown, so neither is trusted.
+    let answer = raw_request(
+        &base,
+        &format!(
+            "GET /scene HTTP/1.1\r\nHost: localhost:{port}\r\nHost: {evil}\r\n\
+             Connection: close\r\n\r\n"
+        ),
+        "",
+    );
+    assert!(
+        answer.starts_with("HTTP/1.1 400") && answer.contains("more than one Host header"),
+        "{answer}"
+    );
     // A request target's own name counts over the `Host` header's (RFC 9112, 3.2.2).
     let answer = ask(
         &base,
