@@ -145,8 +145,10 @@ impl Image {
 /// no culling, all layers) in one batch; pixel `(i, j)` of the image shows ray
 /// `j * width + i`. Misses (and invalid rays) are [`SKY`]. Errors are the picker's.
 pub fn render(picker: &mut dyn Picker, camera: &Camera, shade: Shade) -> Result<Image> {
-    render_with(camera, shade, |rays| Ok(Ok::<_, ()>(picker.pick(rays)?)))
-        .map(|image| image.unwrap_or_else(|()| unreachable!("the pick gives up on nothing")))
+    let image = render_with(camera, shade, |rays| {
+        Ok(Ok::<_, std::convert::Infallible>(picker.pick(rays)?))
+    })?;
+    Ok(image.unwrap_or_else(|never| match never {}))
 }
 
 /// [`render`] with the pixel rays' closest hits from `pick`, which may give up (`Err(why)`,

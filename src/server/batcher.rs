@@ -1056,17 +1056,16 @@ impl Batcher {
                     })
                 })
             }));
-            let image = match image {
-                Ok(Ok(Err(None))) => continue,
-                Ok(Ok(Err(Some(answered)))) => Err(self.over_time(
+            let image = match flatten(image, "rendering") {
+                Ok(Err(None)) => continue,
+                Ok(Err(Some(answered))) => Err(self.over_time(
                     "this render",
                     answered,
                     camera.width() as usize * camera.height() as usize,
                     "pixels",
                 )),
-                Ok(Ok(Ok(image))) => Ok(image),
-                Ok(Err(e)) => flatten(Ok(Err(e)), "rendering"),
-                Err(panic) => flatten(Err(panic), "rendering"),
+                Ok(Ok(image)) => Ok(image),
+                Err(error) => Err(error),
             };
             let _ = reply.send(image);
             if let Ok(mut stats) = self.stats.lock() {

@@ -94,23 +94,24 @@ pub(crate) fn allowed(host: &str, allowed_hosts: &[String]) -> bool {
 /// address).
 fn name_of(host: &str) -> &str {
     let host = host.trim();
-    let port = |rest: &str| rest.is_empty() || is_port(rest);
     if host.starts_with('[') {
         return match host.find(']') {
             Some(end) if port(&host[end + 1..]) => &host[..=end],
             _ => host,
         };
     }
-    match host.rsplit_once(':') {
-        Some((name, rest)) if is_port(&format!(":{rest}")) => name,
+    match host.rfind(':') {
+        Some(colon) if port(&host[colon..]) => &host[..colon],
         _ => host,
     }
 }
 
-/// Whether `rest` is `:` and a port number's digits.
-fn is_port(rest: &str) -> bool {
-    rest.strip_prefix(':')
-        .is_some_and(|digits| !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()))
+/// Whether `rest` (what follows a host's name) is nothing or `:` and a port number's digits.
+fn port(rest: &str) -> bool {
+    rest.is_empty()
+        || rest
+            .strip_prefix(':')
+            .is_some_and(|digits| !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()))
 }
 
 /// Checks a `--allow-host` value: a host name (letters, digits, `-`, `.`, `_`) or `*`, without
