@@ -109,7 +109,7 @@ fn as_int<'py>(value: &Bound<'py, PyAny>, argument: &str) -> PyResult<Option<Bou
 }
 
 /// The `TypeError` for an integer argument given something else.
-fn not_an_integer(value: &Bound<'_, PyAny>, argument: &str) -> PyErr {
+pub fn not_an_integer(value: &Bound<'_, PyAny>, argument: &str) -> PyErr {
     let kind = value
         .get_type()
         .name()

@@ -9,6 +9,7 @@ use crate::pick::{self, QueryArgs};
 use crate::sight::{self, SightArgs};
 use crate::threads;
 use numpy::ToPyArray;
+use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyString};
 use raypick::auto::AutoPicker;
@@ -256,16 +257,17 @@ fn path_list(paths: &Bound<'_, PyAny>) -> PyResult<Vec<PathBuf>> {
         .collect()
 }
 
-/// `masks`: None, one mask for a single path, or one mask (or None) per path.
+/// `masks`: None, one mask for a single path, or one mask (or None) per path. A list of the
+/// wrong length is a `ValueError`; what is neither an integer nor a list (a float, a string),
+/// or an item that is neither an integer nor None, is a `TypeError`.
 fn mask_list(masks: Option<&Bound<'_, PyAny>>, count: usize) -> PyResult<Vec<Option<u32>>> {
     let Some(masks) = masks.filter(|m| !m.is_none()) else {
         return Ok(vec![None; count]);
     };
-    let wrong = || {
-        value_error(format!(
-            "masks must be a list of {count} masks (an integer or None each), one per path"
-        ))
-    };
+    let plural = if count == 1 { "" } else { "s" };
+    let expected =
+        format!("a list of {count} mask{plural} (an integer or None each), one per path");
+    let wrong_count = || value_error(format!("masks must be {expected}"));
     let within = |one: Integer| {
         one.within(0..=u32::MAX, |v| {
             format!("mask {v} is out of range; it must be 0 ..= 0xFFFFFFFF")
@@ -273,19 +275,28 @@ fn mask_list(masks: Option<&Bound<'_, PyAny>>, count: usize) -> PyResult<Vec<Opt
     };
     if let Some(one) = Integer::of(masks, "mask")? {
         if count != 1 {
-            return Err(wrong());
+            return Err(wrong_count());
         }
         return Ok(vec![Some(within(one)?)]);
     }
+    let wrong_type = || {
+        let kind = masks
+            .get_type()
+            .name()
+            .map(|n| n.to_string())
+            .unwrap_or_default();
+        let one = if count == 1 { "an integer or " } else { "" };
+        PyTypeError::new_err(format!("masks must be {one}{expected}, not {kind}"))
+    };
     if masks.is_instance_of::<PyString>() {
-        return Err(wrong());
+        return Err(wrong_type());
     }
     let items: Vec<Bound<'_, PyAny>> = masks
         .try_iter()
-        .map_err(|_| wrong())?
+        .map_err(|_| wrong_type())?
         .collect::<PyResult<_>>()?;
     if items.len() != count {
-        return Err(wrong());
+        return Err(wrong_count());
     }
     items
         .iter()
@@ -295,7 +306,7 @@ fn mask_list(masks: Option<&Bound<'_, PyAny>>, count: usize) -> PyResult<Vec<Opt
             }
             match Integer::of(m, "mask")? {
                 Some(one) => within(one).map(Some),
-                None => Err(wrong()),
+                None => Err(crate::int_arg::not_an_integer(m, "mask")),
             }
         })
         .collect()

@@ -7,8 +7,9 @@
 //! `Host` is an IP address (the site cannot own one of this machine's), `localhost` or a name
 //! under `.localhost` (browsers resolve those to the loopback themselves), or a name given with
 //! `--allow-host` (a real name of the machine, a reverse proxy's public name; `*` allows any).
-//! Others get 403 with a sentence. A request without a `Host` (HTTP/1.0 clients, some tools)
-//! is not a browser's and is served.
+//! Others get 403 with a sentence. An HTTP/1.0 request without a `Host` (old clients, some
+//! tools) is not a browser's and is served; an HTTP/1.1 one gets 400, as RFC 9112 (3.2) asks
+//! (HTTP/2 names its host in the target, which is checked instead).
 
 use super::api::{ApiError, AppState};
 use axum::extract::{Request, State};
@@ -42,6 +43,13 @@ pub(crate) async fn known_hosts_only(
         .into_response();
     }
     let target = request.uri().authority().map(|a| a.as_str().to_owned());
+    if header.is_none() && target.is_none() && request.version() == axum::http::Version::HTTP_11 {
+        return ApiError::new(
+            StatusCode::BAD_REQUEST,
+            "an HTTP/1.1 request must name the server in a Host header; send one",
+        )
+        .into_response();
+    }
     for host in header.iter().chain(&target) {
         if !allowed(host, &state.config.allowed_hosts) {
             let name = name_of(host);

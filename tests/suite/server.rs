@@ -833,7 +833,8 @@ fn a_long_all_hits_request_never_breaks_a_gpu_server() {
 /// page read the scene and its picks and edited it. Now a request whose `Host` is not an IP
 /// address, `localhost` (or under `.localhost`) or a name given with `--allow-host` gets 403
 /// with a sentence naming it and the flag; every path and method is refused, the allowed names
-/// are served, and a request without a `Host` (HTTP/1.0) is not a browser's and is served.
+/// are served, and a request without a `Host` (HTTP/1.0) is not a browser's and is served
+/// (HTTP/1.1 without one gets 400).
 #[test]
 fn requests_through_a_name_the_server_was_not_given_are_refused() {
     let built = example();
@@ -888,6 +889,16 @@ fn requests_through_a_name_the_server_was_not_given_are_refused() {
     }
     let answer = ask(&base, None, "GET", "/scene", "");
     assert!(answer.starts_with("HTTP/1.0 200"), "{answer}");
+    // HTTP/1.1 without a Host: a malformed request (RFC 9112, 3.2), not served.
+    let answer = raw_request(
+        &base,
+        "GET /scene HTTP/1.1\r\nConnection: close\r\n\r\n",
+        "",
+    );
+    assert!(
+        answer.starts_with("HTTP/1.1 400") && answer.contains("must name the server in a Host"),
+        "{answer}"
+    );
     // Two Host headers: which one a proxy in front read is unknown, so neither is trusted.
     let answer = raw_request(
         &base,
