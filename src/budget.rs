@@ -4,7 +4,9 @@
 //! The default is half of what the process can have ([`ceiling`]: the machine's physical
 //! memory, the process's address-space limit (`ulimit -v`) and its control group's memory limit,
 //! the least of them; 4 GiB where none can be read); `--max-memory` on the command line sets it
-//! for the process, up to the ceiling (with swap). A size over the budget is an
+//! for the process, up to the ceiling (with swap). Under an address-space limit the budget is
+//! also at most half of what that limit leaves the process at the time of each check (its own
+//! mappings, a GPU driver's included, count against the limit). A size over the budget is an
 //! [`Error::OverBudget`] naming what needed the memory, the size and the limit.
 
 use crate::error::{Error, Result};
@@ -21,12 +23,50 @@ pub fn set_limit(bytes: u64) {
     LIMIT.store(bytes.max(1 << 20), Ordering::Relaxed);
 }
 
-/// The budget in bytes.
+/// The budget in bytes: the one set, or the default, and under an address-space limit
+/// (`ulimit -v`) no more than half of what that limit leaves the process now ([`Limit`]).
 pub fn limit() -> u64 {
-    match LIMIT.load(Ordering::Relaxed) {
+    current().bytes
+}
+
+/// The budget now, and what sets it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Limit {
+    bytes: u64,
+    /// Whether half of what the address-space limit leaves is below the budget set (or the
+    /// default). The default is half of that limit, but the process's own mappings count
+    /// against it too: a GPU driver maps hundreds of MiB when it opens (lavapipe: a render that
+    /// fitted the budget then aborted the process, unable to allocate).
+    by_address_space: bool,
+}
+
+fn current() -> Limit {
+    let set = match LIMIT.load(Ordering::Relaxed) {
         0 => default_limit(),
         n => n,
+    };
+    match address_space_left() {
+        Some(left) if left / 2 < set => Limit {
+            bytes: left / 2,
+            by_address_space: true,
+        },
+        _ => Limit {
+            bytes: set,
+            by_address_space: false,
+        },
     }
+}
+
+/// What the address-space limit (`ulimit -v`) leaves this process now: the limit less the
+/// address space it has mapped (`VmSize`, Linux `/proc/self/status`); `None` without a limit
+/// or where the mapped size cannot be read.
+fn address_space_left() -> Option<u64> {
+    static LIMIT_AS: std::sync::OnceLock<Option<u64>> = std::sync::OnceLock::new();
+    let limit = (*LIMIT_AS.get_or_init(address_space_limit))?;
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmSize:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(limit.saturating_sub(kib.saturating_mul(1024)))
 }
 
 /// Half of [`ceiling`] without swap, or 4 GiB where nothing can be read. A budget of the
@@ -129,14 +169,19 @@ fn cgroup_limit() -> Option<u64> {
 /// Checks that `count` items of `item_bytes` each fit the budget; `what` names them in the
 /// error, e.g. "the render's pixels".
 pub fn check(what: &str, count: u64, item_bytes: u64) -> Result<()> {
-    let limit = limit();
+    let limit = current();
+    let why = if limit.by_address_space {
+        "half of what this process's address-space limit, `ulimit -v`, leaves it"
+    } else {
+        "set it with --max-memory"
+    };
     match count.checked_mul(item_bytes) {
-        Some(bytes) if bytes <= limit => Ok(()),
+        Some(bytes) if bytes <= limit.bytes => Ok(()),
         bytes => Err(Error::OverBudget(format!(
             "{what} would need {} ({count} × {item_bytes} bytes), over the memory budget of {} \
-             (set it with --max-memory)",
+             ({why})",
             bytes.map_or("more than 16 EiB".to_string(), human),
-            human(limit)
+            human(limit.bytes)
         ))),
     }
 }

@@ -29,7 +29,8 @@ struct Cli {
     /// probe counts, all-hits lists, sizes in file headers, the tree over a file's triangles):
     /// bytes, or a number with K, M, G or T (powers of 1024), e.g. 8G or 512M. A size over it
     /// is an error naming the value and the limit [default: half the machine's memory, or of
-    /// `ulimit -v` or the control group's limit where less].
+    /// `ulimit -v` or the control group's limit where less; under `ulimit -v`, at most half of
+    /// what it leaves the process when a size is checked].
     #[arg(long, global = true, value_name = "SIZE", value_parser = raypick::budget::parse_limit)]
     max_memory: Option<u64>,
     #[command(subcommand)]

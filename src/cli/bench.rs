@@ -75,6 +75,12 @@ fn run_ray_file(
         .build()
         .map_err(|e| Error::Invalid(format!("cannot start {threads} CPU threads: {e}")))?;
     let mut picker = raypick::make_picker(args.backend, built.clone())?;
+    // Again with what a GPU's driver left (under `ulimit -v` its mappings count).
+    super::check_rays(
+        &format!("the {} rays of {}", rays.len(), path.display()),
+        rays.len() as u64,
+        &raypick::Query::default(),
+    )?;
     super::show_notes(&mut *picker);
     println!(
         "scene: {} triangles, loaded in {:.0} ms, built in {:.0} ms; {} rays from {}; {}",
@@ -260,7 +266,14 @@ pub fn run(args: BenchArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let mut gpu = match &context {
         Ok(context) => {
             println!("gpu: {}", context.describe());
-            Some(GpuPicker::new(context, built.clone())?)
+            let picker = GpuPicker::new(context, built.clone())?;
+            // Again with what the GPU's driver left (under `ulimit -v` its mappings count).
+            super::check_rays(
+                &format!("--rays {}", args.rays),
+                args.rays,
+                &raypick::Query::default(),
+            )?;
+            Some(picker)
         }
         Err(e) => {
             println!("gpu: none ({e}); GPU figures are left out");

@@ -95,7 +95,14 @@ fn visible(
         })
         .collect();
     warn_long_ends(&built, segments, eps, what);
-    let answers = make_picker(sight.backend, built)?.query(&rays, &query)?;
+    let mut picker = make_picker(sight.backend, built)?;
+    // Again with what a GPU's driver left (under `ulimit -v` its mappings count).
+    super::check_rays(
+        &format!("the {} {what}s", segments.len()),
+        segments.len() as u64,
+        &query,
+    )?;
+    let answers = picker.query(&rays, &query)?;
     let invalid = answers.nearest.iter().filter(|h| h.invalid).count();
     if invalid > 0 {
         eprintln!(

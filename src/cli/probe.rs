@@ -47,6 +47,12 @@ pub fn run(args: ProbeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         context.describe()
     );
     let mut gpu = GpuPicker::new(&context, built.clone())?;
+    // Again with what the GPU's driver left (under `ulimit -v` its mappings count).
+    super::check_rays(
+        &format!("--probes {}", args.probes),
+        args.probes as u64,
+        &Query::default(),
+    )?;
     let mut cpu = CpuPicker::new(built);
     let mut watertight_leaks = 0;
     println!(

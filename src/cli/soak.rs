@@ -76,6 +76,8 @@ pub fn run(args: SoakArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let built = Arc::new(args.scene.build_owned(matches)?);
     let context = GpuContext::new()?;
     let mut gpu = GpuPicker::new(&context, built.clone())?;
+    // Again with what the GPU's driver left (under `ulimit -v` its mappings count).
+    super::check_rays(&format!("--batch {batch}"), batch as u64, &Query::default())?;
     let mut cpu = CpuPicker::new(built.clone());
     let batches = args.rays.div_ceil(batch as u64);
     let checked = args.check.min(batch);

@@ -125,6 +125,8 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             None
         }
     };
+    // Again with what the GPU's driver left (under `ulimit -v` its mappings count).
+    check_count(labelled.len() as u64, &query)?;
     let collapse_start = Instant::now();
     let wide = built.wide()?;
     let collapse_s = collapse_start.elapsed().as_secs_f64();

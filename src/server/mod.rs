@@ -173,7 +173,9 @@ pub struct ServerConfig {
     /// The memory budget of all requests in progress together, in bytes: each request's
     /// estimated memory (its body, rays, hit lists and answer, or its image) is reserved from
     /// it before the work starts. Part of the process's budget ([`crate::budget::limit`]):
-    /// `raypick serve` refuses a larger one.
+    /// `raypick serve` refuses a larger one; under an address-space limit (`ulimit -v`) it is
+    /// lowered to what the process's budget is once the worker is ready (a GPU driver's
+    /// mappings count against that limit).
     pub memory_budget: u64,
     /// How long a request waits for its memory to become free in the budget before it is
     /// answered 503.
@@ -186,10 +188,10 @@ pub struct ServerConfig {
     /// `.localhost` (lower case; [`host::ANY_HOST`] for any): requests with another `Host` get
     /// 403, against pages that point their own names at the server ([`host`]).
     pub allowed_hosts: Vec<String>,
-    /// The longest the worker spends on one pick or render request (or one batch of picks
-    /// asked together): past it the work stops between two steps and the requests not yet
-    /// answered in full get 413 with the count answered, so one costly request cannot hold
-    /// every other client's picks for hours.
+    /// The longest the worker spends on one pick or render request (each request of a batch
+    /// asked together on its own clock, from when its own work starts): past it the work stops
+    /// between two steps and the request gets 413 with the count answered, so one costly
+    /// request cannot hold every other client's picks for hours.
     pub max_work: Duration,
 }
 
@@ -271,6 +273,11 @@ impl Server {
             config.max_added_triangles,
             config.max_work,
         )?;
+        // Under an address-space limit the process's budget is what the limit leaves, and a
+        // GPU driver maps hundreds of MiB as the worker opens it: the requests' budget is
+        // lowered to what is left then, so a request within it cannot abort the process.
+        let mut config = config;
+        config.memory_budget = config.memory_budget.min(crate::budget::limit());
         Ok(Server {
             state: Arc::new(api::AppState {
                 worker,

@@ -251,6 +251,53 @@ fn the_default_budget_keeps_within_an_address_space_limit() {
     );
 }
 
+/// Under `ulimit -v` the GPU's driver maps hundreds of MiB when it opens (lavapipe), which the
+/// budget, checked before, did not see: a 1100 x 1100 render on `--backend gpu` or `auto`,
+/// `verify --random 200000` and `soak --batch 1000000` aborted (exit 134, "memory allocation
+/// of … failed"). The budget is now at most half of what the limit leaves the process at each
+/// check, and the commands check again once the GPU is open.
+#[test]
+fn a_gpu_driver_s_mappings_count_against_an_address_space_limit() {
+    if !backends().contains(&"gpu") {
+        eprintln!("no GPU here: nothing maps the driver's memory");
+        return;
+    }
+    let mut refused_after_opening = 0;
+    for command in [
+        "render --width 1100 --height 1100 --backend gpu --out /dev/null",
+        "render --width 1100 --height 1100 --backend auto --out /dev/null",
+        "verify --random 200000",
+        "soak --rays 1000000 --batch 1000000",
+    ] {
+        let script = format!(
+            "ulimit -v 1000000 && exec '{}' {command}",
+            env!("CARGO_BIN_EXE_raypick")
+        );
+        let out = Command::new("sh")
+            .args(["-c", &script])
+            .env("RAYON_NUM_THREADS", "2")
+            .output()
+            .expect("run sh");
+        let err = String::from_utf8_lossy(&out.stderr);
+        let start: String = err.chars().take(400).collect();
+        let code = out.status.code();
+        assert!(
+            code == Some(0) || code == Some(2),
+            "{command}: {code:?} {start}"
+        );
+        assert!(
+            !err.contains("panicked") && !err.contains("memory allocation of"),
+            "{command}: {start}"
+        );
+        if code == Some(2) {
+            assert!(err.contains("memory"), "{command}: {start}");
+            refused_after_opening += usize::from(err.contains("`ulimit -v`, leaves it"));
+        }
+    }
+    // Each needs over 300 MiB; with the driver mapped, less than that is left under 977 MiB.
+    assert!(refused_after_opening >= 3, "{refused_after_opening}");
+}
+
 #[test]
 fn zero_counts_and_counts_that_overflow_are_refused() {
     assert_refused(&["soak", "--rays", "0"], &["--rays 0"]);
