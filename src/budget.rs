@@ -60,7 +60,7 @@ fn current() -> Limit {
 /// What the address-space limit (`ulimit -v`) leaves this process now: the limit less the
 /// address space it has mapped (`VmSize`, Linux `/proc/self/status`); `None` without a limit
 /// or where the mapped size cannot be read.
-fn address_space_left() -> Option<u64> {
+pub fn address_space_left() -> Option<u64> {
     static LIMIT_AS: std::sync::OnceLock<Option<u64>> = std::sync::OnceLock::new();
     let limit = (*LIMIT_AS.get_or_init(address_space_limit))?;
     let status = std::fs::read_to_string("/proc/self/status").ok()?;

@@ -165,6 +165,7 @@ impl GpuPicker {
         check_workgroup_size(&limits, workgroup_size)?;
         let max_binding = limits.max_storage_buffer_binding_size;
         check_sizes(&limits, &built)?;
+        check_room_to_compile()?;
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -644,6 +645,26 @@ pub fn check_workgroup_size(limits: &wgpu::Limits, size: u32) -> Result<()> {
 }
 
 /// Refuses a tree whose nodes or triangles do not fit one storage binding.
+/// The address space a driver may need to compile the kernel: under `ulimit -v`, lavapipe
+/// compiling it with about 18 MiB left crashed the process (a segmentation fault inside the
+/// driver, not an error it returns); it needed about 28 MiB. Twice that is asked for.
+const ROOM_TO_COMPILE: u64 = 64 << 20;
+
+/// Refuses to compile the kernel where an address-space limit leaves less than
+/// [`ROOM_TO_COMPILE`].
+fn check_room_to_compile() -> Result<()> {
+    match crate::budget::address_space_left() {
+        Some(left) if left < ROOM_TO_COMPILE => Err(Error::Gpu(format!(
+            "`ulimit -v` leaves this process {} of address space, too little for the GPU's \
+             driver to compile the kernel (it needs about {}); raise the limit or use the CPU \
+             backend",
+            crate::budget::human(left),
+            crate::budget::human(ROOM_TO_COMPILE)
+        ))),
+        _ => Ok(()),
+    }
+}
+
 fn check_sizes(limits: &wgpu::Limits, built: &BuiltScene) -> Result<()> {
     let max_binding = limits.max_storage_buffer_binding_size;
     for (what, bytes) in [
