@@ -171,8 +171,8 @@ fn bash(text: &str, dir: &Path, bin: &Path) -> Command {
 }
 
 /// Runs one README command to its end (at most [`LINE_LIMIT`]) and fails the test on a non-zero
-/// exit or a panic.
-fn run_line(command: &Line, dir: &Path, bin: &Path) {
+/// exit or a panic; returns its standard output.
+fn run_line(command: &Line, dir: &Path, bin: &Path) -> String {
     let out_path = dir.join(".readme-test-stdout");
     let err_path = dir.join(".readme-test-stderr");
     let mut child = bash(&command.text, dir, bin)
@@ -213,6 +213,45 @@ fn run_line(command: &Line, dir: &Path, bin: &Path) {
         command.line,
         start.elapsed().as_secs_f64(),
         command.text.lines().next().unwrap_or_default()
+    );
+    stdout
+}
+
+/// The answers the README quotes after its curl session (each `{…}` span in the paragraph that
+/// begins "The first `/pick` answers") must be what one of the session's curl commands printed:
+/// the span's text up to its first "…" begins that command's output, and each later piece that
+/// holds JSON punctuation lies in it. A quoted answer once said the terrain was hit where the
+/// server answered the tower's roof.
+fn check_quoted_answers(readme: &str, served: &[String]) {
+    let start = readme
+        .find("The first `/pick` answers")
+        .expect("the README describes its curl session's answers");
+    let paragraph = &readme[start..];
+    let paragraph = &paragraph[..paragraph.find("\n\n").unwrap_or(paragraph.len())];
+    let spans: Vec<&str> = paragraph
+        .split('`')
+        .skip(1)
+        .step_by(2)
+        .filter(|span| span.starts_with('{'))
+        .collect();
+    for span in &spans {
+        let mut pieces = span.split('…');
+        let first = pieces.next().unwrap_or_default();
+        let rest: Vec<&str> = pieces
+            .filter(|p| p.contains(['"', ':', '}', ']']))
+            .collect();
+        assert!(
+            served
+                .iter()
+                .any(|out| out.starts_with(first) && rest.iter().all(|p| out.contains(p))),
+            "README.md quotes the answer {span}; the curl commands printed:\n{}",
+            served.join("\n").chars().take(3000).collect::<String>()
+        );
+    }
+    assert!(
+        spans.len() >= 4,
+        "only {} quoted answers found",
+        spans.len()
     );
 }
 
@@ -288,6 +327,7 @@ fn the_readme_shell_examples_run_as_written() {
     copy_tree(repo, &dir);
     let bin = shims(&scratch.0);
     let (mut ran, mut skipped) = (0, Vec::new());
+    let mut served = Vec::new();
     for block in &blocks {
         let mut servers: Vec<Child> = Vec::new();
         // The README's servers listen on 8080; here on a free port, in every line of the block.
@@ -312,7 +352,10 @@ fn the_readme_shell_examples_run_as_written() {
                 );
                 servers.push(start_server(&command, &dir, &bin, addr));
             } else {
-                run_line(&command, &dir, &bin);
+                let stdout = run_line(&command, &dir, &bin);
+                if command.text.starts_with("curl") {
+                    served.push(stdout);
+                }
             }
             ran += 1;
         }
@@ -326,6 +369,7 @@ fn the_readme_shell_examples_run_as_written() {
             block.line
         );
     }
+    check_quoted_answers(&readme, &served);
     eprintln!(
         "{ran} README command lines ran; skipped as long runs: lines {skipped:?} of README.md"
     );
