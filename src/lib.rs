@@ -52,6 +52,7 @@ pub mod rpk;
 pub mod scene;
 #[cfg(feature = "server")]
 pub mod server;
+pub mod steps;
 pub mod store;
 
 /// The vector library of the API (rays, hits, cameras, scenes), re-exported so that callers use

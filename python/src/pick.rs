@@ -9,7 +9,10 @@
 //!
 //! Between batches a pick runs Python's signal handlers ([`crate::interrupt`]), so Ctrl-C stops
 //! it soon: a pick starts with a batch of [`FIRST`] rays, and each batch after is sized from
-//! the one before to take about [`BATCH_TIME`], within [`FEWEST`] and the sizes above. Batches of those sizes
+//! the one before to take about [`BATCH_TIME`] (by the library's [`raypick::steps::StepSizer`],
+//! as the server sizes its steps: at most twice the batch before, so a batch of cheap rays
+//! followed by costly ones does not make one long batch), within [`FEWEST`] and the sizes
+//! above. Batches of those sizes
 //! took seconds on costly rays: in a stack of 20,000 triangles that a ray passes beside, each
 //! ray cost 80 µs on two cores (2.6 s a 32,768-ray batch); on a software GPU (lavapipe), a
 //! batch of 3M bunny rays took over 45 s. Each ray's answer does not depend on the rays beside
@@ -26,6 +29,7 @@ use crate::threads;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use raypick::query::MAX_HITS_LIMIT;
+use raypick::steps::StepSizer;
 use raypick::{Backend, Mode, Query, Ray};
 use std::ops::Range;
 use std::time::{Duration, Instant};
@@ -141,31 +145,10 @@ pub const FEWEST: usize = 256;
 /// (within [`FEWEST`] ..= [`CPU_BATCH`] or [`GPU_BATCH`]).
 pub const BATCH_TIME: Duration = Duration::from_millis(100);
 
-/// The rays of each batch of a pick.
-struct Batches {
-    /// The most rays in a batch.
-    most: usize,
-    /// The next batch's rays.
-    next: usize,
-}
-
-impl Batches {
-    /// The batches of `query` on the CPU, or on a GPU when `gpu`.
-    fn new(query: &Query, gpu: bool) -> Self {
-        let most = if gpu { GPU_BATCH } else { CPU_BATCH }.min(batch_rays(query));
-        Self {
-            most,
-            next: FIRST.min(most),
-        }
-    }
-
-    /// After a batch of `rays` that took `time`: the next batch takes about [`BATCH_TIME`].
-    fn took(&mut self, rays: usize, time: Duration) {
-        let per_ray = time.as_secs_f64() / rays.max(1) as f64;
-        // A float past usize (no time measured) saturates.
-        let fit = (BATCH_TIME.as_secs_f64() / per_ray) as usize;
-        self.next = fit.clamp(FEWEST.min(self.most), self.most);
-    }
+/// The batches of a pick of `query` on the CPU, or on a GPU when `gpu`.
+fn batches(query: &Query, gpu: bool) -> StepSizer {
+    let most = if gpu { GPU_BATCH } else { CPU_BATCH }.min(batch_rays(query));
+    StepSizer::new(FIRST, FEWEST, most, BATCH_TIME)
 }
 
 /// Answers rays `0..n`, made by `read` a batch at a time, without the interpreter, handing
@@ -182,8 +165,8 @@ pub fn answer(
     let query = args.query;
     let (result, notes) = py.detach(|| {
         scene.trace(args.backend, |picker, gpu| {
-            let mut batches = Batches::new(&query, gpu);
-            let mut rays = vec_for::<Ray>(batches.most.min(n), "the rays")?;
+            let mut batches = batches(&query, gpu);
+            let mut rays = vec_for::<Ray>(batches.most().min(n), "the rays")?;
             // One answer buffer for every batch: a fresh one per batch faulted its pages in
             // anew wherever the allocator returns such blocks to the OS on free, as in a
             // Dask worker (`MALLOC_TRIM_THRESHOLD_`): 23% of a 1M-ray pick.
@@ -191,7 +174,7 @@ pub fn answer(
             let mut interrupts = Interrupts::new();
             let mut start = 0;
             while start < n {
-                let end = start + batches.next.min(n - start);
+                let end = start + batches.next().min(n - start);
                 let began = Instant::now();
                 // On the process's pool; the signal checks stay on this thread, which may be
                 // Python's main thread.

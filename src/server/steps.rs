@@ -4,10 +4,11 @@
 //! was done — on a scene whose rays cost milliseconds each, minutes of every other client's
 //! picks waiting. The rays go through in steps instead, and between steps the worker asks
 //! whether anyone still waits for the answer (a reply's receiver is dropped with the request's
-//! handler when its connection closes). Steps start small and double while each takes under
-//! [`FAST`] (so a large batch on a fast scene is soon one call of many rays, as before), and
-//! halve, down to [`FIRST`], when one takes over [`SLOW`]; none has more than [`MOST`]. Each ray's answer does not depend on
-//! the rays beside it, so the answers are those of one call.
+//! handler when its connection closes). Steps start at [`FIRST`] rays and are sized by
+//! [`crate::steps::StepSizer`] to take about [`STEP_TIME`] (growing at most twofold from one to
+//! the next, so a large batch on a fast scene is soon one call of many rays, as before); none has
+//! fewer than [`FIRST`] or more than [`MOST`]. Each ray's answer does not depend on the rays
+//! beside it, so the answers are those of one call.
 //!
 //! A pick that is wanted but costs too much (a client's million rays through a scene where each
 //! costs milliseconds) would hold the worker for hours; once its steps have taken longer than
@@ -18,6 +19,7 @@
 use crate::picker::Picker;
 use crate::query::{Answers, Query};
 use crate::ray::Ray;
+use crate::steps::StepSizer;
 use crate::{Error, Result};
 use std::time::{Duration, Instant};
 
@@ -26,10 +28,8 @@ pub(crate) const FIRST: usize = 256;
 /// The most rays in any step: the work limit is checked between steps, so a step that grew on
 /// cheap rays (misses) cannot run on for long over costly ones after them unchecked.
 pub(crate) const MOST: usize = 1 << 18;
-/// A step that took less than this doubles the next one.
-const FAST: Duration = Duration::from_millis(50);
-/// A step that took more than this halves the next one.
-const SLOW: Duration = Duration::from_millis(200);
+/// What a step is sized to take.
+const STEP_TIME: Duration = Duration::from_millis(100);
 
 /// How a stepped query ended.
 #[derive(Debug)]
@@ -53,7 +53,8 @@ pub(crate) fn query_in_steps(
     max_work: Duration,
 ) -> Result<Stepped> {
     let mut out = Answers::default();
-    let (mut done, mut step) = (0, FIRST);
+    let mut steps = StepSizer::new(FIRST, FIRST, MOST, STEP_TIME);
+    let mut done = 0;
     let began = Instant::now();
     while done < rays.len() {
         if !wanted() {
@@ -62,7 +63,7 @@ pub(crate) fn query_in_steps(
         if done > 0 && began.elapsed() > max_work {
             return Ok(Stepped::OverTime { answered: out });
         }
-        let end = (done + step).min(rays.len());
+        let end = (done + steps.next()).min(rays.len());
         let start = Instant::now();
         let answers = picker.query(&rays[done..end], query)?;
         if answers.nearest.len() != end - done {
@@ -72,16 +73,9 @@ pub(crate) fn query_in_steps(
                 end - done
             )));
         }
-        let took = start.elapsed();
+        steps.took(end - done, start.elapsed());
         append(&mut out, answers);
         done = end;
-        step = if took < FAST {
-            step.saturating_mul(2).min(MOST)
-        } else if took > SLOW {
-            (step / 2).max(FIRST)
-        } else {
-            step
-        };
     }
     Ok(Stepped::Done(out))
 }
