@@ -42,6 +42,11 @@ pub struct AutoPicker {
     cpu: CpuPicker,
     /// The device, until the GPU picker is made from it or fails.
     context: Option<GpuContext>,
+    /// A software adapter's description: its device is not kept (it is opened again should
+    /// [`AutoPicker::set_crossover`] send batches to it), since a software driver's mappings
+    /// (about 400 MiB of address space for lavapipe) halved the memory budget under `ulimit -v`
+    /// for a device never traced on.
+    software: Option<String>,
     gpu: Option<GpuPicker>,
     /// The batch size from which the GPU is used, when fixed (`usize::MAX` on a software
     /// adapter); `None`: [`crossover_for`] the threads at each pick.
@@ -51,27 +56,28 @@ pub struct AutoPicker {
 
 impl AutoPicker {
     /// Opens the GPU device if it can; otherwise records why and uses the CPU alone. A software
-    /// adapter is kept (for [`Picker::describe`]) but never traced on, with a note saying so.
+    /// adapter is never traced on (unless [`AutoPicker::set_crossover`] says so), with a note
+    /// saying so; its device is closed again.
     pub fn new(built: Arc<BuiltScene>) -> Self {
         let mut notes = Vec::new();
-        let context = GpuContext::new()
+        let mut context = GpuContext::new()
             .map_err(|e| notes.push(format!("no GPU ({e}); using the CPU path")))
             .ok();
-        let crossover = match &context {
-            Some(c) if c.is_software() => {
-                notes.push(format!(
-                    "software adapter: the CPU path is faster here, so it answers every batch \
-                     (adapter: {})",
-                    c.describe()
-                ));
-                Some(usize::MAX)
-            }
-            _ => None,
-        };
+        let (mut crossover, mut software) = (None, None);
+        if let Some(c) = context.take_if(|c| c.is_software()) {
+            notes.push(format!(
+                "software adapter: the CPU path is faster here, so it answers every batch \
+                 (adapter: {})",
+                c.describe()
+            ));
+            crossover = Some(usize::MAX);
+            software = Some(c.describe());
+        }
         Self {
             cpu: CpuPicker::new(built.clone()),
             built,
             context,
+            software,
             gpu: None,
             crossover,
             notes,
@@ -82,7 +88,18 @@ impl AutoPicker {
     /// is no device or the scene cannot go on it.
     fn gpu(&mut self) -> Option<&mut GpuPicker> {
         if self.gpu.is_none() {
-            let context = self.context.take()?;
+            let context = match self.context.take() {
+                Some(context) => context,
+                // The software adapter, closed when it was found, opened again.
+                None if self.software.take().is_some() => match GpuContext::new() {
+                    Ok(context) => context,
+                    Err(e) => {
+                        self.notes.push(format!("no GPU ({e}); using the CPU path"));
+                        return None;
+                    }
+                },
+                None => return None,
+            };
             match GpuPicker::new(&context, self.built.clone()) {
                 Ok(gpu) => self.gpu = Some(gpu),
                 Err(e) => self.notes.push(format!("no GPU ({e}); using the CPU path")),
@@ -154,15 +171,14 @@ impl Picker for AutoPicker {
 
     fn describe(&self) -> String {
         let device = match (&self.gpu, &self.context) {
-            (Some(gpu), _) => Some(gpu.context()),
-            (None, Some(context)) => Some(context),
-            (None, None) => None,
+            (Some(gpu), _) => Some(gpu.context().describe()),
+            (None, Some(context)) => Some(context.describe()),
+            (None, None) => self.software.clone(),
         };
         match device {
             Some(device) if self.crossover() != usize::MAX => format!(
-                "auto: cpu below {} rays, gpu {} above",
+                "auto: cpu below {} rays, gpu {device} above",
                 self.crossover(),
-                device.describe()
             ),
             _ => format!("auto: {}", self.cpu.describe()),
         }

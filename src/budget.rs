@@ -40,11 +40,31 @@ struct Limit {
     by_address_space: bool,
 }
 
-fn current() -> Limit {
-    let set = match LIMIT.load(Ordering::Relaxed) {
+/// What sets the budget now, for a message: "set it with --max-memory", or the address-space
+/// limit where that is what sets it.
+pub fn what_sets_it() -> &'static str {
+    why(current())
+}
+
+fn why(limit: Limit) -> &'static str {
+    if limit.by_address_space {
+        "half of what this process's address-space limit, `ulimit -v`, leaves it"
+    } else {
+        "set it with --max-memory"
+    }
+}
+
+/// The budget set (`--max-memory`, `set_max_memory`) or the default, before an address-space
+/// limit lowers it to half of what it leaves ([`limit`]).
+pub fn set_or_default() -> u64 {
+    match LIMIT.load(Ordering::Relaxed) {
         0 => default_limit(),
         n => n,
-    };
+    }
+}
+
+fn current() -> Limit {
+    let set = set_or_default();
     match address_space_left() {
         Some(left) if left / 2 < set => Limit {
             bytes: left / 2,
@@ -170,11 +190,7 @@ fn cgroup_limit() -> Option<u64> {
 /// error, e.g. "the render's pixels".
 pub fn check(what: &str, count: u64, item_bytes: u64) -> Result<()> {
     let limit = current();
-    let why = if limit.by_address_space {
-        "half of what this process's address-space limit, `ulimit -v`, leaves it"
-    } else {
-        "set it with --max-memory"
-    };
+    let why = why(limit);
     match count.checked_mul(item_bytes) {
         Some(bytes) if bytes <= limit.bytes => Ok(()),
         bytes => Err(Error::OverBudget(format!(

@@ -85,9 +85,25 @@ fn main() -> ExitCode {
         Err(e) => cli::exit_with_clap_error(e),
     };
     cli::progress::set_quiet(cli.quiet);
+    // A write past the file-size limit (`ulimit -f`) fails with an error that names the file
+    // (EFBIG) instead of the signal killing the process without a word.
+    #[cfg(unix)]
+    // SAFETY: setting a signal's disposition to "ignore" installs no handler.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
     cli::mapped_file_guard::install();
     if let Some(bytes) = cli.max_memory {
         raypick::budget::set_limit(bytes);
+    }
+    // Started now: rayon starts its threads at the first parallel call otherwise, and panics
+    // there when the system refuses one (a `ulimit -v` too tight for their stacks).
+    if let Err(e) = rayon::ThreadPoolBuilder::new().build_global() {
+        eprintln!(
+            "error: cannot start the picking threads ({e}); raise `ulimit -v` or set \
+             RAYON_NUM_THREADS to fewer threads"
+        );
+        return ExitCode::from(2);
     }
     let (_, sub) = matches.subcommand().expect("a subcommand is required");
     // An --out that is also an input is refused before anything is read or written.

@@ -25,6 +25,28 @@ pub fn run<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     }
 }
 
+/// Starts rayon's global pool (one thread per core, or `RAYON_NUM_THREADS`) as the module is
+/// imported. Started lazily, by the first parallel call, it panicked where the system refused a
+/// thread (an address-space limit too tight for their stacks): a `PanicException`, which is not
+/// an `Exception`, and every later call panicking again. Refused here, the import fails with an
+/// `OSError` that says why (once per process: a second import gives the first one's answer).
+pub fn start_global_pool() -> PyResult<()> {
+    static STARTED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    STARTED
+        .get_or_init(|| {
+            rayon::ThreadPoolBuilder::new()
+                .build_global()
+                .map_err(|e| e.to_string())
+        })
+        .clone()
+        .map_err(|e| {
+            pyo3::exceptions::PyOSError::new_err(format!(
+                "raypick cannot start its picking threads ({e}); raise the process's \
+                 address-space limit or set RAYON_NUM_THREADS to fewer threads"
+            ))
+        })
+}
+
 /// `_set_threads(n)`: trace on `n` threads from now on in this process; 0 goes back to one
 /// thread per core.
 #[pyfunction]

@@ -484,3 +484,25 @@ def test_a_saved_scene_refuses_builder_options(bunny, tmp_path):
     # The scene's own files still take them, and None means the defaults.
     assert raypick.Scene.load(BUNNY, builder="sah", leaf_size=4).triangle_count == bunny.triangle_count
     assert raypick.Scene.load(BUNNY, builder=None, leaf_size=None).triangle_count == bunny.triangle_count
+
+
+def test_threads_the_system_refuses_fail_the_import_with_a_sentence():
+    """rayon started its threads at the first pick and panicked where the system refused one
+    (a tight address-space limit): a PanicException, not an Exception, and every later call
+    panicking again. The threads start at import now; refused, the import is an OSError."""
+    import subprocess
+    import sys
+
+    script = (
+        "import resource\n"
+        "resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))\n"
+        "try:\n"
+        "    import raypick\n"
+        "except OSError as e:\n"
+        "    print('OSError:', e)\n"
+    )
+    env = dict(os.environ, RAYON_NUM_THREADS="5000")
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.startswith("OSError: raypick cannot start its picking threads ("), out.stdout
+    assert "panicked" not in out.stderr, out.stderr[-2000:]

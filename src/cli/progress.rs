@@ -2,6 +2,8 @@
 //! on a terminal and never with `--quiet` (which also leaves out `pick`'s summary line).
 
 use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
@@ -30,8 +32,31 @@ pub fn phase<T>(message: &str, work: impl FnOnce() -> T) -> T {
     if let Ok(style) = ProgressStyle::with_template("{spinner} {msg} ({elapsed})") {
         spinner.set_style(style);
     }
-    spinner.enable_steady_tick(Duration::from_millis(120));
+    // Ticked by a thread of its own while `work` runs, only where it is drawn (a terminal).
+    // indicatif's own ticker panics when the system refuses the thread (a tight `ulimit -v`);
+    // without it the spinner just stands still.
+    let stop = Arc::new(AtomicBool::new(false));
+    let ticker = std::io::stderr()
+        .is_terminal()
+        .then(|| {
+            let (spinner, stop) = (spinner.clone(), stop.clone());
+            std::thread::Builder::new()
+                .name("progress".into())
+                .spawn(move || {
+                    while !stop.load(Ordering::Relaxed) {
+                        spinner.tick();
+                        std::thread::park_timeout(Duration::from_millis(120));
+                    }
+                })
+                .ok()
+        })
+        .flatten();
     let value = work();
+    stop.store(true, Ordering::Relaxed);
+    if let Some(ticker) = ticker {
+        ticker.thread().unpark();
+        let _ = ticker.join();
+    }
     spinner.finish_and_clear();
     value
 }

@@ -180,16 +180,17 @@ fn write_id_png(path: &Path, width: u32, height: u32, ids: &[u32]) -> Result<(),
         path: path.display().to_string(),
         source: e,
     };
-    let file = std::fs::File::create(path).map_err(io_error)?;
-    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), width, height);
+    // Encoded in memory, then written with its errors seen: a writer dropped unfinished
+    // ignored them (a full disk or `ulimit -f` left a cut file and exit 0).
+    let mut bytes = Vec::new();
+    let mut encoder = png::Encoder::new(&mut bytes, width, height);
     encoder.set_color(png::ColorType::Grayscale);
     encoder.set_depth(png::BitDepth::Sixteen);
     let png_error = |e: png::EncodingError| Error::Invalid(format!("{}: {e}", path.display()));
-    encoder
-        .write_header()
-        .map_err(png_error)?
-        .write_image_data(&pixels)
-        .map_err(png_error)
+    let mut writer = encoder.write_header().map_err(png_error)?;
+    writer.write_image_data(&pixels).map_err(png_error)?;
+    writer.finish().map_err(png_error)?;
+    std::fs::write(path, bytes).map_err(io_error)
 }
 
 fn csv_field(text: &str) -> String {

@@ -79,8 +79,8 @@ fn memory_budget(asked: Option<u64>) -> Result<u64, Error> {
         None => Ok(ServerConfig::default_memory_budget()),
         Some(bytes) if bytes <= process => Ok(bytes),
         Some(bytes) => Err(Error::Invalid(format!(
-            "--memory-budget {} is more than the process's memory budget of {} (--max-memory, \
-             default half the machine's memory); give a smaller --memory-budget or a larger \
+            "--memory-budget {} is more than the process's memory budget of {} (--max-memory; by \
+             default half of what the process can have); give a smaller --memory-budget or a larger \
              --max-memory",
             raypick::budget::human(bytes),
             raypick::budget::human(process)

@@ -36,7 +36,16 @@ impl GpuContext {
                 ..Default::default()
             })
             .await
-            .map_err(|e| Error::NoAdapter(e.to_string()))?;
+            .map_err(|e| match crate::budget::address_space_left() {
+                // Drivers map hundreds of MiB as they load: under a tight limit none loads.
+                Some(left) if left < 1 << 30 => Error::Gpu(format!(
+                    "no GPU adapter could be opened ({e}) with the {} of address space that \
+                     `ulimit -v` leaves this process (a GPU driver maps hundreds of MiB); raise \
+                     the limit or use the CPU backend",
+                    crate::budget::human(left)
+                )),
+                _ => Error::NoAdapter(e.to_string()),
+            })?;
         let (device, queue) = adapter
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("raypick"),

@@ -176,7 +176,7 @@ pub(crate) fn read_text(path: &Path) -> Result<String, Error> {
     read_text_within(
         path,
         crate::budget::limit(),
-        "the memory budget (set it with --max-memory)",
+        &format!("the memory budget ({})", crate::budget::what_sets_it()),
         Some(MAX_LINE_BYTES),
     )
 }

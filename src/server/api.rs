@@ -82,6 +82,36 @@ impl MemoryBudget {
     /// Reserves `bytes` for `what` (e.g. "this pick"): waits for them up to the budget's wait
     /// time; 503 if they can never fit or did not become free in time.
     pub(crate) async fn reserve(&self, what: &str, bytes: u64) -> Result<Reservation, ApiError> {
+        let kib = self.fits(what, bytes)?;
+        Ok(Reservation {
+            _permit: self.acquire(what, bytes, kib).await?,
+            bytes,
+        })
+    }
+
+    /// Grows `held` (this request's reservation so far) to `bytes` for `what`, as
+    /// [`MemoryBudget::reserve`] would reserve them, except that the memory `held` covers goes
+    /// on to the new use rather than being asked for again: a pick whose body and rays each fit
+    /// the budget but not both together waited on its own body's reservation for the whole
+    /// wait, then heard that the server was busy.
+    pub(crate) async fn grow(
+        &self,
+        mut held: Reservation,
+        what: &str,
+        bytes: u64,
+    ) -> Result<Reservation, ApiError> {
+        let kib = self.fits(what, bytes)?;
+        let held_kib = held._permit.num_permits() as u64;
+        if kib > held_kib {
+            let more = self.acquire(what, bytes, kib - held_kib).await?;
+            held._permit.merge(more);
+            held.bytes = bytes;
+        }
+        Ok(held)
+    }
+
+    /// The KiB permits of `bytes`; 503 if they can never fit the budget.
+    fn fits(&self, what: &str, bytes: u64) -> Result<u64, ApiError> {
         let kib = bytes.div_ceil(1024).max(1);
         if kib > self.total_kib {
             return Err(ApiError::new(
@@ -95,12 +125,20 @@ impl MemoryBudget {
                 ),
             ));
         }
+        Ok(kib)
+    }
+
+    /// `kib` permits for `what` (which needs `bytes` in all), waited for up to the budget's
+    /// wait time; 503 if they did not become free in time.
+    async fn acquire(
+        &self,
+        what: &str,
+        bytes: u64,
+        kib: u64,
+    ) -> Result<OwnedSemaphorePermit, ApiError> {
         let acquire = self.permits.clone().acquire_many_owned(kib as u32);
         match tokio::time::timeout(self.wait, acquire).await {
-            Ok(Ok(permit)) => Ok(Reservation {
-                _permit: permit,
-                bytes,
-            }),
+            Ok(Ok(permit)) => Ok(permit),
             _ => Err(ApiError::new(
                 StatusCode::SERVICE_UNAVAILABLE,
                 format!(
@@ -492,7 +530,7 @@ async fn pick(
         .and_then(|v| v.to_str().ok())
         .and_then(|s| s.trim().parse::<u64>().ok())
         .map_or(limit as u64, |n| n.min(limit as u64));
-    let _body_memory = state
+    let body_memory = state
         .memory
         .reserve(
             "this pick's body",
@@ -503,9 +541,11 @@ async fn pick(
     let request: PickRequest = parse_body(&bytes, "pick request")?;
     drop(bytes);
     let (rays, query) = request.into_rays(&state.config)?;
+    // The body is gone (its records are the rays now): its memory goes on to the pick.
     let _pick_memory = state
         .memory
-        .reserve(
+        .grow(
+            body_memory,
             &format!("this pick of {} rays", rays.len()),
             pick_bytes(rays.len(), &query),
         )

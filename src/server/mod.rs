@@ -173,9 +173,9 @@ pub struct ServerConfig {
     /// The memory budget of all requests in progress together, in bytes: each request's
     /// estimated memory (its body, rays, hit lists and answer, or its image) is reserved from
     /// it before the work starts. Part of the process's budget ([`crate::budget::limit`]):
-    /// `raypick serve` refuses a larger one; under an address-space limit (`ulimit -v`) it is
-    /// lowered to what the process's budget is once the worker is ready (a GPU driver's
-    /// mappings count against that limit).
+    /// `raypick serve` refuses a larger one, and [`Server::new`] lowers it to the process's
+    /// budget as that is once the worker is ready (under `ulimit -v` the scene's and a GPU
+    /// driver's mappings count against it).
     pub memory_budget: u64,
     /// How long a request waits for its memory to become free in the budget before it is
     /// answered 503.
@@ -241,7 +241,9 @@ impl Server {
     /// (for the GPU: the device is opened and the scene uploaded). Blocks; call it before
     /// entering the async runtime, or from `spawn_blocking`. Fails as building the picker
     /// fails (no GPU adapter, a scene too large for the GPU), and on limits that would refuse
-    /// every request or pass the process's memory budget ([`crate::budget`]).
+    /// every request or pass the process's memory budget as set ([`crate::budget`]); under an
+    /// address-space limit the requests' budget is lowered to the process's budget once the
+    /// worker is ready.
     pub fn new(built: Arc<BuiltScene>, backend: Backend, config: ServerConfig) -> Result<Server> {
         if config.max_rays == 0 || config.max_body_bytes == 0 || config.max_connections == 0 {
             return Err(crate::Error::Invalid(format!(
@@ -250,7 +252,9 @@ impl Server {
                 config.max_rays, config.max_body_bytes, config.max_connections
             )));
         }
-        let process = crate::budget::limit();
+        // A budget over the process's as set (or by default) is the caller's mistake; the
+        // address-space limit's share of it is taken below, once the worker is ready.
+        let process = crate::budget::set_or_default();
         if config.memory_budget > process {
             return Err(crate::Error::Invalid(format!(
                 "the requests' memory budget, {}, is more than the process's, {}",
@@ -273,9 +277,11 @@ impl Server {
             config.max_added_triangles,
             config.max_work,
         )?;
-        // Under an address-space limit the process's budget is what the limit leaves, and a
-        // GPU driver maps hundreds of MiB as the worker opens it: the requests' budget is
-        // lowered to what is left then, so a request within it cannot abort the process.
+        // The requests' budget is at most the process's as it is once the worker is ready:
+        // under an address-space limit, half of what the limit leaves, which the scene and a
+        // GPU driver's mappings (hundreds of MiB) have taken from, so a request within it
+        // cannot abort the process (the default, a quarter of the budget and at least 64 MiB,
+        // would refuse to start under `ulimit -v 300000`).
         let mut config = config;
         config.memory_budget = config.memory_budget.min(crate::budget::limit());
         Ok(Server {

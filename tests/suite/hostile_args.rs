@@ -298,6 +298,61 @@ fn a_gpu_driver_s_mappings_count_against_an_address_space_limit() {
     assert!(refused_after_opening >= 3, "{refused_after_opening}");
 }
 
+/// Limits of the process's own: a file-size limit (`ulimit -f`) killed the process with
+/// SIGXFSZ and no word (exit 153), leaving a cut file, and `idbuffer --raw-ids` ignored a
+/// failed write (exit 0, a cut PNG); threads the system refuses made rayon panic (exit 101).
+/// Each is exit 2 with a sentence now.
+#[test]
+fn a_file_size_limit_and_refused_threads_are_errors_with_a_sentence() {
+    let dir = std::env::temp_dir().join(format!("raypick-limits-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bin = env!("CARGO_BIN_EXE_raypick");
+    let run = |script: String| {
+        let out = Command::new("sh")
+            .args(["-c", &script])
+            .env("RAYON_NUM_THREADS", "2")
+            .output()
+            .expect("run sh");
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let rays = dir.join("rays.txt");
+    let many: String = (0..2000)
+        .map(|i| format!("{} 45.1 100 0 0 -1\n", 10.0 + f64::from(i) * 0.01))
+        .collect();
+    std::fs::write(&rays, many).unwrap();
+    for (what, args) in [
+        (
+            "pick.csv",
+            format!("pick --rays '{}' --backend cpu", rays.display()),
+        ),
+        ("ids.png", "idbuffer --backend cpu --raw-ids".to_owned()),
+        ("view.png", "render --backend cpu".to_owned()),
+    ] {
+        let out = dir.join(what);
+        let (code, err) = run(format!(
+            "ulimit -f 1 && exec '{bin}' {args} --out '{}' -q",
+            out.display()
+        ));
+        assert_eq!(code, Some(2), "{what}: {err}");
+        assert!(
+            err.starts_with("error:") && err.contains(what) && err.contains("too large"),
+            "{what}: {err}"
+        );
+    }
+    let (code, err) = run(format!(
+        "ulimit -v 1000000 && RAYON_NUM_THREADS=5000 exec '{bin}' pick --backend cpu"
+    ));
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.starts_with("error: cannot start the picking threads") && !err.contains("panicked"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn zero_counts_and_counts_that_overflow_are_refused() {
     assert_refused(&["soak", "--rays", "0"], &["--rays 0"]);
