@@ -32,6 +32,16 @@ pub fn save(built: &BuiltScene, path: &Path) -> Result<()> {
             )?,
         ),
     };
+    // The file is renamed into place: over a device, a pipe or a directory that would replace
+    // the node itself (`build --out /dev/full` made /dev/full a regular file, run as root).
+    if let Ok(meta) = std::fs::metadata(path)
+        && !meta.is_file()
+    {
+        return Err(Error::Invalid(format!(
+            "{}: not a regular file; a built scene is saved to a new file or over a regular one",
+            path.display()
+        )));
+    }
     let temporary = temporary_path(path);
     let result = std::fs::File::create(&temporary)
         .and_then(|file| {

@@ -891,6 +891,25 @@ fn out_dash_is_standard_output() {
 /// the built scene). It is refused before anything is read or written, however the file is
 /// named (another spelling, a symbolic link, a file a description lists), and the input is
 /// left as it was.
+/// `build` saves by writing a file beside the target and renaming it into place: over a FIFO
+/// or a device that replaced the node itself (run as root, `build --out /dev/full` made
+/// /dev/full a regular file, exit 0). A target that is not a regular file is refused.
+#[test]
+fn build_does_not_replace_a_target_that_is_not_a_regular_file() {
+    use std::os::unix::fs::FileTypeExt;
+    let dir = std::env::temp_dir().join(format!("raypick-fifo-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let fifo = dir.join("scene.rpk");
+    let made = Command::new("mkfifo").arg(&fifo).status().expect("mkfifo");
+    assert!(made.success());
+    let (code, _, err) = raypick(&["build", "--out", fifo.to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("not a regular file"), "{err}");
+    let kind = std::fs::symlink_metadata(&fifo).unwrap().file_type();
+    assert!(kind.is_fifo(), "the FIFO was replaced: {kind:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn an_out_file_that_is_one_of_the_inputs_is_refused_and_left_as_it_was() {
     let dir = std::env::temp_dir().join(format!("raypick-cli-out-in-{}", std::process::id()));
