@@ -223,19 +223,12 @@ fn all_hits_mode_stays_within_the_budget_under_an_address_space_limit() {
 #[cfg(target_os = "linux")]
 #[test]
 fn the_default_budget_keeps_within_an_address_space_limit() {
-    let script = format!(
-        "ulimit -v 1000000 && exec '{}' render --width 3000 --height 3000 --backend cpu \
-         --out /dev/null",
-        env!("CARGO_BIN_EXE_raypick")
+    let (code, err) = under_limit(
+        "ulimit -v 1000000",
+        "render --width 3000 --height 3000 --backend cpu --out /dev/null",
     );
-    let out = Command::new("sh")
-        .args(["-c", &script])
-        .env("RAYON_NUM_THREADS", "2")
-        .output()
-        .expect("run sh");
-    let err = String::from_utf8_lossy(&out.stderr);
     let start: String = err.chars().take(300).collect();
-    assert_eq!(out.status.code(), Some(2), "{start}");
+    assert_eq!(code, Some(2), "{start}");
     assert!(
         err.starts_with("error:")
             && err.contains("3000 x 3000")
@@ -269,18 +262,8 @@ fn a_gpu_driver_s_mappings_count_against_an_address_space_limit() {
         "verify --random 200000",
         "soak --rays 1000000 --batch 1000000",
     ] {
-        let script = format!(
-            "ulimit -v 1000000 && exec '{}' {command}",
-            env!("CARGO_BIN_EXE_raypick")
-        );
-        let out = Command::new("sh")
-            .args(["-c", &script])
-            .env("RAYON_NUM_THREADS", "2")
-            .output()
-            .expect("run sh");
-        let err = String::from_utf8_lossy(&out.stderr);
+        let (code, err) = under_limit("ulimit -v 1000000", command);
         let start: String = err.chars().take(400).collect();
-        let code = out.status.code();
         assert!(
             code == Some(0) || code == Some(2),
             "{command}: {code:?} {start}"
@@ -306,18 +289,6 @@ fn a_gpu_driver_s_mappings_count_against_an_address_space_limit() {
 fn a_file_size_limit_and_refused_threads_are_errors_with_a_sentence() {
     let dir = std::env::temp_dir().join(format!("raypick-limits-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let bin = env!("CARGO_BIN_EXE_raypick");
-    let run = |script: String| {
-        let out = Command::new("sh")
-            .args(["-c", &script])
-            .env("RAYON_NUM_THREADS", "2")
-            .output()
-            .expect("run sh");
-        (
-            out.status.code(),
-            String::from_utf8_lossy(&out.stderr).into_owned(),
-        )
-    };
     let rays = dir.join("rays.txt");
     let many: String = (0..2000)
         .map(|i| format!("{} 45.1 100 0 0 -1\n", 10.0 + f64::from(i) * 0.01))
@@ -332,19 +303,20 @@ fn a_file_size_limit_and_refused_threads_are_errors_with_a_sentence() {
         ("view.png", "render --backend cpu".to_owned()),
     ] {
         let out = dir.join(what);
-        let (code, err) = run(format!(
-            "ulimit -f 1 && exec '{bin}' {args} --out '{}' -q",
-            out.display()
-        ));
+        let (code, err) = under_limit(
+            "ulimit -f 1",
+            &format!("{args} --out '{}' -q", out.display()),
+        );
         assert_eq!(code, Some(2), "{what}: {err}");
         assert!(
             err.starts_with("error:") && err.contains(what) && err.contains("too large"),
             "{what}: {err}"
         );
     }
-    let (code, err) = run(format!(
-        "ulimit -v 1000000 && RAYON_NUM_THREADS=5000 exec '{bin}' pick --backend cpu"
-    ));
+    let (code, err) = under_limit(
+        "ulimit -v 1000000 && export RAYON_NUM_THREADS=5000",
+        "pick --backend cpu",
+    );
     assert_eq!(code, Some(2), "{err}");
     assert!(
         err.starts_with("error: cannot start the picking threads") && !err.contains("panicked"),
@@ -372,6 +344,24 @@ fn zero_counts_and_counts_that_overflow_are_refused() {
         &["pick", "--mode", "all", "--max-hits", "0"],
         &["max hits 0"],
     );
+}
+
+/// `raypick ARGS` (as the shell splits them) run by `sh` after `limits` (e.g. `ulimit -v
+/// 1000000`), on two threads: its exit code and standard error.
+fn under_limit(limits: &str, args: &str) -> (Option<i32>, String) {
+    let script = format!(
+        "{limits} && exec '{}' {args}",
+        env!("CARGO_BIN_EXE_raypick")
+    );
+    let out = Command::new("sh")
+        .args(["-c", &script])
+        .env("RAYON_NUM_THREADS", "2")
+        .output()
+        .expect("run sh");
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
 }
 
 /// The backends to try on the command line: the GPU only where one opens.
