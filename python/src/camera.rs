@@ -49,6 +49,7 @@ pub fn camera_rays<'py>(
     camera: &Bound<'py, PyAny>,
     pixels: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
+    crate::threads::ready()?;
     let camera = camera_of(camera)?;
     let rays: Vec<f64> = match pixels.filter(|p| !p.is_none()) {
         Some(pixels) => {

@@ -39,7 +39,6 @@ use pyo3::prelude::*;
 /// The compiled half of the `raypick` package.
 #[pymodule]
 fn _raypick(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    threads::start_global_pool()?;
     m.add_class::<scene::Scene>()?;
     m.add_function(wrap_pyfunction!(camera::camera_rays, m)?)?;
     m.add_function(wrap_pyfunction!(threads::set_threads, m)?)?;

@@ -8,16 +8,24 @@
 use crate::int_arg;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
-/// The process's own pool, when one was set.
-static POOL: Mutex<Option<Arc<rayon::ThreadPool>>> = Mutex::new(None);
+/// The process's own pool, when one was set (or made for a forked process), with the id of
+/// the process it was made in.
+static POOL: Mutex<Option<(u32, Arc<rayon::ThreadPool>)>> = Mutex::new(None);
+
+/// The id of the process that started rayon's global pool (0: not started).
+static GLOBAL_IN: AtomicU32 = AtomicU32::new(0);
 
 fn pool() -> Option<Arc<rayon::ThreadPool>> {
-    POOL.lock().unwrap_or_else(PoisonError::into_inner).clone()
+    let slot = POOL.lock().unwrap_or_else(PoisonError::into_inner);
+    slot.as_ref()
+        .filter(|(made_in, _)| *made_in == std::process::id())
+        .map(|(_, pool)| pool.clone())
 }
 
-/// Runs `work` on the process's pool (or rayon's global one).
+/// Runs `work` on the process's pool (or rayon's global one). Call [`ready`] first.
 pub fn run<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     match pool() {
         Some(pool) => pool.install(work),
@@ -25,26 +33,57 @@ pub fn run<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     }
 }
 
-/// Starts rayon's global pool (one thread per core, or `RAYON_NUM_THREADS`) as the module is
-/// imported. Started lazily, by the first parallel call, it panicked where the system refused a
-/// thread (an address-space limit too tight for their stacks): a `PanicException`, which is not
-/// an `Exception`, and every later call panicking again. Refused here, the import fails with an
-/// `OSError` that says why (once per process: a second import gives the first one's answer).
-pub fn start_global_pool() -> PyResult<()> {
+/// Makes sure picking threads run in this process; each call that picks, loads or builds asks
+/// first.
+///
+/// - rayon's global pool (one thread per core, or `RAYON_NUM_THREADS`) is started here, not at
+///   rayon's first parallel call: there a thread the system refused (an address-space limit too
+///   tight for their stacks) was a panic, a `PanicException` (not an `Exception`) with every
+///   later call panicking again. Here it is an `OSError` that says why, each time.
+/// - Threads do not survive `fork`: a process forked from one that had picked
+///   (`multiprocessing`'s default start on Linux, a scene loaded before the workers) hung on its
+///   first pick, waiting on threads left in the parent. A forked process gets a pool of its own,
+///   of as many threads.
+pub fn ready() -> PyResult<()> {
     static STARTED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    let pid = std::process::id();
+    let refused = |e: String| {
+        pyo3::exceptions::PyOSError::new_err(format!(
+            "raypick cannot start its picking threads ({e}); raise the process's address-space \
+             limit or set RAYON_NUM_THREADS to fewer threads"
+        ))
+    };
     STARTED
         .get_or_init(|| {
-            rayon::ThreadPoolBuilder::new()
-                .build_global()
-                .map_err(|e| e.to_string())
+            match rayon::ThreadPoolBuilder::new().build_global() {
+                Ok(()) => {}
+                // Started by a parallel call that came first: running, in this process.
+                Err(e) if e.to_string().contains("already") => {}
+                Err(e) => return Err(e.to_string()),
+            }
+            GLOBAL_IN.store(pid, Ordering::Relaxed);
+            Ok(())
         })
         .clone()
-        .map_err(|e| {
-            pyo3::exceptions::PyOSError::new_err(format!(
-                "raypick cannot start its picking threads ({e}); raise the process's \
-                 address-space limit or set RAYON_NUM_THREADS to fewer threads"
-            ))
-        })
+        .map_err(refused)?;
+    let mut slot = POOL.lock().unwrap_or_else(PoisonError::into_inner);
+    let forked = match &*slot {
+        Some((made_in, pool)) => (*made_in != pid).then(|| pool.current_num_threads()),
+        None => (GLOBAL_IN.load(Ordering::Relaxed) != pid).then(rayon::current_num_threads),
+    };
+    if let Some(threads) = forked {
+        let pool = new_pool(threads).map_err(|e| refused(e.to_string()))?;
+        *slot = Some((pid, Arc::new(pool)));
+    }
+    Ok(())
+}
+
+/// A pool of `threads` threads.
+fn new_pool(threads: usize) -> Result<rayon::ThreadPool, rayon::ThreadPoolBuildError> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .thread_name(|i| format!("raypick-{i}"))
+        .build()
 }
 
 /// `_set_threads(n)`: trace on `n` threads from now on in this process; 0 goes back to one
@@ -54,18 +93,16 @@ pub fn start_global_pool() -> PyResult<()> {
 pub fn set_threads(#[pyo3(from_py_with = thread_count)] threads: usize) -> PyResult<()> {
     let new = match threads {
         0 => None,
-        _ => Some(Arc::new(
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .thread_name(|i| format!("raypick-{i}"))
-                .build()
-                .map_err(|e| {
-                    PyValueError::new_err(format!("cannot start {threads} threads: {e}"))
-                })?,
+        _ => Some((
+            std::process::id(),
+            Arc::new(new_pool(threads).map_err(|e| {
+                PyValueError::new_err(format!("cannot start {threads} threads: {e}"))
+            })?),
         )),
     };
     *POOL.lock().unwrap_or_else(PoisonError::into_inner) = new;
-    Ok(())
+    // Back to the global pool: started here, or a forked process's own made again.
+    ready()
 }
 
 /// `threads` of `_set_threads`: an integer in 0 ..= 4096.

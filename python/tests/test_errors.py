@@ -486,23 +486,46 @@ def test_a_saved_scene_refuses_builder_options(bunny, tmp_path):
     assert raypick.Scene.load(BUNNY, builder=None, leaf_size=None).triangle_count == bunny.triangle_count
 
 
-def test_threads_the_system_refuses_fail_the_import_with_a_sentence():
-    """rayon started its threads at the first pick and panicked where the system refused one
-    (a tight address-space limit): a PanicException, not an Exception, and every later call
-    panicking again. The threads start at import now; refused, the import is an OSError."""
+def test_threads_the_system_refuses_are_an_oserror_each_time():
+    """rayon started its threads at the first parallel call and panicked where the system
+    refused one (a tight address-space limit): a PanicException, not an Exception, and every
+    later call panicking again. Now each call that needs them asks first: an OSError, each
+    time; and a process forked after the import picks (the threads are not started there)."""
     import subprocess
     import sys
 
     script = (
         "import resource\n"
+        "import raypick\n"
+        f"bunny = {str(BUNNY)!r}\n"
         "resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))\n"
-        "try:\n"
-        "    import raypick\n"
-        "except OSError as e:\n"
-        "    print('OSError:', e)\n"
+        "for _ in range(2):\n"
+        "    try:\n"
+        "        raypick.Scene.load(bunny)\n"
+        "    except OSError as e:\n"
+        "        print('OSError:', e)\n"
     )
     env = dict(os.environ, RAYON_NUM_THREADS="5000")
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.startswith("OSError: raypick cannot start its picking threads ("), out.stdout
+    lines = out.stdout.splitlines()
+    assert len(lines) == 2 and all(
+        line.startswith("OSError: raypick cannot start its picking threads (") for line in lines
+    ), out.stdout
     assert "panicked" not in out.stderr, out.stderr[-2000:]
+
+
+def test_a_process_forked_after_the_import_picks(bunny):
+    """Threads do not survive fork: with the pool started at import, a child forked from an
+    importing process (multiprocessing's default on Linux) hung on its first pick."""
+    import multiprocessing
+
+    rays = rays_at(bunny, 1000)
+    with multiprocessing.get_context("fork").Pool(2) as pool:
+        hits = pool.map_async(_pick_in_child, [(str(BUNNY), rays)] * 2).get(timeout=120)
+    assert hits == [int(bunny.pick(rays)["hit"].sum())] * 2
+
+
+def _pick_in_child(args):
+    path, rays = args
+    return int(raypick.Scene.load(path).pick(rays)["hit"].sum())
