@@ -65,13 +65,13 @@ impl AutoPicker {
             .ok();
         let (mut crossover, mut software) = (None, None);
         if let Some(c) = context.take_if(|c| c.is_software()) {
+            let adapter = c.describe();
             notes.push(format!(
                 "software adapter: the CPU path is faster here, so it answers every batch \
-                 (adapter: {})",
-                c.describe()
+                 (adapter: {adapter})"
             ));
             crossover = Some(usize::MAX);
-            software = Some(c.describe());
+            software = Some(adapter);
         }
         Self {
             cpu: CpuPicker::new(built.clone()),

@@ -40,10 +40,11 @@ struct Limit {
     by_address_space: bool,
 }
 
-/// What sets the budget now, for a message: "set it with --max-memory", or the address-space
-/// limit where that is what sets it.
-pub fn what_sets_it() -> &'static str {
-    why(current())
+/// The budget now ([`limit`]) and what sets it, for a message: "set it with --max-memory", or
+/// the address-space limit where that is what sets it.
+pub fn limit_and_why() -> (u64, &'static str) {
+    let limit = current();
+    (limit.bytes, why(limit))
 }
 
 fn why(limit: Limit) -> &'static str {
@@ -189,15 +190,14 @@ fn cgroup_limit() -> Option<u64> {
 /// Checks that `count` items of `item_bytes` each fit the budget; `what` names them in the
 /// error, e.g. "the render's pixels".
 pub fn check(what: &str, count: u64, item_bytes: u64) -> Result<()> {
-    let limit = current();
-    let why = why(limit);
+    let (limit, why) = limit_and_why();
     match count.checked_mul(item_bytes) {
-        Some(bytes) if bytes <= limit.bytes => Ok(()),
+        Some(bytes) if bytes <= limit => Ok(()),
         bytes => Err(Error::OverBudget(format!(
             "{what} would need {} ({count} × {item_bytes} bytes), over the memory budget of {} \
              ({why})",
             bytes.map_or("more than 16 EiB".to_string(), human),
-            human(limit.bytes)
+            human(limit)
         ))),
     }
 }

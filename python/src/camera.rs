@@ -49,7 +49,6 @@ pub fn camera_rays<'py>(
     camera: &Bound<'py, PyAny>,
     pixels: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    crate::threads::ready()?;
     let camera = camera_of(camera)?;
     let rays: Vec<f64> = match pixels.filter(|p| !p.is_none()) {
         Some(pixels) => {
@@ -69,7 +68,7 @@ pub fn camera_rays<'py>(
                 out.par_extend((0..view.nrows()).into_par_iter().flat_map_iter(|i| {
                     row(camera.pixel_ray(view[[i, 0]] + 0.5, view[[i, 1]] + 0.5))
                 }))
-            });
+            })?;
             // A pixel so far out that its ray has no direction (a perspective camera's at
             // 1e200: (0, 0, -0)) or no finite origin (an orthographic one's at 1e308) came back
             // as such a ray, documented as a unit direction.
@@ -99,7 +98,7 @@ pub fn camera_rays<'py>(
                     row(camera
                         .pixel_center_ray((k % u64::from(w)) as u32, (k / u64::from(w)) as u32))
                 }))
-            });
+            })?;
             out
         }
     };

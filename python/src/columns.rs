@@ -97,7 +97,7 @@ impl Columns {
             row: part(row, from, to, 1),
             col: part(col, from, to, 1),
         };
-        crate::threads::run(|| slots.fill(hits, f, c));
+        crate::threads::on_pool(|| slots.fill(hits, f, c));
         self.written = to;
     }
 

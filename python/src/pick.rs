@@ -184,7 +184,7 @@ pub fn answer(
                         .query_into(&rays, &query, &mut answers)
                         .map_err(to_py)?;
                     sink(&answers)
-                })?;
+                })??;
                 batches.took(end - start, began.elapsed());
                 start = end;
                 if start < n {

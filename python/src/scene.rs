@@ -156,7 +156,7 @@ pub enum Note {
 /// the CLI warns on standard error ([`raypick::frame::faults`]): picks on those parts would be
 /// missed or off without a word (a scene 10¹⁴ units across missed most of its hits).
 fn warn_frame(py: Python<'_>, built: &BuiltScene) -> PyResult<()> {
-    let warnings = py.detach(|| threads::run(|| raypick::frame::faults::frame_warnings(built)));
+    let warnings = py.detach(|| threads::run(|| raypick::frame::faults::frame_warnings(built)))?;
     let category = py.get_type::<pyo3::exceptions::PyUserWarning>();
     for warning in warnings {
         PyErr::warn(py, &category, &std::ffi::CString::new(warning)?, 1)?;
@@ -336,7 +336,6 @@ impl Scene {
         builder: Option<&str>,
         #[pyo3(from_py_with = leaf_size_or_none)] leaf_size: Option<u32>,
     ) -> PyResult<Scene> {
-        threads::ready()?;
         let paths = path_list(paths)?;
         if paths.is_empty() {
             return Err(value_error("paths is empty; give at least one scene file"));
@@ -384,7 +383,7 @@ impl Scene {
                             None => Ok(built),
                         }
                     })
-                })
+                })?
                 .map_err(to_py)?;
             return Ok(Scene::new(built));
         }
@@ -413,7 +412,7 @@ impl Scene {
                 let scene = load_scene(&files).map_err(to_py)?;
                 BuiltScene::new(scene, &options).map_err(to_py)
             })
-        })?;
+        })??;
         warn_frame(py, &built)?;
         Ok(Scene::new(built))
     }
@@ -430,7 +429,6 @@ impl Scene {
         builder: &str,
         #[pyo3(from_py_with = leaf_size)] leaf_size: u32,
     ) -> PyResult<Scene> {
-        threads::ready()?;
         let options = build_options(Some(builder), Some(leaf_size))?;
         let vertices = arrays::rows(vertices, "vertices", 3, Dtype::Float64, false)?;
         let positions = arrays::points(vertices.as_array(), "the vertices")?;
@@ -445,7 +443,7 @@ impl Scene {
                     let scene = raypick::Scene::from_meshes([("arrays".to_string(), mesh)])?;
                     BuiltScene::new(scene, &options)
                 })
-            })
+            })?
             .map_err(to_py)?;
         warn_frame(py, &built)?;
         Ok(Scene::new(built))
@@ -454,7 +452,6 @@ impl Scene {
     /// scene.save(path): writes the scene and its trees as an `.rpk` file, which
     /// `Scene.load(path)` reads back with no rebuild.
     fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
-        threads::ready()?;
         if !rpk::has_rpk_extension(&path) {
             return Err(value_error(format!(
                 "{}: a saved scene's file name must end in .rpk",
@@ -462,7 +459,7 @@ impl Scene {
             )));
         }
         let built = &self.built;
-        py.detach(|| threads::run(|| rpk::save(built, &path)))
+        py.detach(|| threads::run(|| rpk::save(built, &path)))?
             .map_err(to_py)
     }
 
@@ -486,7 +483,6 @@ impl Scene {
         intersector: &str,
         backend: &str,
     ) -> PyResult<Bound<'py, PyDict>> {
-        threads::ready()?;
         let args = QueryArgs::parse(mode, max_hits, cull, ray_mask, intersector, backend)?;
         pick::pick(py, self, rays, &args, tmin, tmax)
     }
@@ -505,7 +501,6 @@ impl Scene {
         #[pyo3(from_py_with = ray_mask)] ray_mask: u32,
         backend: &str,
     ) -> PyResult<Bound<'py, PyAny>> {
-        threads::ready()?;
         let args = SightArgs::parse(epsilon, ray_mask, backend)?;
         sight::los(py, self, a, b, &args)
     }
@@ -528,7 +523,6 @@ impl Scene {
         #[pyo3(from_py_with = ray_mask)] ray_mask: u32,
         backend: &str,
     ) -> PyResult<Bound<'py, PyDict>> {
-        threads::ready()?;
         let args = SightArgs::parse(epsilon, ray_mask, backend)?;
         sight::viewshed(py, self, observer, targets, target_height, &args)
     }

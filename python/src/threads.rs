@@ -25,16 +25,22 @@ fn pool() -> Option<Arc<rayon::ThreadPool>> {
         .map(|(_, pool)| pool.clone())
 }
 
-/// Runs `work` on the process's pool (or rayon's global one). Call [`ready`] first.
-pub fn run<R: Send>(work: impl FnOnce() -> R + Send) -> R {
+/// Runs `work` on the process's pool (or rayon's global one), once [`ready`] says picking
+/// threads run in this process: every call that picks, loads or builds goes through here.
+pub fn run<R: Send>(work: impl FnOnce() -> R + Send) -> PyResult<R> {
+    ready()?;
+    Ok(on_pool(work))
+}
+
+/// [`run`] inside work that [`run`] already runs (no [`ready`] to ask again).
+pub fn on_pool<R: Send>(work: impl FnOnce() -> R + Send) -> R {
     match pool() {
         Some(pool) => pool.install(work),
         None => work(),
     }
 }
 
-/// Makes sure picking threads run in this process; each call that picks, loads or builds asks
-/// first.
+/// Makes sure picking threads run in this process ([`run`] asks first).
 ///
 /// - rayon's global pool (one thread per core, or `RAYON_NUM_THREADS`) is started here, not at
 ///   rayon's first parallel call: there a thread the system refused (an address-space limit too
@@ -44,7 +50,7 @@ pub fn run<R: Send>(work: impl FnOnce() -> R + Send) -> R {
 ///   (`multiprocessing`'s default start on Linux, a scene loaded before the workers) hung on its
 ///   first pick, waiting on threads left in the parent. A forked process gets a pool of its own,
 ///   of as many threads.
-pub fn ready() -> PyResult<()> {
+fn ready() -> PyResult<()> {
     static STARTED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
     let pid = std::process::id();
     let refused = |e: String| {
@@ -116,5 +122,5 @@ fn thread_count(value: &Bound<'_, PyAny>) -> PyResult<usize> {
 #[pyfunction]
 #[pyo3(name = "_threads")]
 pub fn threads() -> usize {
-    run(rayon::current_num_threads)
+    on_pool(rayon::current_num_threads)
 }

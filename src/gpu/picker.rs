@@ -644,7 +644,6 @@ pub fn check_workgroup_size(limits: &wgpu::Limits, size: u32) -> Result<()> {
     }
 }
 
-/// Refuses a tree whose nodes or triangles do not fit one storage binding.
 /// The address space a driver may need to compile the kernel: under `ulimit -v`, lavapipe
 /// compiling it with about 18 MiB left crashed the process (a segmentation fault inside the
 /// driver, not an error it returns); it needed about 28 MiB. Twice that is asked for.
@@ -665,6 +664,7 @@ fn check_room_to_compile() -> Result<()> {
     }
 }
 
+/// Refuses a tree whose nodes or triangles do not fit one storage binding.
 fn check_sizes(limits: &wgpu::Limits, built: &BuiltScene) -> Result<()> {
     let max_binding = limits.max_storage_buffer_binding_size;
     for (what, bytes) in [

@@ -173,10 +173,11 @@ pub fn load_pairs(path: &Path) -> Result<Vec<(DVec3, DVec3)>, Error> {
 /// than [`MAX_LINE_BYTES`], is refused as soon as the reading gets there (a device or a pipe says
 /// nothing of its length beforehand).
 pub(crate) fn read_text(path: &Path) -> Result<String, Error> {
+    let (most, why) = crate::budget::limit_and_why();
     read_text_within(
         path,
-        crate::budget::limit(),
-        &format!("the memory budget ({})", crate::budget::what_sets_it()),
+        most,
+        &format!("the memory budget ({why})"),
         Some(MAX_LINE_BYTES),
     )
 }

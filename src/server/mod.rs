@@ -244,7 +244,11 @@ impl Server {
     /// every request or pass the process's memory budget as set ([`crate::budget`]); under an
     /// address-space limit the requests' budget is lowered to the process's budget once the
     /// worker is ready.
-    pub fn new(built: Arc<BuiltScene>, backend: Backend, config: ServerConfig) -> Result<Server> {
+    pub fn new(
+        built: Arc<BuiltScene>,
+        backend: Backend,
+        mut config: ServerConfig,
+    ) -> Result<Server> {
         if config.max_rays == 0 || config.max_body_bytes == 0 || config.max_connections == 0 {
             return Err(crate::Error::Invalid(format!(
                 "the server's limits must be at least 1 (max_rays {}, max_body_bytes {}, \
@@ -282,7 +286,6 @@ impl Server {
         // GPU driver's mappings (hundreds of MiB) have taken from, so a request within it
         // cannot abort the process (the default, a quarter of the budget and at least 64 MiB,
         // would refuse to start under `ulimit -v 300000`).
-        let mut config = config;
         config.memory_budget = config.memory_budget.min(crate::budget::limit());
         Ok(Server {
             state: Arc::new(api::AppState {
