@@ -158,6 +158,29 @@ impl Picker for AutoPicker {
         Some(self.built.clone())
     }
 
+    /// Over `built`, on the device this one has (its GPU picker's compiled kernel too) and
+    /// with its crossover; a software adapter stays closed. `None` when it has no device left
+    /// (none was found, or the GPU failed): [`crate::picker::make_picker`] looks again.
+    fn remake(&self, built: Arc<BuiltScene>) -> Option<Result<Box<dyn Picker + Send>>> {
+        let gpu = match &self.gpu {
+            Some(gpu) => match gpu.over(built.clone()) {
+                Ok(gpu) => Some(gpu),
+                Err(e) => return Some(Err(e)),
+            },
+            None if self.context.is_none() && self.software.is_none() => return None,
+            None => None,
+        };
+        Some(Ok(Box::new(Self {
+            cpu: CpuPicker::new(built.clone()),
+            built,
+            context: self.context.clone(),
+            software: self.software.clone(),
+            gpu,
+            crossover: self.crossover,
+            notes: Vec::new(),
+        })))
+    }
+
     fn edit(&mut self, change: &mut dyn FnMut(&mut BuiltScene) -> Result<Refit>) -> Result<Refit> {
         AutoPicker::edit(self, change)
     }

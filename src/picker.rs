@@ -607,6 +607,15 @@ pub trait Picker {
         None
     }
 
+    /// A picker of this kind over `built` (a scene built anew), made from what this one keeps
+    /// that does not depend on the scene: a GPU's device and compiled kernel (opening a device
+    /// and compiling the kernel again cost about a second on lavapipe). This picker is left as
+    /// it was. `None` when it keeps nothing worth reusing: make one with [`make_picker`].
+    fn remake(&self, built: Arc<BuiltScene>) -> Option<Result<Box<dyn Picker + Send>>> {
+        let _ = built;
+        None
+    }
+
     /// Messages about fallbacks since the last call (the automatic backend's), for the caller
     /// to show.
     fn take_notes(&mut self) -> Vec<String> {
@@ -671,6 +680,11 @@ pub trait Tracer {
     }
     /// Which path this is, for messages ([`Picker::describe`]).
     fn path_name(&self) -> String;
+    /// [`Picker::remake`] for this tracer.
+    fn picker_over(&self, built: Arc<BuiltScene>) -> Option<Result<Box<dyn Picker + Send>>> {
+        let _ = built;
+        None
+    }
 }
 
 /// Traces one chunk of closest- or any-hit scene-frame rays into `hits` (one per ray), on the
@@ -713,6 +727,10 @@ impl<T: Tracer> Picker for T {
 
     fn current_scene(&self) -> Option<Arc<BuiltScene>> {
         Some(Tracer::built(self).clone())
+    }
+
+    fn remake(&self, built: Arc<BuiltScene>) -> Option<Result<Box<dyn Picker + Send>>> {
+        self.picker_over(built)
     }
 
     fn set_positions(&mut self, object: u32, positions: &[DVec3]) -> Result<Refit> {

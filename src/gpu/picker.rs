@@ -7,7 +7,7 @@ use super::context::GpuContext;
 use crate::cpu::TraceSettings;
 use crate::error::{Error, Result};
 use crate::layout::{GpuHit, GpuHitEntry, GpuInstance, GpuNode, GpuParams, GpuRay, GpuTriangle};
-use crate::picker::{BuiltScene, Refit, Tracer};
+use crate::picker::{BuiltScene, Picker, Refit, Tracer};
 use crate::ray_order::DEFAULT_REORDER_FROM;
 use rayon::prelude::*;
 use std::mem::size_of;
@@ -103,10 +103,7 @@ pub const DEFAULT_CHUNK_RAYS: u32 = 1 << 18;
 pub struct GpuPicker {
     context: GpuContext,
     built: Arc<BuiltScene>,
-    pipeline: wgpu::ComputePipeline,
-    layout: wgpu::BindGroupLayout,
-    /// The kernel's bindings, read from the WGSL.
-    table: Vec<Binding>,
+    kernel: Kernel,
     params: wgpu::Buffer,
     nodes: wgpu::Buffer,
     triangles: wgpu::Buffer,
@@ -115,8 +112,68 @@ pub struct GpuPicker {
     instances: wgpu::Buffer,
     batch: Option<BatchBuffers>,
     chunk_rays: u32,
-    workgroup_size: u32,
     reorder_from: usize,
+}
+
+/// The compiled kernel and what binds to it: what a picker keeps of its device whatever the
+/// scene ([`GpuPicker::over`] shares it).
+#[derive(Clone)]
+struct Kernel {
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    /// The kernel's bindings, read from the WGSL.
+    table: Vec<Binding>,
+    workgroup_size: u32,
+}
+
+impl Kernel {
+    /// Compiles `pick.wgsl` on `context`'s device with `workgroup_size` invocations per
+    /// workgroup (checked against its limits by the caller) and the exact arithmetic on or off.
+    fn compile(context: &GpuContext, workgroup_size: u32, exact: bool) -> Result<Self> {
+        let device = &context.device;
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("pick.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(PICK_WGSL.into()),
+        });
+        let table = bindings(PICK_WGSL)?;
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("pick bindings"),
+            entries: &layout_entries(&table),
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("pick"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("pick"),
+            layout: Some(&pipeline_layout),
+            module: &module,
+            entry_point: Some("pick"),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: &[
+                    (WORKGROUP_SIZE_CONSTANT, f64::from(workgroup_size)),
+                    (EXACT_ARITHMETIC_CONSTANT, f64::from(u32::from(exact))),
+                ],
+                ..Default::default()
+            },
+            cache: None,
+        });
+        let oom_error = pollster::block_on(oom.pop());
+        let validation_error = pollster::block_on(scope.pop());
+        if let Some(e) = oom_error.or(validation_error) {
+            return Err(Error::Gpu(e.to_string()));
+        }
+        context.take_fault()?;
+        Ok(Kernel {
+            pipeline,
+            layout,
+            table,
+            workgroup_size,
+        })
+    }
 }
 
 /// Per-chunk buffers, sized for `capacity` rays with `list_length` all-hits entries each.
@@ -160,42 +217,35 @@ impl GpuPicker {
         workgroup_size: u32,
         exact: bool,
     ) -> Result<Self> {
-        let device = &context.device;
-        let limits = device.limits();
+        let limits = context.device.limits();
         check_workgroup_size(&limits, workgroup_size)?;
-        let max_binding = limits.max_storage_buffer_binding_size;
         check_sizes(&limits, &built)?;
         check_room_to_compile()?;
+        let kernel = Kernel::compile(context, workgroup_size, exact)?;
+        Self::with_kernel(context, kernel, built)
+    }
+
+    /// A picker over `built` (a scene built anew: another tree, other objects) on this one's
+    /// device, with its compiled kernel and settings: the scene's buffers are uploaded, nothing
+    /// else is made again (a device opened and a kernel compiled cost a server's rebuilding
+    /// edits about a second each on lavapipe). This picker is left as it was, so a failure
+    /// changes nothing.
+    pub fn over(&self, built: Arc<BuiltScene>) -> Result<Self> {
+        self.context.take_fault()?;
+        check_sizes(&self.context.device.limits(), &built)?;
+        let mut picker = Self::with_kernel(&self.context, self.kernel.clone(), built)?;
+        picker.chunk_rays = self.chunk_rays;
+        picker.reorder_from = self.reorder_from;
+        Ok(picker)
+    }
+
+    /// Uploads `built`'s buffers for `kernel` (compiled on `context`'s device; `built`'s sizes
+    /// checked against its limits).
+    fn with_kernel(context: &GpuContext, kernel: Kernel, built: Arc<BuiltScene>) -> Result<Self> {
+        let device = &context.device;
+        let max_binding = device.limits().max_storage_buffer_binding_size;
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("pick.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(PICK_WGSL.into()),
-        });
-        let table = bindings(PICK_WGSL)?;
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("pick bindings"),
-            entries: &layout_entries(&table),
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("pick"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("pick"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("pick"),
-            compilation_options: wgpu::PipelineCompilationOptions {
-                constants: &[
-                    (WORKGROUP_SIZE_CONSTANT, f64::from(workgroup_size)),
-                    (EXACT_ARITHMETIC_CONSTANT, f64::from(u32::from(exact))),
-                ],
-                ..Default::default()
-            },
-            cache: None,
-        });
         // Empty scenes still bind one (unused) element: bindings may not be empty.
         let nodes = storage_init(device, "nodes", &built.bvh.nodes, GpuNode::default());
         let triangles = storage_init(
@@ -228,9 +278,7 @@ impl GpuPicker {
         Ok(Self {
             context: context.clone(),
             built,
-            pipeline,
-            layout,
-            table,
+            kernel,
             params,
             nodes,
             triangles,
@@ -239,14 +287,13 @@ impl GpuPicker {
             instances,
             batch: None,
             chunk_rays: DEFAULT_CHUNK_RAYS.min(by_binding),
-            workgroup_size,
             reorder_from: reorder_from_for(context),
         })
     }
 
     /// Invocations per workgroup of this picker's kernel.
     pub fn workgroup_size(&self) -> u32 {
-        self.workgroup_size
+        self.kernel.workgroup_size
     }
 
     /// Sets the batch size from which [`Picker::query`] traces rays in
@@ -333,7 +380,7 @@ impl GpuPicker {
             .batch
             .as_ref()
             .expect("ensure_capacity allocates the batch buffers");
-        let groups = count.div_ceil(self.workgroup_size);
+        let groups = count.div_ceil(self.kernel.workgroup_size);
         let max_groups = device.limits().max_compute_workgroups_per_dimension.max(1);
         let groups_x = groups.min(max_groups);
         let groups_y = groups.div_ceil(groups_x);
@@ -344,7 +391,7 @@ impl GpuPicker {
                 .built
                 .instances()
                 .map_or(self.built.bvh.iteration_cap(), |i| i.iteration_cap()),
-            row_pitch: groups_x * self.workgroup_size,
+            row_pitch: groups_x * self.kernel.workgroup_size,
             max_hits,
             use_masks: u32::from(!self.built.triangle_masks.is_empty()),
             watertight: u32::from(watertight),
@@ -363,7 +410,7 @@ impl GpuPicker {
                 label: Some("pick"),
                 timestamp_writes: None,
             });
-            pass.set_pipeline(&self.pipeline);
+            pass.set_pipeline(&self.kernel.pipeline);
             pass.set_bind_group(0, &batch.bind_group, &[]);
             pass.dispatch_workgroups(groups_x, groups_y, 1);
         }
@@ -467,7 +514,7 @@ impl GpuPicker {
             U::MAP_READ | U::COPY_DST,
         );
         let entries = group_entries(
-            &self.table,
+            &self.kernel.table,
             &[
                 ("params", &self.params),
                 ("nodes", &self.nodes),
@@ -484,7 +531,7 @@ impl GpuPicker {
         let entries = entries?;
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("pick"),
-            layout: &self.layout,
+            layout: &self.kernel.layout,
             entries: &entries,
         });
         let oom_error = pollster::block_on(oom.pop());
@@ -553,36 +600,8 @@ impl Tracer for GpuPicker {
                     queue.write_buffer(&self.instances, 0, bytemuck::cast_slice(records));
                 }
             }
-            Refit::Rebuilt => {
-                let device = &self.context.device;
-                check_sizes(&device.limits(), &built)?;
-                let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-                let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-                self.nodes = storage_init(device, "nodes", &built.bvh.nodes, GpuNode::default());
-                self.triangles = storage_init(
-                    device,
-                    "triangles",
-                    &built.bvh.triangles,
-                    GpuTriangle::default(),
-                );
-                self.triangle_masks =
-                    storage_init(device, "triangle masks", &built.triangle_masks, 0u32);
-                self.triangle_ids =
-                    storage_init(device, "triangle ids", &built.bvh.triangle_ids, 0u32);
-                self.instances = storage_init(
-                    device,
-                    "instances",
-                    instance_records(&built),
-                    GpuInstance::default(),
-                );
-                // The batch's bind group names the old buffers.
-                self.batch = None;
-                let oom_error = pollster::block_on(oom.pop());
-                let validation_error = pollster::block_on(scope.pop());
-                if let Some(e) = oom_error.or(validation_error) {
-                    return Err(Error::Gpu(e.to_string()));
-                }
-            }
+            // New buffers, each bound anew (the batch's bind group names the old ones).
+            Refit::Rebuilt => *self = self.over(built)?,
         }
         self.context.take_fault()
     }
@@ -597,6 +616,13 @@ impl Tracer for GpuPicker {
 
     fn reorder_from(&self) -> usize {
         self.reorder_from
+    }
+
+    fn picker_over(&self, built: Arc<BuiltScene>) -> Option<Result<Box<dyn Picker + Send>>> {
+        Some(
+            self.over(built)
+                .map(|picker| Box::new(picker) as Box<dyn Picker + Send>),
+        )
     }
 
     /// One dispatch's rays: a batch of several dispatches overlaps the host's conversion and

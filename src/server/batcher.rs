@@ -399,6 +399,18 @@ fn make_picker(backend: Backend, built: Arc<BuiltScene>) -> Result<(Box<dyn Pick
     Ok((picker, description))
 }
 
+/// The picker for `backend` over `built` (a scene built anew), made from `old`'s device and
+/// compiled kernel where it has them ([`Picker::remake`]): a server's rebuilding edits opened a
+/// device and compiled the kernel each time. Where that fails for another reason than the
+/// scene's size (a lost device), one is made afresh.
+fn remade(old: &dyn Picker, backend: Backend, built: Arc<BuiltScene>) -> Result<Box<dyn Picker>> {
+    match old.remake(built.clone()) {
+        Some(Ok(picker)) => Ok(picker),
+        Some(Err(e @ Error::TooLargeForGpu { .. })) => Err(e),
+        Some(Err(_)) | None => make_picker(backend, built).map(|(picker, _)| picker),
+    }
+}
+
 /// Prints the picker's fallback notes (the automatic backend's) on standard error, each once
 /// over the server's life: a picker made again over an edited scene says them again (every
 /// `POST /objects` printed "no GPU …" anew).
@@ -868,9 +880,7 @@ impl Batcher {
         let (scene, options) = (built.scene.clone(), *built.options());
         drop(built);
         let rebuilt = BuiltScene::new(scene, &options).map_err(failed)?;
-        *picker = make_picker(self.backend, Arc::new(rebuilt))
-            .map_err(failed)?
-            .0;
+        *picker = remade(picker.as_ref(), self.backend, Arc::new(rebuilt)).map_err(failed)?;
         self.faults = None;
         Ok(())
     }
@@ -957,8 +967,7 @@ impl Batcher {
         if let Some(refused) = refused {
             return Err(refused);
         }
-        let (new_picker, _) = make_picker(self.backend, Arc::new(rebuilt)).map_err(failed)?;
-        *picker = new_picker;
+        *picker = remade(picker.as_ref(), self.backend, Arc::new(rebuilt)).map_err(failed)?;
         self.faults = Some(after);
         Ok(())
     }

@@ -1,12 +1,15 @@
 //! Large batches through the GPU picker: rays copied into the GPU's staging memory and results
 //! copied out of the mapped readback by several threads (from 1 MiB), and batches of several
 //! dispatches with the host's conversion and refinement overlapped, give the twin's answers;
-//! the overlapped pipeline refuses a tracer that fails or answers short.
+//! the overlapped pipeline refuses a tracer that fails or answers short; a picker remade over
+//! another scene on the same device (the server's rebuilding edits) answers as a new one.
 
 use crate::common;
 
 use common::gpu;
+use raypick::auto::AutoPicker;
 use raypick::check::compare::differences;
+use raypick::check::synthetic::example_scene;
 use raypick::check::synthetic::mixed_rays;
 use raypick::cpu::TraceSettings;
 use raypick::gpu::picker::needs_exact_arithmetic;
@@ -14,8 +17,8 @@ use raypick::io::obj::load_obj;
 use raypick::layout::{GpuHit, GpuHitEntry, GpuRay};
 use raypick::picker::Tracer;
 use raypick::{
-    Answers, BuildOptions, BuiltScene, Error, GpuPicker, Mode, Picker, Query, Ray, ReferencePicker,
-    Scene,
+    Answers, BuildOptions, BuiltScene, CpuPicker, Error, GpuPicker, Mode, Picker, Query, Ray,
+    ReferencePicker, Scene,
 };
 use std::path::Path;
 use std::sync::Arc;
@@ -224,4 +227,70 @@ fn moller_trumbore_through_a_shared_terrain_edge_gives_the_twins_triangle() {
             assert_twins(&format!("exact {exact}"), &query, &rays, &answers, &twin);
         }
     }
+}
+
+#[test]
+fn a_picker_remade_over_another_scene_keeps_its_device_and_answers_as_a_new_one() {
+    let (first, second) = (bunny(), {
+        let scene = example_scene();
+        Arc::new(BuiltScene::new(scene, &BuildOptions::default()).expect("build"))
+    });
+    let (first_rays, second_rays) = (rays(&first, 3000), rays(&second, 3000));
+    let mut old = GpuPicker::new(gpu(), first.clone()).expect("gpu picker");
+    let before: Vec<Answers> = queries()
+        .iter()
+        .map(|q| old.query(&first_rays, q).expect("pick"))
+        .collect();
+    // The device and the kernel are this picker's; only the scene's buffers are new.
+    let over = old.over(second.clone()).expect("remade");
+    assert!(over.context().device == old.context().device);
+    let mut remade = old
+        .remake(second.clone())
+        .expect("a GPU picker remakes itself")
+        .expect("remade");
+    let mut fresh = GpuPicker::new(gpu(), second.clone()).expect("gpu picker");
+    let mut twin = ReferencePicker::new(second.clone());
+    let mut auto = AutoPicker::new(first.clone());
+    let mut auto_remade = auto
+        .remake(second.clone())
+        .expect("an automatic picker with a device remakes itself")
+        .expect("remade");
+    assert_eq!(
+        auto_remade.describe(),
+        AutoPicker::new(second.clone()).describe()
+    );
+    for (q, before) in queries().iter().zip(&before) {
+        let want = twin.query(&second_rays, q).expect("twin");
+        let fresh = fresh.query(&second_rays, q).expect("fresh");
+        assert_twins("a new picker", q, &second_rays, &fresh, &want);
+        let got = remade.query(&second_rays, q).expect("remade");
+        assert_twins("the remade picker", q, &second_rays, &got, &want);
+        // The automatic picker answers these batches on the CPU (the engine's own statistics).
+        let got = auto_remade.query(&second_rays, q).expect("auto remade");
+        let engine = CpuPicker::new(second.clone())
+            .query(&second_rays, q)
+            .expect("cpu");
+        assert_twins(
+            "the remade automatic picker",
+            q,
+            &second_rays,
+            &got,
+            &engine,
+        );
+        // The picker it was made from still answers for its own scene.
+        let again = old.query(&first_rays, q).expect("old");
+        assert_twins("the old picker", q, &first_rays, &again, before);
+        let cpu = CpuPicker::new(first.clone())
+            .query(&first_rays, q)
+            .expect("cpu");
+        assert_twins(
+            "the old automatic picker",
+            q,
+            &first_rays,
+            &auto.query(&first_rays, q).expect("auto"),
+            &cpu,
+        );
+    }
+    // A CPU picker keeps nothing worth remaking: the factory makes a new one.
+    assert!(CpuPicker::new(first).remake(second).is_none());
 }
