@@ -6,7 +6,7 @@
 //! costs only opening the device.
 
 use crate::bvh::Bvh;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::gpu::{GpuContext, GpuPicker};
 use crate::picker::{BuiltScene, CpuPicker, Picker, Refit, Tracer};
 use crate::query::{Answers, Query};
@@ -55,16 +55,19 @@ pub struct AutoPicker {
 }
 
 impl AutoPicker {
-    /// Opens the GPU device if it can; otherwise records why and uses the CPU alone. A software
-    /// adapter is never traced on (unless [`AutoPicker::set_crossover`] says so), with a note
-    /// saying so; its device is closed again.
+    /// Takes the process's shared GPU device ([`GpuContext::shared`]) if it can; otherwise
+    /// records why and uses the CPU alone. A software adapter is never traced on (unless
+    /// [`AutoPicker::set_crossover`] says so), with a note saying so; its device is closed
+    /// again once nothing else holds it (it is no longer shared).
     pub fn new(built: Arc<BuiltScene>) -> Self {
         let mut notes = Vec::new();
-        let mut context = GpuContext::new()
+        let mut context = GpuContext::shared()
             .map_err(|e| notes.push(format!("no GPU ({e}); using the CPU path")))
             .ok();
         let (mut crossover, mut software) = (None, None);
         if let Some(c) = context.take_if(|c| c.is_software()) {
+            // Closed once every picker made on it is gone (not held for later ones).
+            c.unshare();
             let adapter = c.describe();
             notes.push(format!(
                 "software adapter: the CPU path is faster here, so it answers every batch \
@@ -162,18 +165,21 @@ impl Picker for AutoPicker {
     /// with its crossover; a software adapter stays closed. `None` when it has no device left
     /// (none was found, or the GPU failed): [`crate::picker::make_picker`] looks again.
     fn remake(&self, built: Arc<BuiltScene>) -> Option<Result<Box<dyn Picker + Send>>> {
-        let gpu = match &self.gpu {
+        let (gpu, context) = match &self.gpu {
             Some(gpu) => match gpu.over(built.clone()) {
-                Ok(gpu) => Some(gpu),
+                Ok(gpu) => (Some(gpu), None),
+                // A scene the GPU cannot hold is answered on the CPU, as a new automatic
+                // picker's would be (its first large batch says why, once).
+                Err(Error::TooLargeForGpu { .. }) => (None, Some(gpu.context().clone())),
                 Err(e) => return Some(Err(e)),
             },
             None if self.context.is_none() && self.software.is_none() => return None,
-            None => None,
+            None => (None, self.context.clone()),
         };
         Some(Ok(Box::new(Self {
             cpu: CpuPicker::new(built.clone()),
             built,
-            context: self.context.clone(),
+            context,
             software: self.software.clone(),
             gpu,
             crossover: self.crossover,

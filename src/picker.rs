@@ -1255,13 +1255,14 @@ crate::names::named!(Backend {
     Reference => ("reference", "The kernel's twin on the CPU: the reference the other paths are checked against."),
 });
 
-/// The picker for `backend`: the one factory the command line and the server share.
+/// The picker for `backend`: the one factory the command line and the server share. GPU and
+/// automatic pickers use the process's shared device ([`crate::GpuContext::shared`]).
 pub fn make_picker(backend: Backend, built: Arc<BuiltScene>) -> Result<Box<dyn Picker + Send>> {
     Ok(match backend {
         Backend::Cpu => Box::new(CpuPicker::new(built)),
         Backend::Reference => Box::new(ReferencePicker::new(built)),
         Backend::Gpu => Box::new(crate::gpu::GpuPicker::new(
-            &crate::gpu::GpuContext::new()?,
+            &crate::gpu::GpuContext::shared()?,
             built,
         )?),
         Backend::Auto => Box::new(crate::auto::AutoPicker::new(built)),

@@ -1,8 +1,14 @@
 //! Getting a GPU: instance, adapter, device and queue, kept apart from the picking work so that
-//! callers can bring their own device ([`GpuContext::from_device`]).
+//! callers can bring their own device ([`GpuContext::from_device`]); the process's one shared
+//! device ([`GpuContext::shared`]); the kernels compiled on a device, kept with it.
 
 use crate::error::{Error, Result};
-use std::sync::{Arc, Mutex};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+
+/// The device [`GpuContext::shared`] hands out, with the process that opened it (a forked
+/// child cannot use its parent's device).
+static SHARED: Mutex<Option<(u32, GpuContext)>> = Mutex::new(None);
 
 /// A wgpu device and queue, with the errors and device loss wgpu reports asynchronously.
 #[derive(Clone, Debug)]
@@ -15,6 +21,11 @@ pub struct GpuContext {
     pub adapter_info: wgpu::AdapterInfo,
     /// The first uncaptured error or device loss, as a sentence.
     fault: Arc<Mutex<Option<Error>>>,
+    /// The device was lost (it stays so, whoever took the fault).
+    lost: Arc<AtomicBool>,
+    /// The kernels compiled on this device, for every picker made on it
+    /// (`crate::gpu::picker::Kernel`, by workgroup size and exact arithmetic).
+    pub(crate) kernels: Arc<Mutex<Vec<crate::gpu::picker::Kernel>>>,
 }
 
 impl GpuContext {
@@ -22,6 +33,54 @@ impl GpuContext {
     /// adapter's full limits. `WGPU_BACKEND` and `WGPU_ADAPTER_NAME` are honoured.
     pub fn new() -> Result<Self> {
         pollster::block_on(Self::new_async())
+    }
+
+    /// One device for the whole process: opened by the first call ([`GpuContext::new`]),
+    /// handed out again to later ones, so pickers over many scenes (Python's `Scene`s, each
+    /// GPU or automatic picker [`crate::make_picker`] makes) share one device and its compiled
+    /// kernel instead of each opening its own. Opened again once it is lost, and in a forked
+    /// child (whose parent's device is left alone, never closed from the child).
+    pub fn shared() -> Result<Self> {
+        let mut slot = SHARED.lock().unwrap_or_else(PoisonError::into_inner);
+        let pid = std::process::id();
+        match slot.take() {
+            Some((owner, context)) if owner == pid && !context.is_lost() => {
+                *slot = Some((owner, context.clone()));
+                return Ok(context);
+            }
+            // The parent's: its driver state is not this process's to release.
+            Some((owner, context)) if owner != pid => std::mem::forget(context),
+            _ => {}
+        }
+        let context = Self::new()?;
+        *slot = Some((pid, context.clone()));
+        Ok(context)
+    }
+
+    /// Stops handing out `self`'s device as the shared one, if it is (those who hold it keep
+    /// it); the next [`GpuContext::shared`] opens another. The automatic picker lets a software
+    /// adapter go so ([`crate::auto::AutoPicker::new`]).
+    pub fn unshare(&self) {
+        let mut slot = SHARED.lock().unwrap_or_else(PoisonError::into_inner);
+        if slot.as_ref().is_some_and(|(owner, shared)| {
+            *owner == std::process::id() && shared.device == self.device
+        }) {
+            *slot = None;
+        }
+    }
+
+    /// How many kernels have been compiled on this device (one per workgroup size and
+    /// arithmetic, whatever the number of pickers made on it).
+    pub fn compiled_kernels(&self) -> usize {
+        self.kernels
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .len()
+    }
+
+    /// Whether the device was lost (every later use of it fails).
+    pub fn is_lost(&self) -> bool {
+        self.lost.load(Ordering::Relaxed)
     }
 
     /// Async form of [`GpuContext::new`].
@@ -70,7 +129,10 @@ impl GpuContext {
             record(&on_error, Error::Gpu(e.to_string()));
         }));
         let on_lost = fault.clone();
+        let lost: Arc<AtomicBool> = Arc::default();
+        let was_lost = lost.clone();
         device.set_device_lost_callback(move |reason, message| {
+            was_lost.store(true, Ordering::Relaxed);
             record(
                 &on_lost,
                 Error::DeviceLost(format!("{reason:?}: {message}")),
@@ -81,6 +143,8 @@ impl GpuContext {
             queue,
             adapter_info,
             fault,
+            lost,
+            kernels: Arc::default(),
         }
     }
 

@@ -115,18 +115,66 @@ pub struct GpuPicker {
     reorder_from: usize,
 }
 
+/// Gives the picker's buffers back to the device now: destroyed, and the device polled (not
+/// waited on). Left to wgpu, a dropped picker's buffers waited for the device's next
+/// submission, so a server whose clients only edited grew by a scene's buffers at each edit
+/// that rebuilt the tree (its pickers share one device).
+impl Drop for GpuPicker {
+    fn drop(&mut self) {
+        let scene = [
+            &self.params,
+            &self.nodes,
+            &self.triangles,
+            &self.triangle_masks,
+            &self.triangle_ids,
+            &self.instances,
+        ];
+        let batch = self
+            .batch
+            .iter()
+            .flat_map(|b| [&b.rays, &b.hits, &b.lists, &b.readback]);
+        for buffer in scene.into_iter().chain(batch) {
+            buffer.destroy();
+        }
+        let _ = self.context.device.poll(wgpu::PollType::Poll);
+    }
+}
+
 /// The compiled kernel and what binds to it: what a picker keeps of its device whatever the
-/// scene ([`GpuPicker::over`] shares it).
-#[derive(Clone)]
-struct Kernel {
+/// scene ([`GpuPicker::over`] shares it; the device keeps each one compiled for later pickers,
+/// [`Kernel::on`]).
+#[derive(Clone, Debug)]
+pub(crate) struct Kernel {
     pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
     /// The kernel's bindings, read from the WGSL.
     table: Vec<Binding>,
     workgroup_size: u32,
+    exact: bool,
 }
 
 impl Kernel {
+    /// The kernel for `workgroup_size` and `exact` on `context`'s device: compiled once per
+    /// device (a compile took about 40 ms on lavapipe; the pickers over many scenes that share
+    /// a device, [`GpuContext::shared`], each compiled it), then shared. Checks that there is
+    /// room to compile first.
+    fn on(context: &GpuContext, workgroup_size: u32, exact: bool) -> Result<Self> {
+        let mut kernels = context
+            .kernels
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(kernel) = kernels
+            .iter()
+            .find(|k| k.workgroup_size == workgroup_size && k.exact == exact)
+        {
+            return Ok(kernel.clone());
+        }
+        check_room_to_compile()?;
+        let kernel = Self::compile(context, workgroup_size, exact)?;
+        kernels.push(kernel.clone());
+        Ok(kernel)
+    }
+
     /// Compiles `pick.wgsl` on `context`'s device with `workgroup_size` invocations per
     /// workgroup (checked against its limits by the caller) and the exact arithmetic on or off.
     fn compile(context: &GpuContext, workgroup_size: u32, exact: bool) -> Result<Self> {
@@ -172,6 +220,7 @@ impl Kernel {
             layout,
             table,
             workgroup_size,
+            exact,
         })
     }
 }
@@ -220,8 +269,7 @@ impl GpuPicker {
         let limits = context.device.limits();
         check_workgroup_size(&limits, workgroup_size)?;
         check_sizes(&limits, &built)?;
-        check_room_to_compile()?;
-        let kernel = Kernel::compile(context, workgroup_size, exact)?;
+        let kernel = Kernel::on(context, workgroup_size, exact)?;
         Self::with_kernel(context, kernel, built)
     }
 
@@ -603,6 +651,11 @@ impl Tracer for GpuPicker {
             // New buffers, each bound anew (the batch's bind group names the old ones).
             Refit::Rebuilt => *self = self.over(built)?,
         }
+        // The writes' staging memory is the device's until a submission carries them and
+        // completes: sent now, and what earlier edits staged released, so a client that only
+        // edits does not grow the process (300 moves had grown a server by 259 MB).
+        self.context.queue.submit([]);
+        let _ = self.context.device.poll(wgpu::PollType::Poll);
         self.context.take_fault()
     }
 

@@ -2,7 +2,8 @@
 //! copied out of the mapped readback by several threads (from 1 MiB), and batches of several
 //! dispatches with the host's conversion and refinement overlapped, give the twin's answers;
 //! the overlapped pipeline refuses a tracer that fails or answers short; a picker remade over
-//! another scene on the same device (the server's rebuilding edits) answers as a new one.
+//! another scene on the same device (the server's rebuilding edits) answers as a new one; the
+//! process's pickers share one device, and each device compiles the kernel once.
 
 use crate::common;
 
@@ -12,13 +13,13 @@ use raypick::check::compare::differences;
 use raypick::check::synthetic::example_scene;
 use raypick::check::synthetic::mixed_rays;
 use raypick::cpu::TraceSettings;
-use raypick::gpu::picker::needs_exact_arithmetic;
+use raypick::gpu::picker::{WORKGROUP_SIZE, needs_exact_arithmetic};
 use raypick::io::obj::load_obj;
 use raypick::layout::{GpuHit, GpuHitEntry, GpuRay};
 use raypick::picker::Tracer;
 use raypick::{
-    Answers, BuildOptions, BuiltScene, CpuPicker, Error, GpuPicker, Mode, Picker, Query, Ray,
-    ReferencePicker, Scene,
+    Answers, Backend, BuildOptions, BuiltScene, CpuPicker, Error, GpuContext, GpuPicker, Mode,
+    Picker, Query, Ray, ReferencePicker, Scene, make_picker,
 };
 use std::path::Path;
 use std::sync::Arc;
@@ -293,4 +294,32 @@ fn a_picker_remade_over_another_scene_keeps_its_device_and_answers_as_a_new_one(
     }
     // A CPU picker keeps nothing worth remaking: the factory makes a new one.
     assert!(CpuPicker::new(first).remake(second).is_none());
+}
+
+#[test]
+fn pickers_share_the_process_device_and_each_device_compiles_the_kernel_once() {
+    let shared = GpuContext::shared().expect("device");
+    assert!(GpuContext::shared().expect("device").device == shared.device);
+    // The factory's GPU pickers are made on it, and answer as pickers on a device of their own.
+    let (first, second) = (bunny(), {
+        let scene = example_scene();
+        Arc::new(BuiltScene::new(scene, &BuildOptions::default()).expect("build"))
+    });
+    let own = GpuContext::new().expect("a device of its own");
+    for built in [&first, &second] {
+        let rays = rays(built, 2000);
+        let mut made = make_picker(Backend::Gpu, built.clone()).expect("gpu picker");
+        let mut alone = GpuPicker::new(&own, built.clone()).expect("gpu picker");
+        for q in &queries() {
+            let want = alone.query(&rays, q).expect("alone");
+            let got = made.query(&rays, q).expect("shared");
+            assert_twins("a picker on the shared device", q, &rays, &got, &want);
+        }
+    }
+    // Two scenes' pickers on one device: one kernel; another workgroup size: a second.
+    assert_eq!(own.compiled_kernels(), 1);
+    let size = if WORKGROUP_SIZE == 64 { 32 } else { 64 };
+    GpuPicker::with_workgroup_size(&own, first.clone(), size).expect("gpu picker");
+    GpuPicker::new(&own, second).expect("gpu picker");
+    assert_eq!(own.compiled_kernels(), 2);
 }
