@@ -178,44 +178,38 @@ impl Kernel {
     /// Compiles `pick.wgsl` on `context`'s device with `workgroup_size` invocations per
     /// workgroup (checked against its limits by the caller) and the exact arithmetic on or off.
     fn compile(context: &GpuContext, workgroup_size: u32, exact: bool) -> Result<Self> {
-        let device = &context.device;
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("pick.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(PICK_WGSL.into()),
-        });
         let table = bindings(PICK_WGSL)?;
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("pick bindings"),
-            entries: &layout_entries(&table),
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("pick"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("pick"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("pick"),
-            compilation_options: wgpu::PipelineCompilationOptions {
-                constants: &[
-                    (WORKGROUP_SIZE_CONSTANT, f64::from(workgroup_size)),
-                    (EXACT_ARITHMETIC_CONSTANT, f64::from(u32::from(exact))),
-                ],
-                ..Default::default()
-            },
-            cache: None,
-        });
-        let oom_error = pollster::block_on(oom.pop());
-        let validation_error = pollster::block_on(scope.pop());
-        if let Some(e) = oom_error.or(validation_error) {
-            return Err(Error::Gpu(e.to_string()));
-        }
-        context.take_fault()?;
-        Ok(Kernel {
+        scoped(context, |device| {
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some("pick.wgsl"),
+                source: wgpu::ShaderSource::Wgsl(PICK_WGSL.into()),
+            });
+            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("pick bindings"),
+                entries: &layout_entries(&table),
+            });
+            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("pick"),
+                bind_group_layouts: &[Some(&layout)],
+                immediate_size: 0,
+            });
+            let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("pick"),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some("pick"),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &[
+                        (WORKGROUP_SIZE_CONSTANT, f64::from(workgroup_size)),
+                        (EXACT_ARITHMETIC_CONSTANT, f64::from(u32::from(exact))),
+                    ],
+                    ..Default::default()
+                },
+                cache: None,
+            });
+            (pipeline, layout)
+        })
+        .map(|(pipeline, layout)| Kernel {
             pipeline,
             layout,
             table,
@@ -223,6 +217,22 @@ impl Kernel {
             exact,
         })
     }
+}
+
+/// Runs `make` on `context`'s device within validation and out-of-memory error scopes: what
+/// either catches, or a fault recorded meanwhile, fails it.
+fn scoped<T>(context: &GpuContext, make: impl FnOnce(&wgpu::Device) -> T) -> Result<T> {
+    let device = &context.device;
+    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+    let made = make(device);
+    let oom_error = pollster::block_on(oom.pop());
+    let validation_error = pollster::block_on(scope.pop());
+    if let Some(e) = oom_error.or(validation_error) {
+        return Err(Error::Gpu(e.to_string()));
+    }
+    context.take_fault()?;
+    Ok(made)
 }
 
 /// Per-chunk buffers, sized for `capacity` rays with `list_length` all-hits entries each.
@@ -290,38 +300,40 @@ impl GpuPicker {
     /// Uploads `built`'s buffers for `kernel` (compiled on `context`'s device; `built`'s sizes
     /// checked against its limits).
     fn with_kernel(context: &GpuContext, kernel: Kernel, built: Arc<BuiltScene>) -> Result<Self> {
-        let device = &context.device;
-        let max_binding = device.limits().max_storage_buffer_binding_size;
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let max_binding = context.device.limits().max_storage_buffer_binding_size;
         // Empty scenes still bind one (unused) element: bindings may not be empty.
-        let nodes = storage_init(device, "nodes", &built.bvh.nodes, GpuNode::default());
-        let triangles = storage_init(
-            device,
-            "triangles",
-            &built.bvh.triangles,
-            GpuTriangle::default(),
-        );
-        let triangle_masks = storage_init(device, "triangle masks", &built.triangle_masks, 0u32);
-        let triangle_ids = storage_init(device, "triangle ids", &built.bvh.triangle_ids, 0u32);
-        let instances = storage_init(
-            device,
-            "instances",
-            instance_records(&built),
-            GpuInstance::default(),
-        );
-        let params = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("params"),
-            size: size_of::<GpuParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let oom_error = pollster::block_on(oom.pop());
-        let validation_error = pollster::block_on(scope.pop());
-        if let Some(e) = oom_error.or(validation_error) {
-            return Err(Error::Gpu(e.to_string()));
-        }
-        context.take_fault()?;
+        let [
+            nodes,
+            triangles,
+            triangle_masks,
+            triangle_ids,
+            instances,
+            params,
+        ] = scoped(context, |device| {
+            [
+                storage_init(device, "nodes", &built.bvh.nodes, GpuNode::default()),
+                storage_init(
+                    device,
+                    "triangles",
+                    &built.bvh.triangles,
+                    GpuTriangle::default(),
+                ),
+                storage_init(device, "triangle masks", &built.triangle_masks, 0u32),
+                storage_init(device, "triangle ids", &built.bvh.triangle_ids, 0u32),
+                storage_init(
+                    device,
+                    "instances",
+                    instance_records(&built),
+                    GpuInstance::default(),
+                ),
+                device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("params"),
+                    size: size_of::<GpuParams>() as u64,
+                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                }),
+            ]
+        })?;
         let by_binding = (max_binding / size_of::<GpuRay>() as u64).min(u32::MAX as u64) as u32;
         Ok(Self {
             context: context.clone(),

@@ -474,17 +474,17 @@ impl PickRequest {
 }
 
 /// Reads a request body of at most `limit` bytes, which must arrive whole within `timeout`
-/// (408 otherwise).
+/// (408 otherwise); a larger one is refused with `advice` (what to send instead).
 async fn read_body(
     headers: &HeaderMap,
     body: Body,
     limit: usize,
     timeout: Duration,
+    advice: &str,
 ) -> Result<Bytes, ApiError> {
     let too_large = || {
         ApiError::too_large(format!(
-            "the request body is larger than this server's limit of {limit} bytes; send fewer \
-             rays per request"
+            "the request body is larger than this server's limit of {limit} bytes; {advice}"
         ))
     };
     let declared = headers
@@ -537,7 +537,8 @@ async fn pick(
             body_bytes.saturating_mul(1 + PARSED_BYTES_PER_BODY_BYTE),
         )
         .await?;
-    let bytes = read_body(&headers, body, limit, state.config.body_timeout).await?;
+    let advice = "send fewer rays per request";
+    let bytes = read_body(&headers, body, limit, state.config.body_timeout, advice).await?;
     let request: PickRequest = parse_body(&bytes, "pick request")?;
     drop(bytes);
     let (rays, query) = request.into_rays(&state.config)?;
@@ -795,7 +796,8 @@ async fn edit_body<T: serde::de::DeserializeOwned>(
             body_bytes.saturating_mul(1 + PARSED_BYTES_PER_BODY_BYTE),
         )
         .await?;
-    let bytes = read_body(headers, body, limit, state.config.body_timeout).await?;
+    let advice = "send a smaller mesh, or add it in parts";
+    let bytes = read_body(headers, body, limit, state.config.body_timeout, advice).await?;
     parse_body(&bytes, what)
 }
 

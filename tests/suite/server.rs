@@ -577,7 +577,7 @@ fn bad_requests_get_clear_4xx_json_errors() {
         (
             format!("{{\"rays\": [{}]}}", vec![ray; 400].join(",")),
             413,
-            "larger than this server's limit of 16384 bytes",
+            "larger than this server's limit of 16384 bytes; send fewer rays",
         ),
     ];
     for (body, status, says) in &cases {
@@ -587,6 +587,21 @@ fn bad_requests_get_clear_4xx_json_errors() {
         assert!(error.contains(says), "{body:.80}: {error}");
         assert_eq!(answer.as_object().map(|o| o.len()), Some(1), "{answer}");
     }
+    // An inline mesh over the body limit: the advice is the mesh's, not the rays'.
+    let vertex = "[1.0, 2.0, 3.0]";
+    let (got, answer) = post(
+        &format!("{base}/objects"),
+        &format!(
+            "{{\"vertices\": [{}], \"triangles\": [[0, 1, 2]]}}",
+            vec![vertex; 1200].join(",")
+        ),
+    );
+    let error = answer["error"].as_str().unwrap_or_default();
+    assert_eq!(got, 413, "{answer}");
+    assert!(
+        error.contains("larger than this server's limit of 16384 bytes; send a smaller mesh"),
+        "{error}"
+    );
     // The limit is exactly at max_rays.
     let (status, answer) = post(
         &pick,
