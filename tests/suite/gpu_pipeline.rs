@@ -31,6 +31,11 @@ fn bunny() -> Arc<BuiltScene> {
     Arc::new(BuiltScene::new(scene, &BuildOptions::default()).expect("build"))
 }
 
+/// The built-in example scene (terrain and buildings), built.
+fn example() -> Arc<BuiltScene> {
+    Arc::new(BuiltScene::new(example_scene(), &BuildOptions::default()).expect("build"))
+}
+
 fn rays(built: &BuiltScene, count: usize) -> Vec<Ray> {
     mixed_rays(&built.scene, count, 9)
         .into_iter()
@@ -232,10 +237,7 @@ fn moller_trumbore_through_a_shared_terrain_edge_gives_the_twins_triangle() {
 
 #[test]
 fn a_picker_remade_over_another_scene_keeps_its_device_and_answers_as_a_new_one() {
-    let (first, second) = (bunny(), {
-        let scene = example_scene();
-        Arc::new(BuiltScene::new(scene, &BuildOptions::default()).expect("build"))
-    });
+    let (first, second) = (bunny(), example());
     let (first_rays, second_rays) = (rays(&first, 3000), rays(&second, 3000));
     let mut old = GpuPicker::new(gpu(), first.clone()).expect("gpu picker");
     let before: Vec<Answers> = queries()
@@ -301,10 +303,7 @@ fn pickers_share_the_process_device_and_each_device_compiles_the_kernel_once() {
     let shared = GpuContext::shared().expect("device");
     assert!(GpuContext::shared().expect("device").device == shared.device);
     // The factory's GPU pickers are made on it, and answer as pickers on a device of their own.
-    let (first, second) = (bunny(), {
-        let scene = example_scene();
-        Arc::new(BuiltScene::new(scene, &BuildOptions::default()).expect("build"))
-    });
+    let (first, second) = (bunny(), example());
     let own = GpuContext::new().expect("a device of its own");
     for built in [&first, &second] {
         let rays = rays(built, 2000);
