@@ -57,17 +57,24 @@ pub struct AutoPicker {
 impl AutoPicker {
     /// Takes the process's shared GPU device ([`GpuContext::shared`]) if it can; otherwise
     /// records why and uses the CPU alone. A software adapter is never traced on (unless
-    /// [`AutoPicker::set_crossover`] says so), with a note saying so; its device is closed
-    /// again once nothing else holds it (it is no longer shared).
+    /// [`AutoPicker::set_crossover`] says so), with a note saying so; a software device opened
+    /// for this look alone is closed again.
     pub fn new(built: Arc<BuiltScene>) -> Self {
         let mut notes = Vec::new();
-        let mut context = GpuContext::shared()
-            .map_err(|e| notes.push(format!("no GPU ({e}); using the CPU path")))
-            .ok();
+        let (mut context, opened) = match GpuContext::shared_or_opened() {
+            Ok((context, opened)) => (Some(context), opened),
+            Err(e) => {
+                notes.push(format!("no GPU ({e}); using the CPU path"));
+                (None, false)
+            }
+        };
         let (mut crossover, mut software) = (None, None);
         if let Some(c) = context.take_if(|c| c.is_software()) {
-            // Closed once every picker made on it is gone (not held for later ones).
-            c.unshare();
+            // Opened for this look alone: closed again, not held for later pickers. One that
+            // GPU pickers share stays theirs.
+            if opened {
+                c.unshare();
+            }
             let adapter = c.describe();
             notes.push(format!(
                 "software adapter: the CPU path is faster here, so it answers every batch \

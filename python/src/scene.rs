@@ -26,8 +26,9 @@ use std::sync::{Arc, Mutex, PoisonError};
 #[pyclass(name = "Scene", module = "raypick", frozen)]
 pub struct Scene {
     built: Arc<BuiltScene>,
-    /// The GPU picker (`backend="gpu"`), made on first use: it holds the scene's buffers.
-    gpu: Mutex<Option<Box<dyn Picker + Send>>>,
+    /// The GPU picker (`backend="gpu"`), made on first use: it holds the scene's buffers;
+    /// with the process that made it (a forked child cannot use its parent's device).
+    gpu: Mutex<Option<(u32, Box<dyn Picker + Send>)>>,
     /// What `backend="auto"` resolved to on first use.
     auto: Mutex<Auto>,
 }
@@ -38,8 +39,21 @@ enum Auto {
     Unopened,
     /// No GPU, or a software one: the CPU engine answers everything (no lock needed).
     Cpu,
-    /// A real GPU for large batches: the library's automatic picker.
-    Picker(Box<dyn Picker + Send>),
+    /// A real GPU for large batches: the library's automatic picker, with the process that
+    /// made it.
+    Picker(u32, Box<dyn Picker + Send>),
+}
+
+/// `picker` (made by process `owner`) if this process made it; else it was inherited by a
+/// forked child and is let go, never dropped here: closing the parent's device from the child
+/// is not the child's to do (the child's first GPU pick on a scene its parent had picked on
+/// waited for ever).
+fn own<T>(owner: u32, picker: T) -> Option<T> {
+    if owner == std::process::id() {
+        return Some(picker);
+    }
+    std::mem::forget(picker);
+    None
 }
 
 impl Scene {
@@ -85,30 +99,38 @@ impl Scene {
             Backend::Reference => work(&mut ReferencePicker::new(built.clone()), false),
             Backend::Gpu => {
                 let mut slot = self.gpu.lock().unwrap_or_else(PoisonError::into_inner);
+                *slot = slot
+                    .take()
+                    .and_then(|(owner, picker)| own(owner, picker).map(|p| (owner, p)));
                 if slot.is_none() {
                     match raypick::make_picker(Backend::Gpu, built.clone()) {
-                        Ok(picker) => *slot = Some(picker),
+                        Ok(picker) => *slot = Some((std::process::id(), picker)),
                         Err(e) => return (Err(to_py(e)), notes),
                     }
                 }
                 match slot.as_mut() {
-                    Some(picker) => work(picker.as_mut(), true),
+                    Some((_, picker)) => work(picker.as_mut(), true),
                     None => Err(value_error("the GPU picker could not be made")),
                 }
             }
             Backend::Auto => {
                 let mut state = self.auto.lock().unwrap_or_else(PoisonError::into_inner);
+                *state = match std::mem::replace(&mut *state, Auto::Unopened) {
+                    Auto::Picker(owner, picker) => own(owner, picker)
+                        .map_or(Auto::Unopened, |picker| Auto::Picker(owner, picker)),
+                    other => other,
+                };
                 if let Auto::Unopened = *state {
                     let mut picker = AutoPicker::new(built.clone());
                     notes.extend(picker.take_notes().into_iter().map(Note::Chose));
                     *state = if picker.crossover() == usize::MAX {
                         Auto::Cpu
                     } else {
-                        Auto::Picker(Box::new(picker))
+                        Auto::Picker(std::process::id(), Box::new(picker))
                     };
                 }
                 match &mut *state {
-                    Auto::Picker(picker) => {
+                    Auto::Picker(_, picker) => {
                         let result = work(picker.as_mut(), true);
                         notes.extend(picker.take_notes().into_iter().map(Note::Fell));
                         result

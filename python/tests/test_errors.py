@@ -529,3 +529,27 @@ def test_a_process_forked_after_the_import_picks(bunny):
 def _pick_in_child(args):
     path, rays = args
     return int(raypick.Scene.load(path).pick(rays)["hit"].sum())
+
+
+def test_a_forked_child_picks_on_the_gpu_with_a_scene_its_parent_picked_on_there():
+    """A scene's GPU picker holds its process's device, which a forked child cannot use: a
+    child's GPU pick on a scene the parent had picked on with `backend="gpu"` waited for ever.
+    The child makes its own, on a device of its own (in a subprocess, so a hang fails the test
+    by its timeout)."""
+    import subprocess
+    import sys
+
+    script = (
+        "import multiprocessing, numpy as np, raypick\n"
+        f"s = raypick.Scene.load({str(BUNNY)!r})\n"
+        "r = np.array([[0.0, 0.1, 1.0, 0.0, 0.0, -1.0], [0.02, 0.1, 1.0, 0.0, 0.0, -1.0]])\n"
+        "want = [s.pick(r, backend=b)['t'].tolist() for b in ('gpu', 'auto')]\n"
+        "def child(_):\n"
+        "    return [s.pick(r, backend=b)['t'].tolist() for b in ('gpu', 'auto')]\n"
+        "with multiprocessing.get_context('fork').Pool(1) as pool:\n"
+        "    got = pool.map_async(child, [0]).get(timeout=60)[0]\n"
+        "print(got == want and want[0] == want[1], s.pick(r, backend='gpu')['t'].tolist() == want[0])\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["True", "True"], out.stdout + out.stderr[-2000:]

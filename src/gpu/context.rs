@@ -41,20 +41,40 @@ impl GpuContext {
     /// kernel instead of each opening its own. Opened again once it is lost, and in a forked
     /// child (whose parent's device is left alone, never closed from the child).
     pub fn shared() -> Result<Self> {
-        let mut slot = SHARED.lock().unwrap_or_else(PoisonError::into_inner);
+        Self::shared_or_opened().map(|(context, _)| context)
+    }
+
+    /// [`GpuContext::shared`], and whether this call opened it. The device is opened without
+    /// holding the lock (a process forked while another thread held it through an open, a
+    /// second or so, had its child wait on it for ever); two threads opening at once keep the
+    /// first one stored.
+    pub(crate) fn shared_or_opened() -> Result<(Self, bool)> {
         let pid = std::process::id();
-        match slot.take() {
+        let lock = || SHARED.lock().unwrap_or_else(PoisonError::into_inner);
+        let current = |slot: &mut Option<(u32, GpuContext)>| match slot.take() {
             Some((owner, context)) if owner == pid && !context.is_lost() => {
                 *slot = Some((owner, context.clone()));
-                return Ok(context);
+                Some(context)
             }
             // The parent's: its driver state is not this process's to release.
-            Some((owner, context)) if owner != pid => std::mem::forget(context),
-            _ => {}
+            Some((owner, context)) if owner != pid => {
+                std::mem::forget(context);
+                None
+            }
+            _ => None,
+        };
+        if let Some(context) = current(&mut lock()) {
+            return Ok((context, false));
         }
-        let context = Self::new()?;
-        *slot = Some((pid, context.clone()));
-        Ok(context)
+        let opened = Self::new()?;
+        let mut slot = lock();
+        match current(&mut slot) {
+            Some(context) => Ok((context, false)),
+            None => {
+                *slot = Some((pid, opened.clone()));
+                Ok((opened, true))
+            }
+        }
     }
 
     /// Stops handing out `self`'s device as the shared one, if it is (those who hold it keep
