@@ -13,7 +13,7 @@ use crate::query::{Answers, Query};
 use crate::ray::Ray;
 use crate::scene::Scene;
 use glam::DVec3;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, PoisonError};
 
 /// Batches below this many rays always run on the CPU path when the GPU is a real one. A
 /// software adapter (lavapipe) runs on the same cores as the CPU path and is slower at every
@@ -54,28 +54,57 @@ pub struct AutoPicker {
     notes: Vec<String>,
 }
 
+/// The software adapter an automatic picker of this process found (its description), with the
+/// process (a forked child looks for itself).
+static SOFTWARE: Mutex<Option<(u32, String)>> = Mutex::new(None);
+
+/// The software adapter found before in this process, if one was.
+fn software_found() -> Option<String> {
+    let found = SOFTWARE.lock().unwrap_or_else(PoisonError::into_inner);
+    found
+        .as_ref()
+        .filter(|(pid, _)| *pid == std::process::id())
+        .map(|(_, adapter)| adapter.clone())
+}
+
+/// Notes that this process's adapter is the software one `adapter`.
+fn remember_software(adapter: &str) {
+    let mut found = SOFTWARE.lock().unwrap_or_else(PoisonError::into_inner);
+    *found = Some((std::process::id(), adapter.to_owned()));
+}
+
 impl AutoPicker {
     /// Takes the process's shared GPU device ([`GpuContext::shared`]) if it can; otherwise
     /// records why and uses the CPU alone. A software adapter is never traced on (unless
     /// [`AutoPicker::set_crossover`] says so), with a note saying so; a software device opened
-    /// for this look alone is closed again.
+    /// for this look alone is closed again, and later automatic pickers of the process do not
+    /// open it to learn what it is.
     pub fn new(built: Arc<BuiltScene>) -> Self {
         let mut notes = Vec::new();
-        let (mut context, opened) = match GpuContext::shared_or_opened() {
-            Ok((context, opened)) => (Some(context), opened),
-            Err(e) => {
-                notes.push(format!("no GPU ({e}); using the CPU path"));
-                (None, false)
-            }
+        // A software adapter found before in this process is not opened again to learn so
+        // (Python's scenes each made an automatic picker: about 60 ms a scene on lavapipe).
+        let known = software_found();
+        let (mut context, opened) = match &known {
+            Some(_) => (None, false),
+            None => match GpuContext::shared_or_opened() {
+                Ok((context, opened)) => (Some(context), opened),
+                Err(e) => {
+                    notes.push(format!("no GPU ({e}); using the CPU path"));
+                    (None, false)
+                }
+            },
         };
         let (mut crossover, mut software) = (None, None);
-        if let Some(c) = context.take_if(|c| c.is_software()) {
+        let found = context.take_if(|c| c.is_software()).map(|c| {
             // Opened for this look alone: closed again, not held for later pickers. One that
             // GPU pickers share stays theirs.
             if opened {
                 c.unshare();
             }
-            let adapter = c.describe();
+            c.describe()
+        });
+        if let Some(adapter) = found.or(known) {
+            remember_software(&adapter);
             notes.push(format!(
                 "software adapter: the CPU path is faster here, so it answers every batch \
                  (adapter: {adapter})"

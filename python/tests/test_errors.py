@@ -553,3 +553,26 @@ def test_a_forked_child_picks_on_the_gpu_with_a_scene_its_parent_picked_on_there
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split() == ["True", "True"], out.stdout + out.stderr[-2000:]
+
+
+def test_later_scenes_do_not_open_the_gpu_again_to_pick_on_auto():
+    """Each scene's first `backend="auto"` pick opened the GPU to learn whether it is worth
+    using (about 60 ms on lavapipe, a software adapter that is then closed). What the first
+    one found serves the process's later scenes (in a fresh process, timed)."""
+    import subprocess
+    import sys
+
+    script = (
+        "import time, numpy as np, raypick\n"
+        "r = np.array([[0.0, 0.1, 1.0, 0.0, 0.0, -1.0]] * 8)\n"
+        "def first_pick():\n"
+        f"    s = raypick.Scene.load({str(BUNNY)!r})\n"
+        "    t = time.perf_counter(); s.pick(r); return time.perf_counter() - t\n"
+        "first = first_pick()\n"
+        "later = sorted(first_pick() for _ in range(5))\n"
+        "print(first, later[2])\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    first, later = map(float, out.stdout.split())
+    assert later < max(0.01, first / 3), (first, later)
