@@ -2,6 +2,8 @@
 refusals ValueErrors, each one sentence; hostile files never take the interpreter down."""
 
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -491,9 +493,6 @@ def test_threads_the_system_refuses_are_an_oserror_each_time():
     refused one (a tight address-space limit): a PanicException, not an Exception, and every
     later call panicking again. Now each call that needs them asks first: an OSError, each
     time; and a process forked after the import picks (the threads are not started there)."""
-    import subprocess
-    import sys
-
     script = (
         "import resource\n"
         "import raypick\n"
@@ -505,9 +504,7 @@ def test_threads_the_system_refuses_are_an_oserror_each_time():
         "    except OSError as e:\n"
         "        print('OSError:', e)\n"
     )
-    env = dict(os.environ, RAYON_NUM_THREADS="5000")
-    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr[-2000:]
+    out = _python(script, RAYON_NUM_THREADS="5000")
     lines = out.stdout.splitlines()
     assert len(lines) == 2 and all(
         line.startswith("OSError: raypick cannot start its picking threads (") for line in lines
@@ -536,9 +533,6 @@ def test_a_forked_child_picks_on_the_gpu_with_a_scene_its_parent_picked_on_there
     child's GPU pick on a scene the parent had picked on with `backend="gpu"` waited for ever.
     The child makes its own, on a device of its own (in a subprocess, so a hang fails the test
     by its timeout)."""
-    import subprocess
-    import sys
-
     script = (
         "import multiprocessing, numpy as np, raypick\n"
         f"s = raypick.Scene.load({str(BUNNY)!r})\n"
@@ -550,8 +544,7 @@ def test_a_forked_child_picks_on_the_gpu_with_a_scene_its_parent_picked_on_there
         "    got = pool.map_async(child, [0]).get(timeout=60)[0]\n"
         "print(got == want and want[0] == want[1], s.pick(r, backend='gpu')['t'].tolist() == want[0])\n"
     )
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr[-2000:]
+    out = _python(script)
     assert out.stdout.split() == ["True", "True"], out.stdout + out.stderr[-2000:]
 
 
@@ -559,9 +552,6 @@ def test_later_scenes_do_not_open_the_gpu_again_to_pick_on_auto():
     """Each scene's first `backend="auto"` pick opened the GPU to learn whether it is worth
     using (about 60 ms on lavapipe, a software adapter that is then closed). What the first
     one found serves the process's later scenes (in a fresh process, timed)."""
-    import subprocess
-    import sys
-
     script = (
         "import time, numpy as np, raypick\n"
         "r = np.array([[0.0, 0.1, 1.0, 0.0, 0.0, -1.0]] * 8)\n"
@@ -572,7 +562,20 @@ def test_later_scenes_do_not_open_the_gpu_again_to_pick_on_auto():
         "later = sorted(first_pick() for _ in range(5))\n"
         "print(first, later[2])\n"
     )
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr[-2000:]
+    out = _python(script)
     first, later = map(float, out.stdout.split())
     assert later < max(0.01, first / 3), (first, later)
+
+
+def _python(script, **env):
+    """Runs `script` in a fresh Python process (with `env` added to the environment), which must
+    exit 0 within two minutes; returns the finished process."""
+    out = subprocess.run(
+        [sys.executable, "-c", script],
+        env=dict(os.environ, **env),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out

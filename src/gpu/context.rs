@@ -80,7 +80,7 @@ impl GpuContext {
     /// Stops handing out `self`'s device as the shared one, if it is (those who hold it keep
     /// it); the next [`GpuContext::shared`] opens another. The automatic picker lets a software
     /// adapter go so ([`crate::auto::AutoPicker::new`]).
-    pub fn unshare(&self) {
+    pub(crate) fn unshare(&self) {
         let mut slot = SHARED.lock().unwrap_or_else(PoisonError::into_inner);
         if slot.as_ref().is_some_and(|(owner, shared)| {
             *owner == std::process::id() && shared.device == self.device
