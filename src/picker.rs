@@ -680,6 +680,10 @@ pub trait Tracer {
     }
     /// Which path this is, for messages ([`Picker::describe`]).
     fn path_name(&self) -> String;
+    /// [`Picker::take_notes`] for this tracer.
+    fn tracer_notes(&mut self) -> Vec<String> {
+        Vec::new()
+    }
     /// [`Picker::remake`] for this tracer.
     fn picker_over(&self, built: Arc<BuiltScene>) -> Option<Result<Box<dyn Picker + Send>>> {
         let _ = built;
@@ -731,6 +735,10 @@ impl<T: Tracer> Picker for T {
 
     fn remake(&self, built: Arc<BuiltScene>) -> Option<Result<Box<dyn Picker + Send>>> {
         self.picker_over(built)
+    }
+
+    fn take_notes(&mut self) -> Vec<String> {
+        self.tracer_notes()
     }
 
     fn set_positions(&mut self, object: u32, positions: &[DVec3]) -> Result<Refit> {

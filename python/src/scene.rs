@@ -109,7 +109,12 @@ impl Scene {
                     }
                 }
                 match slot.as_mut() {
-                    Some((_, picker)) => work(picker.as_mut(), true),
+                    // Its notes: the shared device lost and opened again.
+                    Some((_, picker)) => {
+                        let result = work(picker.as_mut(), true);
+                        notes.extend(picker.take_notes().into_iter().map(Note::Fell));
+                        result
+                    }
                     None => Err(value_error("the GPU picker could not be made")),
                 }
             }
@@ -170,7 +175,8 @@ impl Drop for HoldsPicker {
 pub enum Note {
     /// What it chose when it opened (no GPU, or a software one: the CPU answers).
     Chose(String),
-    /// What happened while it traced (the GPU failed; the CPU answered instead).
+    /// What happened while it traced (the GPU failed and the CPU answered instead, or the
+    /// device was lost and opened again).
     Fell(String),
 }
 

@@ -23,6 +23,9 @@ pub struct GpuContext {
     fault: Arc<Mutex<Option<Error>>>,
     /// The device was lost (it stays so, whoever took the fault).
     lost: Arc<AtomicBool>,
+    /// Handed out by [`GpuContext::shared`]: once lost, a picker on it may open the shared
+    /// device again (a device the caller brought is the caller's to replace).
+    shared: bool,
     /// The kernels compiled on this device, for every picker made on it
     /// (`crate::gpu::picker::Kernel`, by workgroup size and exact arithmetic).
     pub(crate) kernels: Arc<Mutex<Vec<crate::gpu::picker::Kernel>>>,
@@ -66,7 +69,10 @@ impl GpuContext {
         if let Some(context) = current(&mut lock()) {
             return Ok((context, false));
         }
-        let opened = Self::new()?;
+        let opened = Self {
+            shared: true,
+            ..Self::new()?
+        };
         let mut slot = lock();
         match current(&mut slot) {
             Some(context) => Ok((context, false)),
@@ -101,6 +107,19 @@ impl GpuContext {
     /// Whether the device was lost (every later use of it fails).
     pub fn is_lost(&self) -> bool {
         self.lost.load(Ordering::Relaxed)
+    }
+
+    /// The shared device opened again, when this context is a lost shared one
+    /// ([`GpuContext::shared`]); `None` when it is not lost, or is a device the caller brought.
+    /// wgpu reports a loss as the device is polled: this polls it first.
+    pub(crate) fn reopened(&self) -> Option<Result<Self>> {
+        if !self.shared {
+            return None;
+        }
+        let _ = self.device.poll(wgpu::PollType::Poll);
+        self.is_lost().then(|| {
+            Self::shared().map_err(|e| Error::DeviceLost(format!("opening it again failed: {e}")))
+        })
     }
 
     /// Async form of [`GpuContext::new`].
@@ -164,6 +183,7 @@ impl GpuContext {
             adapter_info,
             fault,
             lost,
+            shared: false,
             kernels: Arc::default(),
         }
     }

@@ -113,6 +113,9 @@ pub struct GpuPicker {
     batch: Option<BatchBuffers>,
     chunk_rays: u32,
     reorder_from: usize,
+    /// What happened that the caller may want to show (the shared device lost and opened
+    /// again), since the last [`Picker::take_notes`](crate::Picker::take_notes).
+    notes: Vec<String>,
 }
 
 /// Gives the picker's buffers back to the device now: destroyed, and the device polled (not
@@ -289,6 +292,9 @@ impl GpuPicker {
     /// edits about a second each on lavapipe). This picker is left as it was, so a failure
     /// changes nothing.
     pub fn over(&self, built: Arc<BuiltScene>) -> Result<Self> {
+        if let Some(context) = self.context.reopened() {
+            return self.on_device_opened_again(context?, built);
+        }
         self.context.take_fault()?;
         check_sizes(&self.context.device.limits(), &built)?;
         let mut picker = Self::with_kernel(&self.context, self.kernel.clone(), built)?;
@@ -348,7 +354,41 @@ impl GpuPicker {
             batch: None,
             chunk_rays: DEFAULT_CHUNK_RAYS.min(by_binding),
             reorder_from: reorder_from_for(context),
+            notes: Vec::new(),
         })
+    }
+
+    /// When this picker's device is the process's shared one ([`GpuContext::shared`]) and was
+    /// lost (a driver reset, a GPU taken away, `Device::destroy`), makes it again on the shared
+    /// device opened anew: the same scene, kernel settings, chunking and ray order, and says so
+    /// in a note. `Ok(false)` when there was nothing to do; an error when no device opens.
+    /// A device the caller brought ([`GpuPicker::new`]) is not replaced: its loss stays an error.
+    fn reopen_if_lost(&mut self) -> Result<bool> {
+        let Some(context) = self.context.reopened() else {
+            return Ok(false);
+        };
+        let mut picker = self.on_device_opened_again(context?, self.built.clone())?;
+        picker.notes.splice(0..0, std::mem::take(&mut self.notes));
+        *self = picker;
+        Ok(true)
+    }
+
+    /// A picker like this one (kernel settings, chunking, ray order) over `built` on
+    /// `context`, the shared device opened again after this one's was lost; its note says so.
+    fn on_device_opened_again(&self, context: GpuContext, built: Arc<BuiltScene>) -> Result<Self> {
+        let mut picker = Self::with_options(
+            &context,
+            built,
+            self.kernel.workgroup_size,
+            self.kernel.exact,
+        )?;
+        picker.set_chunk_rays(self.chunk_rays);
+        picker.reorder_from = self.reorder_from;
+        picker.notes.push(format!(
+            "the GPU device was lost; picking on it opened again ({})",
+            context.describe()
+        ));
+        Ok(picker)
     }
 
     /// Invocations per workgroup of this picker's kernel.
@@ -627,6 +667,10 @@ impl Tracer for GpuPicker {
     /// the triangles are written again, into the resident buffers. A rebuilt tree gets buffers
     /// of its own (the kernel stays compiled).
     fn scene_changed(&mut self, refit: Refit) -> Result<()> {
+        // A picker made again holds the changed scene already.
+        if self.reopen_if_lost()? {
+            return Ok(());
+        }
         let built = self.built.clone();
         match refit {
             Refit::Refitted => {
@@ -668,15 +712,36 @@ impl Tracer for GpuPicker {
         // edits does not grow the process (300 moves had grown a server by 259 MB).
         self.context.queue.submit([]);
         let _ = self.context.device.poll(wgpu::PollType::Poll);
-        self.context.take_fault()
+        match self.context.take_fault() {
+            Err(e) if !self.reopen_if_lost()? => Err(e),
+            _ => Ok(()),
+        }
     }
 
+    /// On the shared device, a loss found before the batch, or one that failed it, is met by
+    /// making the picker again on the device opened anew, and the batch traced there once more.
     fn trace(
         &mut self,
         rays: &[GpuRay],
         settings: &TraceSettings<'_>,
     ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
-        self.trace_batch(rays, settings.max_hits, settings.watertight)
+        if self.context.is_lost() {
+            self.reopen_if_lost()?;
+        }
+        match self.trace_batch(rays, settings.max_hits, settings.watertight) {
+            // A device the caller brought: its loss said as such (wgpu's own words for the
+            // failed wait are about submission indices).
+            Err(e) if !self.reopen_if_lost()? => Err(match e {
+                Error::Gpu(e) if self.context.is_lost() => Error::DeviceLost(e),
+                e => e,
+            }),
+            Err(_) => self.trace_batch(rays, settings.max_hits, settings.watertight),
+            traced => traced,
+        }
+    }
+
+    fn tracer_notes(&mut self) -> Vec<String> {
+        std::mem::take(&mut self.notes)
     }
 
     fn reorder_from(&self) -> usize {

@@ -322,3 +322,135 @@ fn pickers_share_the_process_device_and_each_device_compiles_the_kernel_once() {
     GpuPicker::new(&own, second).expect("gpu picker");
     assert_eq!(own.compiled_kernels(), 2);
 }
+
+/// A GPU picker on the process's shared device whose device is lost (a driver reset; here
+/// `Device::destroy`) makes itself again on the shared device opened anew, and says so: the
+/// next pick, an edit and a picker remade over another scene all answer as before. A picker on
+/// a device the caller brought keeps failing (that device is the caller's to replace). In a
+/// process of its own: the shared device is the whole test binary's.
+#[test]
+fn a_picker_on_the_lost_shared_device_opens_it_again() {
+    gpu();
+    let out = std::process::Command::new(std::env::current_exe().unwrap())
+        .args([
+            "--exact",
+            &crate::child_test_name(module_path!(), "child_loses_the_shared_device"),
+            "--ignored",
+            "--nocapture",
+            "--test-threads=1",
+        ])
+        .output()
+        .expect("run the child test");
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && text.contains("1 passed"), "{text}");
+}
+
+#[test]
+#[ignore = "run by a_picker_on_the_lost_shared_device_opens_it_again, in a process of its own"]
+fn child_loses_the_shared_device() {
+    let (first, second) = (bunny(), example());
+    let (first_rays, second_rays) = (rays(&first, 3000), rays(&second, 3000));
+    let twin = |built: &Arc<BuiltScene>, rays: &[Ray], q: &Query| {
+        ReferencePicker::new(built.clone())
+            .query(rays, q)
+            .expect("twin")
+    };
+    let lose = |context: &GpuContext| {
+        context.device.destroy();
+        let _ = context.device.poll(wgpu::PollType::Poll);
+        assert!(context.is_lost(), "a destroyed device is lost");
+    };
+    let mut picker = make_picker(Backend::Gpu, first.clone()).expect("gpu picker");
+    let own = GpuContext::new().expect("a device of its own");
+    let mut brought = GpuPicker::new(&own, first.clone()).expect("gpu picker");
+    for q in &queries() {
+        let want = twin(&first, &first_rays, q);
+        assert_twins(
+            "before",
+            q,
+            &first_rays,
+            &picker.query(&first_rays, q).expect("gpu"),
+            &want,
+        );
+        assert_twins(
+            "brought",
+            q,
+            &first_rays,
+            &brought.query(&first_rays, q).expect("gpu"),
+            &want,
+        );
+    }
+    assert!(picker.take_notes().is_empty());
+
+    // The next pick, on the shared device opened again.
+    let lost = GpuContext::shared().expect("device");
+    lose(&lost);
+    for q in &queries() {
+        let got = picker
+            .query(&first_rays, q)
+            .expect("the pick after the loss");
+        assert_twins(
+            "after the loss",
+            q,
+            &first_rays,
+            &got,
+            &twin(&first, &first_rays, q),
+        );
+    }
+    let notes = picker.take_notes();
+    assert!(
+        notes.len() == 1 && notes[0].contains("the GPU device was lost"),
+        "{notes:?}"
+    );
+    let reopened = GpuContext::shared().expect("device");
+    // (Devices of two wgpu instances cannot be told apart by `==`: each numbers its own.)
+    assert!(
+        !reopened.is_lost(),
+        "the shared device was not opened again"
+    );
+    assert_eq!(reopened.compiled_kernels(), 1);
+
+    // An edit: the masks change, and the picker is made again with them.
+    lose(&reopened);
+    picker.set_mask(0, 2).expect("an edit after the loss");
+    let masked = Query::default();
+    let got = picker.query(&first_rays, &masked).expect("gpu");
+    let mut edited = ReferencePicker::new(first.clone());
+    edited.set_mask(0, 2).expect("twin edit");
+    let want = edited.query(&first_rays, &masked).expect("twin");
+    assert_twins(
+        "after an edit on the lost device",
+        &masked,
+        &first_rays,
+        &got,
+        &want,
+    );
+    assert_eq!(picker.take_notes().len(), 1);
+
+    // A picker remade over another scene (the server's rebuilding edits).
+    lose(&GpuContext::shared().expect("device"));
+    let mut remade = picker
+        .remake(second.clone())
+        .expect("a GPU picker remakes")
+        .expect("remade after the loss");
+    for q in &queries() {
+        let got = remade.query(&second_rays, q).expect("gpu");
+        assert_twins(
+            "remade after the loss",
+            q,
+            &second_rays,
+            &got,
+            &twin(&second, &second_rays, q),
+        );
+    }
+    assert_eq!(remade.take_notes().len(), 1);
+
+    // A device the caller brought is not replaced.
+    lose(&own);
+    let e = brought
+        .query(&first_rays, &Query::default())
+        .expect_err("a pick on a lost device of the caller's");
+    assert!(matches!(e, Error::DeviceLost(_)), "{e}");
+    assert!(brought.take_notes().is_empty());
+}
