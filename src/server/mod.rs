@@ -125,6 +125,7 @@
 //! zooms; shift-drag moves the selected object over the terrain (`PATCH /objects/{id}`).
 
 mod api;
+mod bare_errors;
 pub mod batcher;
 mod frame_faults;
 pub mod host;
@@ -429,6 +430,8 @@ impl axum::serve::Listener for LimitedListener {
             }),
             idle_timeout: self.idle_timeout,
             sleep: Box::pin(tokio::time::sleep(self.idle_timeout)),
+            answer: Vec::new(),
+            answer_sent: 0,
             _slot: slot,
         };
         (io, addr)
@@ -440,13 +443,19 @@ impl axum::serve::Listener for LimitedListener {
 }
 
 /// A connection that fails its reads and writes (so the server closes it) once it has had no
-/// request in progress for [`ServerConfig::idle_timeout`] since it last made progress, and
-/// frees its connection slot when dropped.
+/// request in progress for [`ServerConfig::idle_timeout`] since it last made progress, frees
+/// its connection slot when dropped, and gives hyper's empty automatic error answers their
+/// sentence ([`bare_errors`]).
 struct LimitedIo {
     inner: tokio::net::TcpStream,
     state: Arc<ConnectionState>,
     idle_timeout: Duration,
     sleep: Pin<Box<tokio::time::Sleep>>,
+    /// An automatic error answer with its sentence, taken whole from hyper and written from
+    /// here (before anything else, and by each flush and shutdown); `answer_sent` bytes of it
+    /// are out.
+    answer: Vec<u8>,
+    answer_sent: usize,
     _slot: OwnedSemaphorePermit,
 }
 
@@ -493,6 +502,34 @@ impl LimitedIo {
         }
     }
 
+    /// Writes what is left of [`LimitedIo::answer`]; ready once it is all out.
+    fn poll_answer(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        while self.answer_sent < self.answer.len() {
+            let written =
+                Pin::new(&mut self.inner).poll_write(cx, &self.answer[self.answer_sent..]);
+            match self.after_write(cx, written) {
+                Poll::Ready(Ok(0)) => {
+                    return Poll::Ready(Err(std::io::ErrorKind::WriteZero.into()));
+                }
+                Poll::Ready(Ok(n)) => self.answer_sent += n,
+                Poll::Ready(Err(e)) => return Poll::Ready(Err(e)),
+                Poll::Pending => return Poll::Pending,
+            }
+        }
+        Poll::Ready(Ok(()))
+    }
+
+    /// Takes `buf` whole when it is one of hyper's empty automatic error answers, to be sent
+    /// with its sentence instead ([`bare_errors::with_sentence`]): its length, as written.
+    fn took_bare_error(&mut self, cx: &mut Context<'_>, buf: &[u8]) -> Option<usize> {
+        let answer = bare_errors::with_sentence(buf)?;
+        (self.answer, self.answer_sent) = (answer, 0);
+        // Sent now as far as the socket takes it; the flush that follows sends the rest (or
+        // returns the error).
+        let _ = self.poll_answer(cx);
+        Some(buf.len())
+    }
+
     /// A write's outcome: pending waits on the deadline; written bytes count as activity.
     fn after_write(
         &mut self,
@@ -537,6 +574,10 @@ impl AsyncWrite for LimitedIo {
         buf: &[u8],
     ) -> Poll<std::io::Result<usize>> {
         let this = self.get_mut();
+        std::task::ready!(this.poll_answer(cx))?;
+        if let Some(n) = this.took_bare_error(cx, buf) {
+            return Poll::Ready(Ok(n));
+        }
         let written = Pin::new(&mut this.inner).poll_write(cx, buf);
         this.after_write(cx, written)
     }
@@ -547,6 +588,12 @@ impl AsyncWrite for LimitedIo {
         bufs: &[std::io::IoSlice<'_>],
     ) -> Poll<std::io::Result<usize>> {
         let this = self.get_mut();
+        std::task::ready!(this.poll_answer(cx))?;
+        if let Some(first) = bufs.iter().find(|b| !b.is_empty())
+            && let Some(n) = this.took_bare_error(cx, first)
+        {
+            return Poll::Ready(Ok(n));
+        }
         let written = Pin::new(&mut this.inner).poll_write_vectored(cx, bufs);
         this.after_write(cx, written)
     }
@@ -557,6 +604,7 @@ impl AsyncWrite for LimitedIo {
 
     fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
         let this = self.get_mut();
+        std::task::ready!(this.poll_answer(cx))?;
         match Pin::new(&mut this.inner).poll_flush(cx) {
             Poll::Pending => this.poll_deadline(cx),
             ready => ready,
@@ -564,7 +612,9 @@ impl AsyncWrite for LimitedIo {
     }
 
     fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
-        Pin::new(&mut self.get_mut().inner).poll_shutdown(cx)
+        let this = self.get_mut();
+        std::task::ready!(this.poll_answer(cx))?;
+        Pin::new(&mut this.inner).poll_shutdown(cx)
     }
 }
 

@@ -5,7 +5,8 @@
 //! are closed after the configured (shortened) timeouts, that normal picks still answer while
 //! 200 idle connections are held, that connections beyond the cap wait for a free slot, and that
 //! a request over the memory budget gets 503 while the next normal request answers 200, and that
-//! an error sentence quotes at most 60 characters of a megabyte-long field name or value; and,
+//! an error sentence quotes at most 60 characters of a megabyte-long field name or value, that
+//! the requests hyper refuses itself (400, 414, 431) get their sentence too; and,
 //! for `raypick serve` in a child process, that work over `--max-memory` gets 503 too and a
 //! `--memory-budget` over `--max-memory` is refused at start. Every
 //! loop is bounded; the whole file runs in a few seconds.
@@ -553,4 +554,77 @@ fn the_work_limit_is_each_requests_own_in_a_batch() {
         stats.contains("\"batched_requests\":2"),
         "batched together: {stats}"
     );
+}
+
+/// Requests hyper refuses before any route sees them (a malformed request line or header, a
+/// URI over 65,534 bytes, over 100 header fields) get their 400, 414 or 431 with a sentence, as
+/// JSON like every other error, and the connection is closed; a well-formed request on the same
+/// kept-alive connection before a malformed one is answered as usual.
+#[test]
+fn requests_hyper_refuses_get_their_status_with_a_sentence() {
+    let addr = start(ServerConfig::default());
+    let raw = |bytes: Vec<u8>| {
+        let mut stream = connect(addr, Duration::from_secs(20));
+        stream.write_all(&bytes).expect("send");
+        let mut answer = Vec::new();
+        assert!(
+            wait_for_close(&mut stream, &mut answer).is_some(),
+            "the connection stays open"
+        );
+        answer
+    };
+    let long_uri = [
+        b"GET /".as_slice(),
+        &[b'a'; 70_000],
+        b" HTTP/1.1\r\nHost: localhost\r\n\r\n",
+    ]
+    .concat();
+    let many_fields = [
+        b"GET /scene HTTP/1.1\r\nHost: localhost\r\n".to_vec(),
+        (0..150)
+            .flat_map(|i| format!("X-{i}: 1\r\n").into_bytes())
+            .collect(),
+        b"\r\n".to_vec(),
+    ]
+    .concat();
+    let cases: [(Vec<u8>, u16, &str); 5] = [
+        (
+            b"GARBAGE\r\n\r\n".to_vec(),
+            400,
+            "could not be read as HTTP/1.1",
+        ),
+        (
+            b"GET /scene HTTP/1.1\r\nHost: localhost\r\nBad Header\r\n\r\n".to_vec(),
+            400,
+            "could not be read as HTTP/1.1",
+        ),
+        (long_uri, 414, "URI is too long"),
+        (many_fields, 431, "at most 100 header fields"),
+        (
+            b"GET /stats HTTP/1.1\r\nHost: localhost\r\n\r\nGET /stats HTTP/1.1\r\nHost: \
+              localhost\r\nBad Header\r\n\r\n"
+                .to_vec(),
+            400,
+            "could not be read as HTTP/1.1",
+        ),
+    ];
+    for (request, status, sentence) in cases {
+        let answer = raw(request);
+        let text = String::from_utf8_lossy(&answer).into_owned();
+        // The kept-alive case: the first request's answer, then the refusal.
+        let last = text.rfind("HTTP/1.1 ").map_or(&text[..], |at| &text[at..]);
+        let (got, body) = parse(last.as_bytes());
+        assert_eq!(got, status, "{text}");
+        let value: serde_json::Value =
+            serde_json::from_str(&body).unwrap_or_else(|e| panic!("{e}: {text}"));
+        let said = value["error"].as_str().unwrap_or_default();
+        assert!(said.contains(sentence), "{text}");
+        assert!(
+            last.contains(&format!("content-length: {}\r\n", body.len())),
+            "{text}"
+        );
+        if text.len() > last.len() {
+            assert!(text.starts_with("HTTP/1.1 200 OK"), "{text}");
+        }
+    }
 }

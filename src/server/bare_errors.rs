@@ -1,0 +1,101 @@
+//! The sentence for the requests hyper refuses before any route sees them. hyper answers a
+//! request it cannot parse itself, with an empty body: 400 (a malformed method, URI, version
+//! or header), 414 (a URI over 65,534 bytes) or 431 (over 100 header fields, or a head of
+//! several hundred KiB), and closes the connection; it offers no hook for the body. The connection's
+//! writer ([`super::LimitedIo`]) hands each write to [`with_sentence`], which gives those three
+//! answers the body every other error answer has, `{"error": "sentence"}`. No answer of the
+//! routes is touched: each of their errors has a body.
+
+/// hyper's automatic answers (its own words, as it writes them) and the sentence for each.
+const ANSWERS: [(&[u8], &str); 3] = [
+    (
+        b"HTTP/1.1 400 Bad Request\r\n",
+        "the request could not be read as HTTP/1.1: its method, URI, version or a header is \
+         malformed",
+    ),
+    (
+        b"HTTP/1.1 414 URI Too Long\r\n",
+        "the request's URI is too long (at most 65,534 bytes): send the data in a POST body",
+    ),
+    (
+        b"HTTP/1.1 431 Request Header Fields Too Large\r\n",
+        "the request's head is too large: at most 100 header fields, and a few hundred KiB \
+         before the body",
+    ),
+];
+
+/// The empty body's length as hyper writes it, and what takes its place.
+const EMPTY: &[u8] = b"\r\ncontent-length: 0\r\n";
+
+/// `written` with a JSON body saying what was wrong, when it is one whole automatic answer of
+/// hyper's (the status line of [`ANSWERS`], `connection: close`, an empty body); else `None`.
+pub(super) fn with_sentence(written: &[u8]) -> Option<Vec<u8>> {
+    let (_, sentence) = ANSWERS.iter().find(|(line, _)| written.starts_with(line))?;
+    if !written.ends_with(b"\r\n\r\n") || find(written, b"\r\nconnection: close\r\n").is_none() {
+        return None;
+    }
+    let at = find(written, EMPTY)?;
+    let body = serde_json::json!({ "error": sentence }).to_string();
+    let mut answer = Vec::with_capacity(written.len() + body.len() + 64);
+    answer.extend_from_slice(&written[..at]);
+    answer.extend_from_slice(
+        format!(
+            "\r\ncontent-type: application/json\r\ncontent-length: {}\r\n",
+            body.len()
+        )
+        .as_bytes(),
+    );
+    answer.extend_from_slice(&written[at + EMPTY.len()..]);
+    answer.extend_from_slice(body.as_bytes());
+    Some(answer)
+}
+
+/// Where `needle` first occurs in `haystack`.
+fn find(haystack: &[u8], needle: &[u8]) -> Option<usize> {
+    haystack.windows(needle.len()).position(|w| w == needle)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const HEAD: &[u8] = b"HTTP/1.1 414 URI Too Long\r\nconnection: close\r\ncontent-length: 0\r\n\
+        date: Mon, 30 Nov 2026 08:36:20 GMT\r\n\r\n";
+
+    #[test]
+    fn an_automatic_answer_gets_its_sentence_and_keeps_its_head() {
+        let answer = String::from_utf8(with_sentence(HEAD).expect("rewritten")).unwrap();
+        let (head, body) = answer.split_once("\r\n\r\n").expect("a head and a body");
+        let value: serde_json::Value = serde_json::from_str(body).expect("JSON");
+        assert!(value["error"].as_str().unwrap().contains("URI is too long"));
+        assert!(head.starts_with("HTTP/1.1 414 URI Too Long\r\n"));
+        assert!(head.contains(&format!("\r\ncontent-length: {}\r\n", body.len())));
+        assert!(head.contains("\r\ncontent-type: application/json\r\n"));
+        assert!(head.contains("\r\nconnection: close\r\n") && head.contains("\r\ndate: "));
+        assert!(!head.contains("content-length: 0\r\n"));
+    }
+
+    #[test]
+    fn other_writes_are_left_alone() {
+        // A route's answer, a part of one, another status, a kept-alive connection.
+        let route = b"HTTP/1.1 400 Bad Request\r\ncontent-type: application/json\r\n\
+            content-length: 20\r\nconnection: close\r\n\r\n{\"error\":\"bad pick\"}";
+        let kept = b"HTTP/1.1 400 Bad Request\r\ncontent-length: 0\r\n\r\n";
+        let other =
+            b"HTTP/1.1 405 Method Not Allowed\r\nconnection: close\r\ncontent-length: 0\r\n\r\n";
+        for written in [
+            &route[..],
+            &HEAD[..40],
+            &kept[..],
+            &other[..],
+            b"{\"t\": 1}",
+        ] {
+            assert_eq!(
+                with_sentence(written),
+                None,
+                "{}",
+                String::from_utf8_lossy(written)
+            );
+        }
+    }
+}
