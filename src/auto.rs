@@ -51,6 +51,9 @@ pub struct AutoPicker {
     /// The batch size from which the GPU is used, when fixed (`usize::MAX` on a software
     /// adapter); `None`: [`crossover_for`] the threads at each pick.
     crossover: Option<usize>,
+    /// The device found was a hardware GPU (a software adapter left after it was lost turns
+    /// the GPU path off: [`AutoPicker::after_reopening`]).
+    on_hardware: bool,
     notes: Vec<String>,
 }
 
@@ -115,6 +118,7 @@ impl AutoPicker {
         Self {
             cpu: CpuPicker::new(built.clone()),
             built,
+            on_hardware: context.is_some(),
             context,
             software,
             gpu: None,
@@ -123,14 +127,38 @@ impl AutoPicker {
         }
     }
 
+    /// After a batch on the GPU: a hardware GPU that was lost and opened again as a software
+    /// adapter (the GPU gone, lavapipe left) is let go, and the CPU path answers every batch
+    /// from then on, as it does for an automatic picker made with a software adapter; a note
+    /// says so.
+    fn after_reopening(&mut self) {
+        if !self.on_hardware {
+            return;
+        }
+        let Some(gpu) = self.gpu.take_if(|gpu| gpu.context().is_software()) else {
+            return;
+        };
+        let mut gpu = gpu;
+        self.notes.extend(Picker::take_notes(&mut gpu));
+        let adapter = gpu.context().describe();
+        self.notes.push(format!(
+            "only a software adapter was left when the GPU device was opened again; the CPU \
+             path answers every batch (adapter: {adapter})"
+        ));
+        self.software = Some(adapter);
+        self.crossover = Some(usize::MAX);
+        self.on_hardware = false;
+    }
+
     /// The GPU picker, made from the device on first use; `None` (saying why, once) when there
     /// is no device or the scene cannot go on it.
     fn gpu(&mut self) -> Option<&mut GpuPicker> {
         if self.gpu.is_none() {
             let context = match self.context.take() {
                 Some(context) => context,
-                // The software adapter, closed when it was found, opened again.
-                None if self.software.take().is_some() => match GpuContext::new() {
+                // The software adapter, closed when it was found, opened again (as the
+                // process's shared device, which the GPU pickers share).
+                None if self.software.take().is_some() => match GpuContext::shared() {
                     Ok(context) => context,
                     Err(e) => {
                         self.notes.push(format!("no GPU ({e}); using the CPU path"));
@@ -171,7 +199,10 @@ impl Picker for AutoPicker {
         if rays.len() >= self.crossover() {
             if let Some(gpu) = self.gpu() {
                 match gpu.query_into(rays, query, answers) {
-                    Ok(()) => return Ok(()),
+                    Ok(()) => {
+                        self.after_reopening();
+                        return Ok(());
+                    }
                     Err(e) => {
                         self.notes.push(format!(
                             "the GPU failed ({e}); falling back to the CPU path"
@@ -184,8 +215,13 @@ impl Picker for AutoPicker {
         self.cpu.query_into(rays, query, answers)
     }
 
+    /// Its own notes, then its GPU picker's (the device lost and opened again).
     fn take_notes(&mut self) -> Vec<String> {
-        std::mem::take(&mut self.notes)
+        let mut notes = std::mem::take(&mut self.notes);
+        if let Some(gpu) = &mut self.gpu {
+            notes.extend(Picker::take_notes(gpu));
+        }
+        notes
     }
 
     fn set_mask(&mut self, object: u32, mask: u32) -> Result<()> {
@@ -219,6 +255,7 @@ impl Picker for AutoPicker {
             software: self.software.clone(),
             gpu,
             crossover: self.crossover,
+            on_hardware: self.on_hardware,
             notes: Vec::new(),
         })))
     }

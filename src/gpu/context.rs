@@ -3,12 +3,16 @@
 //! device ([`GpuContext::shared`]); the kernels compiled on a device, kept with it.
 
 use crate::error::{Error, Result};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 
 /// The device [`GpuContext::shared`] hands out, with the process that opened it (a forked
 /// child cannot use its parent's device).
 static SHARED: Mutex<Option<(u32, GpuContext)>> = Mutex::new(None);
+
+/// How many shared devices this process has opened ([`GpuContext::shared`]): the first, then
+/// each one opened again after a loss.
+static OPENINGS: AtomicU32 = AtomicU32::new(0);
 
 /// A wgpu device and queue, with the errors and device loss wgpu reports asynchronously.
 #[derive(Clone, Debug)]
@@ -21,11 +25,12 @@ pub struct GpuContext {
     pub adapter_info: wgpu::AdapterInfo,
     /// The first uncaptured error or device loss, as a sentence.
     fault: Arc<Mutex<Option<Error>>>,
-    /// The device was lost (it stays so, whoever took the fault).
-    lost: Arc<AtomicBool>,
-    /// Handed out by [`GpuContext::shared`]: once lost, a picker on it may open the shared
-    /// device again (a device the caller brought is the caller's to replace).
-    shared: bool,
+    /// Why the device was lost, once it is (it stays so, whoever took the fault).
+    lost: Arc<OnceLock<String>>,
+    /// Which of the process's shared devices this is (1 for the first: [`OPENINGS`]), or 0
+    /// for a device opened or brought otherwise. Once lost, a picker on a shared device may
+    /// open it again; a device the caller brought is the caller's to replace.
+    opening: u32,
     /// The kernels compiled on this device, for every picker made on it
     /// (`crate::gpu::picker::Kernel`, by workgroup size and exact arithmetic).
     pub(crate) kernels: Arc<Mutex<Vec<crate::gpu::picker::Kernel>>>,
@@ -70,7 +75,7 @@ impl GpuContext {
             return Ok((context, false));
         }
         let opened = Self {
-            shared: true,
+            opening: OPENINGS.fetch_add(1, Ordering::Relaxed) + 1,
             ..Self::new()?
         };
         let mut slot = lock();
@@ -88,8 +93,10 @@ impl GpuContext {
     /// adapter go so ([`crate::auto::AutoPicker::new`]).
     pub(crate) fn unshare(&self) {
         let mut slot = SHARED.lock().unwrap_or_else(PoisonError::into_inner);
+        // The same device: `==` on devices cannot tell two wgpu instances' devices apart
+        // (each numbers its own), so the loss flag they share is compared.
         if slot.as_ref().is_some_and(|(owner, shared)| {
-            *owner == std::process::id() && shared.device == self.device
+            *owner == std::process::id() && Arc::ptr_eq(&shared.lost, &self.lost)
         }) {
             *slot = None;
         }
@@ -106,17 +113,32 @@ impl GpuContext {
 
     /// Whether the device was lost (every later use of it fails).
     pub fn is_lost(&self) -> bool {
-        self.lost.load(Ordering::Relaxed)
+        self.lost.get().is_some()
+    }
+
+    /// [`Error::DeviceLost`] with the reason, once the device is lost (every later use of it
+    /// would fail with wgpu's words about invalid buffers and submissions).
+    pub(crate) fn lost_error(&self) -> Option<Error> {
+        self.lost.get().map(|why| Error::DeviceLost(why.clone()))
+    }
+
+    /// Which of the process's shared devices this is, counting from 1 (0: not a shared one).
+    pub(crate) fn opening(&self) -> u32 {
+        self.opening
     }
 
     /// The shared device opened again, when this context is a lost shared one
     /// ([`GpuContext::shared`]); `None` when it is not lost, or is a device the caller brought.
-    /// wgpu reports a loss as the device is polled: this polls it first.
+    /// wgpu reports a loss as the device is polled, once the work it was given has ended:
+    /// this waits for that first (at most a second; an idle device answers at once).
     pub(crate) fn reopened(&self) -> Option<Result<Self>> {
-        if !self.shared {
+        if self.opening == 0 {
             return None;
         }
-        let _ = self.device.poll(wgpu::PollType::Poll);
+        let _ = self.device.poll(wgpu::PollType::Wait {
+            submission_index: None,
+            timeout: Some(std::time::Duration::from_secs(1)),
+        });
         self.is_lost().then(|| {
             Self::shared().map_err(|e| Error::DeviceLost(format!("opening it again failed: {e}")))
         })
@@ -168,14 +190,19 @@ impl GpuContext {
             record(&on_error, Error::Gpu(e.to_string()));
         }));
         let on_lost = fault.clone();
-        let lost: Arc<AtomicBool> = Arc::default();
+        let lost: Arc<OnceLock<String>> = Arc::default();
         let was_lost = lost.clone();
         device.set_device_lost_callback(move |reason, message| {
-            was_lost.store(true, Ordering::Relaxed);
-            record(
-                &on_lost,
-                Error::DeviceLost(format!("{reason:?}: {message}")),
-            );
+            let why = match reason {
+                wgpu::DeviceLostReason::Destroyed => "it was destroyed",
+                wgpu::DeviceLostReason::Unknown => "the driver lost it",
+            };
+            let why = match message.trim() {
+                "" => why.to_owned(),
+                message => format!("{why} ({message})"),
+            };
+            let _ = was_lost.set(why.clone());
+            record(&on_lost, Error::DeviceLost(why));
         });
         Self {
             device,
@@ -183,7 +210,7 @@ impl GpuContext {
             adapter_info,
             fault,
             lost,
-            shared: false,
+            opening: 0,
             kernels: Arc::default(),
         }
     }

@@ -295,6 +295,9 @@ impl GpuPicker {
         if let Some(context) = self.context.reopened() {
             return self.on_device_opened_again(context?, built);
         }
+        if let Some(lost) = self.context.lost_error() {
+            return Err(lost);
+        }
         self.context.take_fault()?;
         check_sizes(&self.context.device.limits(), &built)?;
         let mut picker = Self::with_kernel(&self.context, self.kernel.clone(), built)?;
@@ -373,20 +376,29 @@ impl GpuPicker {
         Ok(true)
     }
 
-    /// A picker like this one (kernel settings, chunking, ray order) over `built` on
-    /// `context`, the shared device opened again after this one's was lost; its note says so.
+    /// A picker like this one over `built` on `context`, the shared device opened again after
+    /// this one's was lost; its note says so. On the same adapter it keeps this one's kernel
+    /// settings, chunking and ray order; another adapter (the GPU gone, a software one left)
+    /// gets that adapter's own (its exact arithmetic, whether it sorts rays).
     fn on_device_opened_again(&self, context: GpuContext, built: Arc<BuiltScene>) -> Result<Self> {
-        let mut picker = Self::with_options(
-            &context,
-            built,
-            self.kernel.workgroup_size,
-            self.kernel.exact,
-        )?;
-        picker.set_chunk_rays(self.chunk_rays);
-        picker.reorder_from = self.reorder_from;
+        let same = context.adapter_info == self.context.adapter_info;
+        let mut picker = if same {
+            let mut picker = Self::with_options(
+                &context,
+                built,
+                self.kernel.workgroup_size,
+                self.kernel.exact,
+            )?;
+            picker.set_chunk_rays(self.chunk_rays);
+            picker.reorder_from = self.reorder_from;
+            picker
+        } else {
+            Self::new(&context, built)?
+        };
         picker.notes.push(format!(
-            "the GPU device was lost; picking on it opened again ({})",
-            context.describe()
+            "the GPU device was lost and opened again: {} (opened {} times in this process)",
+            context.describe(),
+            context.opening()
         ));
         Ok(picker)
     }
@@ -671,6 +683,9 @@ impl Tracer for GpuPicker {
         if self.reopen_if_lost()? {
             return Ok(());
         }
+        if let Some(lost) = self.context.lost_error() {
+            return Err(lost);
+        }
         let built = self.built.clone();
         match refit {
             Refit::Refitted => {
@@ -705,7 +720,11 @@ impl Tracer for GpuPicker {
                 }
             }
             // New buffers, each bound anew (the batch's bind group names the old ones).
-            Refit::Rebuilt => *self = self.over(built)?,
+            Refit::Rebuilt => {
+                let notes = std::mem::take(&mut self.notes);
+                *self = self.over(built)?;
+                self.notes.splice(0..0, notes);
+            }
         }
         // The writes' staging memory is the device's until a submission carries them and
         // completes: sent now, and what earlier edits staged released, so a client that only
@@ -713,7 +732,7 @@ impl Tracer for GpuPicker {
         self.context.queue.submit([]);
         let _ = self.context.device.poll(wgpu::PollType::Poll);
         match self.context.take_fault() {
-            Err(e) if !self.reopen_if_lost()? => Err(e),
+            Err(e) if !self.reopen_if_lost()? => Err(self.context.lost_error().unwrap_or(e)),
             _ => Ok(()),
         }
     }
@@ -725,16 +744,15 @@ impl Tracer for GpuPicker {
         rays: &[GpuRay],
         settings: &TraceSettings<'_>,
     ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
-        if self.context.is_lost() {
-            self.reopen_if_lost()?;
+        if let Some(lost) = self.context.lost_error()
+            && !self.reopen_if_lost()?
+        {
+            return Err(lost);
         }
         match self.trace_batch(rays, settings.max_hits, settings.watertight) {
             // A device the caller brought: its loss said as such (wgpu's own words for the
-            // failed wait are about submission indices).
-            Err(e) if !self.reopen_if_lost()? => Err(match e {
-                Error::Gpu(e) if self.context.is_lost() => Error::DeviceLost(e),
-                e => e,
-            }),
+            // failed batch are about invalid buffers and submissions).
+            Err(e) if !self.reopen_if_lost()? => Err(self.context.lost_error().unwrap_or(e)),
             Err(_) => self.trace_batch(rays, settings.max_hits, settings.watertight),
             traced => traced,
         }

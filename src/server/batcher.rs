@@ -411,9 +411,10 @@ fn remade(old: &dyn Picker, backend: Backend, built: Arc<BuiltScene>) -> Result<
     }
 }
 
-/// Prints the picker's fallback notes (the automatic backend's) on standard error, each once
-/// over the server's life: a picker made again over an edited scene says them again (every
-/// `POST /objects` printed "no GPU …" anew).
+/// Prints the picker's notes (the automatic backend's fallbacks, a GPU device lost and opened
+/// again) on standard error, each once over the server's life: a picker made again over an
+/// edited scene says them again (every `POST /objects` printed "no GPU …" anew). Each loss of
+/// the device is said: its note names the opening.
 fn show_notes(picker: &mut dyn Picker, shown: &mut std::collections::HashSet<String>) {
     for note in picker.take_notes() {
         if shown.insert(note.clone()) {
@@ -471,6 +472,8 @@ impl Batcher {
                 match job {
                     Job::Edit { edit, reply } => {
                         self.answer(picker.as_mut(), std::mem::take(&mut part));
+                        // What the picks so far had to say: the edit may replace the picker.
+                        show_notes(picker.as_mut(), &mut self.notes_shown);
                         let done = catch_unwind(AssertUnwindSafe(|| self.apply(picker, edit)))
                             .unwrap_or_else(|_| Err(EditError::Failed("the edit panicked".into())));
                         let _ = reply.send(done);

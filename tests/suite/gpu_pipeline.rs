@@ -325,8 +325,10 @@ fn pickers_share_the_process_device_and_each_device_compiles_the_kernel_once() {
 
 /// A GPU picker on the process's shared device whose device is lost (a driver reset; here
 /// `Device::destroy`) makes itself again on the shared device opened anew, and says so: the
-/// next pick, an edit and a picker remade over another scene all answer as before. A picker on
-/// a device the caller brought keeps failing (that device is the caller's to replace). In a
+/// next pick (in overlapped steps too), an edit, a picker remade over another scene, a second
+/// picker on the same device and the automatic picker all answer as before, and each loss's
+/// note names the opening. A picker on a device the caller brought says `DeviceLost` with the
+/// reason, pick after pick and edit after edit (that device is the caller's to replace). In a
 /// process of its own: the shared device is the whole test binary's.
 #[test]
 fn a_picker_on_the_lost_shared_device_opens_it_again() {
@@ -358,51 +360,64 @@ fn child_loses_the_shared_device() {
     };
     let lose = |context: &GpuContext| {
         context.device.destroy();
-        let _ = context.device.poll(wgpu::PollType::Poll);
+        // Reported once the work it had ends.
+        let _ = context.device.poll(wgpu::PollType::wait_indefinitely());
         assert!(context.is_lost(), "a destroyed device is lost");
     };
-    let mut picker = make_picker(Backend::Gpu, first.clone()).expect("gpu picker");
+    let lost_note = |notes: &[String], opening: u32| {
+        let want = format!("opened {opening} times in this process");
+        assert!(
+            notes.len() == 1
+                && notes[0].contains("the GPU device was lost and opened again")
+                && notes[0].contains(&want),
+            "{notes:?}"
+        );
+    };
+    // Overlapped steps of 512 rays: the pipeline that waits on the device step by step.
+    let mut picker =
+        GpuPicker::new(&GpuContext::shared().expect("device"), first.clone()).expect("gpu picker");
+    picker.set_chunk_rays(512);
+    let mut other = make_picker(Backend::Gpu, first.clone()).expect("gpu picker");
+    let mut auto = AutoPicker::new(first.clone());
+    auto.set_crossover(0);
     let own = GpuContext::new().expect("a device of its own");
     let mut brought = GpuPicker::new(&own, first.clone()).expect("gpu picker");
     for q in &queries() {
         let want = twin(&first, &first_rays, q);
-        assert_twins(
-            "before",
-            q,
-            &first_rays,
-            &picker.query(&first_rays, q).expect("gpu"),
-            &want,
-        );
-        assert_twins(
-            "brought",
-            q,
-            &first_rays,
-            &brought.query(&first_rays, q).expect("gpu"),
-            &want,
-        );
+        for (what, p) in [
+            ("before", &mut picker as &mut dyn Picker),
+            ("another", other.as_mut()),
+            ("auto", &mut auto),
+            ("brought", &mut brought),
+        ] {
+            assert_twins(
+                what,
+                q,
+                &first_rays,
+                &p.query(&first_rays, q).expect(what),
+                &want,
+            );
+        }
     }
-    assert!(picker.take_notes().is_empty());
+    assert!(Picker::take_notes(&mut picker).is_empty());
+    auto.take_notes();
 
-    // The next pick, on the shared device opened again.
-    let lost = GpuContext::shared().expect("device");
-    lose(&lost);
+    // The next picks, on the shared device opened again: each picker remakes itself on it.
+    lose(&GpuContext::shared().expect("device"));
     for q in &queries() {
-        let got = picker
-            .query(&first_rays, q)
-            .expect("the pick after the loss");
-        assert_twins(
-            "after the loss",
-            q,
-            &first_rays,
-            &got,
-            &twin(&first, &first_rays, q),
-        );
+        let want = twin(&first, &first_rays, q);
+        for (what, p) in [
+            ("after the loss", &mut picker as &mut dyn Picker),
+            ("another after the loss", other.as_mut()),
+            ("auto after the loss", &mut auto),
+        ] {
+            let got = p.query(&first_rays, q).expect(what);
+            assert_twins(what, q, &first_rays, &got, &want);
+        }
     }
-    let notes = picker.take_notes();
-    assert!(
-        notes.len() == 1 && notes[0].contains("the GPU device was lost"),
-        "{notes:?}"
-    );
+    lost_note(&Picker::take_notes(&mut picker), 2);
+    lost_note(&other.take_notes(), 2);
+    lost_note(&auto.take_notes(), 2);
     let reopened = GpuContext::shared().expect("device");
     // (Devices of two wgpu instances cannot be told apart by `==`: each numbers its own.)
     assert!(
@@ -411,10 +426,18 @@ fn child_loses_the_shared_device() {
     );
     assert_eq!(reopened.compiled_kernels(), 1);
 
-    // An edit: the masks change, and the picker is made again with them.
+    // An edit on the lost device (the masks change: new buffers), after a pick that found the
+    // loss: both notes are kept, and the picker answers with the masks.
     lose(&reopened);
-    picker.set_mask(0, 2).expect("an edit after the loss");
     let masked = Query::default();
+    picker
+        .query(&first_rays, &masked)
+        .expect("a pick after the loss");
+    picker
+        .set_mask(0, 2)
+        .expect("an edit (new buffers) after the pick");
+    lose(&GpuContext::shared().expect("device"));
+    picker.set_mask(0, 2).expect("an edit after the loss");
     let got = picker.query(&first_rays, &masked).expect("gpu");
     let mut edited = ReferencePicker::new(first.clone());
     edited.set_mask(0, 2).expect("twin edit");
@@ -426,7 +449,10 @@ fn child_loses_the_shared_device() {
         &got,
         &want,
     );
-    assert_eq!(picker.take_notes().len(), 1);
+    let notes = Picker::take_notes(&mut picker);
+    assert_eq!(notes.len(), 2, "{notes:?}");
+    lost_note(&notes[..1], 3);
+    lost_note(&notes[1..], 4);
 
     // A picker remade over another scene (the server's rebuilding edits).
     lose(&GpuContext::shared().expect("device"));
@@ -436,21 +462,29 @@ fn child_loses_the_shared_device() {
         .expect("remade after the loss");
     for q in &queries() {
         let got = remade.query(&second_rays, q).expect("gpu");
-        assert_twins(
-            "remade after the loss",
-            q,
-            &second_rays,
-            &got,
-            &twin(&second, &second_rays, q),
-        );
+        let want = twin(&second, &second_rays, q);
+        assert_twins("remade after the loss", q, &second_rays, &got, &want);
     }
-    assert_eq!(remade.take_notes().len(), 1);
+    lost_note(&remade.take_notes(), 5);
 
-    // A device the caller brought is not replaced.
+    // A device the caller brought is not replaced: each use says it was lost, and why.
     lose(&own);
-    let e = brought
-        .query(&first_rays, &Query::default())
-        .expect_err("a pick on a lost device of the caller's");
-    assert!(matches!(e, Error::DeviceLost(_)), "{e}");
-    assert!(brought.take_notes().is_empty());
+    for _ in 0..2 {
+        let e = brought
+            .query(&first_rays, &Query::default())
+            .expect_err("a pick on a lost device of the caller's");
+        assert!(
+            matches!(&e, Error::DeviceLost(why) if why == "it was destroyed"),
+            "{e}"
+        );
+        let e = brought.set_mask(0, 2).expect_err("an edit on it");
+        assert!(matches!(e, Error::DeviceLost(_)), "{e}");
+        let e = brought
+            .remake(second.clone())
+            .expect("a GPU picker remakes")
+            .err()
+            .expect("no picker remade on it");
+        assert!(matches!(e, Error::DeviceLost(_)), "{e}");
+    }
+    assert!(Picker::take_notes(&mut brought).is_empty());
 }
