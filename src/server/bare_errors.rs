@@ -6,19 +6,20 @@
 //! answers the body every other error answer has, `{"error": "sentence"}`. No answer of the
 //! routes is touched: each of their errors has a body.
 
-/// hyper's automatic answers (its own words, as it writes them) and the sentence for each.
+/// hyper's automatic answers (its own words, as it writes them after the version) and the
+/// sentence for each.
 const ANSWERS: [(&[u8], &str); 3] = [
     (
-        b"HTTP/1.1 400 Bad Request\r\n",
+        b" 400 Bad Request\r\n",
         "the request could not be read as HTTP/1.1: its method, URI, version or a header is \
          malformed",
     ),
     (
-        b"HTTP/1.1 414 URI Too Long\r\n",
+        b" 414 URI Too Long\r\n",
         "the request's URI is too long (at most 65,534 bytes): send the data in a POST body",
     ),
     (
-        b"HTTP/1.1 431 Request Header Fields Too Large\r\n",
+        b" 431 Request Header Fields Too Large\r\n",
         "the request's head is too large: at most 100 header fields, and a few hundred KiB \
          before the body",
     ),
@@ -28,10 +29,23 @@ const ANSWERS: [(&[u8], &str); 3] = [
 const EMPTY: &[u8] = b"\r\ncontent-length: 0\r\n";
 
 /// `written` with a JSON body saying what was wrong, when it is one whole automatic answer of
-/// hyper's (the status line of [`ANSWERS`], `connection: close`, an empty body); else `None`.
+/// hyper's (the status line of [`ANSWERS`], an empty body, and `connection: close`; in an
+/// HTTP/1.0 answer, which hyper writes on a connection whose last request was HTTP/1.0, the
+/// close goes without saying); else `None`.
 pub(super) fn with_sentence(written: &[u8]) -> Option<Vec<u8>> {
-    let (_, sentence) = ANSWERS.iter().find(|(line, _)| written.starts_with(line))?;
-    if !written.ends_with(b"\r\n\r\n") || find(written, b"\r\nconnection: close\r\n").is_none() {
+    let (closes, line) = if let Some(line) = written.strip_prefix(b"HTTP/1.1") {
+        (find(written, b"\r\nconnection: close\r\n").is_some(), line)
+    } else {
+        let line = written.strip_prefix(b"HTTP/1.0")?;
+        (
+            find(written, b"\r\nconnection: keep-alive\r\n").is_none(),
+            line,
+        )
+    };
+    let (_, sentence) = ANSWERS
+        .iter()
+        .find(|(status, _)| line.starts_with(status))?;
+    if !closes || !written.ends_with(b"\r\n\r\n") {
         return None;
     }
     let at = find(written, EMPTY)?;
@@ -73,6 +87,24 @@ mod tests {
         assert!(head.contains("\r\ncontent-type: application/json\r\n"));
         assert!(head.contains("\r\nconnection: close\r\n") && head.contains("\r\ndate: "));
         assert!(!head.contains("content-length: 0\r\n"));
+    }
+
+    #[test]
+    fn an_http_1_0_automatic_answer_gets_its_sentence_too() {
+        let head = b"HTTP/1.0 400 Bad Request\r\ncontent-length: 0\r\ndate: Mon, 30 Nov 2026 \
+            08:36:20 GMT\r\n\r\n";
+        let answer = String::from_utf8(with_sentence(head).expect("rewritten")).unwrap();
+        assert!(
+            answer.starts_with("HTTP/1.0 400 Bad Request\r\n"),
+            "{answer}"
+        );
+        assert!(
+            answer.ends_with("\"}") && answer.contains("could not be read"),
+            "{answer}"
+        );
+        let kept =
+            b"HTTP/1.0 400 Bad Request\r\nconnection: keep-alive\r\ncontent-length: 0\r\n\r\n";
+        assert_eq!(with_sentence(kept), None);
     }
 
     #[test]
