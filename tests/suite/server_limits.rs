@@ -6,7 +6,8 @@
 //! 200 idle connections are held, that connections beyond the cap wait for a free slot, and that
 //! a request over the memory budget gets 503 while the next normal request answers 200, and that
 //! an error sentence quotes at most 60 characters of a megabyte-long field name or value, that
-//! the requests hyper refuses itself (400, 414, 431) get their sentence too; and,
+//! the requests hyper refuses itself (400, 414, 431) get their sentence too, that a slow but
+//! steady reader of a large answer gets all of it; and,
 //! for `raypick serve` in a child process, that work over `--max-memory` gets 503 too and a
 //! `--memory-budget` over `--max-memory` is refused at start. Every
 //! loop is bounded; the whole file runs in a few seconds.
@@ -636,4 +637,63 @@ fn requests_hyper_refuses_get_their_status_with_a_sentence() {
             assert!(text[8..].starts_with(" 200 OK"), "{text}");
         }
     }
+}
+
+/// A client that takes a large answer steadily but slower than the socket wakes the server's
+/// writer (which waits for a third of a send buffer of up to several MiB to drain: longer than
+/// the idle timeout at this pace) gets the whole answer: the bytes it has acknowledged count as
+/// progress. (A 26 MB answer read at 30–100 KB/s was cut short at the idle timeout.)
+#[cfg(target_os = "linux")]
+#[test]
+fn a_slow_but_steady_reader_gets_the_whole_answer() {
+    use std::os::fd::AsRawFd;
+    let addr = start(ServerConfig {
+        idle_timeout: Duration::from_millis(300),
+        ..ServerConfig::default()
+    });
+    let ray = r#"{"origin":[33.3,45.1,100],"dir":[0.01,0.02,-1]}"#;
+    let body = format!(r#"{{"rays":[{}]}}"#, vec![ray; 30_000].join(","));
+    let mut stream = connect(addr, Duration::from_secs(20));
+    // A small receive buffer, so the server's writes wait on this reader.
+    let size: libc::c_int = 16 << 10;
+    // SAFETY: SO_RCVBUF reads one int from the pointer, which points to one.
+    let set = unsafe {
+        libc::setsockopt(
+            stream.as_raw_fd(),
+            libc::SOL_SOCKET,
+            libc::SO_RCVBUF,
+            (&size as *const libc::c_int).cast(),
+            size_of::<libc::c_int>() as libc::socklen_t,
+        )
+    };
+    assert_eq!(set, 0, "set the receive buffer");
+    let head = format!(
+        "POST /pick HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\
+         Content-Type: application/json\r\nContent-Length: {}\r\n\r\n",
+        body.len()
+    );
+    stream.write_all(head.as_bytes()).expect("send head");
+    stream.write_all(body.as_bytes()).expect("send body");
+    // About 1 MB/s, in 16 KiB reads.
+    let (mut answer, mut buf) = (Vec::new(), vec![0u8; 16 << 10]);
+    loop {
+        match stream.read(&mut buf) {
+            Ok(0) | Err(_) => break,
+            Ok(n) => answer.extend_from_slice(&buf[..n]),
+        }
+        std::thread::sleep(Duration::from_millis(15));
+    }
+    let text = String::from_utf8_lossy(&answer);
+    let (head, body) = text.split_once("\r\n\r\n").expect("an answer");
+    assert!(head.starts_with("HTTP/1.1 200"), "{head}");
+    let length: usize = head
+        .lines()
+        .find_map(|l| l.strip_prefix("content-length: "))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no length in {head}"));
+    assert!(
+        length > 5 << 20,
+        "an answer of {length} bytes waits on no one"
+    );
+    assert_eq!(body.len(), length, "the answer was cut short");
 }
