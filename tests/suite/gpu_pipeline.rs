@@ -333,19 +333,11 @@ fn pickers_share_the_process_device_and_each_device_compiles_the_kernel_once() {
 #[test]
 fn a_picker_on_the_lost_shared_device_opens_it_again() {
     gpu();
-    let out = std::process::Command::new(std::env::current_exe().unwrap())
-        .args([
-            "--exact",
-            &crate::child_test_name(module_path!(), "child_loses_the_shared_device"),
-            "--ignored",
-            "--nocapture",
-            "--test-threads=1",
-        ])
-        .output()
-        .expect("run the child test");
-    let text =
-        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success() && text.contains("1 passed"), "{text}");
+    crate::run_child_test(
+        std::process::Command::new(std::env::current_exe().unwrap()),
+        module_path!(),
+        "child_loses_the_shared_device",
+    );
 }
 
 #[test]

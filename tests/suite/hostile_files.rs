@@ -656,22 +656,7 @@ fn child(name: &str) -> String {
     } else {
         Command::new(std::env::current_exe().unwrap())
     };
-    let exact = crate::child_test_name(module_path!(), name);
-    let out = command
-        .args([
-            "--exact",
-            &exact,
-            "--ignored",
-            "--nocapture",
-            "--test-threads=1",
-        ])
-        .output()
-        .expect("run the child test");
-    let text =
-        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{name}: {text}");
-    assert!(text.contains("1 passed"), "{name} did not run: {text}");
-    text
+    crate::run_child_test(command, module_path!(), name)
 }
 
 /// Ray-file text generated on the fly: `remaining` rays, with comments and blank lines.

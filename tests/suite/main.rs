@@ -6,8 +6,8 @@
 //!
 //! The tests of different modules run side by side in one process: a test never changes the
 //! process's state (environment, working folder, global thread pool), and the few that need a
-//! fresh process (peak memory, an address-space limit) run themselves again as a child
-//! ([`child_test_name`]).
+//! fresh process (peak memory, an address-space limit, a lost shared GPU device) run themselves
+//! again as a child ([`run_child_test`]).
 
 mod common;
 
@@ -55,4 +55,25 @@ mod workgroup_size;
 pub fn child_test_name(module: &str, name: &str) -> String {
     let module = module.split_once("::").map_or("", |(_, rest)| rest);
     format!("{module}::{name}")
+}
+
+/// Runs the ignored test `name` of module `module` (`module_path!()` there) in a child process
+/// through `command` (this test binary, perhaps behind `prlimit`, with what environment the
+/// child needs); checks that it ran and passed, and returns what it printed.
+pub fn run_child_test(mut command: std::process::Command, module: &str, name: &str) -> String {
+    let out = command
+        .args([
+            "--exact",
+            &child_test_name(module, name),
+            "--ignored",
+            "--nocapture",
+            "--test-threads=1",
+        ])
+        .output()
+        .expect("run the child test");
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{name}: {text}");
+    assert!(text.contains("1 passed"), "{name} did not run: {text}");
+    text
 }

@@ -1357,20 +1357,9 @@ fn loading_peaks_within_one_and_a_half_times_the_scene() {
         std::mem::forget(dir); // the files stay, for measurements by hand
     }
     for file in &files {
-        let out = Command::new(std::env::current_exe().unwrap())
-            .args([
-                "--exact",
-                &crate::child_test_name(module_path!(), "child_loads_one_scene_file"),
-                "--ignored",
-                "--nocapture",
-            ])
-            .args(["--test-threads=1"])
-            .env("RAYPICK_PEAK_FILE", file)
-            .output()
-            .expect("run the child test");
-        let text = String::from_utf8_lossy(&out.stdout).into_owned()
-            + &String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success() && text.contains("1 passed"), "{text}");
+        let mut command = Command::new(std::env::current_exe().unwrap());
+        command.env("RAYPICK_PEAK_FILE", file);
+        let text = crate::run_child_test(command, module_path!(), "child_loads_one_scene_file");
         let value = |key: &str| -> f64 {
             text.split_whitespace()
                 .find_map(|w| w.strip_prefix(key)?.strip_prefix('='))
