@@ -647,7 +647,7 @@ fn fifos_and_devices_are_refused_as_scenes_without_blocking() {
 
 /// Runs the ignored test `name` of this binary in its own process and returns its output.
 fn child(name: &str) -> String {
-    let mut command = if has_prlimit() {
+    let command = if has_prlimit() {
         let mut c = Command::new("prlimit");
         c.arg("--as=2000000000")
             .arg("--")
