@@ -128,20 +128,22 @@ impl GpuContext {
     }
 
     /// The shared device opened again, when this context is a lost shared one
-    /// ([`GpuContext::shared`]); `None` when it is not lost, or is a device the caller brought.
-    /// wgpu reports a loss as the device is polled, once the work it was given has ended:
-    /// this waits for that first (at most a second; an idle device answers at once).
+    /// ([`GpuContext::shared`]); `None` when it is not lost (as far as wgpu has said:
+    /// [`GpuContext::settle`]), or is a device the caller brought.
     pub(crate) fn reopened(&self) -> Option<Result<Self>> {
-        if self.opening == 0 {
+        if self.opening == 0 || !self.is_lost() {
             return None;
         }
+        Some(Self::shared().map_err(|e| Error::DeviceLost(format!("opening it again failed: {e}"))))
+    }
+
+    /// Lets wgpu report a loss that failed the last work: it does so as the device is polled,
+    /// once the work it was given has ended, which this waits for (at most a second).
+    pub(crate) fn settle(&self) {
         let _ = self.device.poll(wgpu::PollType::Wait {
             submission_index: None,
             timeout: Some(std::time::Duration::from_secs(1)),
         });
-        self.is_lost().then(|| {
-            Self::shared().map_err(|e| Error::DeviceLost(format!("opening it again failed: {e}")))
-        })
     }
 
     /// Async form of [`GpuContext::new`].

@@ -376,6 +376,13 @@ impl GpuPicker {
         Ok(true)
     }
 
+    /// After work on the device failed: [`GpuPicker::reopen_if_lost`] once wgpu has said
+    /// whether the device was lost ([`GpuContext::settle`]).
+    fn settled_and_reopened(&mut self) -> Result<bool> {
+        self.context.settle();
+        self.reopen_if_lost()
+    }
+
     /// A picker like this one over `built` on `context`, the shared device opened again after
     /// this one's was lost; its note says so. On the same adapter it keeps this one's kernel
     /// settings, chunking and ray order; another adapter (the GPU gone, a software one left)
@@ -732,7 +739,7 @@ impl Tracer for GpuPicker {
         self.context.queue.submit([]);
         let _ = self.context.device.poll(wgpu::PollType::Poll);
         match self.context.take_fault() {
-            Err(e) if !self.reopen_if_lost()? => Err(self.context.lost_error().unwrap_or(e)),
+            Err(e) if !self.settled_and_reopened()? => Err(self.context.lost_error().unwrap_or(e)),
             _ => Ok(()),
         }
     }
@@ -752,7 +759,7 @@ impl Tracer for GpuPicker {
         match self.trace_batch(rays, settings.max_hits, settings.watertight) {
             // A device the caller brought: its loss said as such (wgpu's own words for the
             // failed batch are about invalid buffers and submissions).
-            Err(e) if !self.reopen_if_lost()? => Err(self.context.lost_error().unwrap_or(e)),
+            Err(e) if !self.settled_and_reopened()? => Err(self.context.lost_error().unwrap_or(e)),
             Err(_) => self.trace_batch(rays, settings.max_hits, settings.watertight),
             traced => traced,
         }
