@@ -7,7 +7,8 @@
 //! a request over the memory budget gets 503 while the next normal request answers 200, and that
 //! an error sentence quotes at most 60 characters of a megabyte-long field name or value, that
 //! the requests hyper refuses itself (400, 414, 431) get their sentence too, that a slow but
-//! steady reader of a large answer gets all of it; and,
+//! steady reader of a large answer gets all of it, that a body not read whole ends the
+//! connection with `connection: close` said; and,
 //! for `raypick serve` in a child process, that work over `--max-memory` gets 503 too and a
 //! `--memory-budget` over `--max-memory` is refused at start. Every
 //! loop is bounded; the whole file runs in a few seconds.
@@ -696,4 +697,44 @@ fn a_slow_but_steady_reader_gets_the_whole_answer() {
         "an answer of {length} bytes waits on no one"
     );
     assert_eq!(body.len(), length, "the answer was cut short");
+}
+
+/// A request whose body the server does not read whole (declared over the limit, or broken
+/// chunks) ends its connection, and its answer says so (`connection: close`), with its sentence.
+#[test]
+fn an_unread_body_ends_the_connection_and_the_answer_says_so() {
+    let addr = start(ServerConfig::default());
+    let cases: [(&[u8], u16, &str); 2] = [
+        (
+            b"POST /pick HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n\
+              Content-Length: 100000000\r\n\r\n{\"rays\":",
+            413,
+            "larger than this server's limit",
+        ),
+        (
+            b"POST /pick HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n\
+              Transfer-Encoding: chunked\r\n\r\nzz\r\n{}\r\n0\r\n\r\n",
+            400,
+            "could not be read",
+        ),
+    ];
+    for (request, status, sentence) in cases {
+        let mut stream = connect(addr, Duration::from_secs(20));
+        stream.write_all(request).expect("send");
+        let mut answer = Vec::new();
+        assert!(
+            wait_for_close(&mut stream, &mut answer).is_some(),
+            "the connection stays open"
+        );
+        let text = String::from_utf8_lossy(&answer).into_owned();
+        let (got, body) = parse(&answer);
+        assert_eq!(got, status, "{text}");
+        assert!(body.contains(sentence), "{text}");
+        let head = text.split("\r\n\r\n").next().unwrap_or_default();
+        assert!(
+            head.lines()
+                .any(|l| l.eq_ignore_ascii_case("connection: close")),
+            "{text}"
+        );
+    }
 }
