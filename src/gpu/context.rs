@@ -3,16 +3,16 @@
 //! device ([`GpuContext::shared`]); the kernels compiled on a device, kept with it.
 
 use crate::error::{Error, Result};
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 
 /// The device [`GpuContext::shared`] hands out, with the process that opened it (a forked
 /// child cannot use its parent's device).
 static SHARED: Mutex<Option<(u32, GpuContext)>> = Mutex::new(None);
 
-/// How many shared devices this process has opened ([`GpuContext::shared`]): the first, then
-/// each one opened again after a loss.
-static OPENINGS: AtomicU32 = AtomicU32::new(0);
+/// How many shared devices a process has opened and kept ([`GpuContext::shared`]: the first,
+/// then each one opened again after a loss), with that process (a forked child counts its
+/// own). Counted under [`SHARED`]'s lock, as each is stored.
+static OPENINGS: Mutex<(u32, u32)> = Mutex::new((0, 0));
 
 /// A wgpu device and queue, with the errors and device loss wgpu reports asynchronously.
 #[derive(Clone, Debug)]
@@ -74,14 +74,20 @@ impl GpuContext {
         if let Some(context) = current(&mut lock()) {
             return Ok((context, false));
         }
-        let opened = Self {
-            opening: OPENINGS.fetch_add(1, Ordering::Relaxed) + 1,
-            ..Self::new()?
-        };
+        let opened = Self::new()?;
         let mut slot = lock();
         match current(&mut slot) {
             Some(context) => Ok((context, false)),
             None => {
+                let mut openings = OPENINGS.lock().unwrap_or_else(PoisonError::into_inner);
+                *openings = match *openings {
+                    (owner, count) if owner == pid => (pid, count + 1),
+                    _ => (pid, 1),
+                };
+                let opened = Self {
+                    opening: openings.1,
+                    ..opened
+                };
                 *slot = Some((pid, opened.clone()));
                 Ok((opened, true))
             }

@@ -11,7 +11,7 @@
 const ANSWERS: [(&[u8], &str); 3] = [
     (
         b" 400 Bad Request\r\n",
-        "the request could not be read as HTTP/1.1: its method, URI, version or a header is \
+        "the request could not be read as HTTP: its method, URI, version or a header is \
          malformed",
     ),
     (
@@ -52,10 +52,17 @@ pub(super) fn with_sentence(written: &[u8]) -> Option<Vec<u8>> {
     let body = serde_json::json!({ "error": sentence }).to_string();
     let mut answer = Vec::with_capacity(written.len() + body.len() + 64);
     answer.extend_from_slice(&written[..at]);
+    // An HTTP/1.0 answer ends its connection without saying so: this one says it.
+    let says_close = find(written, b"\r\nconnection: close\r\n").is_some();
     answer.extend_from_slice(
         format!(
-            "\r\ncontent-type: application/json\r\ncontent-length: {}\r\n",
-            body.len()
+            "\r\ncontent-type: application/json\r\ncontent-length: {}\r\n{}",
+            body.len(),
+            if says_close {
+                ""
+            } else {
+                "connection: close\r\n"
+            }
         )
         .as_bytes(),
     );
@@ -85,7 +92,12 @@ mod tests {
         assert!(head.starts_with("HTTP/1.1 414 URI Too Long\r\n"));
         assert!(head.contains(&format!("\r\ncontent-length: {}\r\n", body.len())));
         assert!(head.contains("\r\ncontent-type: application/json\r\n"));
-        assert!(head.contains("\r\nconnection: close\r\n") && head.contains("\r\ndate: "));
+        assert!(head.contains("\r\ndate: "));
+        assert_eq!(
+            head.matches("\r\nconnection: close\r\n").count(),
+            1,
+            "{head}"
+        );
         assert!(!head.contains("content-length: 0\r\n"));
     }
 
@@ -100,6 +112,11 @@ mod tests {
         );
         assert!(
             answer.ends_with("\"}") && answer.contains("could not be read"),
+            "{answer}"
+        );
+        assert_eq!(
+            answer.matches("\r\nconnection: close\r\n").count(),
+            1,
             "{answer}"
         );
         let kept =

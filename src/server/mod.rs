@@ -463,6 +463,10 @@ struct LimitedIo {
     _slot: OwnedSemaphorePermit,
 }
 
+/// The least pace, in bytes a second, at which a client taking an answer keeps its connection
+/// past the idle timeout ([`LimitedIo::still_reading`]).
+const MIN_READ_RATE: f64 = 16.0 * 1024.0;
+
 /// The bytes `stream` holds that the client has not acknowledged yet (Linux's `SIOCOUTQ`);
 /// `None` where that cannot be asked.
 #[cfg(target_os = "linux")]
@@ -514,13 +518,17 @@ impl LimitedIo {
     /// Whether a client is taking an answer that waits on it, only slower than the socket
     /// wakes its writer (which waits for a third of a send buffer of up to several MiB to
     /// drain: a client reading 30–100 KB/s had a 26 MB answer cut short at the idle timeout).
-    /// Yes when the bytes the socket holds that the client has not acknowledged went down since
-    /// the write began to wait, or since the last look; that counts as progress.
+    /// Yes when the bytes the socket holds that the client has not acknowledged went down, by
+    /// [`MIN_READ_RATE`] over the idle timeout at least, since the write began to wait or since
+    /// the last look; that counts as progress.
     fn still_reading(&mut self) -> bool {
         let (Some(was), Some(now)) = (self.unacknowledged, unacknowledged(&self.inner)) else {
             return false;
         };
-        if now >= was {
+        // At least `MIN_READ_RATE` over the idle timeout: a client taking a segment now and
+        // then does not hold its connection (and the answer's memory) for ever.
+        let least = (self.idle_timeout.as_secs_f64() * MIN_READ_RATE) as usize;
+        if now.saturating_add(least.max(1)) > was {
             return false;
         }
         self.unacknowledged = Some(now);

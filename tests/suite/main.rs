@@ -57,11 +57,17 @@ pub fn child_test_name(module: &str, name: &str) -> String {
     format!("{module}::{name}")
 }
 
+/// Set in the environment of a child test run by [`run_child_test`]: a child test that must
+/// have a process of its own returns at once without it (`cargo test -- --include-ignored`
+/// runs it beside the others).
+pub const CHILD_TEST: &str = "RAYPICK_CHILD_TEST";
+
 /// Runs the ignored test `name` of module `module` (`module_path!()` there) in a child process
 /// through `command` (this test binary, perhaps behind `prlimit`, with what environment the
 /// child needs); checks that it ran and passed, and returns what it printed.
 pub fn run_child_test(mut command: std::process::Command, module: &str, name: &str) -> String {
     let out = command
+        .env(CHILD_TEST, "1")
         .args([
             "--exact",
             &child_test_name(module, name),

@@ -593,12 +593,12 @@ fn requests_hyper_refuses_get_their_status_with_a_sentence() {
         (
             b"GARBAGE\r\n\r\n".to_vec(),
             400,
-            "could not be read as HTTP/1.1",
+            "could not be read as HTTP:",
         ),
         (
             b"GET /scene HTTP/1.1\r\nHost: localhost\r\nBad Header\r\n\r\n".to_vec(),
             400,
-            "could not be read as HTTP/1.1",
+            "could not be read as HTTP:",
         ),
         (long_uri, 414, "URI is too long"),
         (many_fields, 431, "at most 100 header fields"),
@@ -607,7 +607,7 @@ fn requests_hyper_refuses_get_their_status_with_a_sentence() {
               localhost\r\nBad Header\r\n\r\n"
                 .to_vec(),
             400,
-            "could not be read as HTTP/1.1",
+            "could not be read as HTTP:",
         ),
         // hyper answers in the version of the connection's last request.
         (
@@ -615,7 +615,7 @@ fn requests_hyper_refuses_get_their_status_with_a_sentence() {
               GET /st ats HTTP/1.0\r\n\r\n"
                 .to_vec(),
             400,
-            "could not be read as HTTP/1.1",
+            "could not be read as HTTP:",
         ),
     ];
     for (request, status, sentence) in cases {
@@ -649,7 +649,7 @@ fn requests_hyper_refuses_get_their_status_with_a_sentence() {
 fn a_slow_but_steady_reader_gets_the_whole_answer() {
     use std::os::fd::AsRawFd;
     let addr = start(ServerConfig {
-        idle_timeout: Duration::from_millis(300),
+        idle_timeout: Duration::from_secs(1),
         ..ServerConfig::default()
     });
     let ray = r#"{"origin":[33.3,45.1,100],"dir":[0.01,0.02,-1]}"#;
@@ -675,14 +675,14 @@ fn a_slow_but_steady_reader_gets_the_whole_answer() {
     );
     stream.write_all(head.as_bytes()).expect("send head");
     stream.write_all(body.as_bytes()).expect("send body");
-    // About 1 MB/s, in 16 KiB reads.
+    // About 600 KB/s, in 16 KiB reads.
     let (mut answer, mut buf) = (Vec::new(), vec![0u8; 16 << 10]);
     loop {
         match stream.read(&mut buf) {
             Ok(0) | Err(_) => break,
             Ok(n) => answer.extend_from_slice(&buf[..n]),
         }
-        std::thread::sleep(Duration::from_millis(15));
+        std::thread::sleep(Duration::from_millis(25));
     }
     let text = String::from_utf8_lossy(&answer);
     let (head, body) = text.split_once("\r\n\r\n").expect("an answer");
