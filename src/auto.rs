@@ -135,10 +135,9 @@ impl AutoPicker {
         if !self.on_hardware {
             return;
         }
-        let Some(gpu) = self.gpu.take_if(|gpu| gpu.context().is_software()) else {
+        let Some(mut gpu) = self.gpu.take_if(|gpu| gpu.context().is_software()) else {
             return;
         };
-        let mut gpu = gpu;
         self.notes.extend(Picker::take_notes(&mut gpu));
         let adapter = gpu.context().describe();
         self.notes.push(format!(

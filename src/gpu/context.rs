@@ -122,25 +122,23 @@ impl GpuContext {
         self.lost.get().is_some()
     }
 
-    /// [`Error::DeviceLost`] with the reason, once the device is lost (every later use of it
-    /// would fail with wgpu's words about invalid buffers and submissions).
-    pub(crate) fn lost_error(&self) -> Option<Error> {
-        self.lost.get().map(|why| Error::DeviceLost(why.clone()))
-    }
-
     /// Which of the process's shared devices this is, counting from 1 (0: not a shared one).
     pub(crate) fn opening(&self) -> u32 {
         self.opening
     }
 
-    /// The shared device opened again, when this context is a lost shared one
-    /// ([`GpuContext::shared`]); `None` when it is not lost (as far as wgpu has said:
-    /// [`GpuContext::settle`]), or is a device the caller brought.
+    /// `None` while the device is not lost (as far as wgpu has said: [`GpuContext::settle`]).
+    /// Once it is: the shared device opened again, for a lost shared one
+    /// ([`GpuContext::shared`]); [`Error::DeviceLost`] with the reason for a device the caller
+    /// brought (every later use of it would fail with wgpu's words about invalid buffers and
+    /// submissions), or when no device opens again.
     pub(crate) fn reopened(&self) -> Option<Result<Self>> {
-        if self.opening == 0 || !self.is_lost() {
-            return None;
-        }
-        Some(Self::shared().map_err(|e| Error::DeviceLost(format!("opening it again failed: {e}"))))
+        let why = self.lost.get()?;
+        Some(if self.opening == 0 {
+            Err(Error::DeviceLost(why.clone()))
+        } else {
+            Self::shared().map_err(|e| Error::DeviceLost(format!("opening it again failed: {e}")))
+        })
     }
 
     /// Lets wgpu report a loss that failed the last work: it does so as the device is polled,

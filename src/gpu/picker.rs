@@ -295,9 +295,6 @@ impl GpuPicker {
         if let Some(context) = self.context.reopened() {
             return self.on_device_opened_again(context?, built);
         }
-        if let Some(lost) = self.context.lost_error() {
-            return Err(lost);
-        }
         self.context.take_fault()?;
         check_sizes(&self.context.device.limits(), &built)?;
         let mut picker = Self::with_kernel(&self.context, self.kernel.clone(), built)?;
@@ -364,16 +361,23 @@ impl GpuPicker {
     /// When this picker's device is the process's shared one ([`GpuContext::shared`]) and was
     /// lost (a driver reset, a GPU taken away, `Device::destroy`), makes it again on the shared
     /// device opened anew: the same scene, kernel settings, chunking and ray order, and says so
-    /// in a note. `Ok(false)` when there was nothing to do; an error when no device opens.
-    /// A device the caller brought ([`GpuPicker::new`]) is not replaced: its loss stays an error.
+    /// in a note. `Ok(false)` when the device is not lost; [`Error::DeviceLost`] when no device
+    /// opens, or for a lost device the caller brought ([`GpuPicker::new`]), which is not
+    /// replaced.
     fn reopen_if_lost(&mut self) -> Result<bool> {
         let Some(context) = self.context.reopened() else {
             return Ok(false);
         };
-        let mut picker = self.on_device_opened_again(context?, self.built.clone())?;
-        picker.notes.splice(0..0, std::mem::take(&mut self.notes));
-        *self = picker;
+        let picker = self.on_device_opened_again(context?, self.built.clone())?;
+        self.replace_with(picker);
         Ok(true)
+    }
+
+    /// `picker` in this one's place, with the notes this one had not handed out yet.
+    fn replace_with(&mut self, picker: Self) {
+        let notes = std::mem::take(&mut self.notes);
+        *self = picker;
+        self.notes.splice(0..0, notes);
     }
 
     /// After work on the device failed: [`GpuPicker::reopen_if_lost`] once wgpu has said
@@ -690,9 +694,6 @@ impl Tracer for GpuPicker {
         if self.reopen_if_lost()? {
             return Ok(());
         }
-        if let Some(lost) = self.context.lost_error() {
-            return Err(lost);
-        }
         let built = self.built.clone();
         match refit {
             Refit::Refitted => {
@@ -728,9 +729,8 @@ impl Tracer for GpuPicker {
             }
             // New buffers, each bound anew (the batch's bind group names the old ones).
             Refit::Rebuilt => {
-                let notes = std::mem::take(&mut self.notes);
-                *self = self.over(built)?;
-                self.notes.splice(0..0, notes);
+                let picker = self.over(built)?;
+                self.replace_with(picker);
             }
         }
         // The writes' staging memory is the device's until a submission carries them and
@@ -739,7 +739,7 @@ impl Tracer for GpuPicker {
         self.context.queue.submit([]);
         let _ = self.context.device.poll(wgpu::PollType::Poll);
         match self.context.take_fault() {
-            Err(e) if !self.settled_and_reopened()? => Err(self.context.lost_error().unwrap_or(e)),
+            Err(e) if !self.settled_and_reopened()? => Err(e),
             _ => Ok(()),
         }
     }
@@ -751,15 +751,10 @@ impl Tracer for GpuPicker {
         rays: &[GpuRay],
         settings: &TraceSettings<'_>,
     ) -> Result<(Vec<GpuHit>, Vec<GpuHitEntry>)> {
-        if let Some(lost) = self.context.lost_error()
-            && !self.reopen_if_lost()?
-        {
-            return Err(lost);
-        }
+        self.reopen_if_lost()?;
         match self.trace_batch(rays, settings.max_hits, settings.watertight) {
-            // A device the caller brought: its loss said as such (wgpu's own words for the
-            // failed batch are about invalid buffers and submissions).
-            Err(e) if !self.settled_and_reopened()? => Err(self.context.lost_error().unwrap_or(e)),
+            // (A device the caller brought and lost: its loss, said as such.)
+            Err(e) if !self.settled_and_reopened()? => Err(e),
             Err(_) => self.trace_batch(rays, settings.max_hits, settings.watertight),
             traced => traced,
         }

@@ -33,8 +33,9 @@ const EMPTY: &[u8] = b"\r\ncontent-length: 0\r\n";
 /// HTTP/1.0 answer, which hyper writes on a connection whose last request was HTTP/1.0, the
 /// close goes without saying); else `None`.
 pub(super) fn with_sentence(written: &[u8]) -> Option<Vec<u8>> {
+    let says_close = find(written, b"\r\nconnection: close\r\n").is_some();
     let (closes, line) = if let Some(line) = written.strip_prefix(b"HTTP/1.1") {
-        (find(written, b"\r\nconnection: close\r\n").is_some(), line)
+        (says_close, line)
     } else {
         let line = written.strip_prefix(b"HTTP/1.0")?;
         (
@@ -53,7 +54,6 @@ pub(super) fn with_sentence(written: &[u8]) -> Option<Vec<u8>> {
     let mut answer = Vec::with_capacity(written.len() + body.len() + 64);
     answer.extend_from_slice(&written[..at]);
     // An HTTP/1.0 answer ends its connection without saying so: this one says it.
-    let says_close = find(written, b"\r\nconnection: close\r\n").is_some();
     answer.extend_from_slice(
         format!(
             "\r\ncontent-type: application/json\r\ncontent-length: {}\r\n{}",
