@@ -242,6 +242,9 @@ pub(crate) fn router(state: Arc<AppState>) -> Router {
             state.clone(),
             super::host::known_hosts_only,
         ))
+        .layer(axum::middleware::from_fn(
+            super::unread_body::close_if_body_unread,
+        ))
         .with_state(state)
 }
 

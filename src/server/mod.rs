@@ -4,7 +4,8 @@
 //! This module owns the [`Server`] (its configuration, start-up and serving); the routes and
 //! their JSON live in `api`, the picking worker and its batching in [`batcher`], the page in
 //! [`page`], the refusal of other sites' requests in `origin`, picks answered in steps (and
-//! dropped when their client is gone) in `steps`.
+//! dropped when their client is gone) in `steps`, the `connection: close` of an answer to a
+//! request whose body was left unread in `unread_body`.
 //!
 //! # Threads
 //!
@@ -133,6 +134,7 @@ mod object_only;
 mod origin;
 pub mod page;
 mod steps;
+mod unread_body;
 
 pub use batcher::Stats;
 

@@ -8,7 +8,8 @@
 //! an error sentence quotes at most 60 characters of a megabyte-long field name or value, that
 //! the requests hyper refuses itself (400, 414, 431) get their sentence too, that a slow but
 //! steady reader of a large answer gets all of it, that a body not read whole ends the
-//! connection with `connection: close` said; and,
+//! connection with `connection: close` said, as does any answer that leaves the body unread
+//! (403, 404, 503); and,
 //! for `raypick serve` in a child process, that work over `--max-memory` gets 503 too and a
 //! `--memory-budget` over `--max-memory` is refused at start. Every
 //! loop is bounded; the whole file runs in a few seconds.
@@ -734,6 +735,85 @@ fn an_unread_body_ends_the_connection_and_the_answer_says_so() {
         assert!(
             head.lines()
                 .any(|l| l.eq_ignore_ascii_case("connection: close")),
+            "{text}"
+        );
+    }
+}
+
+/// An answer given without reading the request's body — another site's `POST` (403), an
+/// unknown page (404), a pick whose body alone is over the memory budget (503) — says
+/// `connection: close` and the connection ends, small body or large; a pick whose body was read
+/// leaves the connection open for the next request.
+#[test]
+fn an_answer_that_leaves_the_body_unread_says_connection_close() {
+    let addr = start(ServerConfig {
+        memory_budget: 1 << 20,
+        ..ServerConfig::default()
+    });
+    let head = |path: &str, extra: &str, length: usize| {
+        format!(
+            "POST {path} HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n\
+             {extra}Content-Length: {length}\r\n\r\n"
+        )
+    };
+    let cases = [
+        (
+            "/pick",
+            "Origin: http://elsewhere.example\r\n",
+            403,
+            "another web site",
+        ),
+        ("/no-such-page", "", 404, "no such page"),
+        ("/pick", "", 503, "budget"),
+    ];
+    for (path, extra, status, sentence) in cases {
+        for length in [100, 3_000_000] {
+            if status == 503 && length < 1 << 20 {
+                continue;
+            }
+            let mut stream = connect(addr, Duration::from_secs(20));
+            stream
+                .write_all(head(path, extra, length).as_bytes())
+                .expect("send head");
+            // The server may close while the body is still on its way: a failed send is fine.
+            let mut sender = stream.try_clone().expect("clone the stream");
+            let body = std::thread::spawn(move || {
+                let _ = sender.write_all(&vec![b' '; length]);
+            });
+            let mut answer = Vec::new();
+            assert!(
+                wait_for_close(&mut stream, &mut answer).is_some(),
+                "{path} with a {length}-byte body: the connection stays open"
+            );
+            body.join().expect("the sender");
+            let text = String::from_utf8_lossy(&answer).into_owned();
+            let (got, body) = parse(&answer);
+            assert_eq!(got, status, "{text}");
+            assert!(body.contains(sentence), "{text}");
+            let head = text.split("\r\n\r\n").next().unwrap_or_default();
+            assert!(
+                head.lines()
+                    .any(|l| l.eq_ignore_ascii_case("connection: close")),
+                "{path} with a {length}-byte body: {text}"
+            );
+        }
+    }
+    // A pick whose body is read: no `connection: close`, and a second pick on the connection.
+    let mut stream = connect(addr, Duration::from_secs(20));
+    for _ in 0..2 {
+        let request = head("/pick", "", ONE_PICK.len()) + ONE_PICK;
+        stream.write_all(request.as_bytes()).expect("send");
+        let mut answer = Vec::new();
+        let mut buf = [0u8; 4096];
+        while !String::from_utf8_lossy(&answer).contains("\"results\"") || !answer.ends_with(b"}") {
+            let n = stream.read(&mut buf).expect("the answer");
+            assert!(n > 0, "closed: {}", String::from_utf8_lossy(&answer));
+            answer.extend_from_slice(&buf[..n]);
+        }
+        let text = String::from_utf8_lossy(&answer).into_owned();
+        assert_eq!(parse(&answer).0, 200, "{text}");
+        assert!(
+            !text.to_ascii_lowercase().contains("connection: close"),
             "{text}"
         );
     }
