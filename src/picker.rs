@@ -1172,9 +1172,9 @@ impl Tracer for CpuPicker {
             Simd::Portable
         };
         format!(
-            "cpu engine ({}, {} threads)",
+            "cpu engine ({}, {})",
             simd.name(),
-            rayon::current_num_threads()
+            threads_phrase(rayon::current_num_threads())
         )
     }
 }
@@ -1235,8 +1235,8 @@ impl Tracer for ReferencePicker {
 
     fn path_name(&self) -> String {
         format!(
-            "reference (the kernel's twin, {} threads)",
-            rayon::current_num_threads()
+            "reference (the kernel's twin, {})",
+            threads_phrase(rayon::current_num_threads())
         )
     }
 }
@@ -1275,4 +1275,9 @@ pub fn make_picker(backend: Backend, built: Arc<BuiltScene>) -> Result<Box<dyn P
         )?),
         Backend::Auto => Box::new(crate::auto::AutoPicker::new(built)),
     })
+}
+
+/// "1 thread", "2 threads": how a picker's description names its CPU threads.
+fn threads_phrase(n: usize) -> String {
+    format!("{n} thread{}", if n == 1 { "" } else { "s" })
 }

@@ -82,14 +82,16 @@ fn run_ray_file(
         &raypick::Query::default(),
     )?;
     super::show_notes(&mut *picker);
+    // Described inside the pool: the CPU paths name the threads they will pick on.
+    let picking = &mut *picker;
+    let described = pool.install(move || picking.describe());
     println!(
-        "scene: {} triangles, loaded in {:.0} ms, built in {:.0} ms; {} rays from {}; {}",
+        "scene: {} triangles, loaded in {:.0} ms, built in {:.0} ms; {} rays from {}; {described}",
         built.scene.triangle_count(),
         load_s * 1e3,
         build_s * 1e3,
         rays.len(),
         path.display(),
-        picker.describe(),
     );
     let mut best = f64::INFINITY;
     let mut hits = 0;
@@ -110,9 +112,14 @@ fn run_ray_file(
     }
     super::show_notes(&mut *picker);
     println!(
-        "hits: {hits} of {} rays; best of {} passes, {threads} threads",
+        "hits: {hits} of {} rays; best of {} passes, {}",
         rays.len(),
-        args.repeat
+        args.repeat,
+        if threads == 1 {
+            "1 thread".to_owned()
+        } else {
+            format!("{threads} threads")
+        }
     );
     // The tracer alone on the same rays (scene-frame rays made once, in input order, no
     // reordering, no f64 refinement): what the pick pipeline costs around it. For the GPU, the

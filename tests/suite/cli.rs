@@ -346,6 +346,13 @@ fn bench_on_a_ray_file_ends_with_its_rate() {
         let (code, out, err) = raypick(&args);
         assert_eq!(code, 0, "{backend}: {err}");
         assert!(out.contains("hits: 2 of 3 rays"), "{backend}: {out}");
+        // The picker's description names the threads it picks on, as `--threads` asked.
+        let scene = out.lines().find(|l| l.starts_with("scene:")).unwrap();
+        assert!(scene.ends_with(", 1 thread)"), "{backend}: {scene}");
+        assert!(
+            out.contains("best of 2 passes, 1 thread\n"),
+            "{backend}: {out}"
+        );
         let last = out.trim_end().lines().last().unwrap();
         let rate: f64 = last
             .strip_prefix("pick_rays_per_s=")
