@@ -722,22 +722,28 @@ fn an_unread_body_ends_the_connection_and_the_answer_says_so() {
     for (request, status, sentence) in cases {
         let mut stream = connect(addr, Duration::from_secs(20));
         stream.write_all(request).expect("send");
-        let mut answer = Vec::new();
-        assert!(
-            wait_for_close(&mut stream, &mut answer).is_some(),
-            "the connection stays open"
-        );
-        let text = String::from_utf8_lossy(&answer).into_owned();
-        let (got, body) = parse(&answer);
-        assert_eq!(got, status, "{text}");
-        assert!(body.contains(sentence), "{text}");
-        let head = text.split("\r\n\r\n").next().unwrap_or_default();
-        assert!(
-            head.lines()
-                .any(|l| l.eq_ignore_ascii_case("connection: close")),
-            "{text}"
-        );
+        assert_closing_answer(&mut stream, status, sentence, "");
     }
+}
+
+/// Reads `stream` until the server closes it, and checks that the answer has `status`, a body
+/// with `sentence` in it, and `connection: close` in its head (`what` names the case).
+fn assert_closing_answer(stream: &mut TcpStream, status: u16, sentence: &str, what: &str) {
+    let mut answer = Vec::new();
+    assert!(
+        wait_for_close(stream, &mut answer).is_some(),
+        "{what}: the connection stays open"
+    );
+    let text = String::from_utf8_lossy(&answer).into_owned();
+    let (got, body) = parse(&answer);
+    assert_eq!(got, status, "{what}: {text}");
+    assert!(body.contains(sentence), "{what}: {text}");
+    let head = text.split("\r\n\r\n").next().unwrap_or_default();
+    assert!(
+        head.lines()
+            .any(|l| l.eq_ignore_ascii_case("connection: close")),
+        "{what}: {text}"
+    );
 }
 
 /// An answer given without reading the request's body — another site's `POST` (403), an
@@ -780,22 +786,9 @@ fn an_answer_that_leaves_the_body_unread_says_connection_close() {
             let body = std::thread::spawn(move || {
                 let _ = sender.write_all(&vec![b' '; length]);
             });
-            let mut answer = Vec::new();
-            assert!(
-                wait_for_close(&mut stream, &mut answer).is_some(),
-                "{path} with a {length}-byte body: the connection stays open"
-            );
+            let what = format!("{path} with a {length}-byte body");
+            assert_closing_answer(&mut stream, status, sentence, &what);
             body.join().expect("the sender");
-            let text = String::from_utf8_lossy(&answer).into_owned();
-            let (got, body) = parse(&answer);
-            assert_eq!(got, status, "{text}");
-            assert!(body.contains(sentence), "{text}");
-            let head = text.split("\r\n\r\n").next().unwrap_or_default();
-            assert!(
-                head.lines()
-                    .any(|l| l.eq_ignore_ascii_case("connection: close")),
-                "{path} with a {length}-byte body: {text}"
-            );
         }
     }
     // A pick whose body is read: no `connection: close`, and a second pick on the connection.
