@@ -112,14 +112,10 @@ fn run_ray_file(
     }
     super::show_notes(&mut *picker);
     println!(
-        "hits: {hits} of {} rays; best of {} passes, {}",
+        "hits: {hits} of {} rays; best of {}, {}",
         rays.len(),
-        args.repeat,
-        if threads == 1 {
-            "1 thread".to_owned()
-        } else {
-            format!("{threads} threads")
-        }
+        counted(args.repeat as usize, "pass", "passes"),
+        counted(threads, "thread", "threads")
     );
     // The tracer alone on the same rays (scene-frame rays made once, in input order, no
     // reordering, no f64 refinement): what the pick pipeline costs around it. For the GPU, the
@@ -507,4 +503,9 @@ fn percentile(samples: &[f64], p: f64) -> f64 {
     }
     let rank = ((p / 100.0) * samples.len() as f64).ceil() as usize;
     samples[rank.clamp(1, samples.len()) - 1]
+}
+
+/// `n` with its noun: "1 pass", "5 passes".
+fn counted(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
 }

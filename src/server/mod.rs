@@ -302,7 +302,7 @@ impl Server {
     }
 
     /// What answers picks ([`crate::Picker::describe`]), e.g.
-    /// `gpu llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, Cpu)` or `cpu (2 threads)`.
+    /// `gpu llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, Cpu)` or `cpu engine (avx2, 2 threads)`.
     pub fn device(&self) -> &str {
         self.state.worker.description()
     }
