@@ -96,13 +96,8 @@ fn main() -> ExitCode {
     if let Some(bytes) = cli.max_memory {
         raypick::budget::set_limit(bytes);
     }
-    // Started now: rayon starts its threads at the first parallel call otherwise, and panics
-    // there when the system refuses one (a `ulimit -v` too tight for their stacks).
-    if let Err(e) = rayon::ThreadPoolBuilder::new().build_global() {
-        eprintln!(
-            "error: cannot start the picking threads ({e}); raise `ulimit -v` or set \
-             RAYON_NUM_THREADS to fewer threads"
-        );
+    if let Err(sentence) = cli::threads::start() {
+        eprintln!("error: {sentence}");
         return ExitCode::from(2);
     }
     let (_, sub) = matches.subcommand().expect("a subcommand is required");

@@ -17,6 +17,7 @@ pub mod scene_args;
 pub mod select;
 pub mod serve;
 pub mod soak;
+pub mod threads;
 pub mod verify;
 
 use raypick::io::output::Format;
