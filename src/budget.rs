@@ -187,6 +187,39 @@ fn cgroup_limit() -> Option<u64> {
     files.iter().filter_map(|f| read(f)).min()
 }
 
+/// The threads rayon's global pool starts: `RAYON_NUM_THREADS` when it is a positive count,
+/// else one per core.
+pub fn global_thread_count() -> usize {
+    std::env::var("RAYON_NUM_THREADS")
+        .ok()
+        .and_then(|s| s.trim().parse::<usize>().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
+}
+
+/// Checks, before any is started, that `threads` threads' stacks (`RUST_MIN_STACK`, else the
+/// standard library's 2 MiB, and a guard page each) fit half of what the address-space limit
+/// (`ulimit -v`) leaves; the words why not. Threads started against a limit too tight for
+/// them failed to start with an error, but those that had started ran on, and one of them (or
+/// the starting thread) could fail a small allocation and abort the process before the error
+/// was said (seen with 5,000 threads under a 1 GB limit).
+pub fn check_thread_stacks(threads: usize) -> std::result::Result<(), String> {
+    let stack = std::env::var("RUST_MIN_STACK")
+        .ok()
+        .and_then(|s| s.trim().parse::<u64>().ok())
+        .unwrap_or(2 << 20);
+    let needed = (threads as u64).saturating_mul(stack.saturating_add(4096));
+    match address_space_left() {
+        Some(left) if needed > left / 2 => Err(format!(
+            "{threads} threads need {} of address space for their stacks, more than half of \
+             the {} the address-space limit leaves",
+            human(needed),
+            human(left)
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Checks that `count` items of `item_bytes` each fit the budget; `what` names them in the
 /// error, e.g. "the render's pixels".
 pub fn check(what: &str, count: u64, item_bytes: u64) -> Result<()> {

@@ -61,6 +61,9 @@ fn ready() -> PyResult<()> {
     };
     STARTED
         .get_or_init(|| {
+            // Counted before any is started: threads that started against a limit too tight
+            // for them could abort the process before the error was said.
+            raypick::budget::check_thread_stacks(raypick::budget::global_thread_count())?;
             match rayon::ThreadPoolBuilder::new().build_global() {
                 Ok(()) => {}
                 // Started by a parallel call that came first: running, in this process.
@@ -78,18 +81,20 @@ fn ready() -> PyResult<()> {
         None => (GLOBAL_IN.load(Ordering::Relaxed) != pid).then(rayon::current_num_threads),
     };
     if let Some(threads) = forked {
-        let pool = new_pool(threads).map_err(|e| refused(e.to_string()))?;
+        let pool = new_pool(threads).map_err(refused)?;
         *slot = Some((pid, Arc::new(pool)));
     }
     Ok(())
 }
 
-/// A pool of `threads` threads.
-fn new_pool(threads: usize) -> Result<rayon::ThreadPool, rayon::ThreadPoolBuildError> {
+/// A pool of `threads` threads (their stacks counted first, as the global pool's).
+fn new_pool(threads: usize) -> Result<rayon::ThreadPool, String> {
+    raypick::budget::check_thread_stacks(threads)?;
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .thread_name(|i| format!("raypick-{i}"))
         .build()
+        .map_err(|e| e.to_string())
 }
 
 /// `_set_threads(n)`: trace on `n` threads from now on in this process; 0 goes back to one

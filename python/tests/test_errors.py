@@ -507,7 +507,9 @@ def test_threads_the_system_refuses_are_an_oserror_each_time():
     out = _python(script, RAYON_NUM_THREADS="5000")
     lines = out.stdout.splitlines()
     assert len(lines) == 2 and all(
-        line.startswith("OSError: raypick cannot start its picking threads (") for line in lines
+        line.startswith("OSError: raypick cannot start its picking threads (5000 threads need")
+        and "for their stacks" in line
+        for line in lines
     ), out.stdout
     assert "panicked" not in out.stderr, out.stderr[-2000:]
 
