@@ -32,9 +32,7 @@ fn assert_close(a: DVec3, b: DVec3, tol: f64, what: &str) {
 }
 
 fn temp_file(name: &str, text: &str) -> PathBuf {
-    let path = std::env::temp_dir().join(format!("raypick-camera-{}-{name}", std::process::id()));
-    std::fs::write(&path, text).expect("write a temporary file");
-    path
+    crate::unique_temp_file("raypick-camera", name, text)
 }
 
 fn invalid_message(result: raypick::Result<Camera>) -> String {

@@ -5,9 +5,9 @@ use std::process::Command;
 use crate::common::raypick;
 
 fn temp_file(name: &str, text: &str) -> String {
-    let path = std::env::temp_dir().join(format!("raypick-cli-{}-{name}", std::process::id()));
-    std::fs::write(&path, text).unwrap();
-    path.display().to_string()
+    crate::unique_temp_file("raypick-cli", name, text)
+        .display()
+        .to_string()
 }
 
 /// The quick start (issue 16): an 8 × 8 grid from straight above, row i = pixel (i mod 8,

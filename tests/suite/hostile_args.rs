@@ -22,9 +22,9 @@ use crate::common::raypick;
 
 /// A file in the temporary folder, unique to this test process.
 fn temp_file(name: &str, text: &str) -> String {
-    let path = std::env::temp_dir().join(format!("raypick-hostile-{}-{name}", std::process::id()));
-    std::fs::write(&path, text).unwrap();
-    path.display().to_string()
+    crate::unique_temp_file("raypick-hostile", name, text)
+        .display()
+        .to_string()
 }
 
 /// The last part of `path` (a [`temp_file`]'s name, for a description beside it to list).
