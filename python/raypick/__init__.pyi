@@ -2,7 +2,7 @@
 # by python/tests/test_stubs.py: the same names, parameters and defaults.
 
 from os import PathLike
-from typing import Any, Literal, Optional, Sequence, Tuple, Union
+from typing import Any, Literal, Optional, Sequence, Tuple, Union, final
 
 import numpy as np
 import numpy.typing as npt
@@ -16,6 +16,7 @@ _Backend = Literal["auto", "gpu", "cpu", "reference"]
 
 __all__ = ["Scene", "camera_rays", "dask", "max_memory", "set_max_memory"]
 
+@final
 class Scene:
     """A built scene: its triangles and the tree over them, ready to pick."""
 
@@ -75,3 +76,7 @@ def camera_rays(
 ) -> np.ndarray: ...
 def max_memory() -> int: ...
 def set_max_memory(size: Union[int, str]) -> int: ...
+
+# For raypick.dask's worker processes: the threads a pick runs on in this process.
+def _set_threads(threads: int) -> None: ...
+def _threads() -> int: ...

@@ -51,12 +51,12 @@ from . import Scene, _set_threads
 __all__ = ["pick"]
 
 # Scenes loaded in this (worker) process, most recently used last.
-_SCENES = OrderedDict()
+_SCENES: "OrderedDict[tuple, Scene]" = OrderedDict()
 _SCENES_KEPT = 4
 _LOCK = threading.Lock()
 _THREADS_SET = False
 # How many times this process loaded each scene (the tests check: once).
-_LOADS = Counter()
+_LOADS: "Counter[tuple]" = Counter()
 
 
 def _scene_key(scene, masks, builder, leaf_size):
