@@ -187,37 +187,74 @@ fn cgroup_limit() -> Option<u64> {
     files.iter().filter_map(|f| read(f)).min()
 }
 
-/// The threads rayon's global pool starts: `RAYON_NUM_THREADS` when it is a positive count,
-/// else one per core.
+/// The threads rayon's global pool starts, read as rayon reads it: `RAYON_NUM_THREADS` when it
+/// is a positive count, else the deprecated `RAYON_RS_NUM_CPUS`, else one per core; at most
+/// [`rayon::max_num_threads`]. Starting the pool with this count makes the count checked
+/// ([`check_thread_stacks`]) the count started.
 pub fn global_thread_count() -> usize {
-    std::env::var("RAYON_NUM_THREADS")
-        .ok()
-        .and_then(|s| s.trim().parse::<usize>().ok())
-        .filter(|&n| n > 0)
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
+    let cores = || std::thread::available_parallelism().map_or(1, |n| n.get());
+    let read = |name: &str| {
+        std::env::var(name)
+            .ok()
+            .and_then(|s| s.parse::<usize>().ok())
+    };
+    let n = match read("RAYON_NUM_THREADS") {
+        Some(0) => cores(),
+        Some(n) => n,
+        None => read("RAYON_RS_NUM_CPUS")
+            .filter(|&n| n > 0)
+            .unwrap_or_else(cores),
+    };
+    n.min(rayon::max_num_threads())
 }
 
-/// Checks, before any is started, that `threads` threads' stacks (`RUST_MIN_STACK`, else the
-/// standard library's 2 MiB, and a guard page each) fit half of what the address-space limit
-/// (`ulimit -v`) leaves; the words why not. Threads started against a limit too tight for
-/// them failed to start with an error, but those that had started ran on, and one of them (or
-/// the starting thread) could fail a small allocation and abort the process before the error
-/// was said (seen with 5,000 threads under a 1 GB limit).
+/// Checks, before any is started, that `threads` threads fit what the address-space limit
+/// (`ulimit -v`) leaves: their stacks (`RUST_MIN_STACK`, else the standard library's 2 MiB, and
+/// a guard page each) and the allocator's arenas they may make (glibc reserves 64 MiB for each
+/// new one, up to `MALLOC_ARENA_MAX` or 8 per core); the words why not. Threads started against
+/// a limit too tight for them failed to start with an error, but those that had started ran
+/// on, and one of them (or the starting thread) could fail a small allocation and abort the
+/// process before the error was said (seen with 5,000 threads under a 1 GB limit).
 pub fn check_thread_stacks(threads: usize) -> std::result::Result<(), String> {
     let stack = std::env::var("RUST_MIN_STACK")
         .ok()
-        .and_then(|s| s.trim().parse::<u64>().ok())
+        .and_then(|s| s.parse::<u64>().ok())
         .unwrap_or(2 << 20);
-    let needed = (threads as u64).saturating_mul(stack.saturating_add(4096));
+    let threads = threads as u64;
+    let needed = threads
+        .saturating_mul(stack.saturating_add(4096))
+        .saturating_add(arena_bytes(threads));
     match address_space_left() {
-        Some(left) if needed > left / 2 => Err(format!(
-            "{threads} threads need {} of address space for their stacks, more than half of \
-             the {} the address-space limit leaves",
+        Some(left) if needed > left => Err(format!(
+            "{threads} threads need about {} of address space for their stacks and allocator \
+             arenas, more than the {} the address-space limit leaves",
             human(needed),
             human(left)
         )),
         _ => Ok(()),
     }
+}
+
+/// The address space the allocator's arenas for `threads` new threads may reserve: glibc's
+/// 64 MiB each, up to `MALLOC_ARENA_MAX` or 8 per online core.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn arena_bytes(threads: u64) -> u64 {
+    let most = std::env::var("MALLOC_ARENA_MAX")
+        .ok()
+        .and_then(|s| s.parse::<u64>().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or_else(|| {
+            // SAFETY: `sysconf` reads a system value.
+            let cores = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) };
+            8 * cores.max(1) as u64
+        });
+    threads.min(most).saturating_mul(64 << 20)
+}
+
+/// Other allocators reserve nothing per thread up front.
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn arena_bytes(_: u64) -> u64 {
+    0
 }
 
 /// Checks that `count` items of `item_bytes` each fit the budget; `what` names them in the

@@ -50,6 +50,12 @@ pub fn on_pool<R: Send>(work: impl FnOnce() -> R + Send) -> R {
 ///   (`multiprocessing`'s default start on Linux, a scene loaded before the workers) hung on its
 ///   first pick, waiting on threads left in the parent. A forked process gets a pool of its own,
 ///   of as many threads.
+///
+/// A process with a pool of its own (`_set_threads`) needs nothing else. The threads are counted
+/// against the address-space limit before any is started
+/// ([`raypick::budget::check_thread_stacks`]); a refusal there is not kept, so a later call
+/// tries again (the address space the process uses changes), while the global pool's start,
+/// once tried, is.
 fn ready() -> PyResult<()> {
     static STARTED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
     let pid = std::process::id();
@@ -59,29 +65,41 @@ fn ready() -> PyResult<()> {
              limit or set RAYON_NUM_THREADS to fewer threads"
         ))
     };
-    STARTED
-        .get_or_init(|| {
-            // Counted before any is started: threads that started against a limit too tight
-            // for them could abort the process before the error was said.
-            raypick::budget::check_thread_stacks(raypick::budget::global_thread_count())?;
-            match rayon::ThreadPoolBuilder::new().build_global() {
-                Ok(()) => {}
-                // Started by a parallel call that came first: running, in this process.
-                Err(e) if e.to_string().contains("already") => {}
-                Err(e) => return Err(e.to_string()),
-            }
-            GLOBAL_IN.store(pid, Ordering::Relaxed);
-            Ok(())
-        })
-        .clone()
-        .map_err(refused)?;
     let mut slot = POOL.lock().unwrap_or_else(PoisonError::into_inner);
-    let forked = match &*slot {
-        Some((made_in, pool)) => (*made_in != pid).then(|| pool.current_num_threads()),
-        None => (GLOBAL_IN.load(Ordering::Relaxed) != pid).then(rayon::current_num_threads),
-    };
-    if let Some(threads) = forked {
-        let pool = new_pool(threads).map_err(refused)?;
+    match &*slot {
+        Some((made_in, _)) if *made_in == pid => return Ok(()),
+        // Forked from a process with a pool of its own: one of as many threads here.
+        Some((_, pool)) => {
+            let pool = new_pool(pool.current_num_threads()).map_err(refused)?;
+            *slot = Some((pid, Arc::new(pool)));
+            return Ok(());
+        }
+        None => {}
+    }
+    if STARTED.get().is_none() {
+        let threads = raypick::budget::global_thread_count();
+        raypick::budget::check_thread_stacks(threads).map_err(refused)?;
+        STARTED
+            .get_or_init(|| {
+                match rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build_global()
+                {
+                    Ok(()) => {}
+                    // Started by a parallel call that came first: running, in this process.
+                    Err(e) if e.to_string().contains("already") => {}
+                    Err(e) => return Err(e.to_string()),
+                }
+                GLOBAL_IN.store(pid, Ordering::Relaxed);
+                Ok(())
+            })
+            .clone()
+            .map_err(refused)?;
+    }
+    STARTED.get().cloned().unwrap_or(Ok(())).map_err(refused)?;
+    // Forked from a process that had started the global pool: a pool of as many threads here.
+    if GLOBAL_IN.load(Ordering::Relaxed) != pid {
+        let pool = new_pool(rayon::current_num_threads()).map_err(refused)?;
         *slot = Some((pid, Arc::new(pool)));
     }
     Ok(())

@@ -1,6 +1,7 @@
 //! Owns the start of the picking threads (rayon's global pool): started before any command
-//! runs, and refused with a sentence, before any thread is made, when their stacks could not
-//! fit the address space `ulimit -v` leaves ([`raypick::budget::check_thread_stacks`]).
+//! runs, with the count rayon would take from the environment, and refused with a sentence,
+//! before any thread is made, when they could not fit the address space `ulimit -v` leaves
+//! ([`raypick::budget::check_thread_stacks`]).
 //!
 //! rayon starts its threads at the first parallel call otherwise, and panics there when the
 //! system refuses one.
@@ -10,9 +11,11 @@ use raypick::budget;
 /// Starts the global pool; the sentence to print when its threads cannot be started.
 pub fn start() -> Result<(), String> {
     let advice = "raise `ulimit -v` or set RAYON_NUM_THREADS to fewer threads";
-    budget::check_thread_stacks(budget::global_thread_count())
+    let threads = budget::global_thread_count();
+    budget::check_thread_stacks(threads)
         .and_then(|()| {
             rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
                 .build_global()
                 .map_err(|e| e.to_string())
         })

@@ -48,10 +48,18 @@ pub(crate) async fn close_if_body_unread(request: Request, next: Next) -> Respon
         })
     };
     let mut response = next.run(Request::from_parts(parts, body)).await;
+    let says_close = |response: &Response| {
+        response
+            .headers()
+            .get(header::CONNECTION)
+            .is_some_and(|v| v.as_bytes().eq_ignore_ascii_case(b"close"))
+    };
     let left = watch.left.lock().map_or(None, |mut left| left.take());
+    // Not for an answer that ends the connection anyway (a body refused for its size, late or
+    // broken: `ApiError::closing`).
     let ended = watch.ended.load(Ordering::Acquire)
         || match left {
-            Some(body) if !expects_continue => drained(body).await,
+            Some(body) if !expects_continue && !says_close(&response) => drained(body).await,
             _ => false,
         };
     if !ended {
@@ -59,10 +67,7 @@ pub(crate) async fn close_if_body_unread(request: Request, next: Next) -> Respon
             .headers_mut()
             .insert(header::CONNECTION, HeaderValue::from_static("close"));
     }
-    let closes = response
-        .headers()
-        .get(header::CONNECTION)
-        .is_some_and(|v| v.as_bytes().eq_ignore_ascii_case(b"close"));
+    let closes = says_close(&response);
     if closes && version == Version::HTTP_10 {
         *response.version_mut() = Version::HTTP_10;
     }

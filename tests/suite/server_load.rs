@@ -70,11 +70,14 @@ impl ServerProcess {
                 "cpu",
                 "--idle-timeout",
                 &IDLE_TIMEOUT_S.to_string(),
-                // Fixed, not a share of the machine's memory: a heavy all-hits pick (about
-                // 600 MB) and a render (about 370 MB) fit together, so the normal picks queued
-                // behind them never wait out the budget's 5 s, whatever the machine.
+                // Fixed, not a share of the machine's memory (unless that is less: the server
+                // refuses a budget over --max-memory): a heavy all-hits pick (about 600 MB) and
+                // a render (about 370 MB) fit together, so the normal picks queued behind them
+                // never wait out the budget's 5 s.
                 "--memory-budget",
-                "1536M",
+                &(1536u64 << 20)
+                    .min(raypick::budget::default_limit())
+                    .to_string(),
             ])
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
