@@ -313,19 +313,27 @@ fn a_file_size_limit_and_refused_threads_are_errors_with_a_sentence() {
             "{what}: {err}"
         );
     }
-    let (code, err) = under_limit(
-        "ulimit -v 1000000 && export RAYON_NUM_THREADS=5000",
-        "pick --backend cpu",
-    );
-    assert_eq!(code, Some(2), "{err}");
-    assert!(
-        // Refused before any thread is started (those that did start could abort the process
-        // on a failed allocation before the error was said).
-        err.starts_with("error: cannot start the picking threads")
-            && err.contains("for their stacks")
-            && !err.contains("panicked"),
-        "{err}"
-    );
+    // Counted as rayon counts them (the deprecated variable too; 100 threads' stacks fit under
+    // 1 GB, their allocator arenas do not), and refused before any is started: those that did
+    // start could abort the process on a failed allocation before the error was said.
+    for (variable, threads) in [
+        ("RAYON_NUM_THREADS", 5000),
+        ("RAYON_RS_NUM_CPUS", 5000),
+        ("RAYON_NUM_THREADS", 100),
+    ] {
+        let (code, err) = under_limit(
+            &format!("ulimit -v 1000000 && export {variable}={threads}"),
+            "pick --backend cpu",
+        );
+        assert_eq!(code, Some(2), "{variable}={threads}: {err}");
+        assert!(
+            err.starts_with(&format!(
+                "error: cannot start the picking threads ({threads} threads need"
+            )) && err.contains("for their stacks")
+                && !err.contains("panicked"),
+            "{variable}={threads}: {err}"
+        );
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 
