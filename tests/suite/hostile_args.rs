@@ -322,7 +322,8 @@ fn a_file_size_limit_and_refused_threads_are_errors_with_a_sentence() {
         ("RAYON_NUM_THREADS", 100),
     ] {
         let (code, err) = under_limit(
-            &format!("ulimit -v 1000000 && export {variable}={threads}"),
+            // `under_limit` sets RAYON_NUM_THREADS=2, which rayon reads first.
+            &format!("ulimit -v 1000000 && unset RAYON_NUM_THREADS && export {variable}={threads}"),
             "pick --backend cpu",
         );
         assert_eq!(code, Some(2), "{variable}={threads}: {err}");
