@@ -209,53 +209,60 @@ pub fn global_thread_count() -> usize {
 }
 
 /// Checks, before any is started, that `threads` threads fit what the address-space limit
-/// (`ulimit -v`) leaves: their stacks (`RUST_MIN_STACK`, else the standard library's 2 MiB, and
-/// a guard page each) and the allocator's arenas they may make (glibc reserves 64 MiB for each
-/// new one, up to `MALLOC_ARENA_MAX` or 8 per core); the words why not. Threads started against
-/// a limit too tight for them failed to start with an error, but those that had started ran
-/// on, and one of them (or the starting thread) could fail a small allocation and abort the
-/// process before the error was said (seen with 5,000 threads under a 1 GB limit).
+/// (`ulimit -v`) leaves; the words why not. Their stacks (`RUST_MIN_STACK`, else the standard
+/// library's 2 MiB, and a guard page each) must fit half of it, and the allocator's arenas
+/// (glibc reserves 64 MiB for each new one) are capped to the other half ([`cap_arenas`]), so
+/// that arenas made by the first threads cannot take the address space the later ones' stacks
+/// need. Threads started against a limit too tight for them failed to start with an error, but
+/// those that had started ran on, and one of them (or the starting thread) could fail a small
+/// allocation and abort the process before the error was said (seen with 5,000 threads under a
+/// 1 GB limit; 40–100 threads under 1 GB failed part-way on the arenas).
 pub fn check_thread_stacks(threads: usize) -> std::result::Result<(), String> {
+    let Some(left) = address_space_left() else {
+        return Ok(());
+    };
+    cap_arenas(left / 2);
     let stack = std::env::var("RUST_MIN_STACK")
         .ok()
         .and_then(|s| s.parse::<u64>().ok())
         .unwrap_or(2 << 20);
-    let threads = threads as u64;
-    let needed = threads
-        .saturating_mul(stack.saturating_add(4096))
-        .saturating_add(arena_bytes(threads));
-    match address_space_left() {
-        Some(left) if needed > left => Err(format!(
-            "{threads} threads need about {} of address space for their stacks and allocator \
-             arenas, more than the {} the address-space limit leaves",
+    let needed = (threads as u64).saturating_mul(stack.saturating_add(4096));
+    if needed > left / 2 {
+        return Err(format!(
+            "{threads} threads need {} of address space for their stacks, more than half of \
+             the {} the address-space limit leaves",
             human(needed),
             human(left)
-        )),
-        _ => Ok(()),
+        ));
     }
+    Ok(())
 }
 
-/// The address space the allocator's arenas for `threads` new threads may reserve: glibc's
-/// 64 MiB each, up to `MALLOC_ARENA_MAX` or 8 per online core.
+/// Caps the allocator's arenas (glibc's `M_ARENA_MAX`, lowered only) to as many 64 MiB
+/// reservations beside the main one as `bytes` holds, so threads' arenas stay within it.
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
-fn arena_bytes(threads: u64) -> u64 {
-    let most = std::env::var("MALLOC_ARENA_MAX")
+fn cap_arenas(bytes: u64) {
+    const ARENA: u64 = 64 << 20;
+    let cores = {
+        // SAFETY: `sysconf` reads a system value.
+        let n = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) };
+        n.max(1) as u64
+    };
+    let current = std::env::var("MALLOC_ARENA_MAX")
         .ok()
         .and_then(|s| s.parse::<u64>().ok())
         .filter(|&n| n > 0)
-        .unwrap_or_else(|| {
-            // SAFETY: `sysconf` reads a system value.
-            let cores = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) };
-            8 * cores.max(1) as u64
-        });
-    threads.min(most).saturating_mul(64 << 20)
+        .unwrap_or(8 * cores);
+    let most = (1 + bytes / ARENA).min(current).min(i32::MAX as u64);
+    // SAFETY: `mallopt` sets one of the allocator's parameters; any positive value is valid.
+    unsafe {
+        libc::mallopt(libc::M_ARENA_MAX, most as i32);
+    }
 }
 
 /// Other allocators reserve nothing per thread up front.
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
-fn arena_bytes(_: u64) -> u64 {
-    0
-}
+fn cap_arenas(_: u64) {}
 
 /// Checks that `count` items of `item_bytes` each fit the budget; `what` names them in the
 /// error, e.g. "the render's pixels".
