@@ -190,7 +190,7 @@ fn cgroup_limit() -> Option<u64> {
 /// The threads rayon's global pool starts, read as rayon reads it: `RAYON_NUM_THREADS` when it
 /// is a positive count, else the deprecated `RAYON_RS_NUM_CPUS`, else one per core; at most
 /// [`rayon::max_num_threads`]. Starting the pool with this count makes the count checked
-/// ([`check_thread_stacks`]) the count started.
+/// ([`prepare_threads`]) the count started.
 pub fn global_thread_count() -> usize {
     let cores = || std::thread::available_parallelism().map_or(1, |n| n.get());
     let read = |name: &str| {
@@ -208,8 +208,8 @@ pub fn global_thread_count() -> usize {
     n.min(rayon::max_num_threads())
 }
 
-/// Checks, before any is started, that `threads` threads fit what the address-space limit
-/// (`ulimit -v`) leaves; the words why not. Their stacks (`RUST_MIN_STACK`, else the standard
+/// Readies the process for `threads` threads, before any is started, under an address-space
+/// limit (`ulimit -v`): checks that they fit what it leaves (the words why not). Their stacks (`RUST_MIN_STACK`, else the standard
 /// library's 2 MiB, and a guard page each) must fit half of it, and the allocator's arenas
 /// (glibc reserves 64 MiB for each new one) are capped to the other half ([`cap_arenas`]), so
 /// that arenas made by the first threads cannot take the address space the later ones' stacks
@@ -217,7 +217,7 @@ pub fn global_thread_count() -> usize {
 /// those that had started ran on, and one of them (or the starting thread) could fail a small
 /// allocation and abort the process before the error was said (seen with 5,000 threads under a
 /// 1 GB limit; 40–100 threads under 1 GB failed part-way on the arenas).
-pub fn check_thread_stacks(threads: usize) -> std::result::Result<(), String> {
+pub fn prepare_threads(threads: usize) -> std::result::Result<(), String> {
     let Some(left) = address_space_left() else {
         return Ok(());
     };

@@ -53,7 +53,7 @@ pub fn on_pool<R: Send>(work: impl FnOnce() -> R + Send) -> R {
 ///
 /// A process with a pool of its own (`_set_threads`) needs nothing else. The threads are counted
 /// against the address-space limit before any is started
-/// ([`raypick::budget::check_thread_stacks`]); a refusal there is not kept, so a later call
+/// ([`raypick::budget::prepare_threads`]); a refusal there is not kept, so a later call
 /// tries again (the address space the process uses changes), while the global pool's start,
 /// once tried, is.
 fn ready() -> PyResult<()> {
@@ -76,11 +76,12 @@ fn ready() -> PyResult<()> {
         }
         None => {}
     }
-    if STARTED.get().is_none() {
-        let threads = raypick::budget::global_thread_count();
-        raypick::budget::check_thread_stacks(threads).map_err(refused)?;
-        STARTED
-            .get_or_init(|| {
+    let started = match STARTED.get() {
+        Some(started) => started,
+        None => {
+            let threads = raypick::budget::global_thread_count();
+            raypick::budget::prepare_threads(threads).map_err(refused)?;
+            STARTED.get_or_init(|| {
                 match rayon::ThreadPoolBuilder::new()
                     .num_threads(threads)
                     .build_global()
@@ -93,10 +94,9 @@ fn ready() -> PyResult<()> {
                 GLOBAL_IN.store(pid, Ordering::Relaxed);
                 Ok(())
             })
-            .clone()
-            .map_err(refused)?;
-    }
-    STARTED.get().cloned().unwrap_or(Ok(())).map_err(refused)?;
+        }
+    };
+    started.clone().map_err(refused)?;
     // Forked from a process that had started the global pool: a pool of as many threads here.
     if GLOBAL_IN.load(Ordering::Relaxed) != pid {
         let pool = new_pool(rayon::current_num_threads()).map_err(refused)?;
@@ -107,7 +107,7 @@ fn ready() -> PyResult<()> {
 
 /// A pool of `threads` threads (their stacks counted first, as the global pool's).
 fn new_pool(threads: usize) -> Result<rayon::ThreadPool, String> {
-    raypick::budget::check_thread_stacks(threads)?;
+    raypick::budget::prepare_threads(threads)?;
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .thread_name(|i| format!("raypick-{i}"))

@@ -253,8 +253,6 @@ pub(crate) fn router(state: Arc<AppState>) -> Router {
 pub(crate) struct ApiError {
     status: StatusCode,
     message: String,
-    /// The connection ends after this answer (a body not read whole), and the answer says so.
-    closes: bool,
 }
 
 impl ApiError {
@@ -262,17 +260,6 @@ impl ApiError {
         Self {
             status,
             message: message.into(),
-            closes: false,
-        }
-    }
-
-    /// The same answer with `connection: close`: for a request whose body was not read whole,
-    /// after which the connection cannot carry another request (hyper closes it anyway; the
-    /// answer tells the client so).
-    fn closing(self) -> Self {
-        Self {
-            closes: true,
-            ..self
         }
     }
 
@@ -313,13 +300,7 @@ impl IntoResponse for ApiError {
             &crate::error::shorten_quoted(&self.message),
             MOST_ERROR_CHARS,
         );
-        let mut response = json_response(self.status, &json!({ "error": message }));
-        if self.closes {
-            response
-                .headers_mut()
-                .insert(header::CONNECTION, HeaderValue::from_static("close"));
-        }
-        response
+        json_response(self.status, &json!({ "error": message }))
     }
 }
 
@@ -504,12 +485,10 @@ async fn read_body(
     timeout: Duration,
     advice: &str,
 ) -> Result<Bytes, ApiError> {
-    // Each error leaves the body unread or broken: the connection ends with the answer.
     let too_large = || {
         ApiError::too_large(format!(
             "the request body is larger than this server's limit of {limit} bytes; {advice}"
         ))
-        .closing()
     };
     let declared = headers
         .get(header::CONTENT_LENGTH)
@@ -528,7 +507,6 @@ async fn read_body(
                     timeout.as_secs_f64()
                 ),
             )
-            .closing()
         })?;
     read.map_err(|e| {
         let mut source: Option<&dyn std::error::Error> = Some(&e);
@@ -538,7 +516,7 @@ async fn read_body(
             }
             source = err.source();
         }
-        ApiError::bad_request(format!("the request body could not be read: {e}")).closing()
+        ApiError::bad_request(format!("the request body could not be read: {e}"))
     })
 }
 

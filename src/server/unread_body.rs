@@ -1,18 +1,19 @@
-//! Owns one rule of every answer: a request whose body was left unread (a 403 from another site
-//! or through an unknown host name, a 404 or 405, a 503 over the memory budget before the body
-//! was read, a `DELETE` with a body) has what is left of it drained when that is small and
-//! already on its way, and otherwise gets `connection: close`.
+//! Owns one rule of every answer: a request whose body was not read to its end (refused for
+//! its size, late or broken, a 403 from another site or through an unknown host name, a 404 or
+//! 405, a 503 over the memory budget before the body was read, a `DELETE` with a body) has what
+//! is left of it drained when that is small and already on its way, and otherwise gets
+//! `connection: close`.
 //!
 //! hyper cannot take another request from a connection with a body still in it: it drains the
 //! rest when that is already in its buffer and closes the connection otherwise, without a word
 //! in the answer. Here a handler's unread body comes back to this middleware, which reads up to
-//! [`DRAIN_BYTES`] more of it for at most [`DRAIN_WAIT`] (not for `Expect: 100-continue`,
-//! whose client sends the body only when asked): a small body the client sent whole leaves the
-//! connection open, as hyper would have; a body that is large, late or broken ends it, and the
-//! answer says so, so a client does not send its next request onto a connection that is about
-//! to end. The routes' own reading errors (413, 408, a broken body's 400) say it themselves
-//! (`ApiError::closing`). An HTTP/1.0 request's closing answer is sent as HTTP/1.0 (hyper would
-//! add `keep-alive` beside `close` to an HTTP/1.1 answer for a 1.0 client that asked for it).
+//! [`DRAIN_BYTES`] more of it for at most [`DRAIN_WAIT`] (not a body declared larger, one that
+//! failed to read, or one behind `Expect: 100-continue`, whose client sends it only when
+//! asked): a small body the client sent whole leaves the connection open, as hyper would have;
+//! a body that is large, late or broken ends it, and the answer says so, so a client does not
+//! send its next request onto a connection that is about to end. An HTTP/1.0 request's closing
+//! answer is sent as HTTP/1.0 (hyper would add `keep-alive` beside `close` to an HTTP/1.1
+//! answer for a 1.0 client that asked for it).
 
 use axum::body::{Body, Bytes};
 use axum::extract::Request;
@@ -36,7 +37,13 @@ const DRAIN_WAIT: Duration = Duration::from_millis(50);
 pub(crate) async fn close_if_body_unread(request: Request, next: Next) -> Response {
     let (parts, body) = request.into_parts();
     let version = parts.version;
-    let expects_continue = parts.headers.contains_key(header::EXPECT);
+    // A rest worth draining: not one the client holds back until asked, nor one declared too
+    // large to drain.
+    let drainable = !parts.headers.contains_key(header::EXPECT)
+        && body
+            .size_hint()
+            .upper()
+            .is_none_or(|n| n <= DRAIN_BYTES as u64);
     let watch = Arc::new(Watch::default());
     let body = if body.is_end_stream() {
         watch.ended.store(true, Ordering::Release);
@@ -45,31 +52,23 @@ pub(crate) async fn close_if_body_unread(request: Request, next: Next) -> Respon
         Body::new(Watched {
             inner: Some(body),
             watch: watch.clone(),
+            failed: false,
         })
     };
     let mut response = next.run(Request::from_parts(parts, body)).await;
-    let says_close = |response: &Response| {
-        response
-            .headers()
-            .get(header::CONNECTION)
-            .is_some_and(|v| v.as_bytes().eq_ignore_ascii_case(b"close"))
-    };
     let left = watch.left.lock().map_or(None, |mut left| left.take());
-    // Not for an answer that ends the connection anyway (a body refused for its size, late or
-    // broken: `ApiError::closing`).
     let ended = watch.ended.load(Ordering::Acquire)
         || match left {
-            Some(body) if !expects_continue && !says_close(&response) => drained(body).await,
+            Some(body) if drainable => drained(body).await,
             _ => false,
         };
     if !ended {
         response
             .headers_mut()
             .insert(header::CONNECTION, HeaderValue::from_static("close"));
-    }
-    let closes = says_close(&response);
-    if closes && version == Version::HTTP_10 {
-        *response.version_mut() = Version::HTTP_10;
+        if version == Version::HTTP_10 {
+            *response.version_mut() = Version::HTTP_10;
+        }
     }
     response
 }
@@ -105,10 +104,12 @@ struct Watch {
 }
 
 /// A request body that notes when it has been read to its end, and hands itself back to the
-/// middleware when dropped before that.
+/// middleware when dropped before that (unless it failed to read: a broken body is not
+/// drained).
 struct Watched {
     inner: Option<Body>,
     watch: Arc<Watch>,
+    failed: bool,
 }
 
 impl HttpBody for Watched {
@@ -126,7 +127,11 @@ impl HttpBody for Watched {
         let done = match &polled {
             Poll::Ready(None) => true,
             Poll::Ready(Some(Ok(_))) => inner.is_end_stream(),
-            _ => false,
+            Poll::Ready(Some(Err(_))) => {
+                self.failed = true;
+                false
+            }
+            Poll::Pending => false,
         };
         if done {
             self.watch.ended.store(true, Ordering::Release);
@@ -147,7 +152,7 @@ impl HttpBody for Watched {
 
 impl Drop for Watched {
     fn drop(&mut self) {
-        if self.watch.ended.load(Ordering::Acquire) {
+        if self.failed || self.watch.ended.load(Ordering::Acquire) {
             return;
         }
         if let (Some(body), Ok(mut left)) = (self.inner.take(), self.watch.left.lock()) {
