@@ -1119,7 +1119,12 @@ impl CpuPicker {
     fn engine<'a>(&'a self, settings: &TraceSettings<'a>) -> Result<crate::engine::Engine<'a>> {
         let built = &self.built;
         if let Some(instances) = built.instances() {
-            return crate::engine::Engine::instanced(instances, settings, self.simd);
+            return crate::engine::Engine::instanced(
+                instances,
+                &built.bvh.nodes,
+                settings,
+                self.simd,
+            );
         }
         let mut engine = crate::engine::Engine::new(
             built.wide()?,

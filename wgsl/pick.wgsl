@@ -256,16 +256,43 @@ fn safe_inverse(dir: vec3<f32>) -> vec3<f32> {
 }
 
 fn ray_box(node: GpuNode, origin: vec3<f32>, dir: vec3<f32>, inv_dir: vec3<f32>, tmin: f32, tmax: f32) -> bool {
-    let t0 = (node.min - origin) * inv_dir;
-    let t1 = (node.max - origin) * inv_dir;
+    let interval = box_interval(node.min, node.max, origin, dir, inv_dir);
+    return max(interval.x, tmin) <= min(interval.y, tmax);
+}
+
+// The ray's slab interval over the box [lo, hi], each end widened by BOX_PAD relative, before
+// tmin and tmax cut it.
+fn box_interval(lo: vec3<f32>, hi: vec3<f32>, origin: vec3<f32>, dir: vec3<f32>, inv_dir: vec3<f32>) -> vec2<f32> {
+    let t0 = (lo - origin) * inv_dir;
+    let t1 = (hi - origin) * inv_dir;
     // A ray parallel to a slab and inside it (faces included) is unconstrained by that slab;
     // without this, an origin exactly on a face would give 0 * inverse = 0 and cull the box.
-    let free = abs(dir) < vec3<f32>(MIN_DIR) & origin >= node.min & origin <= node.max;
+    let free = abs(dir) < vec3<f32>(MIN_DIR) & origin >= lo & origin <= hi;
     let near = select(min(t0, t1), vec3<f32>(-HUGE), free);
     let far = select(max(t0, t1), vec3<f32>(HUGE), free);
     let t_near = max(max(near.x, near.y), near.z);
     let t_far = min(min(far.x, far.y), far.z);
-    return max(t_near - mul(abs(t_near), BOX_PAD), tmin) <= min(t_far + mul(abs(t_far), BOX_PAD), tmax);
+    return vec2<f32>(t_near - mul(abs(t_near), BOX_PAD), t_far + mul(abs(t_far), BOX_PAD));
+}
+
+// box_interval over the triangle's own box.
+fn triangle_interval(tri: GpuTriangle, origin: vec3<f32>, dir: vec3<f32>, inv_dir: vec3<f32>) -> vec2<f32> {
+    let a = vertex(tri.v0);
+    let b = vertex(tri.v1);
+    let c = vertex(tri.v2);
+    return box_interval(min(min(a, b), c), max(max(a, b), c), origin, dir, inv_dir);
+}
+
+// The interval a cut by b, by comparisons alone.
+fn clip(a: vec2<f32>, b: vec2<f32>) -> vec2<f32> {
+    return vec2<f32>(select(a.x, b.x, b.x > a.x), select(a.y, b.y, b.y < a.y));
+}
+
+// A hit's t moved into the ray's interval over the triangle's own box (src/cpu/ray_box.rs,
+// hit_t): then no box holding a hit at or before the nearest is pruned, whatever the walk.
+// The caller drops the hit when the interval is empty.
+fn clamp_to(t: f32, interval: vec2<f32>) -> f32 {
+    return select(select(t, interval.y, t > interval.y), interval.x, t < interval.x);
 }
 
 // ---- ray/triangle (src/cpu/ray_triangle.rs) ----
@@ -445,6 +472,8 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
     var inside = NO_INSTANCE;
     var instance: GpuInstance;
     var instance_leaf = 0u;
+    // The world ray's interval over the entered instance's leaf box: its hits' t stay in it.
+    var leaf_interval = vec2<f32>(0.0);
     // Hits need t in (tmin, limit]; limit shrinks to the nearest hit (closest), or to the
     // farthest kept hit once the all-hits list is full and has overflowed.
     var limit = ray.tmax;
@@ -498,6 +527,7 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
                     instance = r;
                     inside = node.first;
                     instance_leaf = current;
+                    leaf_interval = box_interval(node.min, node.max, ray.origin, ray.dir, world_inv_dir);
                     origin = instance_origin(r, ray.origin, origin_lo(ray));
                     dir = instance_dir(r, ray.dir);
                     inv_dir = safe_inverse(dir);
@@ -513,13 +543,25 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
                         continue;
                     }
                     best.triangle_tests += 1u;
+                    let tri = triangles[leaf_prim];
                     var h: TriangleHit;
                     if params.watertight != 0u {
-                        h = ray_triangle_watertight(triangles[leaf_prim], origin, shear);
+                        h = ray_triangle_watertight(tri, origin, shear);
                     } else {
-                        h = ray_triangle(triangles[leaf_prim], origin, dir);
+                        h = ray_triangle(tri, origin, dir);
                     }
-                    if !h.hit || !facing_allowed(h.det, cull) || !(h.t > ray.tmin) || !(h.t <= limit) {
+                    if !h.hit || !facing_allowed(h.det, cull) {
+                        continue;
+                    }
+                    var interval = triangle_interval(tri, origin, dir, inv_dir);
+                    if inside != NO_INSTANCE {
+                        interval = clip(interval, leaf_interval);
+                    }
+                    if !(interval.x <= interval.y) {
+                        continue;
+                    }
+                    let t = clamp_to(h.t, interval);
+                    if !(t > ray.tmin) || !(t <= limit) {
                         continue;
                     }
                     var prim = leaf_prim;
@@ -527,16 +569,16 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
                         prim = instance.prim_base + triangle_ids[leaf_prim];
                     }
                     if mode == MODE_ALL {
-                        limit = insert_hit(&best, list_base, GpuHitEntry(h.t, prim, h.u, h.v), ray.tmax);
+                        limit = insert_hit(&best, list_base, GpuHitEntry(t, prim, h.u, h.v), ray.tmax);
                     } else {
-                        if !closest_accepts(best, h.t, prim) {
+                        if !closest_accepts(best, t, prim) {
                             continue;
                         }
-                        best.t = h.t;
+                        best.t = t;
                         best.prim = prim;
                         best.u = h.u;
                         best.v = h.v;
-                        limit = h.t;
+                        limit = t;
                         if mode == MODE_ANY {
                             done = true;
                             break;

@@ -1,6 +1,6 @@
 //! Ray/box slab test in f32: the CPU twin of `ray_box` in `wgsl/pick.wgsl`.
 
-use crate::layout::GpuNode;
+use crate::layout::{GpuNode, GpuTriangle};
 use glam::Vec3;
 
 /// Relative widening of each box's `[t_near, t_far]` so rounding never culls a box the ray touches.
@@ -26,7 +26,17 @@ pub fn ray_box(
     tmin: f32,
     tmax: f32,
 ) -> bool {
-    let (min, max) = (Vec3::from(node.min), Vec3::from(node.max));
+    let (lo, hi) = box_interval(node.min.into(), node.max.into(), origin, dir, inv_dir);
+    lo.max(tmin) <= hi.min(tmax)
+}
+
+/// The ray's slab interval over the box `[min, max]`, each end widened by [`BOX_PAD`] relative:
+/// `(t_near - |t_near| * BOX_PAD, t_far + |t_far| * BOX_PAD)`, before `tmin` and `tmax` cut it
+/// ([`ray_box`]'s test). For a larger box every end moves outward (a lower
+/// first and a higher second end: the computed operations are monotonic), which [`hit_t`]
+/// relies on.
+#[inline]
+pub fn box_interval(min: Vec3, max: Vec3, origin: Vec3, dir: Vec3, inv_dir: Vec3) -> (f32, f32) {
     let t0 = (min - origin) * inv_dir;
     let t1 = (max - origin) * inv_dir;
     // A ray parallel to a slab and inside it (faces included) is unconstrained by that slab;
@@ -36,5 +46,52 @@ pub fn ray_box(
     let far = Vec3::select(free, Vec3::splat(HUGE), t0.max(t1));
     let t_near = near.x.max(near.y).max(near.z);
     let t_far = far.x.min(far.y).min(far.z);
-    (t_near - t_near.abs() * BOX_PAD).max(tmin) <= (t_far + t_far.abs() * BOX_PAD).min(tmax)
+    (
+        t_near - t_near.abs() * BOX_PAD,
+        t_far + t_far.abs() * BOX_PAD,
+    )
+}
+
+/// [`box_interval`] over the triangle's own box (the min and max of its vertices).
+#[inline]
+pub fn triangle_interval(tri: &GpuTriangle, origin: Vec3, dir: Vec3, inv_dir: Vec3) -> (f32, f32) {
+    let (a, b, c) = (Vec3::from(tri.v0), Vec3::from(tri.v1), Vec3::from(tri.v2));
+    box_interval(a.min(b).min(c), a.max(b).max(c), origin, dir, inv_dir)
+}
+
+/// The interval `a` cut by `b` (an instance's leaf box in the scene frame), by comparisons
+/// alone, as the kernel and the engine cut it.
+#[inline]
+pub fn clip(a: (f32, f32), b: (f32, f32)) -> (f32, f32) {
+    (
+        if b.0 > a.0 { b.0 } else { a.0 },
+        if b.1 < a.1 { b.1 } else { a.1 },
+    )
+}
+
+/// A triangle hit at `t` as every walk counts it: `None` when the ray's interval over the
+/// triangle's own box, `(lo, hi)` ([`triangle_interval`], cut by an instance's leaf box),
+/// is empty; else `t` moved into it.
+///
+/// Why: a walk prunes a box by the nearest hit so far, comparing its padded near end with it.
+/// The triangle test's `t` is rounded otherwise, so for a ray starting close to the surface, or
+/// a long thin triangle, it can fall before the padded near end of a box that holds its
+/// triangle; whether that triangle was then tested depended on what the walk had found first,
+/// and so on the tree and the walk (a tie could go to the higher id). A `t` within the
+/// triangle's own interval is within every enclosing box's, so no box holding a hit at or
+/// before the nearest is ever pruned, and the answer is the least hit under the tie rule
+/// whatever the walk.
+#[inline]
+pub fn hit_t(t: f32, (lo, hi): (f32, f32)) -> Option<f32> {
+    // Not `lo > hi`: a NaN end (a box the ray never enters) is no interval either.
+    if lo.partial_cmp(&hi).is_none_or(|o| o.is_gt()) {
+        return None;
+    }
+    Some(if t < lo {
+        lo
+    } else if t > hi {
+        hi
+    } else {
+        t
+    })
 }

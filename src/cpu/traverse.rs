@@ -9,7 +9,7 @@
     reason = "keeps the code comparable to the WGSL"
 )]
 
-use super::ray_box::{ray_box, safe_inverse};
+use super::ray_box::{box_interval, clip, hit_t, ray_box, safe_inverse, triangle_interval};
 use super::ray_triangle::Shear;
 use super::ray_triangle::{TriangleHit, ray_triangle, ray_triangle_watertight, shear_for};
 use crate::layout::{
@@ -204,6 +204,9 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
     let mut inside = NO_INSTANCE;
     let mut instance = GpuInstance::default();
     let mut instance_leaf = 0u32;
+    // The world ray's interval over the entered instance's leaf box (scene frame): its hits'
+    // t are kept within it ([`hit_t`]), so the top tree never prunes a box holding one.
+    let mut leaf_interval = (0.0f32, 0.0f32);
     // Hits need t in (tmin, limit]; limit shrinks to the nearest hit (closest), or to the
     // farthest kept hit once the all-hits list is full and has overflowed.
     let mut limit = ray.tmax;
@@ -255,6 +258,13 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
                     instance = r;
                     inside = node.first;
                     instance_leaf = current;
+                    leaf_interval = box_interval(
+                        node.min.into(),
+                        node.max.into(),
+                        world_origin,
+                        world_dir,
+                        world_inv_dir,
+                    );
                     (origin, dir) = enter_instance(&r, world_origin, origin_lo(ray), world_dir);
                     inv_dir = safe_inverse(dir);
                     shear = shear_for(dir);
@@ -271,16 +281,23 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
                         continue;
                     }
                     best.triangle_tests += 1;
+                    let tri = triangles.triangle(leaf_prim);
                     let h: TriangleHit<f32> = if buffers.watertight {
-                        ray_triangle_watertight(&triangles.triangle(leaf_prim), origin, &shear)
+                        ray_triangle_watertight(&tri, origin, &shear)
                     } else {
-                        ray_triangle(&triangles.triangle(leaf_prim), origin, dir)
+                        ray_triangle(&tri, origin, dir)
                     };
-                    if !h.hit
-                        || !facing_allowed(h.det, cull)
-                        || !(h.t > ray.tmin)
-                        || !(h.t <= limit)
-                    {
+                    if !h.hit || !facing_allowed(h.det, cull) {
+                        continue;
+                    }
+                    let mut interval = triangle_interval(&tri, origin, dir, inv_dir);
+                    if inside != NO_INSTANCE {
+                        interval = clip(interval, leaf_interval);
+                    }
+                    let Some(t) = hit_t(h.t, interval) else {
+                        continue;
+                    };
+                    if !(t > ray.tmin) || !(t <= limit) {
                         continue;
                     }
                     let prim = if inside != NO_INSTANCE {
@@ -293,7 +310,7 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
                             &mut best,
                             hit_list,
                             GpuHitEntry {
-                                t: h.t,
+                                t,
                                 prim,
                                 u: h.u,
                                 v: h.v,
@@ -302,14 +319,14 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
                             tie_ids,
                         );
                     } else {
-                        if !closest_accepts(&best, h.t, prim, tie_ids) {
+                        if !closest_accepts(&best, t, prim, tie_ids) {
                             continue;
                         }
-                        best.t = h.t;
+                        best.t = t;
                         best.prim = prim;
                         best.u = h.u;
                         best.v = h.v;
-                        limit = h.t;
+                        limit = t;
                         if mode == MODE_ANY {
                             done = true;
                             break;

@@ -8,9 +8,10 @@
 
 use super::lanes8::Lanes8;
 use super::walk::{self, Leaves, Pushed, RayState};
+use crate::cpu::ray_box::{box_interval, safe_inverse};
 use crate::cpu::traverse::{closest_accepts, enter_instance, insert_hit, origin_lo};
 use crate::instance::Instances;
-use crate::layout::{GpuHit, GpuHitEntry, GpuRay, MODE_ALL, MODE_ANY, NO_HIT};
+use crate::layout::{GpuHit, GpuHitEntry, GpuNode, GpuRay, MODE_ALL, MODE_ANY, NO_HIT};
 use glam::Vec3;
 
 /// What the instanced walk reads: the top tree, the instances, and each mesh's wide walk.
@@ -19,6 +20,9 @@ pub struct TopScene<'a> {
     pub top: walk::Scene<'a>,
     /// The instances (records and meshes).
     pub instances: &'a Instances,
+    /// The scene's node buffer: the binary top tree's leaf boxes, whose interval on the ray
+    /// bounds each instance's hits (`ray_box::hit_t`), as the kernel's and the twin's.
+    pub top_nodes: &'a [GpuNode],
     /// Each mesh's wide tree and triangles, as the single-ray walk reads them.
     pub meshes: Vec<walk::Scene<'a>>,
     /// Stack entries the top walk needs.
@@ -80,7 +84,16 @@ impl<L: Lanes8> Leaves<L> for Visit<'_, '_> {
         };
         // From the record, read already (not the instance's own, another line elsewhere).
         let mesh = &self.scene.meshes[r.mesh as usize];
-        let h = walk::trace::<L>(mesh, &local, self.scratch, self.stack);
+        let leaf = &self.scene.top_nodes[self.scene.instances.leaf_of(k as usize) as usize];
+        let world_dir = Vec3::from(ray.dir);
+        let clip = box_interval(
+            leaf.min.into(),
+            leaf.max.into(),
+            origin,
+            world_dir,
+            safe_inverse(world_dir),
+        );
+        let h = walk::trace_clipped::<L>(mesh, &local, self.scratch, self.stack, clip);
         st.best.box_tests += h.box_tests;
         st.best.triangle_tests += h.triangle_tests;
         let id = |leaf: u32| r.prim_base + mesh.triangle_ids[leaf as usize];

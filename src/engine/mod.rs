@@ -138,10 +138,12 @@ impl<'a> Engine<'a> {
     }
 
     /// The engine over an instanced scene for `settings`: the wide top tree walked nearest
-    /// first, each instance's mesh through its own wide tree ([`instanced`]). Fails on a
+    /// first, each instance's mesh through its own wide tree ([`instanced`]); `nodes` is the
+    /// scene's node buffer, whose top tree's leaf boxes bound each instance's hits. Fails on a
     /// corrupted mesh tree.
     pub fn instanced(
         instances: &'a crate::instance::Instances,
+        nodes: &'a [crate::layout::GpuNode],
         settings: &TraceSettings<'a>,
         simd: Simd,
     ) -> crate::error::Result<Self> {
@@ -191,6 +193,7 @@ impl<'a> Engine<'a> {
                     interleave: false,
                 },
                 instances,
+                top_nodes: nodes,
                 meshes,
                 top_stack: walk::stack_size(instances.top_wide().depth),
             }),

@@ -155,11 +155,31 @@ fn boxes<L: Lanes8>(node: &WideNode, r: &RayLanes<L>, limit: f32) -> (u32, L) {
 /// [`boxes`] with the children met as a lane mask.
 #[inline(always)]
 fn boxes_met<L: Lanes8>(node: &WideNode, r: &RayLanes<L>, limit: f32) -> (L::Mask, L) {
+    // Written out (not `array::map`, whose closure is not always inlined here).
+    let min = [
+        L::load(&node.min[0]),
+        L::load(&node.min[1]),
+        L::load(&node.min[2]),
+    ];
+    let max = [
+        L::load(&node.max[0]),
+        L::load(&node.max[1]),
+        L::load(&node.max[2]),
+    ];
+    let (lo, hi) = intervals(min, max, r);
+    let lo = lo.max(L::splat(r.tmin));
+    let hi = hi.min(L::splat(limit));
+    (lo.le(hi), lo)
+}
+
+/// The twin's `box_interval` for eight boxes: the ray's padded slab interval over each, before
+/// `tmin` and the limit cut it.
+#[inline(always)]
+fn intervals<L: Lanes8>(min: [L; 3], max: [L; 3], r: &RayLanes<L>) -> (L, L) {
     let mut near = [L::splat(0.0); 3];
     let mut far = [L::splat(0.0); 3];
     for a in 0..3 {
-        let min = L::load(&node.min[a]);
-        let max = L::load(&node.max[a]);
+        let (min, max) = (min[a], max[a]);
         let (o, inv) = (r.origin[a], r.inv[a]);
         let t0 = min.sub(o).mul(inv);
         let t1 = max.sub(o).mul(inv);
@@ -174,9 +194,10 @@ fn boxes_met<L: Lanes8>(node: &WideNode, r: &RayLanes<L>, limit: f32) -> (L::Mas
     let t_near = near[0].max(near[1]).max(near[2]);
     let t_far = far[0].min(far[1]).min(far[2]);
     let pad = L::splat(BOX_PAD);
-    let lo = t_near.sub(t_near.abs().mul(pad)).max(L::splat(r.tmin));
-    let hi = t_far.add(t_far.abs().mul(pad)).min(L::splat(limit));
-    (lo.le(hi), lo)
+    (
+        t_near.sub(t_near.abs().mul(pad)),
+        t_far.add(t_far.abs().mul(pad)),
+    )
 }
 
 #[inline(always)]
@@ -297,6 +318,9 @@ pub struct RayState<'r, L: Lanes8> {
     dir: [f32; 3],
     /// The watertight test's shear rows (zero for Möller–Trumbore).
     shear: [[f32; 3]; 3],
+    /// In an instance's mesh: the world ray's interval over the instance's leaf box in the
+    /// top tree, which bounds its hits' t as the triangles' own boxes do (`ray_box::clip`).
+    clip: Option<(f32, f32)>,
     mode: u32,
     cull: u32,
     /// The answer so far (and this walk's b and i).
@@ -467,6 +491,7 @@ impl<'r, L: Lanes8> RayState<'r, L> {
             r: RayLanes::new(ray, inv),
             dir: Vec3::from(ray.dir).to_array(),
             shear,
+            clip: None,
             mode: ray.flags & 3,
             cull: (ray.flags >> crate::layout::CULL_SHIFT) & 3,
             best,
@@ -576,13 +601,30 @@ impl<'r, L: Lanes8> RayState<'r, L> {
         let Some(h) = h else {
             return;
         };
-        let in_range = L::and(h.t.gt(L::splat(self.r.tmin)), h.t.le(L::splat(self.limit)));
+        // Each lane's t kept within the ray's interval over its triangle's own box (cut by the
+        // instance's leaf box in a mesh), as the twin's `ray_box::hit_t` keeps it; a lane whose
+        // interval is empty does not hit. In lanes for the whole group: taken lane by lane with
+        // the twin's functions, for the lanes that pass the edge tests, the walk was 6–9% slower.
+        let low = |a: usize| v[0][a].min(v[1][a]).min(v[2][a]);
+        let high = |a: usize| v[0][a].max(v[1][a]).max(v[2][a]);
+        let (min, max) = ([low(0), low(1), low(2)], [high(0), high(1), high(2)]);
+        let (mut lo, mut hi) = intervals(min, max, &self.r);
+        if let Some((clip_lo, clip_hi)) = self.clip {
+            let (clip_lo, clip_hi) = (L::splat(clip_lo), L::splat(clip_hi));
+            lo = L::select(clip_lo.gt(lo), clip_lo, lo);
+            hi = L::select(clip_hi.lt(hi), clip_hi, hi);
+        }
+        let t = L::select(h.t.lt(lo), lo, L::select(h.t.gt(hi), hi, h.t));
+        let in_range = L::and(
+            lo.le(hi),
+            L::and(t.gt(L::splat(self.r.tmin)), t.le(L::splat(self.limit))),
+        );
         let mut hits = h.hit & L::bits(in_range) & lanes;
         if hits == 0 {
             return;
         }
         let (t, u, v, det) = (
-            h.t.to_array(),
+            t.to_array(),
             h.u.to_array(),
             h.v.to_array(),
             h.det.to_array(),
@@ -591,26 +633,27 @@ impl<'r, L: Lanes8> RayState<'r, L> {
             let lane = hits.trailing_zeros() as usize;
             hits &= hits - 1;
             let prim = (first + lane) as u32;
-            if !facing_allowed(det[lane], self.cull) || !(t[lane] <= self.limit) {
+            let t = t[lane];
+            if !facing_allowed(det[lane], self.cull) || !(t <= self.limit) {
                 continue;
             }
             if self.mode == MODE_ALL {
                 let e = GpuHitEntry {
-                    t: t[lane],
+                    t,
                     prim,
                     u: u[lane],
                     v: v[lane],
                 };
                 self.limit = insert_hit(&mut self.best, hit_list, e, ray.tmax, scene.triangle_ids);
             } else {
-                if !closest_accepts(&self.best, t[lane], prim, scene.triangle_ids) {
+                if !closest_accepts(&self.best, t, prim, scene.triangle_ids) {
                     continue;
                 }
-                self.best.t = t[lane];
+                self.best.t = t;
                 self.best.prim = prim;
                 self.best.u = u[lane];
                 self.best.v = v[lane];
-                self.limit = t[lane];
+                self.limit = t;
                 if self.mode == MODE_ANY {
                     self.done = true;
                     return;
@@ -909,6 +952,25 @@ pub fn trace<L: Lanes8>(
     trace_leaves::<L>(scene, ray, hit_list, stack, &mut Triangles(scene))
 }
 
+/// [`trace`] for a ray moved into an instance's mesh, its hits' t kept within `clip`, the world
+/// ray's interval over the instance's leaf box (`ray_box::box_interval`), as the kernel and
+/// the twin keep them.
+#[inline(always)]
+pub fn trace_clipped<L: Lanes8>(
+    scene: &Scene<'_>,
+    ray: &GpuRay,
+    hit_list: &mut [GpuHitEntry],
+    stack: &mut [Pushed],
+    clip: (f32, f32),
+) -> GpuHit {
+    let (miss, state) = RayState::<L>::new(scene, ray, true);
+    let Some(mut st) = state else {
+        return miss;
+    };
+    st.clip = Some(clip);
+    walk_whole(scene, st, hit_list, stack, &mut Triangles(scene))
+}
+
 /// [`trace`]'s walk with each leaf met visited by `leaf`, nearest first, which may lower
 /// `state.limit` (pruning what is left), set `state.best` and `state.done` (triangles for
 /// [`trace`]; the instanced walk's top tree visits instances, interleaved:
@@ -925,6 +987,18 @@ pub fn trace_leaves<L: Lanes8>(
     let Some(st) = state else {
         return miss;
     };
+    walk_whole(scene, st, hit_list, stack, leaf)
+}
+
+/// Walks one ray whose state is made, one node after another, to its answer.
+#[inline(always)]
+fn walk_whole<L: Lanes8>(
+    scene: &Scene<'_>,
+    st: RayState<'_, L>,
+    hit_list: &mut [GpuHitEntry],
+    stack: &mut [Pushed],
+    leaf: &mut impl Leaves<L>,
+) -> GpuHit {
     let mut walk = Walk {
         st,
         child: 0,

@@ -599,6 +599,12 @@ impl Instances {
         &self.instances
     }
 
+    /// Instance `k`'s leaf in the top tree (an index into the scene's node buffer), or
+    /// `u32::MAX` for an instance with nothing to hit (no ray enters it).
+    pub fn leaf_of(&self, k: usize) -> u32 {
+        self.leaf_of[k]
+    }
+
     /// The kernel's record of each instance, in id order.
     pub fn records(&self) -> &[GpuInstance] {
         &self.records

@@ -9,10 +9,11 @@ use raypick::check::compare::differences;
 use raypick::check::synthetic::{RayKind, hills, mixed_rays, rays, terrain, triangle_soup};
 use raypick::engine::wide::{EMPTY, INNER, WIDTH, WideNode};
 use raypick::engine::{Simd, WideBvh};
+use raypick::instance::Instance;
 use raypick::io::scene_files::{SceneFile, load_scene};
 use raypick::{
-    Answers, BuildOptions, Builder, BuiltScene, CpuPicker, GpuPicker, Mode, Picker, Query, Ray,
-    ReferencePicker, Scene,
+    Answers, BuildOptions, Builder, BuiltScene, CpuPicker, DVec3, GpuPicker, Mesh, Mode, Picker,
+    Query, Ray, ReferencePicker, Scene,
 };
 use std::path::Path;
 use std::sync::Arc;
@@ -246,4 +247,176 @@ fn large_batches_on_every_lane_kind_and_walk_match_the_twin() {
             }
         }
     }
+}
+
+/// A box `long` units along x, one unit across, its far end one unit higher (the end faces
+/// stay square): at 32,768 its long faces are triangles 32,768 times longer than wide (a
+/// fuzzed file's shape).
+fn long_box(long: f64) -> Scene {
+    let p = |x: f64, y: f64, z: f64| DVec3::new(x * long, y, 3.0 + z + x);
+    let positions = vec![
+        p(0.0, 0.0, 0.0),
+        p(1.0, 0.0, 0.0),
+        p(0.0, 1.0, 0.0),
+        p(1.0, 1.0, 0.0),
+        p(0.0, 0.0, 1.0),
+        p(1.0, 0.0, 1.0),
+        p(0.0, 1.0, 1.0),
+        p(1.0, 1.0, 1.0),
+    ];
+    // The fuzzed file's faces (1-based there): two triangles per side.
+    let faces = [
+        [1, 2, 4],
+        [1, 4, 3],
+        [5, 7, 8],
+        [5, 8, 6],
+        [1, 5, 6],
+        [1, 6, 2],
+        [3, 4, 8],
+        [3, 8, 7],
+        [1, 3, 7],
+        [1, 7, 5],
+        [2, 6, 8],
+        [2, 8, 4],
+    ];
+    let mesh = Mesh {
+        positions,
+        triangles: faces.iter().map(|f| f.map(|i| i - 1)).collect(),
+    };
+    Scene::from_meshes([("long box".to_string(), mesh)]).unwrap()
+}
+
+/// Rays that start close to a face, or meet long thin triangles end on, found a triangle whose
+/// f32 t fell before the padded near end of a box holding it; whether such a triangle was then
+/// tested depended on what the walk had met first, so the engine and the twin (and different
+/// trees) answered differently (4 of these 32,768 rays on the engine against the twin). Each hit's t is now kept within the
+/// ray's interval over its triangle's own box (`ray_box::hit_t`): the same bits everywhere.
+#[test]
+fn long_thin_triangles_and_near_starts_give_the_same_bits_on_every_walk() {
+    let scene = long_box(32768.0);
+    let rays: Vec<Ray> = mixed_rays(&scene, 32768, 1)
+        .into_iter()
+        .map(|(_, r)| r)
+        .collect();
+    for query in [
+        Query::default(),
+        Query {
+            mode: Mode::All,
+            max_hits: 3,
+            ..Query::default()
+        },
+    ] {
+        let mut first: Option<Answers> = None;
+        for options in [
+            with(Builder::MedianCut, 8),
+            with(Builder::MedianCut, 1),
+            with(Builder::BinnedSah, 2),
+        ] {
+            let built = Arc::new(BuiltScene::new(scene.clone(), &options).unwrap());
+            let what = format!("long box {:?} leaf {}", options.builder, options.leaf_size);
+            let twin = answers(&mut ReferencePicker::new(built.clone()), &rays, &query);
+            for simd in [Simd::Avx2, Simd::Portable] {
+                let mut engine = CpuPicker::new(built.clone());
+                engine.set_simd(simd);
+                let got = answers(&mut engine, &rays, &query);
+                assert_same(
+                    &format!("{what} {simd:?}/twin"),
+                    query.mode,
+                    &got,
+                    &twin,
+                    &rays,
+                );
+            }
+            let gpu = answers(
+                &mut GpuPicker::new(common::gpu(), built.clone()).unwrap(),
+                &rays,
+                &query,
+            );
+            assert_same(&format!("{what} gpu/twin"), query.mode, &gpu, &twin, &rays);
+            match &first {
+                None => first = Some(twin),
+                Some(f) => assert_same(
+                    &format!("{what} against the first builder"),
+                    query.mode,
+                    &twin,
+                    f,
+                    &rays,
+                ),
+            }
+        }
+    }
+}
+
+/// Five instances of one cube in one place: every hit is a tie between five instances, which
+/// the lowest id must win whatever the walk. A grazing ray's hit in the first instance walked
+/// fell before the padded near end of the others' boxes, and the twin and the kernel answered
+/// with another instance (2 of these 20,000 rays on the engine against the twin). Each instance's hits are now kept within
+/// the ray's interval over its leaf box in the top tree as well.
+#[test]
+fn coincident_instances_give_the_lowest_id_on_every_walk() {
+    // The fuzzed file's unit cube, its faces as it lists them.
+    let corners = (0..8)
+        .map(|k| DVec3::new((k >> 2) as f64, ((k >> 1) & 1) as f64, (k & 1) as f64))
+        .collect();
+    let faces = [
+        [0, 1, 3],
+        [0, 3, 2],
+        [4, 6, 7],
+        [4, 7, 5],
+        [0, 4, 5],
+        [0, 5, 1],
+        [2, 3, 7],
+        [2, 7, 6],
+        [0, 2, 6],
+        [0, 6, 4],
+        [1, 5, 7],
+        [1, 7, 3],
+    ];
+    let cube = Scene::from_meshes([(
+        "cube".to_string(),
+        Mesh {
+            positions: corners,
+            triangles: faces.to_vec(),
+        },
+    )])
+    .unwrap();
+    let instances: Vec<Instance> = (0..5)
+        .map(|k| Instance {
+            name: format!("cube {k}"),
+            mesh: 0,
+            transform: [
+                [1.0, 0.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0, 0.0],
+                [0.0, 0.0, 1.0, 0.0],
+            ],
+            mask: u32::MAX,
+        })
+        .collect();
+    let built =
+        Arc::new(BuiltScene::instanced(vec![cube], instances, &BuildOptions::default()).unwrap());
+    let world = built.instances().unwrap().baked().unwrap();
+    let rays: Vec<Ray> = mixed_rays(&world, 20000, 1)
+        .into_iter()
+        .map(|(_, r)| r)
+        .collect();
+    let query = Query::default();
+    let twin = answers(&mut ReferencePicker::new(built.clone()), &rays, &query);
+    for simd in [Simd::Avx2, Simd::Portable] {
+        let mut engine = CpuPicker::new(built.clone());
+        engine.set_simd(simd);
+        let got = answers(&mut engine, &rays, &query);
+        assert_same(&format!("{simd:?}/twin"), query.mode, &got, &twin, &rays);
+    }
+    let gpu = answers(
+        &mut GpuPicker::new(common::gpu(), built.clone()).unwrap(),
+        &rays,
+        &query,
+    );
+    assert_same("gpu/twin", query.mode, &gpu, &twin, &rays);
+    let hits = twin.nearest.iter().filter(|h| h.hit).count();
+    assert!(hits > 10000, "{hits} hits");
+    assert!(
+        twin.nearest.iter().all(|h| !h.hit || h.object == 0),
+        "a tie went to an instance other than the first"
+    );
 }
