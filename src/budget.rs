@@ -344,19 +344,41 @@ pub fn parse_limit(text: &str) -> std::result::Result<u64, String> {
     check_limit(parse_size(text)?, text)
 }
 
-/// A user token for an error message: at most 60 characters, with "…" when cut, and its
-/// control characters escaped ([`crate::error::escape_controls`]).
+/// A user token for an error message: at most 60 characters as shown, with "…" when cut, and
+/// its control characters escaped ([`crate::error::escape_controls`]) before it is measured
+/// (a token of NULs, each shown as `\u{0}`, stays as short).
 pub fn quote(token: &str) -> String {
     const MOST: usize = 60;
-    let cut = match token.char_indices().nth(MOST) {
-        None => token,
-        Some((cut, _)) => &token[..cut],
-    };
-    let mut quoted = crate::error::escape_controls(cut, false).into_owned();
-    if cut.len() < token.len() {
-        quoted.push('…');
+    let mut quoted = String::new();
+    let mut shown = 0;
+    let mut buf = [0u8; 4];
+    for c in token.chars() {
+        let piece = crate::error::escape_controls(c.encode_utf8(&mut buf), false);
+        let n = piece.chars().count();
+        if shown + n > MOST {
+            quoted.push('…');
+            break;
+        }
+        quoted.push_str(&piece);
+        shown += n;
     }
     quoted
+}
+
+/// A number for a message: as Rust writes it where that is short, else in scientific notation
+/// (`-1e300`, not three hundred digits).
+pub fn number(x: f64) -> String {
+    let plain = x.to_string();
+    if plain.len() <= 24 {
+        plain
+    } else {
+        format!("{x:e}")
+    }
+}
+
+/// A point for a message, `[x, y, z]`, each coordinate by [`number`].
+pub fn point(p: glam::DVec3) -> String {
+    format!("[{}, {}, {}]", number(p.x), number(p.y), number(p.z))
 }
 
 /// `bytes` for a message: in GiB from 1 GiB, else in MiB, one decimal.
@@ -373,6 +395,24 @@ pub fn human(bytes: u64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn quoted_tokens_and_numbers_stay_short() {
+        assert_eq!(quote("abc"), "abc");
+        let long = "x".repeat(100);
+        assert_eq!(quote(&long), format!("{}…", "x".repeat(60)));
+        // Escaped before measured: 60 NULs would show as 300 characters.
+        let nuls = quote(&"\0".repeat(60));
+        assert!(nuls.chars().count() <= 61, "{nuls}");
+        assert!(nuls.starts_with("\\u{0}") && nuls.ends_with('…'), "{nuls}");
+        assert_eq!(number(2.5), "2.5");
+        assert_eq!(number(-1e300), "-1e300");
+        assert_eq!(number(1e-300), "1e-300");
+        assert_eq!(
+            point(glam::DVec3::new(1.0, 1e-300, f64::INFINITY)),
+            "[1, 1e-300, inf]"
+        );
+    }
 
     #[test]
     fn sizes_parse_and_over_budget_sizes_are_refused_by_name() {

@@ -281,7 +281,8 @@ impl Scene {
             .find(|(_, p)| !p.is_finite())
         {
             return Err(Error::Invalid(format!(
-                "{name}: vertex {i} has a non-finite coordinate {p}"
+                "{name}: vertex {i} has a non-finite coordinate {}",
+                crate::budget::point(*p)
             )));
         }
         let vertex_base = self.positions.len();
@@ -483,8 +484,9 @@ impl Scene {
             .flatten();
         if let Some((i, p)) = bad.map(|i| (i, positions[i])) {
             return Err(Error::Invalid(format!(
-                "{}: vertex {i} has a non-finite coordinate {p}",
-                o.name
+                "{}: vertex {i} has a non-finite coordinate {}",
+                o.name,
+                crate::budget::point(p)
             )));
         }
         Ok(())

@@ -210,6 +210,29 @@ struct Georef {
     pixel_is_point: bool,
 }
 
+/// Refuses a tag that holds more than `most` values before it is read: a georeferencing tag is
+/// a few numbers or a short string, and the decoder reads what a tag claims (and prints a
+/// debugging line of its own for a string over its limit).
+fn check_count<R: Read + Seek>(
+    name: &str,
+    decoder: &mut Decoder<R>,
+    tag: Tag,
+    label: &str,
+    most: u64,
+) -> Result<(), Error> {
+    match decoder.image_ifd().find_entry(tag) {
+        Some(entry) if entry.count() > most => Err(parse_error(
+            name,
+            None,
+            format!(
+                "{label} holds {} values; at most {most} are read",
+                entry.count()
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Reads a tag as a list of numbers, whatever numeric TIFF type it was stored with.
 fn find_numbers<R: Read + Seek>(
     name: &str,
@@ -217,6 +240,8 @@ fn find_numbers<R: Read + Seek>(
     tag: Tag,
     label: &str,
 ) -> Result<Option<Vec<f64>>, Error> {
+    // Tie points come six numbers each; a model transformation is sixteen.
+    check_count(name, decoder, tag, label, 6 * 4096)?;
     let Some(value) = decoder
         .find_tag(tag)
         .map_err(|e| tiff_error(name, &format!("reading {label}"), e))?
@@ -331,8 +356,10 @@ fn georeferencing<R: Read + Seek>(name: &str, decoder: &mut Decoder<R>) -> Resul
     };
     if sx <= 0.0 || sy <= 0.0 {
         return Err(fail(&format!(
-            "pixel scale ({sx}, {sy}) from ModelPixelScaleTag (33550) / \
-             ModelTransformationTag (34264) must be positive (north-up, east-right)"
+            "pixel scale ({}, {}) from ModelPixelScaleTag (33550) / \
+             ModelTransformationTag (34264) must be positive (north-up, east-right)",
+            crate::budget::number(sx),
+            crate::budget::number(sy)
         )));
     }
 
@@ -361,6 +388,7 @@ fn georeferencing<R: Read + Seek>(name: &str, decoder: &mut Decoder<R>) -> Resul
 fn raster_type<R: Read + Seek>(name: &str, decoder: &mut Decoder<R>) -> Result<Option<u16>, Error> {
     const LABEL: &str = "GeoKeyDirectoryTag (34735)";
     let fail = |message: String| parse_error(name, None, format!("{LABEL} {message}"));
+    check_count(name, decoder, Tag::GeoKeyDirectoryTag, LABEL, 4 * 4096)?;
     let Some(value) = decoder
         .find_tag(Tag::GeoKeyDirectoryTag)
         .map_err(|e| tiff_error(name, &format!("reading {LABEL}"), e))?
@@ -400,6 +428,8 @@ fn raster_type<R: Read + Seek>(name: &str, decoder: &mut Decoder<R>) -> Result<O
 
 /// The GDAL_NODATA value, if the tag is present.
 fn gdal_nodata<R: Read + Seek>(name: &str, decoder: &mut Decoder<R>) -> Result<Option<f64>, Error> {
+    let label = "GDAL_NODATA (42113)";
+    check_count(name, decoder, Tag::GdalNodata, label, 256)?;
     let Some(value) = decoder
         .find_tag(Tag::GdalNodata)
         .map_err(|e| tiff_error(name, "reading GDAL_NODATA (42113)", e))?
@@ -663,7 +693,8 @@ fn tiff_error(name: &str, what: &str, e: TiffError) -> Error {
         TiffError::LimitsExceeded => format!("image too large for the decoder ({what})"),
         other => format!("TIFF decoding failed ({what}): {other}"),
     };
-    parse_error(name, None, message)
+    // The decoder's own texts list a tag's values (a sample format's, one per sample): a few.
+    parse_error(name, None, crate::error::shorten_tokens(&message, 240))
 }
 
 #[cfg(test)]
@@ -934,6 +965,30 @@ mod tests {
         assert_eq!((g.ncols, g.nrows), (20, 19));
         let expected: Vec<Option<f64>> = data.iter().map(|&v| Some(v.into())).collect();
         assert_eq!(g.heights, expected);
+    }
+
+    #[test]
+    fn a_georeferencing_tag_with_too_many_values_is_refused_before_it_is_read() {
+        let long = "1".repeat(1000);
+        let geo = Geo {
+            nodata: Some(&long),
+            ..std_geo()
+        };
+        let data: Vec<u16> = vec![1, 2, 3, 4];
+        let e = read(&striped::<colortype::Gray16>(
+            2,
+            2,
+            &data,
+            Compression::Uncompressed,
+            None,
+            &geo,
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("GDAL_NODATA (42113) holds 1001 values; at most 256 are read"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -332,7 +332,8 @@ impl Shared {
                         path: self.file,
                         line: None,
                         message: format!(
-                            "{what}: vertex {i} {p} is not finite after node {}'s world transform",
+                            "{what}: vertex {i} {} is not finite after node {}'s world transform",
+                            crate::budget::point(*p),
                             placement.node
                         ),
                     });
@@ -964,7 +965,13 @@ impl Loader<'_> {
         for (i, p) in raw.iter().enumerate() {
             let p = DVec3::from_array(p.map(f64::from));
             if !p.is_finite() {
-                return Err(fail(self, format!("{what}: vertex {i} {p} is not finite")));
+                return Err(fail(
+                    self,
+                    format!(
+                        "{what}: vertex {i} {} is not finite",
+                        crate::budget::point(p)
+                    ),
+                ));
             }
             positions.push(p);
         }

@@ -1069,7 +1069,10 @@ fn read_body<B: Body>(
                 if !p.is_finite() {
                     return Err(fail(
                         body,
-                        Problem::Bad(format!("the position {p} is not finite")),
+                        Problem::Bad(format!(
+                            "the position {} is not finite",
+                            crate::budget::point(p)
+                        )),
                         Some(item),
                     ));
                 }

@@ -184,7 +184,10 @@ fn read_binary(name: &str, mut reader: impl Read, n: u32) -> Result<Mesh, Error>
                 return Err(parse_error(
                     name,
                     None,
-                    format!("facet {facet}: vertex {corner} {p} is not finite"),
+                    format!(
+                        "facet {facet}: vertex {corner} {} is not finite",
+                        crate::budget::point(p)
+                    ),
                 ));
             }
             mesh.positions.push(p);
@@ -270,7 +273,10 @@ fn read_facet<R: BufRead>(
             return Err(parse_error(
                 name,
                 Some(tokens.line()),
-                format!("facet {facet}: the vertex {p} is not finite"),
+                format!(
+                    "facet {facet}: the vertex {} is not finite",
+                    crate::budget::point(p)
+                ),
             ));
         }
         mesh.positions.push(p);

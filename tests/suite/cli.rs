@@ -411,6 +411,31 @@ fn verify_reports_zero_mismatches_on_the_example() {
     }
 }
 
+/// A ray valid in f64 whose origin no f32 frame holds (1e308 out, too far even to be moved
+/// towards the scene) is invalid on every path, as documented; `verify` counts it in the
+/// invalid column and says why, not as a mismatch against the oracle (which had hit).
+#[test]
+fn verify_does_not_count_rays_the_frame_cannot_hold_as_mismatches() {
+    let cube = temp_file(
+        "cube.obj",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 4\nf 1 4 3\n",
+    );
+    let rays = temp_file(
+        "far.txt",
+        "0.25 0.5 5 0 0 -1\n0.5 0.25 1e308 0 0 -1\n0.75 0.5 -5 0 0 1\n",
+    );
+    let (code, out, err) = raypick(&["verify", "--scene", &cube, "--rays", &rays, "-q"]);
+    assert_eq!(code, 0, "{out}\n{err}");
+    assert!(out.contains("3 rays, 0 differences, 0 mismatches"), "{out}");
+    assert!(
+        out.contains("1 rays valid in f64 lie beyond what the scene's f32 frame holds"),
+        "{out}"
+    );
+    let file_row = out.lines().find(|l| l.starts_with("file")).unwrap_or("");
+    let columns: Vec<&str> = file_row.split_whitespace().collect();
+    assert_eq!(columns.get(1..4), Some(&["3", "2", "1"][..]), "{out}");
+}
+
 /// The oracle's own copy of the triangles is sized against `--max-memory` before it is made:
 /// over the budget, `verify` says so and compares the paths without it; within it, the oracle
 /// runs (its line and the brute force's time).
