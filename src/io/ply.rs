@@ -104,7 +104,14 @@ pub fn load_ply(path: &Path) -> Result<Mesh, Error> {
             bytes: 0,
             most: input.most_inflated(),
         };
-        read_ply(&input, BufReader::new(inflated))
+        let mut reader = BufReader::new(inflated);
+        let mesh = read_ply(&input, &mut reader)?;
+        // Read to the stream's end, so that its trailer (the CRC-32 and length of what it
+        // inflates to) is checked: a file whose data parsed but whose trailer is damaged or
+        // missing is refused, not taken on trust.
+        std::io::copy(&mut reader, &mut std::io::sink())
+            .map_err(|e| input.io(e, "reading the rest of the compressed stream"))?;
+        Ok(mesh)
     } else {
         let input = Input {
             name,

@@ -533,6 +533,17 @@ fn gzipped_ply_loads_like_the_plain_file() {
         &load_ply(&file).unwrap(),
         &rounded_to_f32(&obj),
     );
+    // The stream's trailer (CRC-32 and length) is checked: zeroed, or cut off, the file is
+    // refused by name, though its data parsed.
+    let good = gzip(&ply_bytes(&obj, STYLES[1]));
+    let mut zeroed = good.clone();
+    let n = zeroed.len();
+    zeroed[n - 8..].fill(0);
+    for (what, bytes) in [("zeroed", zeroed), ("cut", good[..good.len() - 8].to_vec())] {
+        let file = dir.write(&format!("trailer-{what}.ply.gz"), &bytes);
+        let e = load_ply(&file).expect_err(what).to_string();
+        assert!(e.contains(&format!("trailer-{what}.ply.gz")), "{what}: {e}");
+    }
 }
 
 #[test]
