@@ -8,7 +8,6 @@
 
 use super::lanes8::Lanes8;
 use super::walk::{self, Leaves, Pushed, RayState};
-use crate::cpu::ray_box::{box_interval, safe_inverse};
 use crate::cpu::traverse::{closest_accepts, enter_instance, insert_hit, origin_lo};
 use crate::instance::Instances;
 use crate::layout::{GpuHit, GpuHitEntry, GpuNode, GpuRay, MODE_ALL, MODE_ANY, NO_HIT};
@@ -85,14 +84,7 @@ impl<L: Lanes8> Leaves<L> for Visit<'_, '_> {
         // From the record, read already (not the instance's own, another line elsewhere).
         let mesh = &self.scene.meshes[r.mesh as usize];
         let leaf = &self.scene.top_nodes[self.scene.instances.leaf_of(k as usize) as usize];
-        let world_dir = Vec3::from(ray.dir);
-        let clip = box_interval(
-            leaf.min.into(),
-            leaf.max.into(),
-            origin,
-            world_dir,
-            safe_inverse(world_dir),
-        );
+        let clip = walk::Clip::Leaf(leaf, ray);
         let h = walk::trace_clipped::<L>(mesh, &local, self.scratch, self.stack, clip);
         st.best.box_tests += h.box_tests;
         st.best.triangle_tests += h.triangle_tests;
