@@ -283,16 +283,26 @@ fn triangle_interval(tri: GpuTriangle, origin: vec3<f32>, dir: vec3<f32>, inv_di
     return box_interval(min(min(a, b), c), max(max(a, b), c), origin, dir, inv_dir);
 }
 
-// The interval a cut by b, by comparisons alone.
+// The interval a (a triangle's own) cut by b (the instance's leaf box's), by comparisons alone;
+// b alone where they do not meet; an empty a stays empty (src/cpu/ray_box.rs, clip).
 fn clip(a: vec2<f32>, b: vec2<f32>) -> vec2<f32> {
-    return vec2<f32>(select(a.x, b.x, b.x > a.x), select(a.y, b.y, b.y < a.y));
+    let both = vec2<f32>(select(a.x, b.x, b.x > a.x), select(a.y, b.y, b.y < a.y));
+    if both.x <= both.y {
+        return both;
+    }
+    if a.x <= a.y {
+        return b;
+    }
+    return a;
 }
 
 // A hit's t moved into the ray's interval over the triangle's own box (src/cpu/ray_box.rs,
 // hit_t): then no box holding a hit at or before the nearest is pruned, whatever the walk.
 // The caller drops the hit when the interval is empty.
 fn clamp_to(t: f32, interval: vec2<f32>) -> f32 {
-    return select(select(t, interval.y, t > interval.y), interval.x, t < interval.x);
+    // +0 for a zero lower end, whose sign max and min leave to the hardware.
+    let lo = select(interval.x, 0.0, interval.x == 0.0);
+    return select(select(t, interval.y, t > interval.y), lo, t < interval.x);
 }
 
 // ---- ray/triangle (src/cpu/ray_triangle.rs) ----

@@ -59,14 +59,24 @@ pub fn triangle_interval(tri: &GpuTriangle, origin: Vec3, dir: Vec3, inv_dir: Ve
     box_interval(a.min(b).min(c), a.max(b).max(c), origin, dir, inv_dir)
 }
 
-/// The interval `a` cut by `b` (an instance's leaf box in the scene frame), by comparisons
-/// alone, as the kernel and the engine cut it.
+/// The interval `a` (a triangle's own, in its mesh's frame) cut by `b` (the world ray's over
+/// the instance's leaf box in the top tree), by comparisons alone, as the kernel and the engine
+/// cut it. Where the two do not meet (the frames' roundings apart by more than the boxes'
+/// padding), `b` alone: the hit is kept, within the top tree's box, not dropped; an empty `a`
+/// stays empty.
 #[inline]
 pub fn clip(a: (f32, f32), b: (f32, f32)) -> (f32, f32) {
-    (
+    let both = (
         if b.0 > a.0 { b.0 } else { a.0 },
         if b.1 < a.1 { b.1 } else { a.1 },
-    )
+    );
+    if both.0 <= both.1 {
+        both
+    } else if a.0 <= a.1 {
+        b
+    } else {
+        a
+    }
 }
 
 /// A triangle hit at `t` as every walk counts it: `None` when the ray's interval over the
@@ -88,7 +98,8 @@ pub fn hit_t(t: f32, (lo, hi): (f32, f32)) -> Option<f32> {
         return None;
     }
     Some(if t < lo {
-        lo
+        // +0 for a zero end, whose sign the paths' max and min leave to the hardware.
+        if lo == 0.0 { 0.0 } else { lo }
     } else if t > hi {
         hi
     } else {

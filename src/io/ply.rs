@@ -108,7 +108,9 @@ pub fn load_ply(path: &Path) -> Result<Mesh, Error> {
         let mesh = read_ply(&input, &mut reader)?;
         // Read to the stream's end, so that its trailer (the CRC-32 and length of what it
         // inflates to) is checked: a file whose data parsed but whose trailer is damaged or
-        // missing is refused, not taken on trust.
+        // missing is refused, not taken on trust. Bytes after the last member are read as
+        // another member, as the ascii reader's look past the data reads them (gzip itself
+        // warns of them), so a padded file is refused either way.
         std::io::copy(&mut reader, &mut std::io::sink())
             .map_err(|e| input.io(e, "reading the rest of the compressed stream"))?;
         Ok(mesh)

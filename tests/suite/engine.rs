@@ -111,6 +111,28 @@ fn assert_same(what: &str, mode: Mode, a: &Answers, b: &Answers, rays: &[Ray]) {
     );
 }
 
+/// `query`'s answers for `rays` on the twin, which the engine (on AVX2 and on its portable
+/// lanes) and the GPU must give bit for bit.
+fn every_path(what: &str, built: &Arc<BuiltScene>, rays: &[Ray], query: &Query) -> Answers {
+    let twin = answers(&mut ReferencePicker::new(built.clone()), rays, query);
+    for simd in [Simd::Avx2, Simd::Portable] {
+        let mut engine = CpuPicker::new(built.clone());
+        engine.set_simd(simd);
+        let got = answers(&mut engine, rays, query);
+        assert_same(
+            &format!("{what} {simd:?}/twin"),
+            query.mode,
+            &got,
+            &twin,
+            rays,
+        );
+    }
+    let mut gpu = GpuPicker::new(common::gpu(), built.clone()).unwrap();
+    let got = answers(&mut gpu, rays, query);
+    assert_same(&format!("{what} gpu/twin"), query.mode, &got, &twin, rays);
+    twin
+}
+
 /// The tie rule makes the answer independent of the tree: median cut, binned SAH and the grid
 /// builder, at several leaf sizes, on the engine, the twin and the GPU, give the same bits in
 /// closest and all-hits modes, edge and vertex rays included.
@@ -170,27 +192,13 @@ fn every_builder_and_backend_gives_the_same_bits() {
             for options in &builds {
                 let built = Arc::new(BuiltScene::new(scene.clone(), options).unwrap());
                 let what = format!("{name} {:?} leaf {}", options.builder, options.leaf_size);
-                let engine = answers(&mut CpuPicker::new(built.clone()), &rays, query);
-                let twin = answers(&mut ReferencePicker::new(built.clone()), &rays, query);
-                let gpu = answers(
-                    &mut GpuPicker::new(common::gpu(), built.clone()).unwrap(),
-                    &rays,
-                    query,
-                );
-                assert_same(
-                    &format!("{what} engine/twin"),
-                    query.mode,
-                    &engine,
-                    &twin,
-                    &rays,
-                );
-                assert_same(&format!("{what} gpu/twin"), query.mode, &gpu, &twin, &rays);
+                let twin = every_path(&what, &built, &rays, query);
                 match &first {
-                    None => first = Some(engine),
+                    None => first = Some(twin),
                     Some(f) => assert_same(
                         &format!("{what} against the first builder"),
                         query.mode,
-                        &engine,
+                        &twin,
                         f,
                         &rays,
                     ),
@@ -289,8 +297,9 @@ fn long_box(long: f64) -> Scene {
 /// Rays that start close to a face, or meet long thin triangles end on, found a triangle whose
 /// f32 t fell before the padded near end of a box holding it; whether such a triangle was then
 /// tested depended on what the walk had met first, so the engine and the twin (and different
-/// trees) answered differently (4 of these 32,768 rays on the engine against the twin). Each hit's t is now kept within the
-/// ray's interval over its triangle's own box (`ray_box::hit_t`): the same bits everywhere.
+/// trees) answered differently (4 of these 32,768 rays on the engine against the twin). Each
+/// hit's t is now kept within the ray's interval over its triangle's own box
+/// (`ray_box::hit_t`): the same bits everywhere.
 #[test]
 fn long_thin_triangles_and_near_starts_give_the_same_bits_on_every_walk() {
     let scene = long_box(32768.0);
@@ -314,25 +323,7 @@ fn long_thin_triangles_and_near_starts_give_the_same_bits_on_every_walk() {
         ] {
             let built = Arc::new(BuiltScene::new(scene.clone(), &options).unwrap());
             let what = format!("long box {:?} leaf {}", options.builder, options.leaf_size);
-            let twin = answers(&mut ReferencePicker::new(built.clone()), &rays, &query);
-            for simd in [Simd::Avx2, Simd::Portable] {
-                let mut engine = CpuPicker::new(built.clone());
-                engine.set_simd(simd);
-                let got = answers(&mut engine, &rays, &query);
-                assert_same(
-                    &format!("{what} {simd:?}/twin"),
-                    query.mode,
-                    &got,
-                    &twin,
-                    &rays,
-                );
-            }
-            let gpu = answers(
-                &mut GpuPicker::new(common::gpu(), built.clone()).unwrap(),
-                &rays,
-                &query,
-            );
-            assert_same(&format!("{what} gpu/twin"), query.mode, &gpu, &twin, &rays);
+            let twin = every_path(&what, &built, &rays, &query);
             match &first {
                 None => first = Some(twin),
                 Some(f) => assert_same(
@@ -350,8 +341,9 @@ fn long_thin_triangles_and_near_starts_give_the_same_bits_on_every_walk() {
 /// Five instances of one cube in one place: every hit is a tie between five instances, which
 /// the lowest id must win whatever the walk. A grazing ray's hit in the first instance walked
 /// fell before the padded near end of the others' boxes, and the twin and the kernel answered
-/// with another instance (2 of these 20,000 rays on the engine against the twin). Each instance's hits are now kept within
-/// the ray's interval over its leaf box in the top tree as well.
+/// with another instance (2 of these 20,000 rays on the engine against the twin). Each
+/// instance's hits are now kept within the ray's interval over its leaf box in the top tree as
+/// well.
 #[test]
 fn coincident_instances_give_the_lowest_id_on_every_walk() {
     // The fuzzed file's unit cube, its faces as it lists them.
@@ -399,20 +391,7 @@ fn coincident_instances_give_the_lowest_id_on_every_walk() {
         .into_iter()
         .map(|(_, r)| r)
         .collect();
-    let query = Query::default();
-    let twin = answers(&mut ReferencePicker::new(built.clone()), &rays, &query);
-    for simd in [Simd::Avx2, Simd::Portable] {
-        let mut engine = CpuPicker::new(built.clone());
-        engine.set_simd(simd);
-        let got = answers(&mut engine, &rays, &query);
-        assert_same(&format!("{simd:?}/twin"), query.mode, &got, &twin, &rays);
-    }
-    let gpu = answers(
-        &mut GpuPicker::new(common::gpu(), built.clone()).unwrap(),
-        &rays,
-        &query,
-    );
-    assert_same("gpu/twin", query.mode, &gpu, &twin, &rays);
+    let twin = every_path("five cubes", &built, &rays, &Query::default());
     let hits = twin.nearest.iter().filter(|h| h.hit).count();
     assert!(hits > 10000, "{hits} hits");
     assert!(
