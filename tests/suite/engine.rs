@@ -133,6 +133,26 @@ fn every_path(what: &str, built: &Arc<BuiltScene>, rays: &[Ray], query: &Query) 
     twin
 }
 
+/// [`every_path`] on `scene` built by each of `builds`, whose answers must all be the first's.
+fn every_builder(name: &str, scene: &Scene, builds: &[BuildOptions], rays: &[Ray], query: &Query) {
+    let mut first: Option<Answers> = None;
+    for options in builds {
+        let built = Arc::new(BuiltScene::new(scene.clone(), options).unwrap());
+        let what = format!("{name} {:?} leaf {}", options.builder, options.leaf_size);
+        let twin = every_path(&what, &built, rays, query);
+        match &first {
+            None => first = Some(twin),
+            Some(f) => assert_same(
+                &format!("{what} against the first builder"),
+                query.mode,
+                &twin,
+                f,
+                rays,
+            ),
+        }
+    }
+}
+
 /// The tie rule makes the answer independent of the tree: median cut, binned SAH and the grid
 /// builder, at several leaf sizes, on the engine, the twin and the GPU, give the same bits in
 /// closest and all-hits modes, edge and vertex rays included.
@@ -188,22 +208,7 @@ fn every_builder_and_backend_gives_the_same_bits() {
             .map(|(_, r)| r)
             .collect();
         for query in &queries {
-            let mut first: Option<Answers> = None;
-            for options in &builds {
-                let built = Arc::new(BuiltScene::new(scene.clone(), options).unwrap());
-                let what = format!("{name} {:?} leaf {}", options.builder, options.leaf_size);
-                let twin = every_path(&what, &built, &rays, query);
-                match &first {
-                    None => first = Some(twin),
-                    Some(f) => assert_same(
-                        &format!("{what} against the first builder"),
-                        query.mode,
-                        &twin,
-                        f,
-                        &rays,
-                    ),
-                }
-            }
+            every_builder(name, &scene, &builds, &rays, query);
         }
     }
 }
@@ -315,26 +320,12 @@ fn long_thin_triangles_and_near_starts_give_the_same_bits_on_every_walk() {
             ..Query::default()
         },
     ] {
-        let mut first: Option<Answers> = None;
-        for options in [
+        let builds = [
             with(Builder::MedianCut, 8),
             with(Builder::MedianCut, 1),
             with(Builder::BinnedSah, 2),
-        ] {
-            let built = Arc::new(BuiltScene::new(scene.clone(), &options).unwrap());
-            let what = format!("long box {:?} leaf {}", options.builder, options.leaf_size);
-            let twin = every_path(&what, &built, &rays, &query);
-            match &first {
-                None => first = Some(twin),
-                Some(f) => assert_same(
-                    &format!("{what} against the first builder"),
-                    query.mode,
-                    &twin,
-                    f,
-                    &rays,
-                ),
-            }
-        }
+        ];
+        every_builder("long box", &scene, &builds, &rays, &query);
     }
 }
 
