@@ -255,8 +255,8 @@ fn safe_inverse(dir: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(div(sign.x, magnitude.x), div(sign.y, magnitude.y), div(sign.z, magnitude.z));
 }
 
-fn ray_box(node: GpuNode, origin: vec3<f32>, dir: vec3<f32>, inv_dir: vec3<f32>, tmin: f32, tmax: f32) -> bool {
-    let interval = box_interval(node.min, node.max, origin, dir, inv_dir);
+// Whether the ray's interval over a box (box_interval) meets [tmin, tmax]: the box test.
+fn meets(interval: vec2<f32>, tmin: f32, tmax: f32) -> bool {
     return max(interval.x, tmin) <= min(interval.y, tmax);
 }
 
@@ -526,7 +526,8 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
         // Arrived from the parent or the sibling: test this node's box.
         best.box_tests += 1u;
         var descend = false;
-        if ray_box(node, origin, dir, inv_dir, ray.tmin, limit) {
+        let node_interval = box_interval(node.min, node.max, origin, dir, inv_dir);
+        if meets(node_interval, ray.tmin, limit) {
             let kind = kind_of(node);
             if kind >= KIND_INNER {
                 descend = true;
@@ -537,7 +538,8 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
                     instance = r;
                     inside = node.first;
                     instance_leaf = current;
-                    leaf_interval = box_interval(node.min, node.max, ray.origin, ray.dir, world_inv_dir);
+                    // In the top tree the ray is the world's: its interval over this leaf.
+                    leaf_interval = node_interval;
                     origin = instance_origin(r, ray.origin, origin_lo(ray));
                     dir = instance_dir(r, ray.dir);
                     inv_dir = safe_inverse(dir);

@@ -1,6 +1,7 @@
-//! Ray/box slab test in f32: the CPU twin of `ray_box` in `wgsl/pick.wgsl`.
+//! Ray/box slab test in f32, and the intervals that keep hits within their boxes: the CPU twin
+//! of `box_interval`, `meets`, `clip` and `clamp_to` in `wgsl/pick.wgsl`.
 
-use crate::layout::{GpuNode, GpuTriangle};
+use crate::layout::GpuTriangle;
 use glam::Vec3;
 
 /// Relative widening of each box's `[t_near, t_far]` so rounding never culls a box the ray touches.
@@ -17,22 +18,16 @@ pub fn safe_inverse(dir: Vec3) -> Vec3 {
     sign / magnitude
 }
 
-/// Whether the ray meets the node's box within `[tmin, tmax]` (conservatively).
-pub fn ray_box(
-    node: &GpuNode,
-    origin: Vec3,
-    dir: Vec3,
-    inv_dir: Vec3,
-    tmin: f32,
-    tmax: f32,
-) -> bool {
-    let (lo, hi) = box_interval(node.min.into(), node.max.into(), origin, dir, inv_dir);
+/// Whether the ray's interval over a box ([`box_interval`]) meets `[tmin, tmax]`: the box test
+/// (conservative: the interval is padded).
+#[inline]
+pub fn meets((lo, hi): (f32, f32), tmin: f32, tmax: f32) -> bool {
     lo.max(tmin) <= hi.min(tmax)
 }
 
 /// The ray's slab interval over the box `[min, max]`, each end widened by [`BOX_PAD`] relative:
 /// `(t_near - |t_near| * BOX_PAD, t_far + |t_far| * BOX_PAD)`, before `tmin` and `tmax` cut it
-/// ([`ray_box`]'s test). For a larger box every end moves outward (a lower
+/// ([`meets`]). For a larger box every end moves outward (a lower
 /// first and a higher second end: the computed operations are monotonic), which [`hit_t`]
 /// relies on.
 #[inline]

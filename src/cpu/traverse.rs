@@ -9,7 +9,7 @@
     reason = "keeps the code comparable to the WGSL"
 )]
 
-use super::ray_box::{box_interval, clip, hit_t, ray_box, safe_inverse, triangle_interval};
+use super::ray_box::{box_interval, clip, hit_t, meets, safe_inverse, triangle_interval};
 use super::ray_triangle::Shear;
 use super::ray_triangle::{TriangleHit, ray_triangle, ray_triangle_watertight, shear_for};
 use crate::layout::{
@@ -247,7 +247,8 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
         // Arrived from the parent or the sibling: test this node's box.
         best.box_tests += 1;
         let mut descend = false;
-        if ray_box(node, origin, dir, inv_dir, ray.tmin, limit) {
+        let node_interval = box_interval(node.min.into(), node.max.into(), origin, dir, inv_dir);
+        if meets(node_interval, ray.tmin, limit) {
             let kind = kind_of(node);
             if kind >= KIND_INNER {
                 descend = true;
@@ -258,13 +259,8 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
                     instance = r;
                     inside = node.first;
                     instance_leaf = current;
-                    leaf_interval = box_interval(
-                        node.min.into(),
-                        node.max.into(),
-                        world_origin,
-                        world_dir,
-                        world_inv_dir,
-                    );
+                    // In the top tree the ray is the world's: its interval over this leaf.
+                    leaf_interval = node_interval;
                     (origin, dir) = enter_instance(&r, world_origin, origin_lo(ray), world_dir);
                     inv_dir = safe_inverse(dir);
                     shear = shear_for(dir);

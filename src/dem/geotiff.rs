@@ -428,11 +428,11 @@ fn raster_type<R: Read + Seek>(name: &str, decoder: &mut Decoder<R>) -> Result<O
 
 /// The GDAL_NODATA value, if the tag is present.
 fn gdal_nodata<R: Read + Seek>(name: &str, decoder: &mut Decoder<R>) -> Result<Option<f64>, Error> {
-    let label = "GDAL_NODATA (42113)";
-    check_count(name, decoder, Tag::GdalNodata, label, 256)?;
+    const LABEL: &str = "GDAL_NODATA (42113)";
+    check_count(name, decoder, Tag::GdalNodata, LABEL, 256)?;
     let Some(value) = decoder
         .find_tag(Tag::GdalNodata)
-        .map_err(|e| tiff_error(name, "reading GDAL_NODATA (42113)", e))?
+        .map_err(|e| tiff_error(name, &format!("reading {LABEL}"), e))?
     else {
         return Ok(None);
     };
@@ -440,17 +440,14 @@ fn gdal_nodata<R: Read + Seek>(name: &str, decoder: &mut Decoder<R>) -> Result<O
         return Err(parse_error(
             name,
             None,
-            "GDAL_NODATA (42113) is not an ASCII string",
+            format!("{LABEL} is not an ASCII string"),
         ));
     };
     let trimmed = text.trim_matches(|c: char| c.is_whitespace() || c == '\0');
-    trimmed.parse::<f64>().map(Some).map_err(|_| {
-        parse_error(
-            name,
-            None,
-            format!("GDAL_NODATA (42113) is not a number: '{trimmed}'"),
-        )
-    })
+    trimmed
+        .parse::<f64>()
+        .map(Some)
+        .map_err(|_| parse_error(name, None, format!("{LABEL} is not a number: '{trimmed}'")))
 }
 
 impl SampleType {

@@ -3,8 +3,8 @@
 //! [`INTERLEAVED`] at a time, a node each in turn, each ray's next node prefetched, so one thread
 //! waits on several cache misses at once; coherent groups of [`PACKET`] rays share one walk.
 //!
-//! The answers are the twin's (`cpu::traverse`) bit for bit: each box test is `ray_box`'s
-//! arithmetic in lanes, each triangle test is `ray_triangle` / `ray_triangle_watertight`'s, and
+//! The answers are the twin's (`cpu::traverse`) bit for bit: each box test is `box_interval`
+//! and `meets`'s arithmetic in lanes, each triangle test is `ray_triangle` / `ray_triangle_watertight`'s, and
 //! hits are accepted by the same rules, ties included (`cpu::traverse::accepts`), so the order in
 //! which the tree is walked never shows in an answer. Only the b and i statistics differ: they
 //! count this walk's box and triangle tests.
@@ -144,7 +144,7 @@ impl<L: Lanes8> RayLanes<L> {
     }
 }
 
-/// The twin's `ray_box` for a node's eight boxes: which children the ray meets within
+/// The twin's box test (`box_interval`, `meets`) for a node's eight boxes: which children the ray meets within
 /// `[tmin, limit]`, and each one's padded near distance.
 #[inline(always)]
 fn boxes<L: Lanes8>(node: &WideNode, r: &RayLanes<L>, limit: f32) -> (u32, L) {
