@@ -3,22 +3,72 @@
 //! crosses the surface at its target (rays that only graze a silhouette edge are not probes).
 //! Such a ray must hit something no farther than its target (t ≤ 1); a miss, or a first hit
 //! beyond the target, means it slipped through a crack: a leak.
+//!
+//! The pickers trace each ray rounded to f32, which passes a little beside its target. So a
+//! target counts only where the triangles meeting there cover a disk around it wider than that
+//! rounding can move the crossing (no other edge of theirs comes closer): on a sliver, or where
+//! a mesh folds onto itself, the rounded ray may truly pass beyond the triangles meeting at the
+//! target, which is no crack. A hit counts as at the target within the same width.
 
+use crate::check::compare::RELATIVE_TOLERANCE;
 use crate::check::synthetic::rng;
+use crate::frame::Frame;
 use crate::ray::{Hit, Ray};
 use crate::scene::Scene;
 use glam::DVec3;
 use rand::Rng;
 use std::collections::HashMap;
 
-/// Relative slack on t before a hit beyond the target counts as a leak.
-pub const LEAK_SLACK: f64 = 1e-6;
+/// Probes, and for each the most its first hit may lie beyond the target (`t = 1`) before it
+/// counts as a leak.
+#[derive(Clone, Debug, Default)]
+pub struct Probes {
+    /// The rays, each reaching its target at `t = 1`.
+    pub rays: Vec<Ray>,
+    /// Per ray, the slack on `t` past 1.
+    pub slack: Vec<f64>,
+}
+
+impl Probes {
+    /// How many probes there are.
+    pub fn len(&self) -> usize {
+        self.rays.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.rays.is_empty()
+    }
+
+    /// Probes that leaked: missed, or first hit beyond their target by more than their slack.
+    /// `hits` are the closest hits of [`Probes::rays`], in order.
+    pub fn leaks(&self, hits: &[Hit]) -> usize {
+        assert_eq!(hits.len(), self.rays.len(), "one hit per probe");
+        hits.iter()
+            .zip(&self.slack)
+            .filter(|(h, slack)| !h.hit || h.t > 1.0 + **slack)
+            .count()
+    }
+}
+
+/// The distance from `p` to the segment from `a` to `b`.
+fn segment_distance(p: DVec3, a: DVec3, b: DVec3) -> f64 {
+    let ab = b - a;
+    let along = ab.length_squared();
+    let s = if along > 0.0 {
+        ((p - a).dot(ab) / along).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p - (a + ab * s)).length()
+}
 
 /// `count` probes for `scene`: each aims at a point exactly on an edge shared by two triangles
 /// (its midpoint, a random point, or an end vertex that has no boundary edge), from a random
 /// direction in front of every triangle meeting at that point (at least ~3° off each plane), so
-/// the target sits at `t = 1`. Returns no probes if no such direction is found.
-pub fn edge_probes(scene: &Scene, count: usize, seed: u64) -> Vec<Ray> {
+/// the target sits at `t = 1`, and only where those triangles cover the f32 rounding's reach
+/// around it (the module's text). Returns no probes if no such direction is found.
+pub fn edge_probes(scene: &Scene, count: usize, seed: u64) -> Probes {
     let mut edge_uses: HashMap<(u32, u32), u32> = HashMap::new();
     let triangles: Vec<[u32; 3]> = (0..scene.triangle_count())
         .filter(|&i| !scene.is_degenerate(i))
@@ -62,13 +112,17 @@ pub fn edge_probes(scene: &Scene, count: usize, seed: u64) -> Vec<Ray> {
         })
         .collect();
     if shared.is_empty() {
-        return Vec::new();
+        return Probes::default();
     }
     let (lo, hi) = scene.bounds().unwrap_or((DVec3::ZERO, DVec3::ONE));
     let distance = (hi - lo).length().max(1e-3);
     let mut rng = rng(seed);
-    // The vector grows as probes are found (no up-front allocation sized by `count`).
-    let mut probes = Vec::with_capacity(count.min(1 << 16));
+    let centre = Frame::around(scene.origin(), scene.bounds()).origin;
+    // The vectors grow as probes are found (no up-front allocation sized by `count`).
+    let mut probes = Probes {
+        rays: Vec::with_capacity(count.min(1 << 16)),
+        slack: Vec::with_capacity(count.min(1 << 16)),
+    };
     let mut attempts = 0usize;
     while probes.len() < count && attempts < count.saturating_mul(100) {
         attempts += 1;
@@ -76,30 +130,53 @@ pub fn edge_probes(scene: &Scene, count: usize, seed: u64) -> Vec<Ray> {
         let t = triangles[i];
         let (a, b) = (t[k], t[(k + 1) % 3]);
         let (pa, pb) = (scene.position(a as usize), scene.position(b as usize));
-        let (target, meeting) = match rng.random_range(0..4) {
-            0 if !on_boundary[&a] => (pa, &around_vertex[&a]),
-            1 => ((pa + pb) * 0.5, &around_edge[&key(a, b)]),
+        let (target, meeting, through): (_, _, &[u32]) = match rng.random_range(0..4) {
+            0 if !on_boundary[&a] => (pa, &around_vertex[&a], &[a]),
+            1 => ((pa + pb) * 0.5, &around_edge[&key(a, b)], &[a, b]),
             _ => (
                 pa + (pb - pa) * rng.random::<f64>(),
                 &around_edge[&key(a, b)],
+                &[a, b],
             ),
         };
         let normal = normal_of(i);
         let tilt = DVec3::new(rng.random(), rng.random(), rng.random()) - 0.5;
         let away = (normal + (tilt - normal * tilt.dot(normal)) * 1.5).normalize_or_zero();
         // In front of every triangle meeting at the target, by at least ~3°.
-        if meeting.iter().any(|&j| away.dot(normal_of(j)) <= 0.05) {
+        let sine = meeting
+            .iter()
+            .map(|&j| away.dot(normal_of(j)))
+            .fold(f64::INFINITY, f64::min);
+        if sine.is_nan() || sine <= 0.05 {
             continue;
         }
         let origin = target + away * distance;
-        probes.push(Ray::new(origin, target - origin));
+        // How far the f32 rounding may move the ray's crossing along the triangles' planes,
+        // with a wide margin (the rounding is about 10⁻⁷ of the coordinates, in the scene's
+        // frame; `verify`'s tolerance is 10⁻⁵): no edge of the meeting triangles but those
+        // through the target may come that close to it.
+        let reach = RELATIVE_TOLERANCE * ((origin - centre).length() + distance) / sine;
+        let covered = meeting.iter().all(|&j| {
+            let t = triangles[j];
+            (0..3).all(|k| {
+                let (u, v) = (t[k], t[(k + 1) % 3]);
+                let on_target = match through {
+                    [a] => u == *a || v == *a,
+                    _ => key(u, v) == key(through[0], through[1]),
+                };
+                on_target
+                    || segment_distance(
+                        target,
+                        scene.position(u as usize),
+                        scene.position(v as usize),
+                    ) >= reach
+            })
+        });
+        if !covered {
+            continue;
+        }
+        probes.rays.push(Ray::new(origin, target - origin));
+        probes.slack.push(reach / distance);
     }
     probes
-}
-
-/// Probes that leaked: missed, or first hit beyond their target.
-pub fn leaks(hits: &[Hit]) -> usize {
-    hits.iter()
-        .filter(|h| !h.hit || h.t > 1.0 + LEAK_SLACK)
-        .count()
 }

@@ -3,7 +3,7 @@
 
 use super::scene_args::SceneArgs;
 use clap::{ArgMatches, Args};
-use raypick::check::probe::{edge_probes, leaks};
+use raypick::check::probe::edge_probes;
 use raypick::{CpuPicker, Error, GpuContext, GpuPicker, Intersector, Picker, Query};
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -69,9 +69,9 @@ pub fn run(args: ProbeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             ("gpu", &mut gpu as &mut dyn Picker),
         ] {
             let start = Instant::now();
-            let answers = picker.query(&probes, &query)?;
+            let answers = picker.query(&probes.rays, &query)?;
             let seconds = start.elapsed().as_secs_f64();
-            let leaked = leaks(&answers.nearest);
+            let leaked = probes.leaks(&answers.nearest);
             if intersector == Intersector::Watertight {
                 watertight_leaks += leaked;
             }
