@@ -21,23 +21,30 @@ pub struct ProbeArgs {
     pub seed: u64,
 }
 
+/// Checks `count` probes against the memory budget: each a ray answered in one batch (per path
+/// and intersector), with its slack.
+fn check_probes(count: usize) -> Result<(), Error> {
+    raypick::budget::check(
+        &format!("--probes {count}"),
+        count as u64,
+        Query::default().bytes_per_ray() + size_of::<f64>() as u64,
+    )
+}
+
 pub fn run(args: ProbeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     if args.probes == 0 {
         return Err(Error::Invalid(
             "--probes 0 asks for no probes; give at least 1".into(),
         ));
     }
-    // Each probe is a ray answered in one batch (per path and intersector).
-    super::check_rays(
-        &format!("--probes {}", args.probes),
-        args.probes as u64,
-        &Query::default(),
-    )?;
+    check_probes(args.probes)?;
     let built = Arc::new(args.scene.build(matches)?);
     let probes = edge_probes(&built.scene, args.probes, args.seed);
     if probes.is_empty() {
         return Err(Error::Invalid(
-            "the scene has no edge shared by two triangles to probe".into(),
+            "the scene has no edge to probe: none shared by two triangles, or none whose triangles \
+             are wide enough around it for the f32 ray's rounding (slivers)"
+                .into(),
         ));
     }
     let context = GpuContext::new()?;
@@ -48,11 +55,7 @@ pub fn run(args: ProbeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     );
     let mut gpu = GpuPicker::new(&context, built.clone())?;
     // Again with what the GPU's driver left (under `ulimit -v` its mappings count).
-    super::check_rays(
-        &format!("--probes {}", args.probes),
-        args.probes as u64,
-        &Query::default(),
-    )?;
+    check_probes(args.probes)?;
     let mut cpu = CpuPicker::new(built);
     let mut watertight_leaks = 0;
     println!(
