@@ -343,25 +343,11 @@ fn coincident_instances_give_the_lowest_id_on_every_walk() {
     let corners = (0..8)
         .map(|k| DVec3::new((k >> 2) as f64, ((k >> 1) & 1) as f64, (k & 1) as f64))
         .collect();
-    let faces = [
-        [0, 1, 3],
-        [0, 3, 2],
-        [4, 6, 7],
-        [4, 7, 5],
-        [0, 4, 5],
-        [0, 5, 1],
-        [2, 3, 7],
-        [2, 7, 6],
-        [0, 2, 6],
-        [0, 6, 4],
-        [1, 5, 7],
-        [1, 7, 3],
-    ];
     let cube = Scene::from_meshes([(
         "cube".to_string(),
         Mesh {
             positions: corners,
-            triangles: faces.to_vec(),
+            triangles: common::CUBE_FACES.to_vec(),
         },
     )])
     .unwrap();

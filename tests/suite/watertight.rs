@@ -67,20 +67,7 @@ fn folded_cube(lift: f64) -> raypick::Mesh {
     ]
     .map(DVec3::from_array)
     .to_vec();
-    let triangles = vec![
-        [0, 1, 3],
-        [0, 3, 2],
-        [4, 6, 7],
-        [4, 7, 5],
-        [0, 4, 5],
-        [0, 5, 1],
-        [2, 3, 7],
-        [2, 7, 6],
-        [0, 2, 6],
-        [0, 6, 4],
-        [1, 5, 7],
-        [1, 7, 3],
-    ];
+    let triangles = common::CUBE_FACES.to_vec();
     raypick::Mesh {
         positions,
         triangles,

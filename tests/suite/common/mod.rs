@@ -12,6 +12,23 @@ use raypick::{
 };
 use std::sync::{Arc, OnceLock};
 
+/// A cube's twelve faces as the fuzzed files list them, over corners numbered `4x + 2y + z`
+/// (each 0 or 1): two triangles per side.
+pub const CUBE_FACES: [[u32; 3]; 12] = [
+    [0, 1, 3],
+    [0, 3, 2],
+    [4, 6, 7],
+    [4, 7, 5],
+    [0, 4, 5],
+    [0, 5, 1],
+    [2, 3, 7],
+    [2, 7, 6],
+    [0, 2, 6],
+    [0, 6, 4],
+    [1, 5, 7],
+    [1, 7, 3],
+];
+
 /// The GPU for this test binary. GPU tests never pass silently: without an adapter they fail,
 /// saying so (install Mesa lavapipe on machines without a GPU).
 pub fn gpu() -> &'static GpuContext {
