@@ -596,7 +596,7 @@ async fn pick(
 /// reveal the server's paths. Objects are named by their file's path (`dir/dem.asc`), or for
 /// glTF `<path>#<mesh>/<primitive>` (`dir/city.glb#roof/0` shows as `city.glb#roof/0`); names
 /// without a folder (the example scene's `tower`) are kept.
-fn public_name(name: &str) -> &str {
+pub(crate) fn public_name(name: &str) -> &str {
     let lower = name.to_ascii_lowercase();
     // A glTF object: the path ends where `.gltf#` or `.glb#` does (the first such place).
     let path_end = [".gltf#", ".glb#"]

@@ -475,7 +475,8 @@ impl Batcher {
                         // What the picks so far had to say: the edit may replace the picker.
                         show_notes(picker.as_mut(), &mut self.notes_shown);
                         let done = catch_unwind(AssertUnwindSafe(|| self.apply(picker, edit)))
-                            .unwrap_or_else(|_| Err(EditError::Failed("the edit panicked".into())));
+                            .unwrap_or_else(|_| Err(EditError::Failed("the edit panicked".into())))
+                            .map_err(|e| self.without_paths(e));
                         let _ = reply.send(done);
                     }
                     job => part.push(job),
@@ -483,6 +484,35 @@ impl Batcher {
             }
             self.answer(picker.as_mut(), part);
             show_notes(picker.as_mut(), &mut self.notes_shown);
+        }
+    }
+
+    /// `e` with each object's name as answers show it (`api::public_name`: the file name
+    /// without its folders), so a refused edit never shows the server's paths: the library's
+    /// sentences name an instance by its file's path ("instance 1 (\"/srv/scenes/tower.obj\")").
+    fn without_paths(&self, e: EditError) -> EditError {
+        let Ok(view) = self.view.lock().map(|v| v.clone()) else {
+            return e;
+        };
+        let public = |mut sentence: String| {
+            let mut names: Vec<&str> = view.objects.iter().map(|o| o.name.as_str()).collect();
+            // Longer names first: one may hold another ("a/b.obj" in "x/a/b.obj").
+            names.sort_unstable_by_key(|n| std::cmp::Reverse(n.len()));
+            names.dedup();
+            for name in names {
+                let shown = super::api::public_name(name);
+                if shown.len() < name.len() && sentence.contains(name) {
+                    sentence = sentence.replace(name, shown);
+                }
+            }
+            sentence
+        };
+        match e {
+            EditError::NotFound(m) => EditError::NotFound(public(m)),
+            EditError::TooLarge(m) => EditError::TooLarge(public(m)),
+            EditError::Failed(m) => EditError::Failed(public(m)),
+            EditError::Invalid(m) => EditError::Invalid(public(m)),
+            EditError::OverBudget(m) => EditError::OverBudget(public(m)),
         }
     }
 

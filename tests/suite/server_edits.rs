@@ -644,3 +644,42 @@ fn requests_from_other_web_sites_cannot_change_the_scene() {
     assert_eq!(status, 200, "{answer}");
     assert_eq!(down(&base, &[0.5, 10.5], u32::MAX), [Some(1), Some(2)]);
 }
+
+/// A refused edit's sentence names objects as answers do, by file name: the library's sentences
+/// name an instance by its file's path, and on an instanced scene they showed the server's
+/// folders (`instance 1 ("/srv/…/box.obj") lies 1.000e12 units …`; found by fuzzing).
+#[test]
+fn refused_edits_never_show_the_servers_paths() {
+    let folder = "/srv/private-scenes/site-7";
+    let mesh = |m| {
+        let mut scene = Scene::new();
+        scene.add_mesh(&format!("{folder}/box.obj"), m).unwrap();
+        scene
+    };
+    let meshes = vec![
+        mesh(terrain(41, 11, -5.0, 5.0, 1.0, |_, _| 0.0)),
+        mesh(box_mesh(DVec3::ZERO, DVec3::ONE)),
+    ];
+    let instances = (0..2)
+        .map(|k| raypick::instance::Instance {
+            name: format!("{folder}/{}", ["ground.asc", "box.obj"][k]),
+            mesh: k as u32,
+            transform: raypick::instance::IDENTITY,
+            mask: u32::MAX,
+        })
+        .collect();
+    let built = BuiltScene::instanced(meshes, instances, &BuildOptions::default()).unwrap();
+    let base = start_on(Arc::new(built), Backend::Cpu);
+    for (object, x) in [(1, 1e12), (0, 1e300)] {
+        let (status, answer) = call(
+            "PATCH",
+            &format!("{base}/objects/{object}"),
+            Some(&json!({"transform": translate(x)})),
+        );
+        let error = answer["error"].as_str().unwrap();
+        assert_eq!(status, 400, "{answer}");
+        assert!(!error.contains(folder), "{error}");
+        let name = ["ground.asc", "box.obj"][object];
+        assert!(error.contains(&format!("\"{name}\"")), "{error}");
+    }
+}
