@@ -416,6 +416,52 @@ impl Scene {
         o.first_vertex as usize..end
     }
 
+    /// A copy of the scene in which every object that `emptied` picks (by id) has no triangles
+    /// and no vertices left, its entry kept (id, name, mask): what a removed object held is
+    /// given back, and every other object keeps its triangles, their ids and its vertex order.
+    pub fn with_objects_emptied(&self, emptied: impl Fn(u32) -> bool) -> Scene {
+        let mut positions: Vec<DVec3> = Vec::new();
+        let mut triangles: Vec<[u32; 3]> = Vec::new();
+        let mut objects = Vec::with_capacity(self.objects.len());
+        let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for (k, o) in self.objects.iter().enumerate() {
+            let first_vertex = positions.len() as u32;
+            let first_triangle = triangles.len() as u32;
+            if emptied(k as u32) {
+                objects.push(Object {
+                    first_triangle,
+                    triangle_count: 0,
+                    first_vertex,
+                    grid: None,
+                    ..o.clone()
+                });
+                continue;
+            }
+            let vertices = self.object_vertices(k as u32);
+            for p in &self.positions[vertices.clone()] {
+                lo = lo.min(*p);
+                hi = hi.max(*p);
+            }
+            positions.extend_from_slice(&self.positions[vertices.clone()]);
+            // Objects before it only lose vertices: its indices move down by what they lost.
+            let shift = vertices.start as u32 - first_vertex;
+            let own = o.first_triangle as usize..(o.first_triangle + o.triangle_count) as usize;
+            triangles.extend(self.triangles[own].iter().map(|t| t.map(|i| i - shift)));
+            objects.push(Object {
+                first_triangle,
+                first_vertex,
+                ..o.clone()
+            });
+        }
+        Scene {
+            positions: positions.into(),
+            triangles: triangles.into(),
+            objects,
+            bounds_min: lo,
+            bounds_max: hi,
+        }
+    }
+
     /// Moves object `object`'s vertices to `positions` (as many as it has, in its own vertex
     /// order, finite), keeping its triangles, and updates the scene's bounds. A tree built over
     /// the scene must then be refitted ([`crate::bvh::Bvh::refit`]). Fails, naming the object,
@@ -605,6 +651,55 @@ impl Scene {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Emptying objects keeps every object's id, name and mask, and every other object's
+    /// triangles at the same world corners under the same ids, those after an emptied one
+    /// included; the bounds are those of what is left.
+    #[test]
+    fn emptied_objects_leave_the_others_as_they_were() {
+        let quad = |x: f64| Mesh {
+            positions: vec![
+                DVec3::new(x, 0.0, 0.0),
+                DVec3::new(x + 1.0, 0.0, 0.0),
+                DVec3::new(x + 1.0, 1.0, 0.0),
+                DVec3::new(x, 1.0, 0.5),
+            ],
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+        };
+        let mut scene = Scene::new();
+        for (k, x) in [0.0, 10.0, 20.0, 30.0].into_iter().enumerate() {
+            scene.add_mesh(format!("quad {k}"), quad(x)).unwrap();
+        }
+        scene.set_object_mask(2, 4).unwrap();
+        let emptied = scene.with_objects_emptied(|k| k == 1 || k == 3);
+        assert_eq!(emptied.objects().len(), 4);
+        assert_eq!(emptied.triangle_count(), 4);
+        assert_eq!(emptied.positions().len(), 8);
+        for (k, (a, b)) in scene.objects().iter().zip(emptied.objects()).enumerate() {
+            assert_eq!(
+                (a.id, &a.name, a.mask),
+                (b.id, &b.name, b.mask),
+                "object {k}"
+            );
+            if k == 1 || k == 3 {
+                assert_eq!(b.triangle_count, 0);
+                assert_eq!(emptied.object_vertices(k as u32).len(), 0);
+                continue;
+            }
+            assert_eq!(a.triangle_count, b.triangle_count);
+            for t in 0..a.triangle_count {
+                let old = scene.world_triangle((a.first_triangle + t) as usize);
+                let new = emptied.world_triangle((b.first_triangle + t) as usize);
+                assert_eq!(old, new, "object {k} triangle {t}");
+            }
+        }
+        assert_eq!(
+            emptied.bounds(),
+            Some((DVec3::new(0.0, 0.0, 0.0), DVec3::new(21.0, 1.0, 0.5)))
+        );
+        let none = scene.with_objects_emptied(|_| true);
+        assert_eq!((none.triangle_count(), none.bounds()), (0, None));
+    }
 
     /// `cross_is_zero` answers as `cross() == ZERO` on every pair of vectors whose coordinates
     /// come from values that make products and differences zero, tiny, huge, infinite or NaN,

@@ -43,8 +43,8 @@ pub struct ServeArgs {
     /// --max-memory, at least 64 MiB (or all of a smaller --max-memory).
     #[arg(long, value_parser = raypick::budget::parse_size)]
     pub memory_budget: Option<u64>,
-    /// Most triangles `POST /objects` may add over the server's life, copies included (413
-    /// past it).
+    /// Most triangles `POST /objects` may add over the server's life, copies included, each
+    /// object counting as at least 64 (413 past it).
     #[arg(long, default_value_t = ServerConfig::default().max_added_triangles)]
     pub max_added_triangles: usize,
     /// A host name the server answers to besides IP addresses and localhost (repeatable; `*`

@@ -124,6 +124,12 @@ pub(crate) enum MeshSource {
     Inline(Mesh),
 }
 
+/// The fewest triangles an added object counts as against
+/// [`super::ServerConfig::max_added_triangles`]: each object's own entries (its name, its edit
+/// state, its place in the tree and the views) weigh about as much as that many triangles, so
+/// a client adding and removing tiny objects cannot grow them past what the cap allows.
+pub(crate) const OBJECT_TRIANGLES: usize = 64;
+
 /// Why an edit was refused: an unknown (or removed) object, or anything else wrong.
 #[derive(Debug)]
 pub(crate) enum EditError {
@@ -161,7 +167,7 @@ pub(crate) struct SceneView {
     pub(crate) bounds: Option<(DVec3, DVec3)>,
     /// The tree's f64 origin.
     pub(crate) origin: DVec3,
-    /// Triangles in the scene (removed objects' included).
+    /// Triangles of the objects not removed.
     pub(crate) triangles: usize,
     /// The tree: nodes, leaves, depth, GPU bytes.
     pub(crate) tree: (usize, usize, usize, u64),
@@ -192,7 +198,7 @@ impl SceneView {
             bvh.gpu_bytes(),
         );
         if let Some(instances) = built.instances() {
-            let objects = instances
+            let objects: Vec<ObjectView> = instances
                 .instances()
                 .iter()
                 .zip(edits.into_iter().chain(std::iter::repeat((None, false))))
@@ -211,15 +217,15 @@ impl SceneView {
                 })
                 .collect();
             return SceneView {
+                triangles: live_triangles(&objects),
                 objects,
                 bounds: built.bounds(),
                 origin: bvh.origin,
-                triangles: built.world_triangle_count() as usize,
                 tree,
             };
         }
         let scene = &built.scene;
-        let objects = scene
+        let objects: Vec<ObjectView> = scene
             .objects()
             .iter()
             .zip(edits.into_iter().chain(std::iter::repeat((None, false))))
@@ -234,13 +240,22 @@ impl SceneView {
             })
             .collect();
         SceneView {
+            triangles: live_triangles(&objects),
             objects,
             bounds: scene.bounds(),
             origin: bvh.origin,
-            triangles: scene.triangle_count(),
             tree,
         }
     }
+}
+
+/// The triangles of the objects not removed.
+fn live_triangles(objects: &[ObjectView]) -> usize {
+    objects
+        .iter()
+        .filter(|o| !o.removed)
+        .map(|o| o.triangles as usize)
+        .sum()
 }
 
 /// Whether `object` exists and was not removed (`objects`: each object's edit state), else a
@@ -630,6 +645,9 @@ impl Batcher {
                 live(&objects, object)?;
                 picker.set_mask(object, 0).map_err(invalid)?;
                 objects[object as usize].1 = true;
+                if let Some(loaded) = self.loaded.get_mut(object as usize) {
+                    *loaded = None;
+                }
                 self.gather_removed(picker, object, &objects, before);
                 object
             }
@@ -661,16 +679,12 @@ impl Batcher {
                     }
                     MeshSource::Inline(mesh) => (mesh, false),
                 };
-                let total = self.added_triangles.saturating_add(mesh.triangles.len());
-                if total > self.max_added_triangles {
-                    return Err(EditError::TooLarge(format!(
-                        "adding {} triangles would bring the triangles added to this server to \
-                         {total}, over its limit of {}",
-                        mesh.triangles.len(),
-                        self.max_added_triangles
-                    )));
-                }
-                let mut scene = built.scene.clone();
+                let total = self.counted_with(mesh.triangles.len())?;
+                // The scene rebuilt without what removed objects held (their ids kept), so
+                // adding and removing objects does not grow it.
+                let mut scene = built
+                    .scene
+                    .with_objects_emptied(|k| objects.get(k as usize).is_some_and(|o| o.1));
                 let mut options = *built.options();
                 drop(built);
                 let id = scene
@@ -707,6 +721,28 @@ impl Batcher {
             }
         };
         self.publish(picker.as_ref(), objects, object)
+    }
+
+    /// The triangles added to this server with an object of `triangles` more, each object
+    /// counted as at least [`OBJECT_TRIANGLES`]; 413 past the server's limit.
+    fn counted_with(&self, triangles: usize) -> std::result::Result<usize, EditError> {
+        let counted = triangles.max(OBJECT_TRIANGLES);
+        let total = self.added_triangles.saturating_add(counted);
+        if total > self.max_added_triangles {
+            let as_counted = if counted > triangles {
+                format!(
+                    " (counted as {counted}: each object counts as at least {OBJECT_TRIANGLES})"
+                )
+            } else {
+                String::new()
+            };
+            return Err(EditError::TooLarge(format!(
+                "adding {triangles} triangles{as_counted} would bring the triangles added to this \
+                 server to {total}, over its limit of {}",
+                self.max_added_triangles
+            )));
+        }
+        Ok(total)
     }
 
     /// Publishes the scene's new version (`objects`: each object's edit state) and answers
@@ -798,14 +834,7 @@ impl Batcher {
                     }
                 };
                 drop(built);
-                let total = self.added_triangles.saturating_add(triangles);
-                if total > self.max_added_triangles {
-                    return Err(EditError::TooLarge(format!(
-                        "adding {triangles} triangles would bring the triangles added to this \
-                         server to {total}, over its limit of {}",
-                        self.max_added_triangles
-                    )));
-                }
+                let total = self.counted_with(triangles)?;
                 let base = match (&mesh, base) {
                     (MeshSource::Copy(source), _) => {
                         self.placed_transform(picker.as_ref(), *source)?
@@ -919,14 +948,14 @@ impl Batcher {
     }
 
     /// After `object` was removed (its mask 0): where it reached the edge of the scene's
-    /// bounds, its vertices are gathered at one point inside the objects left (zero-area
-    /// triangles, which no tree holds) and the scene is built again, so its bounds, its framing
-    /// camera and its frame's centre are those of what is left. Without it, one far object
-    /// added and removed kept them wide for every client: the first view empty, and nearby
-    /// additions refused as too far from the centre. Where the rebuild cannot be made, the
-    /// removal stands as a mask. (A removed object inside the bounds is left where it is until
-    /// a removal gathers them all: should moves of the others shrink the bounds, they may then
-    /// reach it until the next removal.)
+    /// bounds, the scene is built again with every removed object emptied (no triangles, no
+    /// vertices: `Scene::with_objects_emptied`), so its bounds, its framing camera and its
+    /// frame's centre are those of what is left. Without it, one far object added and removed
+    /// kept them wide for every client: the first view empty, and nearby additions refused as
+    /// too far from the centre. Where the rebuild cannot be made, the removal stands as a mask.
+    /// (A removed object inside the bounds is left where it is until the next addition, or a
+    /// removal that empties them all: should moves of the others shrink the bounds, they may
+    /// then reach it until then.)
     fn gather_removed(
         &mut self,
         picker: &mut Box<dyn Picker>,
@@ -957,27 +986,14 @@ impl Batcher {
         if !left.0.is_finite() || left == (lo, hi) {
             return;
         }
-        // Every removed object is gathered (one removed earlier, inside bounds that this one
+        // Every removed object is emptied (one removed earlier, inside bounds that this one
         // held wide, would reach past what is left once they shrink).
-        let centre = (left.0 + left.1) * 0.5;
-        let mut gathered = scene.clone();
+        let emptied = scene.with_objects_emptied(|k| objects.get(k as usize).is_some_and(|o| o.1));
         let options = *built.options();
-        let removed: Vec<(u32, usize)> = (0..scene.objects().len() as u32)
-            .filter(|&k| objects.get(k as usize).is_some_and(|o| o.1))
-            .map(|k| (k, scene.object_vertices(k).count()))
-            .collect();
         drop(built);
-        for (k, count) in removed {
-            if gathered
-                .set_object_positions(k, &vec![centre; count])
-                .is_err()
-            {
-                return;
-            }
-        }
         // A smaller frame resolves what is left at least as finely; a refusal or a failure
         // leaves the masked scene serving.
-        let _ = self.rebuild(picker, gathered, &options, before, None);
+        let _ = self.rebuild(picker, emptied, &options, before, None);
     }
 
     /// Builds `scene` with `options` and puts a new picker over it in `picker`'s place; refused,

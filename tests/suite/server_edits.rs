@@ -421,11 +421,12 @@ fn the_triangles_clients_add_are_capped() {
     let base = start_with(
         Backend::Cpu,
         ServerConfig {
-            max_added_triangles: 30,
+            max_added_triangles: 150,
             ..ServerConfig::default()
         },
     );
-    // The box has 12 triangles: two copies fit under 30, the third does not.
+    // The box has 12 triangles, counted as 64 (every object counts as at least that many):
+    // two copies fit under 150, the third does not.
     for expected in [2, 3] {
         let (status, answer) = call(
             "POST",
@@ -444,11 +445,74 @@ fn the_triangles_clients_add_are_capped() {
         answer["error"]
             .as_str()
             .unwrap()
-            .contains("over its limit of 30"),
+            .contains("12 triangles (counted as 64: each object counts as at least 64) would bring the triangles added to this server to 192, over its limit of 150"),
         "{answer}"
     );
     let (_, scene) = call("GET", &format!("{base}/scene"), None);
     assert_eq!(scene["objects"].as_array().unwrap().len(), 4);
+}
+
+/// Objects added and removed again leave nothing behind: each addition rebuilds the scene
+/// without what removed objects held, so the tree and `GET /scene`'s triangle count stay those
+/// of the objects left (before, every removed object's triangles stayed in the scene and its
+/// tree for good: memory and each edit's time grew with every add and remove; found by
+/// fuzzing).
+#[test]
+fn objects_added_and_removed_leave_nothing_behind() {
+    let base = start_on(scene(), Backend::Cpu);
+    let tree_and_triangles = || {
+        let (_, scene) = call("GET", &format!("{base}/scene"), None);
+        let listed: u64 = scene["objects"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|o| o["triangles"].as_u64().unwrap())
+            .sum();
+        assert_eq!(scene["triangles"].as_u64().unwrap(), listed, "{scene}");
+        (scene["tree"]["nodes"].as_u64().unwrap(), listed)
+    };
+    let start = tree_and_triangles();
+    let far_box = |x: f64| json!({"mesh": 1, "transform": translate(x)});
+    for k in 0..12 {
+        // Inside the bounds and at their edge: a removal inside them leaves the scene as it
+        // is until the next addition.
+        let (status, answer) = call(
+            "POST",
+            &format!("{base}/objects"),
+            Some(&far_box(k as f64 - 4.0)),
+        );
+        assert_eq!(status, 200, "{answer}");
+        let id = answer["object"].as_u64().unwrap();
+        assert_eq!(id, 2 + k);
+        let (status, answer) = call("DELETE", &format!("{base}/objects/{id}"), None);
+        assert_eq!(status, 200, "{answer}");
+    }
+    // One more addition empties every removed object.
+    let (status, answer) = call("POST", &format!("{base}/objects"), Some(&far_box(0.0)));
+    assert_eq!((status, &answer), (200, &json!({"object": 14})));
+    let (nodes, triangles) = tree_and_triangles();
+    assert_eq!(triangles, start.1 + 12);
+    let (status, _) = call("DELETE", &format!("{base}/objects/14"), None);
+    assert_eq!(status, 200);
+    let (_, ones) = tree_and_triangles();
+    assert_eq!(ones, start.1);
+    // The tree holds the objects left and the last box: no more than one box's leaves over
+    // the tree the scene started with.
+    assert!(
+        nodes <= start.0 + 8,
+        "{nodes} nodes, {} at the start",
+        start.0
+    );
+    // Removed ids stay removed; the objects left are picked as before.
+    for id in [2, 9, 14] {
+        let (status, _) = call(
+            "PATCH",
+            &format!("{base}/objects/{id}"),
+            Some(&json!({"mask": 1})),
+        );
+        assert_eq!(status, 404);
+    }
+    assert_eq!(down(&base, &[0.5, 10.5], u32::MAX), [Some(1), Some(0)]);
 }
 
 /// An edit that would carry the scene past what its single-precision frame resolves (an
