@@ -717,7 +717,7 @@ fn refused_edits_never_show_the_servers_paths() {
     let folder = "/srv/private-scenes/site-7";
     let mesh = |m| {
         let mut scene = Scene::new();
-        scene.add_mesh(&format!("{folder}/box.obj"), m).unwrap();
+        scene.add_mesh(format!("{folder}/box.obj"), m).unwrap();
         scene
     };
     let meshes = vec![
