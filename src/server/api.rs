@@ -844,14 +844,21 @@ fn request_transform(transform: Option<[[f64; 4]; 3]>) -> Result<Option<[[f64; 4
     Ok(transform)
 }
 
-/// The object id in a path, or 404.
+/// The object id in a path, written as ids are (`0`, `17`: digits, no sign, no leading zero),
+/// or 404: `+1` and `001` name no object (Rust's parse took them for object 1).
 fn object_id(id: &str) -> Result<u32, ApiError> {
-    id.parse::<u32>().map_err(|_| {
-        ApiError::new(
-            StatusCode::NOT_FOUND,
-            format!("there is no object \"{}\"", crate::budget::quote(id)),
-        )
-    })
+    let canonical = !id.is_empty()
+        && id.bytes().all(|b| b.is_ascii_digit())
+        && (id == "0" || !id.starts_with('0'));
+    canonical
+        .then(|| id.parse::<u32>().ok())
+        .flatten()
+        .ok_or_else(|| {
+            ApiError::new(
+                StatusCode::NOT_FOUND,
+                format!("there is no object \"{}\"", crate::budget::quote(id)),
+            )
+        })
 }
 
 /// Hands `edit` to the worker and answers `{"object": id}`.

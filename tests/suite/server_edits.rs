@@ -280,6 +280,11 @@ fn edits_follow_on(scene: Arc<BuiltScene>, backend: Backend) {
         ("DELETE", "/objects/2", None),
         ("DELETE", "/objects/99", None),
         ("PATCH", "/objects/abc", Some(json!({"mask": 1}))),
+        // Live object 1 by other spellings: no such object.
+        ("PATCH", "/objects/+1", Some(json!({"mask": 1}))),
+        ("PATCH", "/objects/001", Some(json!({"mask": 1}))),
+        ("DELETE", "/objects/+3", None),
+        ("DELETE", "/objects/4294967296", None),
         ("POST", "/objects", Some(json!({"mesh": 99}))),
     ] {
         let (status, answer) = call(method, &format!("{base}{path}"), body.as_ref());
