@@ -825,6 +825,7 @@ fn parse_body<T: serde::de::DeserializeOwned>(bytes: &[u8], what: &str) -> Resul
             true => path.rsplit_once('.').map_or("", |(parent, _)| parent),
             false => path.as_str(),
         };
+        let reason = field_reason(&path, reason);
         match path {
             "" | "." => bad(reason),
             // A field name is the client's token: quoted, and cut as every token is.
@@ -833,6 +834,29 @@ fn parse_body<T: serde::de::DeserializeOwned>(bytes: &[u8], what: &str) -> Resul
     })?;
     json.end().map_err(|e| bad(e.to_string()))?;
     Ok(value)
+}
+
+/// serde_json's reason for a field, said in the request's terms where its own words name
+/// nothing: "trailing characters" (inside a body, an array with more values than the field
+/// takes) and "expected value" (a name or a camera given as something else).
+fn field_reason(path: &str, reason: String) -> String {
+    let field = path.rsplit(['.', '[']).next().unwrap_or(path);
+    let takes = match field {
+        "mode" => "one of \"closest\", \"any\", \"all\"",
+        "cull" => "one of \"none\", \"back\", \"front\"",
+        "camera" => "an object with exactly one of perspective, orthographic or matrices",
+        _ => "another kind of value (see the request's format)",
+    };
+    if path.is_empty() || path == "." {
+        return reason;
+    }
+    if let Some(rest) = reason.strip_prefix("trailing characters") {
+        return format!("more values than it takes{rest}");
+    }
+    if let Some(rest) = reason.strip_prefix("expected value") {
+        return format!("expected {takes}{rest}");
+    }
+    reason
 }
 
 /// Checks a transform from a request.
@@ -977,13 +1001,24 @@ struct RenderParams {
     camera: Option<String>,
     /// `normal`, `depth` or `object`.
     shade: Option<String>,
-    /// Image width of the framing camera (without `camera`).
-    width: Option<u32>,
+    /// Image width of the framing camera (without `camera`; read by [`pixel_count`]).
+    width: Option<String>,
     /// Image height of the framing camera (without `camera`).
-    height: Option<u32>,
+    height: Option<String>,
     /// Ignored: a page adds its own count of scene edits so that it asks again after one.
     #[allow(dead_code, reason = "accepted and ignored")]
     version: Option<String>,
+}
+
+/// A `/render` image size parameter: a whole number of pixels, or 400 quoting it (the query's
+/// own parse said "width: invalid digit found in string" for `width=-1`).
+fn pixel_count(name: &str, text: &str) -> Result<u32, ApiError> {
+    text.parse::<u32>().map_err(|_| {
+        ApiError::bad_request(format!(
+            "{name} '{}' is not a whole number of pixels",
+            crate::budget::quote(text)
+        ))
+    })
 }
 
 /// `GET /render`.
@@ -1007,7 +1042,17 @@ async fn render_view(
             ))
         })?,
     };
-    let camera = match (&params.camera, params.width, params.height) {
+    let width = params
+        .width
+        .as_deref()
+        .map(|w| pixel_count("width", w))
+        .transpose()?;
+    let height = params
+        .height
+        .as_deref()
+        .map(|h| pixel_count("height", h))
+        .transpose()?;
+    let camera = match (&params.camera, width, height) {
         (Some(text), None, None) => Camera::from_json_str("camera", text)
             .map_err(|e| ApiError::bad_request(e.to_string()))?,
         (Some(_), _, _) => {

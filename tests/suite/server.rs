@@ -476,8 +476,7 @@ fn bad_requests_get_clear_4xx_json_errors() {
     let ray = r#"{"origin": [0, 0, 50], "dir": [0, 0, -1]}"#;
     let camera = Camera::frame_bounds(DVec3::ZERO, DVec3::ONE, 8, 8);
     let camera_json = serde_json::to_string(camera.spec()).unwrap();
-    let cases: Vec<(String, u16, &str)> =
-        vec![
+    let cases: Vec<(String, u16, &str)> = vec![
         ("{\"rays\": [".into(), 400, "not a valid pick request"),
         ("not json".into(), 400, "not a valid pick request"),
         (
@@ -496,10 +495,29 @@ fn bad_requests_get_clear_4xx_json_errors() {
             400,
             "`rays[1].origin[2]`: invalid type: string",
         ),
+        // serde_json said "expected value" for a name given as something else, and
+        // "trailing characters" for an array too long.
         (
             format!("{{\"rays\": [{ray}], \"mode\": 1}}"),
             400,
-            "pick request: `mode`: ",
+            "pick request: `mode`: expected one of \"closest\", \"any\", \"all\" at line 1",
+        ),
+        (
+            format!("{{\"rays\": [{ray}], \"cull\": null}}"),
+            400,
+            "`cull`: expected one of \"none\", \"back\", \"front\"",
+        ),
+        (
+            r#"{"camera": {"perspective": {"eye": [0, 0, 9], "target": [0, 0, 0], "up": [0, 1, 0],
+                "fov_y_deg": 60, "width": 8, "height": 8}, "orthographic": {}}, "pixels": [[1, 1]]}"#
+                .into(),
+            400,
+            "`camera`: expected an object with exactly one of perspective, orthographic or matrices",
+        ),
+        (
+            r#"{"rays": [{"origin": [0, 0, 1, 2], "dir": [0, 0, 1]}]}"#.into(),
+            400,
+            "`rays[0].origin`: more values than it takes at line 1 column",
         ),
         (
             format!("{{\"rays\": [{ray}], \"mask\": -1}}"),
@@ -519,7 +537,11 @@ fn bad_requests_get_clear_4xx_json_errors() {
             400,
             "trailing characters",
         ),
-        (format!("[[{ray}]]"), 400, "pick request: it must be a JSON object"),
+        (
+            format!("[[{ray}]]"),
+            400,
+            "pick request: it must be a JSON object",
+        ),
         ("  [1".into(), 400, "it must be a JSON object"),
         (
             r#"{"rays": [[[0, 0, 50], [0, 0, -1], 0, null, 1]]}"#.into(),
@@ -646,7 +668,16 @@ fn bad_requests_get_clear_4xx_json_errors() {
         ("width=0&height=3", 400, "at least 1"),
         ("width=100&height=100", 413, "10000 pixels"),
         ("colour=red", 400, "not valid"),
-        ("width=ten", 400, "not valid"),
+        (
+            "width=ten",
+            400,
+            "width 'ten' is not a whole number of pixels",
+        ),
+        (
+            "width=20&height=-1",
+            400,
+            "height '-1' is not a whole number of pixels",
+        ),
     ] {
         let (got, answer) = get_json(&format!("{base}/render?{query}"));
         assert_eq!(got, status, "{query}: {answer}");
