@@ -825,7 +825,7 @@ fn parse_body<T: serde::de::DeserializeOwned>(bytes: &[u8], what: &str) -> Resul
             true => path.rsplit_once('.').map_or("", |(parent, _)| parent),
             false => path.as_str(),
         };
-        let reason = field_reason(&path, reason);
+        let reason = field_reason(path, reason);
         match path {
             "" | "." => bad(reason),
             // A field name is the client's token: quoted, and cut as every token is.
