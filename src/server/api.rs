@@ -516,7 +516,22 @@ async fn read_body(
             }
             source = err.source();
         }
-        ApiError::bad_request(format!("the request body could not be read: {e}"))
+        // hyper's outer words ("error reading a body from connection") name no cause: the
+        // chain's own are said too (a chunk's size line that is not hexadecimal, say).
+        let mut words: Vec<String> = Vec::new();
+        let mut source: Option<&dyn std::error::Error> = Some(&e);
+        while let Some(err) = source {
+            let text = err.to_string();
+            if !words.iter().any(|w| w.contains(&text)) {
+                words.push(text);
+            }
+            source = err.source();
+        }
+        words.truncate(3);
+        ApiError::bad_request(format!(
+            "the request body could not be read: {}",
+            words.join(": ")
+        ))
     })
 }
 

@@ -718,7 +718,8 @@ fn an_unread_body_ends_the_connection_and_the_answer_says_so() {
             b"POST /pick HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n\
               Transfer-Encoding: chunked\r\n\r\nzz\r\n{}\r\n0\r\n\r\n",
             400,
-            "could not be read",
+            // What was wrong, not only hyper's "error reading a body from connection".
+            "could not be read: error reading a body from connection: Invalid chunk size line",
         ),
     ];
     for (request, status, sentence) in cases {
