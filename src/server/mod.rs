@@ -435,6 +435,8 @@ impl axum::serve::Listener for LimitedListener {
             answer: Vec::new(),
             answer_sent: 0,
             unacknowledged: None,
+            first_read: true,
+            refusing_http2: false,
             _slot: slot,
         };
         (io, addr)
@@ -462,8 +464,34 @@ struct LimitedIo {
     /// The bytes the socket held unacknowledged when a write last began to wait (or at the
     /// last look since): [`LimitedIo::still_reading`].
     unacknowledged: Option<usize>,
+    /// No byte has been read yet: the first ones are looked at for HTTP/2's preface.
+    first_read: bool,
+    /// The client began with HTTP/2's preface: it is answered [`http2_refusal`], and what it
+    /// sends is read and dropped until it closes (hyper sees no request).
+    refusing_http2: bool,
     _slot: OwnedSemaphorePermit,
 }
+
+/// What an HTTP/2 client that starts with the connection preface (`curl --http2-prior-knowledge`)
+/// is answered, in its own protocol: the server's preface (an empty SETTINGS frame), then
+/// GOAWAY with HTTP_1_1_REQUIRED (0xd) and a sentence. hyper, serving HTTP/1 only, reset such
+/// a connection without a word.
+fn http2_refusal() -> Vec<u8> {
+    const WHY: &[u8] = b"raypick serves HTTP/1.1 only";
+    // SETTINGS: length 0, type 4, no flags, stream 0.
+    let mut frames = vec![0, 0, 0, 4, 0, 0, 0, 0, 0];
+    // GOAWAY: length, type 7, no flags, stream 0; last stream 0, error code, the sentence.
+    let length = (8 + WHY.len()) as u32;
+    frames.extend_from_slice(&length.to_be_bytes()[1..]);
+    frames.extend_from_slice(&[7, 0, 0, 0, 0, 0]);
+    frames.extend_from_slice(&0u32.to_be_bytes());
+    frames.extend_from_slice(&0xdu32.to_be_bytes());
+    frames.extend_from_slice(WHY);
+    frames
+}
+
+/// The start of HTTP/2's connection preface.
+const HTTP2_PREFACE: &[u8] = b"PRI * HTTP/2.0\r\n";
 
 /// The least pace, in bytes a second, at which a client taking an answer keeps its connection
 /// past the idle timeout ([`LimitedIo::still_reading`]).
@@ -619,9 +647,43 @@ impl AsyncRead for LimitedIo {
         if this.expired() {
             return Poll::Ready(Err(this.timed_out()));
         }
+        if this.refusing_http2 {
+            return this.poll_refuse_http2(cx);
+        }
+        let before = buf.filled().len();
         match Pin::new(&mut this.inner).poll_read(cx, buf) {
             Poll::Pending => this.poll_deadline(cx),
+            Poll::Ready(Ok(())) if this.first_read && buf.filled().len() > before => {
+                this.first_read = false;
+                if buf.filled()[before..].starts_with(HTTP2_PREFACE) {
+                    buf.set_filled(before);
+                    (this.answer, this.answer_sent) = (http2_refusal(), 0);
+                    this.refusing_http2 = true;
+                    return this.poll_refuse_http2(cx);
+                }
+                Poll::Ready(Ok(()))
+            }
             ready => ready,
+        }
+    }
+}
+
+impl LimitedIo {
+    /// Sends an HTTP/2 client [`http2_refusal`], then reads and drops what it sends until it
+    /// closes, and ends the connection for hyper (closed with the client's bytes unread, the
+    /// connection would be reset, and the client could lose the refusal). A client that does
+    /// not close is closed at the idle timeout.
+    fn poll_refuse_http2(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        std::task::ready!(self.poll_answer(cx))?;
+        let mut scratch = [0u8; 4096];
+        loop {
+            let mut dropped = ReadBuf::new(&mut scratch);
+            match Pin::new(&mut self.inner).poll_read(cx, &mut dropped) {
+                Poll::Pending => return self.poll_deadline(cx),
+                Poll::Ready(Ok(())) if dropped.filled().is_empty() => return Poll::Ready(Ok(())),
+                Poll::Ready(Ok(())) => {}
+                Poll::Ready(Err(e)) => return Poll::Ready(Err(e)),
+            }
         }
     }
 }

@@ -876,3 +876,52 @@ fn read_one_answer(stream: &mut TcpStream) -> String {
         answer.extend_from_slice(&buf[..n]);
     }
 }
+
+/// An HTTP/2 client that starts with the connection preface (`curl --http2-prior-knowledge`)
+/// is answered in HTTP/2: an empty SETTINGS frame, then GOAWAY with HTTP_1_1_REQUIRED and a
+/// sentence, and the connection ends once the client closes (hyper, serving HTTP/1 only,
+/// reset it without a word). HTTP/1 clients are served as before.
+#[test]
+fn an_http2_client_is_told_to_use_http1() {
+    let addr = start(ServerConfig::default());
+    let mut stream = connect(addr, Duration::from_secs(20));
+    // The preface, then the client's SETTINGS frame (empty).
+    stream
+        .write_all(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n\x00\x00\x00\x04\x00\x00\x00\x00\x00")
+        .expect("send");
+    let mut answer = vec![0u8; 512];
+    let mut got = 0;
+    let why = b"raypick serves HTTP/1.1 only";
+    while got < 9 + 17 + why.len() {
+        match stream.read(&mut answer[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) => panic!("after {got} bytes: {e}"),
+        }
+    }
+    let answer = &answer[..got];
+    assert_eq!(
+        &answer[..9],
+        &[0, 0, 0, 4, 0, 0, 0, 0, 0],
+        "SETTINGS: {answer:?}"
+    );
+    let goaway = &answer[9..];
+    assert_eq!(goaway[3], 7, "a GOAWAY frame: {answer:?}");
+    assert_eq!(
+        &goaway[13..17],
+        &[0, 0, 0, 0xd],
+        "HTTP_1_1_REQUIRED: {answer:?}"
+    );
+    assert_eq!(&goaway[17..], why);
+    assert_eq!(
+        u32::from_be_bytes([0, goaway[0], goaway[1], goaway[2]]) as usize,
+        8 + why.len()
+    );
+    // The client closes; the server ends the connection.
+    stream.shutdown(std::net::Shutdown::Write).expect("close");
+    let mut rest = Vec::new();
+    stream.read_to_end(&mut rest).expect("the connection ends");
+    assert!(rest.is_empty(), "{rest:?}");
+    let (status, _) = request(addr, "GET", "/scene", "");
+    assert_eq!(status, 200);
+}
