@@ -5,7 +5,8 @@
 //! their JSON live in `api`, the picking worker and its batching in [`batcher`], the page in
 //! [`page`], the refusal of other sites' requests in `origin`, picks answered in steps (and
 //! dropped when their client is gone) in `steps`, the `connection: close` of an answer to a
-//! request whose body was left unread in `unread_body`.
+//! request whose body was left unread in `unread_body`. It speaks HTTP/1.1 (and 1.0): a client
+//! opening with HTTP/2's preface is answered GOAWAY with HTTP_1_1_REQUIRED (`http2_refusal`).
 //!
 //! # Threads
 //!
