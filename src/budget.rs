@@ -305,10 +305,11 @@ pub fn parse_size(text: &str) -> std::result::Result<u64, String> {
     if value == f64::INFINITY {
         return Err(format!("{:?} is too large", quote(t)));
     }
-    if !(value.is_finite() && value >= 1.0) {
+    // A fraction of a unit is a size ("0.5G" is 512M); less than one byte is not.
+    let bytes = value * (1u64 << shift) as f64;
+    if !(value.is_finite() && bytes >= 1.0) {
         return Err(format!("{:?} is not a positive size", quote(t)));
     }
-    let bytes = value * (1u64 << shift) as f64;
     if bytes >= u64::MAX as f64 {
         return Err(format!("{:?} is too large", quote(t)));
     }
@@ -421,6 +422,11 @@ mod tests {
         assert_eq!(parse_size("1000"), Ok(1000));
         assert!(parse_size("lots").is_err());
         assert!(parse_size("0").is_err());
+        // A fraction of a unit is a size ("0.5G" was "not a positive size"); below a byte not.
+        assert_eq!(parse_size("0.5G"), Ok(512 << 20));
+        assert_eq!(parse_size("1.5k"), Ok(1536));
+        assert!(parse_size("0.5").is_err());
+        assert!(parse_size("-1G").is_err());
         let e = check("the test's items", u64::MAX, 2)
             .unwrap_err()
             .to_string();
