@@ -54,16 +54,18 @@ pub fn camera_rays<'py>(
         Some(pixels) => {
             let pixels = arrays::rows(pixels, "pixels", 2, Dtype::Real, false)?;
             let view = pixels.as_array();
+            // Sized first: a view of 10¹² rows of one pixel (zero strides) was read row by row
+            // for minutes before its rays were refused.
+            let mut out = vec_for::<f64>(view.nrows().saturating_mul(6), "the camera rays")?;
             if let Some(i) =
                 (0..view.nrows()).find(|&i| !(view[[i, 0]].is_finite() && view[[i, 1]].is_finite()))
             {
                 return Err(value_error(format!(
                     "pixels row {i} is ({}, {}), not a finite pixel",
-                    view[[i, 0]],
-                    view[[i, 1]]
+                    raypick::budget::number(view[[i, 0]]),
+                    raypick::budget::number(view[[i, 1]])
                 )));
             }
-            let mut out = vec_for::<f64>(6 * view.nrows(), "the camera rays")?;
             crate::threads::run(|| {
                 out.par_extend((0..view.nrows()).into_par_iter().flat_map_iter(|i| {
                     row(camera.pixel_ray(view[[i, 0]] + 0.5, view[[i, 1]] + 0.5))
@@ -79,8 +81,8 @@ pub fn camera_rays<'py>(
                 return Err(value_error(format!(
                     "pixels row {i} is ({}, {}), too far outside the camera's {} x {} image to \
                      make a ray",
-                    view[[i, 0]],
-                    view[[i, 1]],
+                    raypick::budget::number(view[[i, 0]]),
+                    raypick::budget::number(view[[i, 1]]),
                     camera.width(),
                     camera.height()
                 )));
@@ -123,8 +125,8 @@ fn warn_outside(
             view.nrows(),
             camera.width(),
             camera.height(),
-            view[[k, 0]],
-            view[[k, 1]]
+            raypick::budget::number(view[[k, 0]]),
+            raypick::budget::number(view[[k, 1]])
         );
         let category = py.get_type::<pyo3::exceptions::PyUserWarning>();
         PyErr::warn(py, &category, &std::ffi::CString::new(message)?, 1)?;

@@ -336,12 +336,9 @@ pub struct Lists {
     col: Vec<i64>,
 }
 
-/// Makes room for `more` items in `v`, or says they are over the memory budget (all of `v`'s
-/// items then), or that the memory is not there.
+/// Makes room for `more` items in `v` (the budget was checked for every column at once:
+/// [`Lists::add`]), or says that the memory is not there.
 fn grow<T>(v: &mut Vec<T>, more: usize) -> PyResult<()> {
-    let items = v.len().saturating_add(more) as u64;
-    raypick::budget::check("the hit lists", items, size_of::<T>() as u64)
-        .map_err(crate::errors::to_py)?;
     v.try_reserve(more).map_err(|_| {
         pyo3::exceptions::PyMemoryError::new_err(format!(
             "the hit lists would need {more} more entries of {} bytes, more than this process \
@@ -379,6 +376,18 @@ impl Lists {
     /// Appends the answers of the next rays.
     pub fn add(&mut self, answers: &raypick::Answers) -> PyResult<()> {
         let m = answers.lists.len();
+        // Every hit column at once, at the capacity they grow to (a vector's room doubles):
+        // each column checked on its own let the lists take several times the budget.
+        let needed = self.ray.len().saturating_add(m);
+        let capacity = if needed > self.ray.capacity() {
+            needed.max(self.ray.capacity().saturating_mul(2))
+        } else {
+            self.ray.capacity()
+        };
+        let per_hit = 7 * size_of::<i64>() + 6 * size_of::<f64>();
+        let per_hit = per_hit + if self.cells { 2 * size_of::<i64>() } else { 0 };
+        raypick::budget::check("the hit lists", capacity as u64, per_hit as u64)
+            .map_err(crate::errors::to_py)?;
         grow(&mut self.ray, m)?;
         grow(&mut self.rank, m)?;
         grow(&mut self.t, m)?;

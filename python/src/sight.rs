@@ -18,6 +18,16 @@ use rayon::prelude::*;
 use raypick::{Backend, BuiltScene, DVec3, Mode, Query, Ray};
 use std::ops::Range;
 
+/// What a segment takes while a query runs: its two ends, and its answer.
+const SEGMENT_BYTES: u64 = (size_of::<(DVec3, DVec3)>() + size_of::<bool>()) as u64;
+
+/// What a viewshed target takes while the query runs: the target with its label, its segment
+/// and answer, and its answer's position and label columns.
+const TARGET_BYTES: u64 = (size_of::<(DVec3, [i64; 3])>()
+    + SEGMENT_BYTES as usize
+    + size_of::<[f64; 3]>()
+    + size_of::<[i64; 3]>()) as u64;
+
 /// The checked settings of a line-of-sight query.
 pub struct SightArgs {
     epsilon: f64,
@@ -29,7 +39,8 @@ impl SightArgs {
     pub fn parse(epsilon: f64, ray_mask: u32, backend: &str) -> PyResult<Self> {
         if !(0.0..0.5).contains(&epsilon) {
             return Err(value_error(format!(
-                "epsilon {epsilon} must be in [0, 0.5)"
+                "epsilon {} must be in [0, 0.5)",
+                raypick::budget::number(epsilon)
             )));
         }
         Ok(Self {
@@ -94,6 +105,15 @@ pub fn los<'py>(
 ) -> PyResult<Bound<'py, PyAny>> {
     let a = arrays::rows(a, "a", 3, Dtype::Float64, true)?;
     let b = arrays::rows(b, "b", 3, Dtype::Float64, true)?;
+    // Everything the query keeps at once, checked together (each array checked on its own let
+    // it take about twice the budget): both ends' points, the segments and the answer.
+    let (na, nb) = (a.as_array().nrows(), b.as_array().nrows());
+    let point = size_of::<DVec3>() as u64;
+    let bytes = (na as u64 + nb as u64)
+        .saturating_mul(point)
+        .saturating_add((na.max(nb) as u64).saturating_mul(SEGMENT_BYTES));
+    raypick::budget::check("the segments with their end points", bytes, 1)
+        .map_err(crate::errors::to_py)?;
     let (a, b) = (
         arrays::points(a.as_array(), "the points a")?,
         arrays::points(b.as_array(), "the points b")?,
@@ -134,20 +154,34 @@ pub fn viewshed<'py>(
     if !observer.is_finite() {
         return Err(value_error(format!(
             "observer ({}, {}, {}) is not finite; give finite numbers",
-            observer.x, observer.y, observer.z
+            raypick::budget::number(observer.x),
+            raypick::budget::number(observer.y),
+            raypick::budget::number(observer.z)
         )));
     }
     if !target_height.is_finite() {
         return Err(value_error(format!(
-            "target_height {target_height} is not finite; give a finite number"
+            "target_height {} is not finite; give a finite number",
+            raypick::budget::number(target_height)
         )));
     }
     let lift = DVec3::Z * target_height;
+    // Everything the query keeps per target at once, checked together (each column checked on
+    // its own let it take about three times the budget).
+    let check_targets = |n: usize| {
+        raypick::budget::check(
+            "the targets with their segments and columns",
+            n as u64,
+            TARGET_BYTES,
+        )
+        .map_err(crate::errors::to_py)
+    };
     // (target, [object, row, col]) pairs; −1 for given targets.
     let targets: Vec<(DVec3, [i64; 3])> = match targets.filter(|t| !t.is_none()) {
         Some(given) => {
             let given = arrays::rows(given, "targets", 3, Dtype::Float64, true)?;
             let given = given.as_array();
+            check_targets(given.nrows())?;
             let rows = given.rows().into_iter();
             let labelled = rows.map(|r| (DVec3::new(r[0], r[1], r[2]) + lift, [-1; 3]));
             collect_for(given.nrows(), "the targets", labelled)?
@@ -155,6 +189,7 @@ pub fn viewshed<'py>(
         None => grid_targets(scene.built(), lift)?,
     };
     let n = targets.len();
+    check_targets(n)?;
     let segments = collect_for(
         n,
         "the segments",

@@ -286,8 +286,8 @@ def test_zero_copy_views_of_billions_of_rows_are_refused_by_the_budget(bunny, de
     huge = 2_000_000_000
     ray = np.array([0.0, 0.1, 1, 0, 0, -1])
     cases = [
-        (lambda: bunny.los([0.0, 0, 0], np.broadcast_to([0.0, 0, 1], (huge, 3))), "the points b"),
-        (lambda: bunny.los(np.broadcast_to([0.0, 0, 0], (huge, 3)), [0.0, 0, 1]), "the points a"),
+        (lambda: bunny.los([0.0, 0, 0], np.broadcast_to([0.0, 0, 1], (huge, 3))), "the segments with their end points"),
+        (lambda: bunny.los(np.broadcast_to([0.0, 0, 0], (huge, 3)), [0.0, 0, 1]), "the segments with their end points"),
         (lambda: dem.viewshed([518775.0, 4030000, 4000], targets=np.broadcast_to([0.0, 0, 1], (huge, 3))), "the targets"),
         (lambda: raypick.Scene.from_arrays(np.broadcast_to([0.0, 0, 0], (huge, 3)), [[0, 1, 2]]), "the vertices"),
         (lambda: bunny.pick(np.broadcast_to(ray, (huge, 6))), "columns"),
@@ -310,6 +310,64 @@ def test_zero_copy_views_of_billions_of_rows_are_refused_by_the_budget(bunny, de
         copy = bunny.pick(np.ascontiguousarray(view))
         for key, column in bunny.pick(view).items():
             assert np.array_equal(column, copy[key], equal_nan=True), key
+    finally:
+        raypick.set_max_memory(default)
+
+
+def test_what_a_query_keeps_at_once_is_checked_together(bunny, dem):
+    """Each column was checked against the budget on its own, so all-hits lists took several
+    times the budget (2.56M hits, 254 MiB of arrays, under 64 MiB), and los and viewshed about
+    two and three times (found by fuzzing). Now what a query keeps at once is checked as one."""
+    lo, hi = bunny.bounds
+    mid = (lo + hi) / 2
+    # Through the bunny's middle along x: several hits each.
+    ray = np.array([lo[0] - 1, mid[1], mid[2], 1.0, 0, 0])
+    rays = np.ascontiguousarray(np.broadcast_to(ray, (100_000, 6)))
+    hits_per_ray = len(bunny.pick(rays[:1], mode="all")["t"])
+    assert hits_per_ray >= 2
+    default = raypick.max_memory()
+    try:
+        # 100,000 × hits_per_ray hits × 104 bytes is over 16 MiB; each column alone (at most 24
+        # bytes a hit) was not.
+        raypick.set_max_memory("16M")
+        with pytest.raises(ValueError, match="the hit lists would need") as e:
+            bunny.pick(rays, mode="all")
+        assert "over the memory budget of 16.0 MiB" in one_sentence(e)
+        # Within the budget the lists come back whole.
+        lists = bunny.pick(rays[:1000], mode="all")
+        assert len(lists["t"]) == 1000 * hits_per_ray
+        # los: both ends and the segments, 97 bytes a segment (each array alone was under it).
+        n = 200_000
+        with pytest.raises(ValueError, match="the segments with their end points would need"):
+            bunny.los(np.zeros((n, 3)), np.ones((n, 3)))
+        # viewshed: 145 bytes a target.
+        with pytest.raises(ValueError, match="the targets with their segments and columns would need"):
+            dem.viewshed([518775.0, 4030000, 4000], targets=np.zeros((150_000, 3)))
+    finally:
+        raypick.set_max_memory(default)
+
+
+def test_camera_rays_of_a_huge_view_are_refused_at_once():
+    """A zero-stride view of 10¹² pixels was read row by row (minutes) before its rays were
+    refused by the budget; now they are sized first."""
+    import time
+
+    camera = {"perspective": {"eye": [0, 0, 10], "target": [0, 0, 0], "up": [0, 1, 0],
+                              "fov_y_deg": 45, "width": 100, "height": 100}}
+    pixels = np.lib.stride_tricks.as_strided(np.zeros(2), shape=(10**12, 2), strides=(0, 8))
+    start = time.monotonic()
+    with pytest.raises(ValueError, match="the camera rays would need"):
+        raypick.camera_rays(camera, pixels)
+    assert time.monotonic() - start < 1.0
+
+
+def test_a_fraction_of_a_unit_is_a_memory_size():
+    default = raypick.max_memory()
+    try:
+        assert raypick.set_max_memory("0.5G") == 512 << 20
+        assert raypick.set_max_memory("1.5M") == 3 << 19
+        with pytest.raises(ValueError, match="below the least memory budget"):
+            raypick.set_max_memory("0.5M")
     finally:
         raypick.set_max_memory(default)
 
