@@ -27,6 +27,15 @@ pub fn float(value: &Bound<'_, PyAny>, argument: &str) -> PyResult<f64> {
                 "{argument} is out of range: an integer too large for a float (at most about \
                  1.8e308)"
             ))
+        } else if e.is_instance_of::<PyTypeError>(py) {
+            // Python's own words named no argument ("must be real number, not str", or
+            // numpy's "only 0-dimensional arrays can be converted to Python scalars").
+            match value.get_type().name() {
+                Ok(kind) => {
+                    PyTypeError::new_err(format!("{argument} must be a number, not {kind}"))
+                }
+                Err(e) => e,
+            }
         } else {
             e
         }

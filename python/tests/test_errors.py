@@ -483,7 +483,8 @@ def test_float_arguments_refuse_bools_and_ints_past_a_float(bunny, dem):
         "target_height": lambda v: dem.viewshed([0.0, 0.0, 1e4], [[1.0, 1.0, 0.0]], target_height=v),
     }
     for argument, call in calls.items():
-        for value in [True, np.False_]:
+        # Not numbers, named too (Python's own words named no argument).
+        for value in [True, np.False_, "x", None, np.zeros(3)]:
             with pytest.raises(TypeError) as e:
                 call(value)
             assert one_sentence(e) == f"{argument} must be a number, not {type(value).__name__}"
