@@ -135,6 +135,15 @@ def test_bad_load_arguments(bunny, tmp_path):
         raypick.Scene.load(tmp_path / "bunny.rpk", masks=[3])
     with pytest.raises(OSError):
         bunny.save(tmp_path / "no" / "such" / "folder" / "bunny.rpk")
+    # A folder, or a device, that cannot be saved over is a file that cannot be written, as
+    # load's are: OSError (it was a ValueError).
+    (tmp_path / "folder.rpk").mkdir()
+    with pytest.raises(IsADirectoryError) as e:
+        bunny.save(tmp_path / "folder.rpk")
+    assert one_sentence(e).endswith("folder.rpk: not a regular file; a built scene is saved to a new file or over a regular one")
+    (tmp_path / "null.rpk").symlink_to("/dev/null")
+    with pytest.raises(OSError, match="not a regular file"):
+        bunny.save(tmp_path / "null.rpk")
 
 
 def test_bad_arrays_for_from_arrays():

@@ -37,10 +37,20 @@ pub fn save(built: &BuiltScene, path: &Path) -> Result<()> {
     if let Ok(meta) = std::fs::metadata(path)
         && !meta.is_file()
     {
-        return Err(Error::Invalid(format!(
-            "{}: not a regular file; a built scene is saved to a new file or over a regular one",
-            path.display()
-        )));
+        // A file that cannot be written, as the system would say it (Python: OSError, or
+        // IsADirectoryError), with what to do instead.
+        let kind = if meta.is_dir() {
+            std::io::ErrorKind::IsADirectory
+        } else {
+            std::io::ErrorKind::Other
+        };
+        return Err(Error::Io {
+            path: path.display().to_string(),
+            source: std::io::Error::new(
+                kind,
+                "not a regular file; a built scene is saved to a new file or over a regular one",
+            ),
+        });
     }
     let temporary = temporary_path(path);
     let result = std::fs::File::create(&temporary)
