@@ -72,7 +72,37 @@ fn as_ndarray<'py>(
             Err(e) => Err(value_error(format!(
                 "{name} must be {want}; the {} given cannot be read as one ({})",
                 obj.get_type().name()?,
-                e.value(obj.py())
+                raypick::budget::quote(&e.value(obj.py()).to_string())
+            ))),
+        };
+    }
+    // What numpy reads as an array without a copy of ours: the array protocols (pandas,
+    // xarray, torch on the CPU) and buffers (memoryview, array.array), taken as numpy gives
+    // them (no dtype forced: their dtype is checked as an array's). Bytes and str are buffers
+    // or sequences of nothing numeric.
+    let py = obj.py();
+    let protocol = ["__array__", "__array_interface__", "__array_struct__"]
+        .into_iter()
+        .any(|attribute| obj.hasattr(attribute).unwrap_or(false));
+    let textual = obj.is_instance_of::<pyo3::types::PyBytes>()
+        || obj.is_instance_of::<pyo3::types::PyString>()
+        || obj.is_instance_of::<pyo3::types::PyByteArray>();
+    let buffer = !textual
+        && py
+            .import("builtins")?
+            .getattr("memoryview")?
+            .call1((obj,))
+            .is_ok();
+    if protocol || buffer {
+        let numpy = py.import("numpy")?;
+        return match numpy.call_method1("asarray", (obj,)) {
+            Ok(array) => array
+                .cast_into::<PyUntypedArray>()
+                .map_err(|_| value_error(format!("{name} must be {want}"))),
+            Err(e) => Err(value_error(format!(
+                "{name} must be {want}; the {} given cannot be read as one ({})",
+                obj.get_type().name()?,
+                raypick::budget::quote(&e.value(py).to_string())
             ))),
         };
     }

@@ -649,3 +649,46 @@ def _python(script, **env):
     )
     assert out.returncode == 0, out.stderr[-2000:]
     return out
+
+
+def test_array_like_objects_are_read_as_numpy_reads_them(bunny):
+    """The stubs say ArrayLike: objects with the array protocol (pandas, xarray, torch) and
+    buffers (memoryview, array.array) are taken as numpy.asarray gives them, their dtype checked
+    as an array's; they were refused ("got memoryview"; found by fuzzing)."""
+    import array
+
+    rays = rays_at(bunny, 50)
+    want = bunny.pick(rays)
+
+    class Wrapped:
+        def __init__(self, a):
+            self.a = a
+
+        def __array__(self, dtype=None, copy=None):
+            return self.a
+
+    flat = array.array("d", rays.ravel())
+    for given in [Wrapped(rays), memoryview(rays)]:
+        got = bunny.pick(given)
+        for key, column in want.items():
+            assert np.array_equal(got[key], column, equal_nan=True), (type(given), key)
+    # A buffer of one dimension is one ray's six numbers only when it holds six.
+    with pytest.raises(ValueError, match=r"got shape \(300,\)"):
+        bunny.pick(flat)
+    # Their dtype is checked as an array's: float32 is not converted silently.
+    with pytest.raises(ValueError, match="got dtype float32"):
+        bunny.pick(Wrapped(rays.astype(np.float32)))
+
+    class Broken:
+        def __array__(self, dtype=None, copy=None):
+            raise RuntimeError("no " * 1000)
+
+    with pytest.raises(ValueError) as e:
+        bunny.pick(Broken())
+    text = one_sentence(e)
+    assert text.startswith("rays must be") and "the Broken given cannot be read as one" in text
+    assert len(text) < 300, len(text)
+    # Bytes and str stay refused by their type.
+    for given in [b"\x00" * 48, "rays"]:
+        with pytest.raises(ValueError, match=f"got {type(given).__name__}"):
+            bunny.pick(given)
