@@ -25,7 +25,10 @@ pub fn to_py(error: Error) -> PyErr {
             "(set it with --max-memory)",
             "(set it with raypick.set_max_memory)",
         )),
-        _ => PyValueError::new_err(sentence),
+        // And the builder with `builder=`.
+        _ => PyValueError::new_err(
+            sentence.replace("use --builder median-cut", "use builder=\"median-cut\""),
+        ),
     }
 }
 

@@ -114,6 +114,10 @@ def test_bad_load_arguments(bunny, tmp_path):
         (lambda: raypick.Scene.load(3), "paths must be a path or a list of paths; got int"),
         (lambda: raypick.Scene.load(BUNNY, builder="octree"),
          "builder: unknown value octree (expected one of: auto, median-cut, sah, grid)"),
+        (lambda: raypick.Scene.load(BUNNY, builder="grid"),
+         "the grid builder needs a scene that is one height grid, but this scene has 1 object(s) "
+         "that is not a grid; "
+         'use builder="median-cut"'),
         (lambda: raypick.Scene.load(BUNNY, leaf_size=0), "leaf size 0 is out of range; it must be 1 ..= 15"),
         (lambda: raypick.Scene.load(BUNNY, leaf_size=-2), "leaf size -2 is out of range; it must be 1 ..= 15"),
         (lambda: raypick.Scene.load([BUNNY, BUNNY], masks=1),
