@@ -297,21 +297,21 @@ pub fn parse_size(text: &str) -> std::result::Result<u64, String> {
     };
     let value: f64 = number.trim().parse().map_err(|_| {
         format!(
-            "{:?} is not a size (e.g. 8G, 512M, 1000000)",
+            "\"{}\" is not a size (e.g. 8G, 512M, 1000000)",
             crate::budget::quote(t)
         )
     })?;
     // A number past f64's range ("9" × 500) reads as infinite: too large, not "not positive".
     if value == f64::INFINITY {
-        return Err(format!("{:?} is too large", quote(t)));
+        return Err(format!("\"{}\" is too large", quote(t)));
     }
     // A fraction of a unit is a size ("0.5G" is 512M); less than one byte is not.
     let bytes = value * (1u64 << shift) as f64;
     if !(value.is_finite() && bytes >= 1.0) {
-        return Err(format!("{:?} is not a positive size", quote(t)));
+        return Err(format!("\"{}\" is not a positive size", quote(t)));
     }
     if bytes >= u64::MAX as f64 {
-        return Err(format!("{:?} is too large", quote(t)));
+        return Err(format!("\"{}\" is too large", quote(t)));
     }
     Ok(bytes as u64)
 }
@@ -326,13 +326,15 @@ pub const LEAST: u64 = 1 << 20;
 pub fn check_limit(bytes: u64, written: &str) -> std::result::Result<u64, String> {
     let written = quote(written.trim());
     if bytes < LEAST {
-        return Err(format!("{written:?} is below the least memory budget, 1M"));
+        return Err(format!(
+            "\"{written}\" is below the least memory budget, 1M"
+        ));
     }
     if let Some(most) = ceiling(true)
         && bytes > most
     {
         return Err(format!(
-            "{written:?} is more memory than this process can have ({}: the machine's memory \
+            "\"{written}\" is more memory than this process can have ({}: the machine's memory \
              and swap, `ulimit -v` and the control group's limit, the least of them)",
             human(most)
         ));
