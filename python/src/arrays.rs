@@ -54,7 +54,35 @@ fn wanted(dtype: Dtype, width: usize, single: bool) -> String {
     }
 }
 
-/// `obj` as a numpy array: arrays as they are, lists and tuples converted to float64.
+/// `numpy.asarray(obj[, dtype])`, or a `ValueError` naming `name` with numpy's words, cut.
+fn asarray<'py>(
+    obj: &Bound<'py, PyAny>,
+    dtype: Option<&str>,
+    name: &str,
+    want: &str,
+) -> PyResult<Bound<'py, PyUntypedArray>> {
+    let py = obj.py();
+    let numpy = py.import("numpy")?;
+    let read = match dtype {
+        Some(dtype) => numpy.call_method1("asarray", (obj, dtype)),
+        None => numpy.call_method1("asarray", (obj,)),
+    };
+    match read {
+        Ok(array) => array
+            .cast_into::<PyUntypedArray>()
+            .map_err(|_| value_error(format!("{name} must be {want}"))),
+        Err(e) => Err(value_error(format!(
+            "{name} must be {want}; the {} given cannot be read as one ({})",
+            obj.get_type().name()?,
+            raypick::budget::quote(&e.value(py).to_string())
+        ))),
+    }
+}
+
+/// `obj` as a numpy array: arrays as they are, lists and tuples converted to float64, and what
+/// numpy reads as an array through the array protocols (pandas, xarray, torch on the CPU) or
+/// as a buffer (memoryview, array.array) as numpy gives it (no dtype forced: its dtype is
+/// checked as an array's).
 fn as_ndarray<'py>(
     obj: &Bound<'py, PyAny>,
     name: &str,
@@ -64,47 +92,24 @@ fn as_ndarray<'py>(
         return Ok(array.clone());
     }
     if obj.is_instance_of::<PyList>() || obj.is_instance_of::<PyTuple>() {
-        let numpy = obj.py().import("numpy")?;
-        return match numpy.call_method1("asarray", (obj, "float64")) {
-            Ok(array) => array
-                .cast_into::<PyUntypedArray>()
-                .map_err(|_| value_error(format!("{name} must be {want}"))),
-            Err(e) => Err(value_error(format!(
-                "{name} must be {want}; the {} given cannot be read as one ({})",
-                obj.get_type().name()?,
-                raypick::budget::quote(&e.value(obj.py()).to_string())
-            ))),
-        };
+        return asarray(obj, Some("float64"), name, want);
     }
-    // What numpy reads as an array without a copy of ours: the array protocols (pandas,
-    // xarray, torch on the CPU) and buffers (memoryview, array.array), taken as numpy gives
-    // them (no dtype forced: their dtype is checked as an array's). Bytes and str are buffers
-    // or sequences of nothing numeric.
-    let py = obj.py();
     let protocol = ["__array__", "__array_interface__", "__array_struct__"]
         .into_iter()
         .any(|attribute| obj.hasattr(attribute).unwrap_or(false));
+    // Bytes and str are buffers or sequences of nothing numeric: refused by their type.
     let textual = obj.is_instance_of::<pyo3::types::PyBytes>()
         || obj.is_instance_of::<pyo3::types::PyString>()
         || obj.is_instance_of::<pyo3::types::PyByteArray>();
     let buffer = !textual
-        && py
+        && obj
+            .py()
             .import("builtins")?
             .getattr("memoryview")?
             .call1((obj,))
             .is_ok();
     if protocol || buffer {
-        let numpy = py.import("numpy")?;
-        return match numpy.call_method1("asarray", (obj,)) {
-            Ok(array) => array
-                .cast_into::<PyUntypedArray>()
-                .map_err(|_| value_error(format!("{name} must be {want}"))),
-            Err(e) => Err(value_error(format!(
-                "{name} must be {want}; the {} given cannot be read as one ({})",
-                obj.get_type().name()?,
-                raypick::budget::quote(&e.value(py).to_string())
-            ))),
-        };
+        return asarray(obj, None, name, want);
     }
     Err(value_error(format!(
         "{name} must be {want}; got {}",
