@@ -169,7 +169,10 @@ pub fn rows<'py>(
     }
     if !array.is_aligned() {
         // Numbers off their natural alignment (a view into a packed buffer) cannot be read in
-        // place: an aligned copy.
+        // place: an aligned copy, its size checked first (a zero-stride view may claim any
+        // number of rows).
+        let count = array.shape().iter().product::<usize>() as u64;
+        raypick::budget::check(&format!("{name} aligned"), count, 8).map_err(to_py)?;
         array = py
             .import("numpy")?
             .call_method1("require", (array, "float64", "A"))?

@@ -384,7 +384,8 @@ impl Lists {
         } else {
             self.ray.capacity()
         };
-        let per_hit = 7 * size_of::<i64>() + 6 * size_of::<f64>();
+        // ray, rank, object, triangle; t, u, v and the position's and normal's three each.
+        let per_hit = 4 * size_of::<i64>() + 9 * size_of::<f64>();
         let per_hit = per_hit + if self.cells { 2 * size_of::<i64>() } else { 0 };
         raypick::budget::check("the hit lists", capacity as u64, per_hit as u64)
             .map_err(crate::errors::to_py)?;

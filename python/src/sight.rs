@@ -107,13 +107,15 @@ pub fn los<'py>(
     let b = arrays::rows(b, "b", 3, Dtype::Float64, true)?;
     // Everything the query keeps at once, checked together (each array checked on its own let
     // it take about twice the budget): both ends' points, the segments and the answer.
-    let (na, nb) = (a.as_array().nrows(), b.as_array().nrows());
-    let point = size_of::<DVec3>() as u64;
-    let bytes = (na as u64 + nb as u64)
-        .saturating_mul(point)
-        .saturating_add((na.max(nb) as u64).saturating_mul(SEGMENT_BYTES));
-    raypick::budget::check("the segments with their end points", bytes, 1)
-        .map_err(crate::errors::to_py)?;
+    // Counted per segment with both its ends (one array of one point costs less: at most this).
+    let segments = a.as_array().nrows().max(b.as_array().nrows());
+    let per_segment = 2 * size_of::<DVec3>() as u64 + SEGMENT_BYTES;
+    raypick::budget::check(
+        "the segments with their end points",
+        segments as u64,
+        per_segment,
+    )
+    .map_err(crate::errors::to_py)?;
     let (a, b) = (
         arrays::points(a.as_array(), "the points a")?,
         arrays::points(b.as_array(), "the points b")?,

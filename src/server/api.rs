@@ -732,8 +732,8 @@ async fn scene(State(state): State<Arc<AppState>>) -> Response {
                 "leaves": leaves,
                 "depth": depth,
                 "gpu_bytes": gpu_bytes,
-                "gpu_bytes_per_triangle":
-                    (triangles > 0).then(|| gpu_bytes as f64 / triangles as f64),
+                "gpu_bytes_per_triangle": (view.tree_triangles > 0)
+                    .then(|| gpu_bytes as f64 / view.tree_triangles as f64),
             },
             "camera": default_camera(&state, None),
             "limits": {
@@ -853,14 +853,17 @@ fn parse_body<T: serde::de::DeserializeOwned>(bytes: &[u8], what: &str) -> Resul
 
 /// serde_json's reason for a field, said in the request's terms where its own words name
 /// nothing: "trailing characters" (inside a body, an array with more values than the field
-/// takes) and "expected value" (a name or a camera given as something else).
+/// takes) and "expected value" (a name or a camera given as something else, or what is no JSON
+/// value, such as NaN).
 fn field_reason(path: &str, reason: String) -> String {
     let field = path.rsplit(['.', '[']).next().unwrap_or(path);
     let takes = match field {
         "mode" => "one of \"closest\", \"any\", \"all\"",
         "cull" => "one of \"none\", \"back\", \"front\"",
         "camera" => "an object with exactly one of perspective, orthographic or matrices",
-        _ => "another kind of value (see the request's format)",
+        // Elsewhere serde_json says it of what is no JSON value at all (Python's json.dumps
+        // writes NaN and Infinity).
+        _ => "a JSON value (NaN and Infinity are not JSON)",
     };
     if path.is_empty() || path == "." {
         return reason;

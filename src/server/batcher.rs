@@ -169,6 +169,9 @@ pub(crate) struct SceneView {
     pub(crate) origin: DVec3,
     /// Triangles of the objects not removed.
     pub(crate) triangles: usize,
+    /// Triangles the tree holds (removed objects' too, until a rebuild empties them): what
+    /// its bytes are per.
+    pub(crate) tree_triangles: usize,
     /// The tree: nodes, leaves, depth, GPU bytes.
     pub(crate) tree: (usize, usize, usize, u64),
 }
@@ -218,6 +221,7 @@ impl SceneView {
                 .collect();
             return SceneView {
                 triangles: live_triangles(&objects),
+                tree_triangles: built.world_triangle_count() as usize,
                 objects,
                 bounds: built.bounds(),
                 origin: bvh.origin,
@@ -241,6 +245,7 @@ impl SceneView {
             .collect();
         SceneView {
             triangles: live_triangles(&objects),
+            tree_triangles: scene.triangle_count(),
             objects,
             bounds: scene.bounds(),
             origin: bvh.origin,
@@ -509,15 +514,34 @@ impl Batcher {
         let Ok(view) = self.view.lock().map(|v| v.clone()) else {
             return e;
         };
+        // Each name as sentences write it, and as shown: quoted after its id (`instance 3
+        // ("…")`: cut to 60 characters and escaped by `budget::quote`, so long paths that differ
+        // only past their folders are told apart by the id), and whole.
+        let mut by_id: Vec<(String, String)> = Vec::new();
+        let mut names: Vec<(String, String)> = Vec::new();
+        for o in &view.objects {
+            let shown = super::api::public_name(&o.name);
+            if shown.len() < o.name.len() {
+                let (quoted, quoted_shown) =
+                    (crate::budget::quote(&o.name), crate::budget::quote(shown));
+                for kind in ["instance", "object"] {
+                    by_id.push((
+                        format!("{kind} {} (\"{quoted}\")", o.id),
+                        format!("{kind} {} (\"{quoted_shown}\")", o.id),
+                    ));
+                }
+                names.push((o.name.clone(), shown.to_owned()));
+            }
+        }
+        // Longer names first: one may hold another ("a/b.obj" in "x/a/b.obj").
+        names.sort_unstable_by_key(|(written, _)| std::cmp::Reverse(written.len()));
+        names.dedup();
+        by_id.append(&mut names);
+        let names = by_id;
         let public = |mut sentence: String| {
-            let mut names: Vec<&str> = view.objects.iter().map(|o| o.name.as_str()).collect();
-            // Longer names first: one may hold another ("a/b.obj" in "x/a/b.obj").
-            names.sort_unstable_by_key(|n| std::cmp::Reverse(n.len()));
-            names.dedup();
-            for name in names {
-                let shown = super::api::public_name(name);
-                if shown.len() < name.len() && sentence.contains(name) {
-                    sentence = sentence.replace(name, shown);
+            for (written, shown) in &names {
+                if sentence.contains(written.as_str()) {
+                    sentence = sentence.replace(written.as_str(), shown);
                 }
             }
             sentence
@@ -619,7 +643,10 @@ impl Batcher {
                         }
                     } else {
                         // A mirror comes or goes: the winding flips, so the tree is built anew.
-                        let mut scene = built.scene.clone();
+                        // Built without what removed objects held, as an addition's.
+                        let mut scene = built
+                            .scene
+                            .with_objects_emptied(|k| objects.get(k as usize).is_some_and(|o| o.1));
                         let options = *built.options();
                         drop(built);
                         scene

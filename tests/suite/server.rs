@@ -515,6 +515,11 @@ fn bad_requests_get_clear_4xx_json_errors() {
             "`camera`: expected an object with exactly one of perspective, orthographic or matrices",
         ),
         (
+            r#"{"rays": [{"origin": [NaN, 0, 1], "dir": [0, 0, 1]}]}"#.into(),
+            400,
+            "`rays[0].origin[0]`: expected a JSON value (NaN and Infinity are not JSON) at line 1",
+        ),
+        (
             r#"{"rays": [{"origin": [0, 0, 1, 2], "dir": [0, 0, 1]}]}"#.into(),
             400,
             "`rays[0].origin`: more values than it takes at line 1 column",
