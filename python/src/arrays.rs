@@ -141,6 +141,11 @@ pub fn rows<'py>(
         )));
     }
     let py = obj.py();
+    // A copy numpy makes (to float64, or aligned) is made before anything else is checked: its
+    // size first (a zero-stride view may claim any number of rows).
+    let count = shape.iter().product::<usize>() as u64;
+    let copy_fits =
+        |what: &str| raypick::budget::check(&format!("{name} {what}"), count, 8).map_err(to_py);
     let descr = array.dtype();
     if !descr.is_equiv_to(&numpy::dtype::<f64>(py)) {
         let kind = descr.kind();
@@ -155,9 +160,7 @@ pub fn rows<'py>(
                 }
             )));
         }
-        // numpy's copy is made before anything else is checked: its size first.
-        let count = shape.iter().product::<usize>() as u64;
-        raypick::budget::check(&format!("{name} as float64"), count, 8).map_err(to_py)?;
+        copy_fits("as float64")?;
         array = array
             .call_method1("astype", ("float64",))?
             .cast_into::<PyUntypedArray>()?;
@@ -169,10 +172,8 @@ pub fn rows<'py>(
     }
     if !array.is_aligned() {
         // Numbers off their natural alignment (a view into a packed buffer) cannot be read in
-        // place: an aligned copy, its size checked first (a zero-stride view may claim any
-        // number of rows).
-        let count = array.shape().iter().product::<usize>() as u64;
-        raypick::budget::check(&format!("{name} aligned"), count, 8).map_err(to_py)?;
+        // place: an aligned copy.
+        copy_fits("aligned")?;
         array = py
             .import("numpy")?
             .call_method1("require", (array, "float64", "A"))?

@@ -509,19 +509,16 @@ async fn read_body(
             )
         })?;
     read.map_err(|e| {
-        let mut source: Option<&dyn std::error::Error> = Some(&e);
-        while let Some(err) = source {
-            if err.to_string().contains("length limit exceeded") {
-                return too_large();
-            }
-            source = err.source();
-        }
-        // hyper's outer words ("error reading a body from connection") name no cause: the
-        // chain's own are said too (a chunk's size line that is not hexadecimal, say).
+        // The error's chain, read once: a body over the limit anywhere in it, or hyper's outer
+        // words ("error reading a body from connection"), which name no cause, with the
+        // chain's own (a chunk's size line that is not hexadecimal, say).
         let mut words: Vec<String> = Vec::new();
         let mut source: Option<&dyn std::error::Error> = Some(&e);
         while let Some(err) = source {
             let text = err.to_string();
+            if text.contains("length limit exceeded") {
+                return too_large();
+            }
             if !words.iter().any(|w| w.contains(&text)) {
                 words.push(text);
             }

@@ -263,6 +263,15 @@ fn live_triangles(objects: &[ObjectView]) -> usize {
         .sum()
 }
 
+/// `scene` with every removed object emptied (`objects`: each object's edit state), for a
+/// rebuild: what they held given back, their ids kept ([`crate::scene::Scene::with_objects_emptied`]).
+fn without_removed(
+    scene: &crate::scene::Scene,
+    objects: &[(Option<[[f64; 4]; 3]>, bool)],
+) -> crate::scene::Scene {
+    scene.with_objects_emptied(|k| objects.get(k as usize).is_some_and(|o| o.1))
+}
+
 /// Whether `object` exists and was not removed (`objects`: each object's edit state), else a
 /// 404 naming it.
 fn live(
@@ -644,9 +653,7 @@ impl Batcher {
                     } else {
                         // A mirror comes or goes: the winding flips, so the tree is built anew.
                         // Built without what removed objects held, as an addition's.
-                        let mut scene = built
-                            .scene
-                            .with_objects_emptied(|k| objects.get(k as usize).is_some_and(|o| o.1));
+                        let mut scene = without_removed(&built.scene, &objects);
                         let options = *built.options();
                         drop(built);
                         scene
@@ -709,9 +716,7 @@ impl Batcher {
                 let total = self.counted_with(mesh.triangles.len())?;
                 // The scene rebuilt without what removed objects held (their ids kept), so
                 // adding and removing objects does not grow it.
-                let mut scene = built
-                    .scene
-                    .with_objects_emptied(|k| objects.get(k as usize).is_some_and(|o| o.1));
+                let mut scene = without_removed(&built.scene, &objects);
                 let mut options = *built.options();
                 drop(built);
                 let id = scene
@@ -1015,7 +1020,7 @@ impl Batcher {
         }
         // Every removed object is emptied (one removed earlier, inside bounds that this one
         // held wide, would reach past what is left once they shrink).
-        let emptied = scene.with_objects_emptied(|k| objects.get(k as usize).is_some_and(|o| o.1));
+        let emptied = without_removed(scene, objects);
         let options = *built.options();
         drop(built);
         // A smaller frame resolves what is left at least as finely; a refusal or a failure
