@@ -29,6 +29,7 @@ mod float_arg;
 mod int_arg;
 mod interrupt;
 mod memory;
+mod name_arg;
 mod pick;
 mod scene;
 mod sight;

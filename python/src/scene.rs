@@ -5,6 +5,7 @@ use crate::arrays::{self, Dtype};
 use crate::errors::{to_py, value_error};
 use crate::float_arg;
 use crate::int_arg::{self, Integer};
+use crate::name_arg;
 use crate::pick::{self, QueryArgs};
 use crate::sight::{self, SightArgs};
 use crate::threads;
@@ -361,7 +362,7 @@ impl Scene {
         py: Python<'_>,
         paths: &Bound<'_, PyAny>,
         masks: Option<&Bound<'_, PyAny>>,
-        builder: Option<&str>,
+        #[pyo3(from_py_with = name_arg::builder_or_none)] builder: Option<&str>,
         #[pyo3(from_py_with = leaf_size_or_none)] leaf_size: Option<u32>,
     ) -> PyResult<Scene> {
         let paths = path_list(paths)?;
@@ -454,7 +455,7 @@ impl Scene {
         py: Python<'_>,
         vertices: &Bound<'_, PyAny>,
         triangles: &Bound<'_, PyAny>,
-        builder: &str,
+        #[pyo3(from_py_with = name_arg::builder)] builder: &str,
         #[pyo3(from_py_with = leaf_size)] leaf_size: u32,
     ) -> PyResult<Scene> {
         let options = build_options(Some(builder), Some(leaf_size))?;
@@ -502,14 +503,14 @@ impl Scene {
         &self,
         py: Python<'py>,
         rays: &Bound<'py, PyAny>,
-        mode: &str,
+        #[pyo3(from_py_with = name_arg::mode)] mode: &str,
         #[pyo3(from_py_with = pick::max_hits)] max_hits: u32,
-        cull: &str,
+        #[pyo3(from_py_with = name_arg::cull)] cull: &str,
         #[pyo3(from_py_with = float_arg::tmin)] tmin: f64,
         #[pyo3(from_py_with = float_arg::tmax)] tmax: f64,
         #[pyo3(from_py_with = ray_mask)] ray_mask: u32,
-        intersector: &str,
-        backend: &str,
+        #[pyo3(from_py_with = name_arg::intersector)] intersector: &str,
+        #[pyo3(from_py_with = name_arg::backend)] backend: &str,
     ) -> PyResult<Bound<'py, PyDict>> {
         let args = QueryArgs::parse(mode, max_hits, cull, ray_mask, intersector, backend)?;
         pick::pick(py, self, rays, &args, tmin, tmax)
@@ -527,7 +528,7 @@ impl Scene {
         b: &Bound<'py, PyAny>,
         #[pyo3(from_py_with = float_arg::epsilon)] epsilon: f64,
         #[pyo3(from_py_with = ray_mask)] ray_mask: u32,
-        backend: &str,
+        #[pyo3(from_py_with = name_arg::backend)] backend: &str,
     ) -> PyResult<Bound<'py, PyAny>> {
         let args = SightArgs::parse(epsilon, ray_mask, backend)?;
         sight::los(py, self, a, b, &args)
@@ -549,7 +550,7 @@ impl Scene {
         #[pyo3(from_py_with = float_arg::target_height)] target_height: f64,
         #[pyo3(from_py_with = float_arg::epsilon)] epsilon: f64,
         #[pyo3(from_py_with = ray_mask)] ray_mask: u32,
-        backend: &str,
+        #[pyo3(from_py_with = name_arg::backend)] backend: &str,
     ) -> PyResult<Bound<'py, PyDict>> {
         let args = SightArgs::parse(epsilon, ray_mask, backend)?;
         sight::viewshed(py, self, observer, targets, target_height, &args)

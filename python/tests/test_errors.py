@@ -484,6 +484,39 @@ def test_bools_are_not_integer_arguments(bunny, dem):
         raypick._set_threads(0)
 
 
+def test_name_arguments_refuse_what_is_not_a_str(bunny):
+    """`mode=3` raised pyo3's "'int' object cannot be converted to 'PyString'"; a name
+    argument given anything but a str is a TypeError naming it and its choices. Names are
+    read as before (any case, '_' for '-')."""
+    rays = rays_at(bunny, 20)
+    calls = {
+        "mode": ("closest, any, all", lambda v: bunny.pick(rays, mode=v)),
+        "cull": ("none, back, front", lambda v: bunny.pick(rays, cull=v)),
+        "intersector": ("moller-trumbore, watertight", lambda v: bunny.pick(rays, intersector=v)),
+        "backend": ("auto, gpu, cpu, reference", lambda v: bunny.pick(rays, backend=v)),
+        "builder": ("auto, median-cut, sah, grid",
+                    lambda v: raypick.Scene.from_arrays(np.eye(3), [[0, 1, 2]], builder=v)),
+    }
+    for argument, (choices, call) in calls.items():
+        for value in [3, None, b"closest", ["closest"], np.str_("x").encode()]:
+            if argument == "builder" and value is None:
+                continue  # from_arrays's builder has no None; load's takes None for "auto"
+            with pytest.raises(TypeError) as e:
+                call(value)
+            assert one_sentence(e) == (
+                f"{argument} must be a str (one of: {choices}), not {type(value).__name__}"
+            )
+    with pytest.raises(TypeError) as e:
+        raypick.Scene.load(BUNNY, builder=1)
+    assert one_sentence(e) == "builder must be a str (one of: auto, median-cut, sah, grid), not int"
+    want = bunny.pick(rays, mode="all", max_hits=4)
+    got = bunny.pick(rays, mode=np.str_("ALL"), max_hits=4, cull="None", intersector="Watertight",
+                     backend="CPU")
+    for key in want:
+        assert np.array_equal(want[key], got[key], equal_nan=True), key
+    assert raypick.Scene.from_arrays(np.eye(3), [[0, 1, 2]], builder="median_cut").triangle_count == 1
+
+
 def test_float_arguments_refuse_bools_and_ints_past_a_float(bunny, dem):
     """`tmax=10**400` raised OverflowError and `tmin=True` was taken as 1; a float argument
     given a bool is a TypeError, an int too large for a float a ValueError, each naming it.
