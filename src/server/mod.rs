@@ -6,7 +6,8 @@
 //! [`page`], the refusal of other sites' requests in `origin`, picks answered in steps (and
 //! dropped when their client is gone) in `steps`, the `connection: close` of an answer to a
 //! request whose body was left unread in `unread_body`. It speaks HTTP/1.1 (and 1.0): a client
-//! opening with HTTP/2's preface is answered GOAWAY with HTTP_1_1_REQUIRED (`http2_refusal`).
+//! opening with HTTP/2's preface (in one piece or several) is answered GOAWAY with
+//! HTTP_1_1_REQUIRED (`http2_refusal`).
 //!
 //! # Threads
 //!
@@ -436,7 +437,8 @@ impl axum::serve::Listener for LimitedListener {
             answer: Vec::new(),
             answer_sent: 0,
             unacknowledged: None,
-            first_read: true,
+            opening: Some(Vec::new()),
+            held: Vec::new(),
             refusing_http2: false,
             _slot: slot,
         };
@@ -465,8 +467,11 @@ struct LimitedIo {
     /// The bytes the socket held unacknowledged when a write last began to wait (or at the
     /// last look since): [`LimitedIo::still_reading`].
     unacknowledged: Option<usize>,
-    /// No byte has been read yet: the first ones are looked at for HTTP/2's preface.
-    first_read: bool,
+    /// The bytes read so far while they could still be HTTP/2's preface (however the client's
+    /// writes split it), not yet given to hyper; `None` once they cannot.
+    opening: Option<Vec<u8>>,
+    /// Bytes read that hyper has not been given yet (the opening, once it was not the preface).
+    held: Vec<u8>,
     /// The client began with HTTP/2's preface: it is answered [`http2_refusal`], and what it
     /// sends is read and dropped until it closes (hyper sees no request).
     refusing_http2: bool,
@@ -651,21 +656,51 @@ impl AsyncRead for LimitedIo {
         if this.refusing_http2 {
             return this.poll_refuse_http2(cx);
         }
-        let before = buf.filled().len();
+        if this.opening.is_some() {
+            std::task::ready!(this.poll_opening(cx))?;
+            if this.refusing_http2 {
+                return this.poll_refuse_http2(cx);
+            }
+        }
+        if !this.held.is_empty() {
+            let n = this.held.len().min(buf.remaining());
+            buf.put_slice(&this.held[..n]);
+            this.held.drain(..n);
+            return Poll::Ready(Ok(()));
+        }
         match Pin::new(&mut this.inner).poll_read(cx, buf) {
             Poll::Pending => this.poll_deadline(cx),
-            Poll::Ready(Ok(())) if this.first_read && buf.filled().len() > before => {
-                this.first_read = false;
-                if buf.filled()[before..].starts_with(HTTP2_PREFACE) {
-                    buf.set_filled(before);
-                    (this.answer, this.answer_sent) = (http2_refusal(), 0);
-                    this.refusing_http2 = true;
-                    return this.poll_refuse_http2(cx);
-                }
-                Poll::Ready(Ok(()))
-            }
             ready => ready,
         }
+    }
+}
+
+impl LimitedIo {
+    /// Reads the connection's first bytes, no more than HTTP/2's preface holds, until they are
+    /// the preface (the client is then refused: `refusing_http2`) or cannot be (they are then
+    /// `held` for hyper), or the client closes first. A preface sent a few bytes at a time was
+    /// given to hyper, which reset the connection without a word.
+    fn poll_opening(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        while let Some(seen) = &mut self.opening {
+            let mut bytes = [0u8; HTTP2_PREFACE.len()];
+            let mut read = ReadBuf::new(&mut bytes[..HTTP2_PREFACE.len() - seen.len()]);
+            match Pin::new(&mut self.inner).poll_read(cx, &mut read) {
+                Poll::Pending => return self.poll_deadline(cx),
+                Poll::Ready(Err(e)) => return Poll::Ready(Err(e)),
+                Poll::Ready(Ok(())) => {
+                    let closed = read.filled().is_empty();
+                    seen.extend_from_slice(read.filled());
+                    if seen == HTTP2_PREFACE {
+                        self.opening = None;
+                        (self.answer, self.answer_sent) = (http2_refusal(), 0);
+                        self.refusing_http2 = true;
+                    } else if closed || !HTTP2_PREFACE.starts_with(seen) {
+                        self.held = self.opening.take().unwrap_or_default();
+                    }
+                }
+            }
+        }
+        Poll::Ready(Ok(()))
     }
 }
 

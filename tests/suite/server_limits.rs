@@ -880,15 +880,57 @@ fn read_one_answer(stream: &mut TcpStream) -> String {
 /// An HTTP/2 client that starts with the connection preface (`curl --http2-prior-knowledge`)
 /// is answered in HTTP/2: an empty SETTINGS frame, then GOAWAY with HTTP_1_1_REQUIRED and a
 /// sentence, and the connection ends once the client closes (hyper, serving HTTP/1 only,
-/// reset it without a word). HTTP/1 clients are served as before.
+/// reset it without a word). So too where the preface comes in pieces (it was given to hyper
+/// then, which reset the connection). HTTP/1 clients are served as before, requests sent a
+/// byte at a time (one starting with the preface's 'P') included.
 #[test]
 fn an_http2_client_is_told_to_use_http1() {
     let addr = start(ServerConfig::default());
-    let mut stream = connect(addr, Duration::from_secs(20));
     // The preface, then the client's SETTINGS frame (empty).
-    stream
-        .write_all(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n\x00\x00\x00\x04\x00\x00\x00\x00\x00")
-        .expect("send");
+    let opening: &[u8] = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n\x00\x00\x00\x04\x00\x00\x00\x00\x00";
+    for pieces in [
+        vec![opening.len()],
+        vec![1, 2, 5, 7, 1],
+        vec![1; 16],
+        vec![15, 1, 3],
+    ] {
+        let mut stream = connect(addr, Duration::from_secs(20));
+        let mut sent = 0;
+        for n in pieces {
+            stream.write_all(&opening[sent..sent + n]).expect("send");
+            stream.flush().expect("send");
+            std::thread::sleep(Duration::from_millis(20));
+            sent += n;
+        }
+        stream.write_all(&opening[sent..]).expect("send");
+        assert_told_to_use_http1(&mut stream);
+    }
+    let (status, _) = request(addr, "GET", "/scene", "");
+    assert_eq!(status, 200);
+    // An HTTP/1 request whose first bytes could begin the preface, sent a byte at a time.
+    let body = ONE_PICK;
+    for method in ["POST", "PUT"] {
+        let mut stream = connect(addr, Duration::from_secs(20));
+        let text = format!(
+            "{method} /pick HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\
+             Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+            body.len()
+        );
+        for byte in text.as_bytes().iter().take(20) {
+            stream.write_all(&[*byte]).expect("send");
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        stream.write_all(&text.as_bytes()[20..]).expect("send");
+        let mut answer = Vec::new();
+        stream.read_to_end(&mut answer).expect("read the answer");
+        let (status, _) = parse(&answer);
+        assert_eq!(status, if method == "POST" { 200 } else { 405 }, "{method}");
+    }
+}
+
+/// Reads the HTTP/2 refusal (SETTINGS, GOAWAY with HTTP_1_1_REQUIRED and its sentence) from
+/// `stream`, closes the client's side and checks that the server then ends the connection.
+fn assert_told_to_use_http1(stream: &mut TcpStream) {
     let mut answer = vec![0u8; 512];
     let mut got = 0;
     let why = b"raypick serves HTTP/1.1 only";
@@ -922,6 +964,4 @@ fn an_http2_client_is_told_to_use_http1() {
     let mut rest = Vec::new();
     stream.read_to_end(&mut rest).expect("the connection ends");
     assert!(rest.is_empty(), "{rest:?}");
-    let (status, _) = request(addr, "GET", "/scene", "");
-    assert_eq!(status, 200);
 }
