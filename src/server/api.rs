@@ -12,7 +12,7 @@ use crate::apps::camera::{Camera, CameraSpec};
 use crate::apps::render::Shade;
 use crate::names::Named;
 use crate::picker::Backend;
-use crate::query::{Answers, Cull, Intersector, Mode, Query};
+use crate::query::{Answers, Cull, Intersector, MAX_HITS_LIMIT, Mode, Query};
 use crate::ray::{Hit, Ray};
 use axum::Router;
 use axum::body::{Body, Bytes};
@@ -391,6 +391,15 @@ impl PickRequest {
                 ))
             })?,
         };
+        // Checked in every mode, as the command line and Python check it: a max_hits out of
+        // range is a mistake whether or not this mode reads it.
+        if let Some(max_hits) = self.max_hits
+            && !(1..=MAX_HITS_LIMIT).contains(&max_hits)
+        {
+            return Err(ApiError::bad_request(format!(
+                "max_hits {max_hits} is out of range; it must be 1 ..= {MAX_HITS_LIMIT}"
+            )));
+        }
         let query = Query {
             mode: self.mode,
             cull: self.cull,

@@ -556,7 +556,19 @@ fn bad_requests_get_clear_4xx_json_errors() {
         (
             format!("{{\"rays\": [{ray}], \"mode\": \"all\", \"max_hits\": 0}}"),
             400,
-            "max hits 0",
+            "max_hits 0 is out of range; it must be 1 ..= 1024",
+        ),
+        // Checked in every mode, as the command line and Python check it (closest and any
+        // took any value, unread).
+        (
+            format!("{{\"rays\": [{ray}], \"mode\": \"closest\", \"max_hits\": 0}}"),
+            400,
+            "max_hits 0 is out of range; it must be 1 ..= 1024",
+        ),
+        (
+            format!("{{\"rays\": [{ray}], \"mode\": \"any\", \"max_hits\": 5000}}"),
+            400,
+            "max_hits 5000 is out of range; it must be 1 ..= 1024",
         ),
         (
             format!("{{\"rays\": [{ray}], \"intersector\": \"fast\"}}"),
