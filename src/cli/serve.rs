@@ -44,7 +44,8 @@ pub struct ServeArgs {
     #[arg(long, value_parser = raypick::budget::parse_size)]
     pub memory_budget: Option<u64>,
     /// Most triangles `POST /objects` may add over the server's life, copies included, each
-    /// object counting as at least 64 (413 past it).
+    /// object counting as at least 64 (an instance of a stored mesh, or a removed object
+    /// once an addition has given its triangles back, as 64); 413 past it.
     #[arg(long, default_value_t = ServerConfig::default().max_added_triangles)]
     pub max_added_triangles: usize,
     /// A host name the server answers to besides IP addresses and localhost (repeatable; `*`

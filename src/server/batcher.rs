@@ -373,6 +373,7 @@ impl Worker {
                     placed: vec![None; objects],
                     faults: None,
                     added_triangles: 0,
+                    counted: vec![0; objects],
                     max_added_triangles,
                     max_work,
                     notes_shown: Default::default(),
@@ -473,8 +474,12 @@ struct Batcher {
     /// What a plain scene's frame fails to hold, when counted since the last edit that may
     /// have changed it.
     faults: Option<FrameFaults>,
-    /// Triangles added by edits so far...
+    /// Triangles added by edits so far, as counted against the cap ([`Batcher::counted_with`])...
     added_triangles: usize,
+    /// ...and per object of a plain scene, what it counts while not removed (0 for those
+    /// loaded): once removed, its triangles are given back at the next addition's rebuild,
+    /// and it counts as [`OBJECT_TRIANGLES`] from there on.
+    counted: Vec<usize>,
     /// ...and at most.
     max_added_triangles: usize,
     /// The longest one query call's steps may run ([`super::ServerConfig::max_work`]).
@@ -713,9 +718,17 @@ impl Batcher {
                     }
                     MeshSource::Inline(mesh) => (mesh, false),
                 };
-                let total = self.counted_with(mesh.triangles.len())?;
-                // The scene rebuilt without what removed objects held (their ids kept), so
-                // adding and removing objects does not grow it.
+                // The scene is rebuilt without what removed objects held (their ids kept), so
+                // adding and removing objects does not grow it: each removed object counts as
+                // its entries from here on, not its triangles.
+                self.added_triangles = self
+                    .counted
+                    .iter()
+                    .zip(objects.iter())
+                    .map(|(&c, &(_, removed))| if removed { c.min(OBJECT_TRIANGLES) } else { c })
+                    .sum();
+                let triangles = mesh.triangles.len();
+                let total = self.counted_with(&format!("{triangles} triangles"), triangles)?;
                 let mut scene = without_removed(&built.scene, &objects);
                 let mut options = *built.options();
                 drop(built);
@@ -748,6 +761,10 @@ impl Batcher {
                 }
                 self.loaded[id as usize] = before_transform;
                 self.added_triangles = total;
+                if self.counted.len() <= id as usize {
+                    self.counted.resize(id as usize + 1, 0);
+                }
+                self.counted[id as usize] = triangles.max(OBJECT_TRIANGLES);
                 objects.push((transform, false));
                 id
             }
@@ -755,9 +772,10 @@ impl Batcher {
         self.publish(picker.as_ref(), objects, object)
     }
 
-    /// The triangles added to this server with an object of `triangles` more, each object
-    /// counted as at least [`OBJECT_TRIANGLES`]; 413 past the server's limit.
-    fn counted_with(&self, triangles: usize) -> std::result::Result<usize, EditError> {
+    /// The triangles added to this server with `what` more, which stores `triangles` (none for
+    /// an instance of a stored mesh), each object counted as at least [`OBJECT_TRIANGLES`];
+    /// 413 past the server's limit.
+    fn counted_with(&self, what: &str, triangles: usize) -> std::result::Result<usize, EditError> {
         let counted = triangles.max(OBJECT_TRIANGLES);
         let total = self.added_triangles.saturating_add(counted);
         if total > self.max_added_triangles {
@@ -769,8 +787,8 @@ impl Batcher {
                 String::new()
             };
             return Err(EditError::TooLarge(format!(
-                "adding {triangles} triangles{as_counted} would bring the triangles added to this \
-                 server to {total}, over its limit of {}",
+                "adding {what}{as_counted} would bring the triangles added to this server to \
+                 {total}, over its limit of {}",
                 self.max_added_triangles
             )));
         }
@@ -854,19 +872,22 @@ impl Batcher {
                     EditError::Failed("this picker cannot change its scene".into())
                 })?;
                 let instances = built.instances().expect("an instanced scene");
+                // An instance of a stored mesh stores no triangles: it counts as its entries.
                 let (source, base, triangles) = match &mesh {
                     MeshSource::Copy(source) => {
                         live(objects, *source)?;
-                        let i = &instances.instances()[*source as usize];
-                        let triangles = instances.meshes()[i.mesh as usize].scene.triangle_count();
-                        (Some(i.mesh), None, triangles)
+                        (Some(instances.instances()[*source as usize].mesh), None, 0)
                     }
                     MeshSource::Inline(m) => {
                         (None, Some(crate::instance::IDENTITY), m.triangles.len())
                     }
                 };
                 drop(built);
-                let total = self.counted_with(triangles)?;
+                let what = match source {
+                    Some(_) => "an instance".to_owned(),
+                    None => format!("{triangles} triangles"),
+                };
+                let total = self.counted_with(&what, triangles)?;
                 let base = match (&mesh, base) {
                     (MeshSource::Copy(source), _) => {
                         self.placed_transform(picker.as_ref(), *source)?

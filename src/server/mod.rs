@@ -186,8 +186,10 @@ pub struct ServerConfig {
     /// answered 503.
     pub memory_wait: Duration,
     /// The most triangles `POST /objects` may add over the server's life (copies included,
-    /// each object counting as at least 64: its own entries weigh about that much): an object
-    /// that would pass it is refused with 413, so clients cannot grow the scene without bound.
+    /// each object counting as at least 64: its own entries weigh about that much; an
+    /// instance of a stored mesh, and an object removed once the next addition has given its
+    /// triangles back, as 64): an object that would pass it is refused with 413, so clients
+    /// cannot grow the scene without bound.
     pub max_added_triangles: usize,
     /// Host names the server answers to besides IP addresses, `localhost` and names under
     /// `.localhost` (lower case; [`host::ANY_HOST`] for any): requests with another `Host` get

@@ -457,6 +457,87 @@ fn the_triangles_clients_add_are_capped() {
     assert_eq!(scene["objects"].as_array().unwrap().len(), 4);
 }
 
+/// On a plain scene, an added object once removed counts as its entries (64), not its
+/// triangles, from the next addition on (whose rebuild gives its triangles back): a client
+/// adding and removing a 100-triangle object was refused at the third addition under a cap of
+/// 250; now at the fourth (64 + 64 + 64 + 100 = 292).
+#[test]
+fn removed_objects_count_as_their_entries_against_the_cap() {
+    let base = start_with(
+        Backend::Cpu,
+        ServerConfig {
+            max_added_triangles: 250,
+            ..ServerConfig::default()
+        },
+    );
+    let vertices: Vec<[f64; 3]> = (0..=50)
+        .flat_map(|i| {
+            let x = -4.0 + 0.1 * f64::from(i);
+            [[x, -1.0, 2.0], [x, 1.0, 2.0]]
+        })
+        .collect();
+    let triangles: Vec<[u32; 3]> = (0..50)
+        .flat_map(|i| {
+            [
+                [2 * i, 2 * i + 2, 2 * i + 1],
+                [2 * i + 1, 2 * i + 2, 2 * i + 3],
+            ]
+        })
+        .collect();
+    let strip = json!({"vertices": vertices, "triangles": triangles});
+    for expected in 2..5 {
+        let (status, answer) = call("POST", &format!("{base}/objects"), Some(&strip));
+        assert_eq!((status, &answer), (200, &json!({"object": expected})));
+        let (status, _) = call("DELETE", &format!("{base}/objects/{expected}"), None);
+        assert_eq!(status, 200);
+    }
+    let (status, answer) = call("POST", &format!("{base}/objects"), Some(&strip));
+    assert_eq!(status, 413, "{answer}");
+    assert!(
+        answer["error"].as_str().unwrap().contains(
+            "adding 100 triangles would bring the triangles added to this server to 292, over \
+             its limit of 250"
+        ),
+        "{answer}"
+    );
+}
+
+/// On an instanced scene, an instance of a stored mesh stores no triangles: it counts as its
+/// entries (64), however many triangles its mesh has (the 800-triangle ground counted 800, so
+/// no instance of it could be added under a cap of 150).
+#[test]
+fn instances_of_a_stored_mesh_count_as_their_entries_against_the_cap() {
+    let base = start_scene(
+        instanced_scene(),
+        Backend::Cpu,
+        ServerConfig {
+            max_added_triangles: 150,
+            ..ServerConfig::default()
+        },
+    );
+    for expected in [2, 3] {
+        let (status, answer) = call(
+            "POST",
+            &format!("{base}/objects"),
+            Some(&json!({"mesh": 0, "transform": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1]]})),
+        );
+        assert_eq!((status, &answer), (200, &json!({"object": expected})));
+    }
+    let (status, answer) = call(
+        "POST",
+        &format!("{base}/objects"),
+        Some(&json!({"mesh": 0})),
+    );
+    assert_eq!(status, 413, "{answer}");
+    assert!(
+        answer["error"].as_str().unwrap().contains(
+            "adding an instance (counted as 64: each object counts as at least 64) would bring \
+             the triangles added to this server to 192, over its limit of 150"
+        ),
+        "{answer}"
+    );
+}
+
 /// Objects added and removed again leave nothing behind: each addition rebuilds the scene
 /// without what removed objects held, so the tree and `GET /scene`'s triangle count stay those
 /// of the objects left (before, every removed object's triangles stayed in the scene and its
