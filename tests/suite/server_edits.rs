@@ -421,15 +421,25 @@ fn picks_during_moves_on(scene: Arc<BuiltScene>) {
     assert!(seen[0] + seen[1] > 0);
 }
 
+/// A server configuration whose cap on added triangles is `max`.
+fn capped(max: usize) -> ServerConfig {
+    ServerConfig {
+        max_added_triangles: max,
+        ..ServerConfig::default()
+    }
+}
+
+/// `POST /objects` of `body` on `base` is refused with 413 and a sentence holding `words`.
+fn assert_over_the_cap(base: &str, body: &Value, words: &str) {
+    let (status, answer) = call("POST", &format!("{base}/objects"), Some(body));
+    assert_eq!(status, 413, "{answer}");
+    let sentence = answer["error"].as_str().unwrap();
+    assert!(sentence.contains(words), "{answer}");
+}
+
 #[test]
 fn the_triangles_clients_add_are_capped() {
-    let base = start_with(
-        Backend::Cpu,
-        ServerConfig {
-            max_added_triangles: 150,
-            ..ServerConfig::default()
-        },
-    );
+    let base = start_with(Backend::Cpu, capped(150));
     // The box has 12 triangles, counted as 64 (every object counts as at least that many):
     // two copies fit under 150, the third does not.
     for expected in [2, 3] {
@@ -440,18 +450,11 @@ fn the_triangles_clients_add_are_capped() {
         );
         assert_eq!((status, &answer), (200, &json!({"object": expected})));
     }
-    let (status, answer) = call(
-        "POST",
-        &format!("{base}/objects"),
-        Some(&json!({"mesh": 1})),
-    );
-    assert_eq!(status, 413, "{answer}");
-    assert!(
-        answer["error"]
-            .as_str()
-            .unwrap()
-            .contains("12 triangles (counted as 64: each object counts as at least 64) would bring the triangles added to this server to 192, over its limit of 150"),
-        "{answer}"
+    assert_over_the_cap(
+        &base,
+        &json!({"mesh": 1}),
+        "12 triangles (counted as 64: each object counts as at least 64) would bring the \
+         triangles added to this server to 192, over its limit of 150",
     );
     let (_, scene) = call("GET", &format!("{base}/scene"), None);
     assert_eq!(scene["objects"].as_array().unwrap().len(), 4);
@@ -463,13 +466,7 @@ fn the_triangles_clients_add_are_capped() {
 /// 250; now at the fourth (64 + 64 + 64 + 100 = 292).
 #[test]
 fn removed_objects_count_as_their_entries_against_the_cap() {
-    let base = start_with(
-        Backend::Cpu,
-        ServerConfig {
-            max_added_triangles: 250,
-            ..ServerConfig::default()
-        },
-    );
+    let base = start_with(Backend::Cpu, capped(250));
     let vertices: Vec<[f64; 3]> = (0..=50)
         .flat_map(|i| {
             let x = -4.0 + 0.1 * f64::from(i);
@@ -491,14 +488,11 @@ fn removed_objects_count_as_their_entries_against_the_cap() {
         let (status, _) = call("DELETE", &format!("{base}/objects/{expected}"), None);
         assert_eq!(status, 200);
     }
-    let (status, answer) = call("POST", &format!("{base}/objects"), Some(&strip));
-    assert_eq!(status, 413, "{answer}");
-    assert!(
-        answer["error"].as_str().unwrap().contains(
-            "adding 100 triangles would bring the triangles added to this server to 292, over \
-             its limit of 250"
-        ),
-        "{answer}"
+    assert_over_the_cap(
+        &base,
+        &strip,
+        "adding 100 triangles would bring the triangles added to this server to 292, over its \
+         limit of 250",
     );
 }
 
@@ -507,14 +501,7 @@ fn removed_objects_count_as_their_entries_against_the_cap() {
 /// no instance of it could be added under a cap of 150).
 #[test]
 fn instances_of_a_stored_mesh_count_as_their_entries_against_the_cap() {
-    let base = start_scene(
-        instanced_scene(),
-        Backend::Cpu,
-        ServerConfig {
-            max_added_triangles: 150,
-            ..ServerConfig::default()
-        },
-    );
+    let base = start_scene(instanced_scene(), Backend::Cpu, capped(150));
     for expected in [2, 3] {
         let (status, answer) = call(
             "POST",
@@ -523,18 +510,11 @@ fn instances_of_a_stored_mesh_count_as_their_entries_against_the_cap() {
         );
         assert_eq!((status, &answer), (200, &json!({"object": expected})));
     }
-    let (status, answer) = call(
-        "POST",
-        &format!("{base}/objects"),
-        Some(&json!({"mesh": 0})),
-    );
-    assert_eq!(status, 413, "{answer}");
-    assert!(
-        answer["error"].as_str().unwrap().contains(
-            "adding an instance (counted as 64: each object counts as at least 64) would bring \
-             the triangles added to this server to 192, over its limit of 150"
-        ),
-        "{answer}"
+    assert_over_the_cap(
+        &base,
+        &json!({"mesh": 0}),
+        "adding an instance (counted as 64: each object counts as at least 64) would bring the \
+         triangles added to this server to 192, over its limit of 150",
     );
 }
 
