@@ -149,9 +149,17 @@ impl BuiltScene {
         Ok(Refit::Moved)
     }
 
-    /// Sets instance `instance`'s layer mask (0 removes it from every pick, its id kept).
+    /// Sets instance `instance`'s layer mask (0 hides it from every pick until it is shown
+    /// again).
     pub fn set_instance_mask(&mut self, instance: u32, mask: u32) -> Result<Refit> {
         self.instances_mut()?.0.set_mask(instance, mask)?;
+        Ok(Refit::Moved)
+    }
+
+    /// Removes instance `instance` for good, its id kept ([`Instances::remove`]): never hit
+    /// again, and left out of the top tree from its next layout on.
+    pub fn remove_instance(&mut self, instance: u32) -> Result<Refit> {
+        self.instances_mut()?.0.remove(instance)?;
         Ok(Refit::Moved)
     }
 

@@ -135,8 +135,12 @@ pub struct Instances {
     top_nodes: u32,
     /// The top tree collapsed 8-wide, for the CPU engine (leaf children are instances).
     top_wide: WideBvh,
-    /// Each instance's leaf in the top tree ([`NO_LEAF`]: a mesh with nothing to hit).
+    /// Each instance's leaf in the top tree ([`NO_LEAF`]: a mesh with nothing to hit, or an
+    /// instance removed before the tree was last laid out).
     leaf_of: Vec<u32>,
+    /// Each instance, whether it was removed ([`Instances::remove`]): never hit, moved or
+    /// shown again, and left out of the top tree and the frame from the next layout on.
+    removed: Vec<bool>,
     origin: DVec3,
     bounds: Option<(DVec3, DVec3)>,
     iteration_cap: u32,
@@ -190,14 +194,16 @@ impl Instances {
     /// [`Instances::build`] over meshes whose trees exist; the scene frame is centred on the
     /// instances' bounds.
     pub fn assemble(meshes: Vec<Arc<MeshTree>>, instances: Vec<Instance>) -> Result<(Self, Bvh)> {
-        Self::assemble_about(meshes, instances, None)
+        let removed = vec![false; instances.len()];
+        Self::assemble_about(meshes, instances, removed, None)
     }
 
     /// [`Instances::assemble`] with the scene frame's origin at `origin`, or at the centre of
-    /// the instances' bounds when `None`.
+    /// the instances' bounds when `None`; the instances `removed` are left out of the top tree.
     fn assemble_about(
         meshes: Vec<Arc<MeshTree>>,
         instances: Vec<Instance>,
+        removed: Vec<bool>,
         origin: Option<DVec3>,
     ) -> Result<(Self, Bvh)> {
         for (k, i) in instances.iter().enumerate() {
@@ -232,6 +238,7 @@ impl Instances {
             top_nodes: 0,
             top_wide: WideBvh::default(),
             leaf_of: Vec::new(),
+            removed,
             origin: DVec3::ZERO,
             bounds: None,
             iteration_cap: 0,
@@ -303,7 +310,7 @@ impl Instances {
     /// changes, the scene frame's origin included. Fails, naming the instance, on an unknown
     /// instance or a transform that cannot place it, with nothing changed.
     pub fn set_transform(&mut self, bvh: &mut Bvh, k: u32, transform: [[f64; 4]; 3]) -> Result<()> {
-        let i = self.known(k)?;
+        let i = self.present(k)?;
         let mut placed = self.instances[i].clone();
         placed.transform = transform;
         check_instance(&self.meshes, i, &placed)?;
@@ -336,10 +343,10 @@ impl Instances {
         Ok(())
     }
 
-    /// Sets instance `k`'s layer mask (0: never hit, which is how an instance is removed
-    /// without renumbering the others). Fails on an unknown instance.
+    /// Sets instance `k`'s layer mask (0: never hit, until shown again). Fails on an unknown or
+    /// removed instance.
     pub fn set_mask(&mut self, k: u32, mask: u32) -> Result<()> {
-        let i = self.known(k)?;
+        let i = self.present(k)?;
         let shown = |m: u32| m != 0;
         let changed = shown(self.instances[i].mask) != shown(mask);
         self.instances[i].mask = mask;
@@ -369,6 +376,18 @@ impl Instances {
         Ok(())
     }
 
+    /// Removes instance `k` without renumbering the others: it is never hit again (its mask
+    /// 0), and cannot be moved or shown again; the top tree and the scene frame leave it out
+    /// from the next layout on (an addition, [`Instances::rebuild_top`]), so instances added
+    /// and removed over a scene's life do not grow the top tree or each layout's time. Fails
+    /// on an unknown or removed instance.
+    pub fn remove(&mut self, k: u32) -> Result<()> {
+        let i = self.present(k)?;
+        self.set_mask(k, 0)?;
+        self.removed[i] = true;
+        Ok(())
+    }
+
     /// The box around `boxes` (one per instance) of the instances that can be hit (mask not
     /// 0); `None` when none can.
     fn live_bounds(&self, boxes: &[Option<(DVec3, DVec3)>]) -> Option<(DVec3, DVec3)> {
@@ -389,7 +408,9 @@ impl Instances {
     pub fn add(&mut self, bvh: &mut Bvh, instance: Instance) -> Result<u32> {
         let mut instances = self.instances.clone();
         instances.push(instance);
-        let ((rebuilt, combined), after) = self.reassemble(instances)?;
+        let mut removed = self.removed.clone();
+        removed.push(false);
+        let ((rebuilt, combined), after) = self.reassemble(instances, removed)?;
         // In either frame, instances may be too coarse to pick that were not (one placed far
         // from the rest): refused, nothing changed.
         if after.len() > self.unresolved().len() {
@@ -434,7 +455,8 @@ impl Instances {
     /// boxes may have grown loose after many moves), the combined tree laid out anew, in the
     /// frame [`Instances::reassemble`] chooses.
     pub fn rebuild_top(&mut self, bvh: &mut Bvh) -> Result<()> {
-        let ((rebuilt, combined), _) = self.reassemble(self.instances.clone())?;
+        let ((rebuilt, combined), _) =
+            self.reassemble(self.instances.clone(), self.removed.clone())?;
         *self = rebuilt;
         *bvh = combined;
         Ok(())
@@ -450,13 +472,20 @@ impl Instances {
     fn reassemble(
         &self,
         instances: Vec<Instance>,
+        removed: Vec<bool>,
     ) -> Result<((Self, Bvh), Vec<crate::frame::reach::Unresolved>)> {
-        let centred = Self::assemble(self.meshes.clone(), instances.clone())?;
+        let centred = Self::assemble_about(
+            self.meshes.clone(),
+            instances.clone(),
+            removed.clone(),
+            None,
+        )?;
         let unresolved = centred.0.unresolved();
         if unresolved.is_empty() || centred.0.origin == self.origin {
             return Ok((centred, unresolved));
         }
-        let kept = Self::assemble_about(self.meshes.clone(), instances, Some(self.origin))?;
+        let kept =
+            Self::assemble_about(self.meshes.clone(), instances, removed, Some(self.origin))?;
         let kept_unresolved = kept.0.unresolved();
         Ok(if kept_unresolved.len() < unresolved.len() {
             (kept, kept_unresolved)
@@ -557,6 +586,20 @@ impl Instances {
                 self.instances.len()
             )))
         }
+    }
+
+    /// Instance `k`'s index when it was not removed, else an error naming it.
+    fn present(&self, k: u32) -> Result<usize> {
+        let i = self.known(k)?;
+        if self.removed[i] {
+            return Err(Error::Invalid(format!("instance {k} was removed")));
+        }
+        Ok(i)
+    }
+
+    /// Whether instance `k` was removed ([`Instances::remove`]).
+    pub fn is_removed(&self, k: usize) -> bool {
+        self.removed[k]
     }
 
     /// Instance `i`'s leaf box from `world`, its world box where it is now, and every box
@@ -772,8 +815,11 @@ impl Instances {
     }
 
     /// Instance `k`'s world box: the exact box of its mesh's vertices through its transform
-    /// ([`MeshTree::world_box`]).
+    /// ([`MeshTree::world_box`]); `None` for a removed instance (nothing to hit).
     fn world_box(&self, k: usize) -> Option<(DVec3, DVec3)> {
+        if self.removed[k] {
+            return None;
+        }
         let i = &self.instances[k];
         self.meshes[i.mesh as usize].world_box(&i.transform)
     }

@@ -854,7 +854,7 @@ impl Batcher {
             Edit::Remove { object } => {
                 live(objects, object)?;
                 picker
-                    .edit(&mut |b| b.set_instance_mask(object, 0))
+                    .edit(&mut |b| b.remove_instance(object))
                     .map_err(invalid)?;
                 objects[object as usize].1 = true;
                 object

@@ -586,6 +586,7 @@ fn moved_masked_added_and_reshaped_instances_answer_as_the_oracle_with_increment
             }),
         ),
         ("mask", Box::new(|b| b.set_instance_mask(11, 0))),
+        ("remove", Box::new(|b| b.remove_instance(5))),
         (
             "add",
             Box::new(|b| {
@@ -618,7 +619,7 @@ fn moved_masked_added_and_reshaped_instances_answer_as_the_oracle_with_increment
         let refit_gpu = gpu.edit(&mut **edit).unwrap();
         let refit_cpu = cpu.edit(&mut **edit).unwrap();
         assert_eq!(refit_gpu, refit_cpu, "{name}");
-        if *name == "move" || *name == "mask" || *name == "mirror" {
+        if ["move", "mask", "mirror", "remove"].contains(name) {
             assert_eq!(refit_gpu, Refit::Moved, "{name}");
         }
         if *name == "reshape" {
@@ -658,7 +659,110 @@ fn moved_masked_added_and_reshaped_instances_answer_as_the_oracle_with_increment
         )
         .unwrap();
     assert!(hits.iter().all(|h| !h.hit || h.object != 11));
+    assert!(hits.iter().all(|h| !h.hit || h.object != 5));
     assert!(hits.iter().any(|h| h.hit && h.object == 30));
+    // The removed instance left the top tree when the addition laid it out; the hidden one
+    // stays in it, to be shown again.
+    let instances = now.instances().unwrap();
+    assert_eq!(instances.leaf_of(5), u32::MAX);
+    assert_ne!(instances.leaf_of(11), u32::MAX);
+    assert!(instances.is_removed(5) && !instances.is_removed(11));
+    // A removed instance cannot be shown, moved or removed again; a hidden one can be shown.
+    let far = transform(DMat3::IDENTITY, DVec3::ONE);
+    let mut refusals: Vec<Edit> = vec![
+        Box::new(|b| b.set_instance_mask(5, 1)),
+        Box::new(move |b| b.set_instance_transform(5, far)),
+        Box::new(|b| b.remove_instance(5)),
+    ];
+    for edit in &mut refusals {
+        let e = cpu.edit(&mut **edit).unwrap_err().to_string();
+        assert!(e.contains("instance 5 was removed"), "{e}");
+    }
+    assert_eq!(
+        cpu.edit(&mut |b| b.set_instance_mask(11, u32::MAX))
+            .unwrap(),
+        Refit::Moved
+    );
+}
+
+/// Instances added and removed over a scene's life: each removed one is left out of the next
+/// layout's top tree (it stayed in it, hidden, so the top tree and each addition's time grew
+/// with every instance ever added; found by a soak of the server's edits). With every instance
+/// removed the top tree is empty and every path misses; an instance added then is hit, as the
+/// oracle says.
+#[test]
+fn removed_instances_leave_the_top_tree_and_every_path_still_answers_as_the_oracle() {
+    use raypick::{CpuPicker, GpuPicker, Refit};
+    let instances = random_instances(12, DVec3::ZERO, 10.0, 33);
+    let built = Arc::new(
+        BuiltScene::instanced(meshes(), instances, &BuildOptions::default()).expect("build"),
+    );
+    let leaves = |b: &BuiltScene| {
+        let i = b.instances().unwrap();
+        (0..i.instances().len())
+            .filter(|&k| i.leaf_of(k) != u32::MAX)
+            .count()
+    };
+    let full = leaves(&built);
+    let mut gpu = GpuPicker::new(common::gpu(), built.clone()).unwrap();
+    let mut cpu = CpuPicker::new(built);
+    let mut g = rng(8);
+    for k in 0..12 {
+        for picker in [&mut gpu as &mut dyn raypick::Picker, &mut cpu] {
+            assert_eq!(
+                picker.edit(&mut |b| b.remove_instance(k)).unwrap(),
+                Refit::Moved
+            );
+        }
+        if k == 5 {
+            // Half removed, then the top tree laid out again: only the rest are in it.
+            for picker in [&mut gpu as &mut dyn raypick::Picker, &mut cpu] {
+                picker
+                    .edit(&mut |b| b.rebuild_top().map(|_| Refit::Rebuilt))
+                    .unwrap();
+            }
+            assert_eq!(leaves(&gpu.current_scene().unwrap()), full - 6);
+        }
+        let now = gpu.current_scene().unwrap();
+        let baked = now.instances().unwrap().baked().unwrap();
+        let rays = mixed_rays(&baked, 400, g.random());
+        assert_query_equivalent("removed", now, &rays, &Query::default());
+    }
+    for picker in [&mut gpu as &mut dyn raypick::Picker, &mut cpu] {
+        picker
+            .edit(&mut |b| b.rebuild_top().map(|_| Refit::Rebuilt))
+            .unwrap();
+    }
+    let now = gpu.current_scene().unwrap();
+    assert_eq!(leaves(&now), 0);
+    let rays: Vec<raypick::Ray> = (0..200)
+        .map(|k| raypick::Ray::new(DVec3::new(-30.0, f64::from(k) * 0.1 - 10.0, 0.5), DVec3::X))
+        .collect();
+    for (path, hits) in [("gpu", gpu.pick(&rays)), ("cpu", cpu.pick(&rays))] {
+        assert!(hits.unwrap().iter().all(|h| !h.hit), "{path}");
+    }
+    let added = Instance {
+        name: "after".into(),
+        mesh: 0,
+        transform: transform(DMat3::IDENTITY, DVec3::ZERO),
+        mask: u32::MAX,
+    };
+    for picker in [&mut gpu as &mut dyn raypick::Picker, &mut cpu] {
+        let added = added.clone();
+        picker
+            .edit(&mut move |b| b.add_instance(added.clone()).map(|_| Refit::Rebuilt))
+            .unwrap();
+    }
+    let now = gpu.current_scene().unwrap();
+    assert_eq!(leaves(&now), 1);
+    let baked = now.instances().unwrap().baked().unwrap();
+    let rays = mixed_rays(&baked, 400, 77);
+    assert_query_equivalent("added after", now, &rays, &Query::default());
+    let through: Vec<raypick::Ray> = vec![raypick::Ray::new(DVec3::new(-30.0, 0.0, 0.0), DVec3::X)];
+    for (path, hits) in [("gpu", gpu.pick(&through)), ("cpu", cpu.pick(&through))] {
+        let hits = hits.unwrap();
+        assert!(hits[0].hit && hits[0].object == 12, "{path}: {:?}", hits[0]);
+    }
 }
 
 /// A large instance moved far out, where the frame it keeps resolves it, then a small one added

@@ -523,6 +523,43 @@ fn instances_of_a_stored_mesh_count_as_their_entries_against_the_cap() {
 /// of the objects left (before, every removed object's triangles stayed in the scene and its
 /// tree for good: memory and each edit's time grew with every add and remove; found by
 /// fuzzing).
+/// On an instanced scene a removed instance leaves the top tree at the next addition (it stayed
+/// in it, hidden, so the tree and each addition's time grew with every instance ever added;
+/// found by a soak of 5,000 add-and-remove cycles: 4 ms an edit at the start, 23 at the end).
+#[test]
+fn instances_added_and_removed_leave_the_top_tree_as_it_was() {
+    let base = start_on(instanced_scene(), Backend::Cpu);
+    let nodes = || {
+        let (_, scene) = call("GET", &format!("{base}/scene"), None);
+        scene["tree"]["nodes"].as_u64().unwrap()
+    };
+    let start = nodes();
+    let placed = |x: f64| json!({"mesh": 1, "transform": translate(x)});
+    for k in 0..12 {
+        let (status, answer) = call(
+            "POST",
+            &format!("{base}/objects"),
+            Some(&placed(k as f64 - 4.0)),
+        );
+        assert_eq!((status, &answer), (200, &json!({"object": 2 + k})));
+        let (status, answer) = call("DELETE", &format!("{base}/objects/{}", 2 + k), None);
+        assert_eq!(status, 200, "{answer}");
+    }
+    let (status, answer) = call("POST", &format!("{base}/objects"), Some(&placed(20.0)));
+    assert_eq!((status, &answer), (200, &json!({"object": 14})));
+    // The two instances it started with and the one added: one leaf and one node more.
+    assert_eq!(nodes(), start + 2);
+    assert_eq!(down(&base, &[20.5], u32::MAX), [Some(14)]);
+    for id in [2, 13] {
+        let (status, _) = call(
+            "PATCH",
+            &format!("{base}/objects/{id}"),
+            Some(&json!({"mask": 1})),
+        );
+        assert_eq!(status, 404);
+    }
+}
+
 #[test]
 fn objects_added_and_removed_leave_nothing_behind() {
     let base = start_on(scene(), Backend::Cpu);
