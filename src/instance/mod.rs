@@ -141,6 +141,8 @@ pub struct Instances {
     /// Each instance, whether it was removed ([`Instances::remove`]): never hit, moved or
     /// shown again, and left out of the top tree and the frame from the next layout on.
     removed: Vec<bool>,
+    /// Hit ids in all: the triangles of the instances not removed when last laid out.
+    prim_total: u64,
     origin: DVec3,
     bounds: Option<(DVec3, DVec3)>,
     iteration_cap: u32,
@@ -209,8 +211,10 @@ impl Instances {
         for (k, i) in instances.iter().enumerate() {
             check_instance(&meshes, k, i)?;
         }
+        // Hit ids run over the instances not removed (a removed one's range is empty), so
+        // instances added and removed over a scene's life do not use the ids up.
         let mut total = 0u64;
-        for i in &instances {
+        for (i, _) in instances.iter().zip(&removed).filter(|(_, r)| !**r) {
             total += meshes[i.mesh as usize].scene.triangle_count() as u64;
         }
         if total >= u64::from(CAP_REACHED) {
@@ -239,6 +243,7 @@ impl Instances {
             top_wide: WideBvh::default(),
             leaf_of: Vec::new(),
             removed,
+            prim_total: 0,
             origin: DVec3::ZERO,
             bounds: None,
             iteration_cap: 0,
@@ -278,10 +283,13 @@ impl Instances {
         for k in 0..this.instances.len() {
             let record = this.record(k, prim_base);
             this.records.push(record);
-            prim_base += this.meshes[this.instances[k].mesh as usize]
-                .scene
-                .triangle_count() as u32;
+            if !this.removed[k] {
+                prim_base += this.meshes[this.instances[k].mesh as usize]
+                    .scene
+                    .triangle_count() as u32;
+            }
         }
+        this.prim_total = u64::from(prim_base);
         this.hits = locate::HitIndex::new(&this.records, u64::from(prim_base));
         this.leaf_of = vec![NO_LEAF; this.instances.len()];
         for (n, node) in top.iter().enumerate() {
@@ -379,12 +387,25 @@ impl Instances {
     /// Removes instance `k` without renumbering the others: it is never hit again (its mask
     /// 0), and cannot be moved or shown again; the top tree and the scene frame leave it out
     /// from the next layout on (an addition, [`Instances::rebuild_top`]), so instances added
-    /// and removed over a scene's life do not grow the top tree or each layout's time. Fails
-    /// on an unknown or removed instance.
+    /// and removed over a scene's life do not grow the top tree or each layout's time, nor use
+    /// up the hit ids (a removed instance's range of them is empty from that layout on). A
+    /// saved `.rpk` keeps it as a hidden instance. Fails on an unknown or removed instance.
     pub fn remove(&mut self, k: u32) -> Result<()> {
         let i = self.present(k)?;
-        self.set_mask(k, 0)?;
+        let reached = self.world_box(i);
+        self.instances[i].mask = 0;
+        self.records[i].mask = 0;
         self.removed[i] = true;
+        // The bounds of what can be hit, worked out again where it reached their edge (around
+        // every instance left when none can be hit, none when none is left).
+        let inside = |(lo, hi): (DVec3, DVec3)| {
+            self.bounds
+                .is_some_and(|(blo, bhi)| lo.cmpgt(blo).all() && hi.cmplt(bhi).all())
+        };
+        if reached.is_some_and(|b| !inside(b)) {
+            let boxes = self.world_boxes();
+            self.bounds = self.live_bounds(&boxes).or_else(|| all_bounds(&boxes));
+        }
         Ok(())
     }
 
@@ -537,7 +558,9 @@ impl Instances {
             let _ = fresh.wide.set(Ok(wide));
         }
         self.meshes[m] = Arc::new(fresh);
-        if !refitted || self.meshes[m].bvh.nodes.is_empty() {
+        // Laid out anew too where the top tree is empty (every instance removed or with
+        // nothing to hit): the combined tree then holds no mesh to write in place.
+        if !refitted || self.meshes[m].bvh.nodes.is_empty() || bvh.nodes.is_empty() {
             self.rebuild_top(bvh)?;
             return Ok(crate::picker::Refit::Rebuilt);
         }
@@ -690,12 +713,10 @@ impl Instances {
         self.iteration_cap
     }
 
-    /// Triangles of all instances together (the hit ids run `0..` this).
+    /// Triangles of all instances together, but those removed before the last layout (the hit
+    /// ids run `0..` this).
     pub fn prim_count(&self) -> u64 {
-        self.records.last().map_or(0, |r| {
-            let last = self.instances.last().expect("a record per instance");
-            u64::from(r.prim_base) + self.meshes[last.mesh as usize].scene.triangle_count() as u64
-        })
+        self.prim_total
     }
 
     /// Bytes the instancing adds beyond the meshes: the instances (f64, with their names' text)

@@ -715,19 +715,37 @@ fn removed_instances_leave_the_top_tree_and_every_path_still_answers_as_the_orac
             );
         }
         if k == 5 {
-            // Half removed, then the top tree laid out again: only the rest are in it.
+            // Half removed, then the top tree laid out again: only the rest are in it, and the
+            // hit ids run over their triangles only.
+            let before = gpu.current_scene().unwrap().world_triangle_count();
             for picker in [&mut gpu as &mut dyn raypick::Picker, &mut cpu] {
                 picker
                     .edit(&mut |b| b.rebuild_top().map(|_| Refit::Rebuilt))
                     .unwrap();
             }
-            assert_eq!(leaves(&gpu.current_scene().unwrap()), full - 6);
+            let now = gpu.current_scene().unwrap();
+            assert_eq!(leaves(&now), full - 6);
+            let i = now.instances().unwrap();
+            let left: u64 = (6..12)
+                .map(|k| {
+                    i.meshes()[i.instances()[k].mesh as usize]
+                        .scene
+                        .triangle_count() as u64
+                })
+                .sum();
+            assert!(left < before);
+            assert_eq!(now.world_triangle_count(), left);
         }
         let now = gpu.current_scene().unwrap();
         let baked = now.instances().unwrap().baked().unwrap();
         let rays = mixed_rays(&baked, 400, g.random());
         assert_query_equivalent("removed", now, &rays, &Query::default());
     }
+    // Nothing left to hit: no bounds, and after the next layout no top tree and no hit ids.
+    assert_eq!(
+        gpu.current_scene().unwrap().instances().unwrap().bounds(),
+        None
+    );
     for picker in [&mut gpu as &mut dyn raypick::Picker, &mut cpu] {
         picker
             .edit(&mut |b| b.rebuild_top().map(|_| Refit::Rebuilt))
@@ -735,6 +753,20 @@ fn removed_instances_leave_the_top_tree_and_every_path_still_answers_as_the_orac
     }
     let now = gpu.current_scene().unwrap();
     assert_eq!(leaves(&now), 0);
+    assert_eq!(now.world_triangle_count(), 0);
+    // A mesh reshaped then (the combined tree holds none to write in place: it panicked).
+    let reshaped: Vec<DVec3> = now.instances().unwrap().meshes()[0]
+        .scene
+        .positions()
+        .iter()
+        .map(|p| *p * 1.1)
+        .collect();
+    for picker in [&mut gpu as &mut dyn raypick::Picker, &mut cpu] {
+        let reshaped = reshaped.clone();
+        picker
+            .edit(&mut move |b| b.set_mesh_positions(0, &reshaped))
+            .unwrap();
+    }
     let rays: Vec<raypick::Ray> = (0..200)
         .map(|k| raypick::Ray::new(DVec3::new(-30.0, f64::from(k) * 0.1 - 10.0, 0.5), DVec3::X))
         .collect();
