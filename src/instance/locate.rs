@@ -111,9 +111,17 @@ mod tests {
             let (records, total) = records(&sizes);
             let index = HitIndex::new(&records, total);
             for prim in 0..total as u32 {
+                let k = index.instance(&records, prim);
                 assert_eq!(
-                    index.instance(&records, prim),
+                    k,
                     last_at_or_below(&records, prim),
+                    "sizes {sizes:?}, id {prim}"
+                );
+                // The instance whose range holds it (empty ones, as removed instances have,
+                // hold none).
+                let base = records[k].prim_base;
+                assert!(
+                    base <= prim && prim < base + sizes[k],
                     "sizes {sizes:?}, id {prim}"
                 );
             }
