@@ -721,7 +721,7 @@ impl Instances {
 
     /// Bytes the instancing adds beyond the meshes: the instances (f64, with their names' text)
     /// and kernel records, the top tree (binary, and the engine's wide collapse of it), each
-    /// instance's top leaf, the hit ids' block table, and each mesh's vertex chunks for the
+    /// instance's top leaf and removal flag, the hit ids' block table, and each mesh's vertex chunks for the
     /// exact boxes ([`extent::Extent`]).
     pub fn instance_bytes(&self) -> u64 {
         let names: usize = self.instances.iter().map(|i| i.name.capacity()).sum();
@@ -734,7 +734,8 @@ impl Instances {
         (self.instances.len() * (size_of::<Instance>() + size_of::<GpuInstance>())
             + names
             + self.top_nodes as usize * size_of::<GpuNode>()
-            + size_of_val(&self.leaf_of[..])) as u64
+            + size_of_val(&self.leaf_of[..])
+            + size_of_val(&self.removed[..])) as u64
             + self.top_wide.bytes()
             + self.hits.bytes()
             + extents
