@@ -474,11 +474,12 @@ struct Batcher {
     /// What a plain scene's frame fails to hold, when counted since the last edit that may
     /// have changed it.
     faults: Option<FrameFaults>,
-    /// Triangles added by edits so far, as counted against the cap ([`Batcher::counted_with`])...
+    /// An instanced scene's triangles added by edits so far, as counted against the cap
+    /// ([`Batcher::counted_with`]: its meshes are stored for good)...
     added_triangles: usize,
-    /// ...and per object of a plain scene, what it counts while not removed (0 for those
-    /// loaded): once removed, its triangles are given back at the next addition's rebuild,
-    /// and it counts as [`OBJECT_TRIANGLES`] from there on.
+    /// ...a plain scene's, per object: what it counts while not removed (0 for those loaded);
+    /// once removed, its triangles are given back at the next addition's rebuild, and it
+    /// counts as [`OBJECT_TRIANGLES`] from there on ([`Batcher::plain_added`])...
     counted: Vec<usize>,
     /// ...and at most.
     max_added_triangles: usize,
@@ -719,16 +720,10 @@ impl Batcher {
                     MeshSource::Inline(mesh) => (mesh, false),
                 };
                 // The scene is rebuilt without what removed objects held (their ids kept), so
-                // adding and removing objects does not grow it: each removed object counts as
-                // its entries from here on, not its triangles.
-                self.added_triangles = self
-                    .counted
-                    .iter()
-                    .zip(objects.iter())
-                    .map(|(&c, &(_, removed))| if removed { c.min(OBJECT_TRIANGLES) } else { c })
-                    .sum();
+                // adding and removing objects does not grow it.
                 let triangles = mesh.triangles.len();
-                let total = self.counted_with(&format!("{triangles} triangles"), triangles)?;
+                let held = self.plain_added(&objects);
+                self.counted_with(held, &format!("{triangles} triangles"), triangles)?;
                 let mut scene = without_removed(&built.scene, &objects);
                 let mut options = *built.options();
                 drop(built);
@@ -760,7 +755,6 @@ impl Batcher {
                     self.loaded.resize(id as usize + 1, None);
                 }
                 self.loaded[id as usize] = before_transform;
-                self.added_triangles = total;
                 if self.counted.len() <= id as usize {
                     self.counted.resize(id as usize + 1, 0);
                 }
@@ -772,12 +766,28 @@ impl Batcher {
         self.publish(picker.as_ref(), objects, object)
     }
 
-    /// The triangles added to this server with `what` more, which stores `triangles` (none for
-    /// an instance of a stored mesh), each object counted as at least [`OBJECT_TRIANGLES`];
-    /// 413 past the server's limit.
-    fn counted_with(&self, what: &str, triangles: usize) -> std::result::Result<usize, EditError> {
+    /// A plain scene's triangles added so far as the cap counts them (`objects`: each object's
+    /// edit state): each removed object as its entries, not its triangles, which the rebuild
+    /// of the addition being counted gives back.
+    fn plain_added(&self, objects: &[(Option<[[f64; 4]; 3]>, bool)]) -> usize {
+        self.counted
+            .iter()
+            .zip(objects)
+            .map(|(&c, &(_, removed))| if removed { c.min(OBJECT_TRIANGLES) } else { c })
+            .sum()
+    }
+
+    /// The triangles added to this server, `held` so far, with `what` more, which stores
+    /// `triangles` (none for an instance of a stored mesh), each object counted as at least
+    /// [`OBJECT_TRIANGLES`]; 413 past the server's limit.
+    fn counted_with(
+        &self,
+        held: usize,
+        what: &str,
+        triangles: usize,
+    ) -> std::result::Result<usize, EditError> {
         let counted = triangles.max(OBJECT_TRIANGLES);
-        let total = self.added_triangles.saturating_add(counted);
+        let total = held.saturating_add(counted);
         if total > self.max_added_triangles {
             let as_counted = if counted > triangles {
                 format!(
@@ -887,7 +897,7 @@ impl Batcher {
                     Some(_) => "an instance".to_owned(),
                     None => format!("{triangles} triangles"),
                 };
-                let total = self.counted_with(&what, triangles)?;
+                let total = self.counted_with(self.added_triangles, &what, triangles)?;
                 let base = match (&mesh, base) {
                     (MeshSource::Copy(source), _) => {
                         self.placed_transform(picker.as_ref(), *source)?
