@@ -367,21 +367,28 @@ impl Instances {
         let Some((lo, hi)) = self.world_box(i) else {
             return Ok(());
         };
-        let inside = self
-            .bounds
-            .is_some_and(|(blo, bhi)| lo.cmpgt(blo).all() && hi.cmplt(bhi).all());
         if shown(mask) {
             self.bounds = Some(
                 self.bounds
                     .map_or((lo, hi), |(blo, bhi)| (blo.min(lo), bhi.max(hi))),
             );
-        } else if !inside {
-            let boxes = self.world_boxes();
-            if let Some(live) = self.live_bounds(&boxes).or_else(|| all_bounds(&boxes)) {
-                self.bounds = Some(live);
-            }
+        } else {
+            self.bounds_without((lo, hi));
         }
         Ok(())
+    }
+
+    /// After an instance whose world box is `gone` can no longer be hit: where it reached the
+    /// edge of the bounds of what can be hit, they are worked out again (one box per instance;
+    /// around every instance left when none can be hit, none when none is left).
+    fn bounds_without(&mut self, (lo, hi): (DVec3, DVec3)) {
+        let inside = self
+            .bounds
+            .is_some_and(|(blo, bhi)| lo.cmpgt(blo).all() && hi.cmplt(bhi).all());
+        if !inside {
+            let boxes = self.world_boxes();
+            self.bounds = self.live_bounds(&boxes).or_else(|| all_bounds(&boxes));
+        }
     }
 
     /// Removes instance `k` without renumbering the others: it is never hit again (its mask
@@ -396,15 +403,8 @@ impl Instances {
         self.instances[i].mask = 0;
         self.records[i].mask = 0;
         self.removed[i] = true;
-        // The bounds of what can be hit, worked out again where it reached their edge (around
-        // every instance left when none can be hit, none when none is left).
-        let inside = |(lo, hi): (DVec3, DVec3)| {
-            self.bounds
-                .is_some_and(|(blo, bhi)| lo.cmpgt(blo).all() && hi.cmplt(bhi).all())
-        };
-        if reached.is_some_and(|b| !inside(b)) {
-            let boxes = self.world_boxes();
-            self.bounds = self.live_bounds(&boxes).or_else(|| all_bounds(&boxes));
+        if let Some(gone) = reached {
+            self.bounds_without(gone);
         }
         Ok(())
     }
