@@ -439,9 +439,7 @@ impl axum::serve::Listener for LimitedListener {
             answer: Vec::new(),
             answer_sent: 0,
             unacknowledged: None,
-            opening: Some(Vec::new()),
-            held: Vec::new(),
-            refusing_http2: false,
+            opening: Opening::Unsure(Vec::new()),
             _slot: slot,
         };
         (io, addr)
@@ -469,15 +467,22 @@ struct LimitedIo {
     /// The bytes the socket held unacknowledged when a write last began to wait (or at the
     /// last look since): [`LimitedIo::still_reading`].
     unacknowledged: Option<usize>,
-    /// The bytes read so far while they could still be HTTP/2's preface (however the client's
-    /// writes split it), not yet given to hyper; `None` once they cannot.
-    opening: Option<Vec<u8>>,
-    /// Bytes read that hyper has not been given yet (the opening, once it was not the preface).
-    held: Vec<u8>,
-    /// The client began with HTTP/2's preface: it is answered [`http2_refusal`], and what it
-    /// sends is read and dropped until it closes (hyper sees no request).
-    refusing_http2: bool,
+    /// What the connection opened with: HTTP/2's preface or not.
+    opening: Opening,
     _slot: OwnedSemaphorePermit,
+}
+
+/// What a connection opened with, read before hyper sees a byte ([`LimitedIo::poll_opening`]).
+enum Opening {
+    /// The bytes read so far could still be HTTP/2's preface, however the client's writes
+    /// split it.
+    Unsure(Vec<u8>),
+    /// Not the preface: HTTP/1, whose bytes read while unsure hyper has not been given yet
+    /// (empty once it has).
+    Http1(Vec<u8>),
+    /// HTTP/2's preface: the client is answered [`http2_refusal`], and what it sends is read and
+    /// dropped until it closes (hyper sees no request).
+    Http2,
 }
 
 /// What an HTTP/2 client that starts with the connection preface (`curl --http2-prior-knowledge`)
@@ -655,20 +660,16 @@ impl AsyncRead for LimitedIo {
         if this.expired() {
             return Poll::Ready(Err(this.timed_out()));
         }
-        if this.refusing_http2 {
-            return this.poll_refuse_http2(cx);
-        }
-        if this.opening.is_some() {
-            std::task::ready!(this.poll_opening(cx))?;
-            if this.refusing_http2 {
-                return this.poll_refuse_http2(cx);
+        std::task::ready!(this.poll_opening(cx))?;
+        match &mut this.opening {
+            Opening::Http2 => return this.poll_refuse_http2(cx),
+            Opening::Http1(held) if !held.is_empty() => {
+                let n = held.len().min(buf.remaining());
+                buf.put_slice(&held[..n]);
+                held.drain(..n);
+                return Poll::Ready(Ok(()));
             }
-        }
-        if !this.held.is_empty() {
-            let n = this.held.len().min(buf.remaining());
-            buf.put_slice(&this.held[..n]);
-            this.held.drain(..n);
-            return Poll::Ready(Ok(()));
+            _ => {}
         }
         match Pin::new(&mut this.inner).poll_read(cx, buf) {
             Poll::Pending => this.poll_deadline(cx),
@@ -679,11 +680,11 @@ impl AsyncRead for LimitedIo {
 
 impl LimitedIo {
     /// Reads the connection's first bytes, no more than HTTP/2's preface holds, until they are
-    /// the preface (the client is then refused: `refusing_http2`) or cannot be (they are then
-    /// `held` for hyper), or the client closes first. A preface sent a few bytes at a time was
-    /// given to hyper, which reset the connection without a word.
+    /// the preface ([`Opening::Http2`]) or cannot be (held for hyper: [`Opening::Http1`]), or
+    /// the client closes first; ready at once when that is known. A preface sent a few bytes
+    /// at a time was given to hyper, which reset the connection without a word.
     fn poll_opening(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
-        while let Some(seen) = &mut self.opening {
+        while let Opening::Unsure(seen) = &mut self.opening {
             let mut bytes = [0u8; HTTP2_PREFACE.len()];
             let mut read = ReadBuf::new(&mut bytes[..HTTP2_PREFACE.len() - seen.len()]);
             match Pin::new(&mut self.inner).poll_read(cx, &mut read) {
@@ -693,20 +694,17 @@ impl LimitedIo {
                     let closed = read.filled().is_empty();
                     seen.extend_from_slice(read.filled());
                     if seen == HTTP2_PREFACE {
-                        self.opening = None;
+                        self.opening = Opening::Http2;
                         (self.answer, self.answer_sent) = (http2_refusal(), 0);
-                        self.refusing_http2 = true;
                     } else if closed || !HTTP2_PREFACE.starts_with(seen) {
-                        self.held = self.opening.take().unwrap_or_default();
+                        self.opening = Opening::Http1(std::mem::take(seen));
                     }
                 }
             }
         }
         Poll::Ready(Ok(()))
     }
-}
 
-impl LimitedIo {
     /// Sends an HTTP/2 client [`http2_refusal`], then reads and drops what it sends until it
     /// closes, and ends the connection for hyper (closed with the client's bytes unread, the
     /// connection would be reset, and the client could lose the refusal). A client that does
