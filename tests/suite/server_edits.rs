@@ -523,6 +523,25 @@ fn instances_of_a_stored_mesh_count_as_their_entries_against_the_cap() {
 /// of the objects left (before, every removed object's triangles stayed in the scene and its
 /// tree for good: memory and each edit's time grew with every add and remove; found by
 /// fuzzing).
+/// A copy of the box (object 1) placed `x` along.
+fn placed_box(x: f64) -> Value {
+    json!({"mesh": 1, "transform": translate(x)})
+}
+
+/// Adds `count` copies of the box along x from −4 (ids 2, 3, …) and removes each in turn.
+fn add_and_remove_boxes(base: &str, count: u64) {
+    for k in 0..count {
+        let (status, answer) = call(
+            "POST",
+            &format!("{base}/objects"),
+            Some(&placed_box(k as f64 - 4.0)),
+        );
+        assert_eq!((status, &answer), (200, &json!({"object": 2 + k})));
+        let (status, answer) = call("DELETE", &format!("{base}/objects/{}", 2 + k), None);
+        assert_eq!(status, 200, "{answer}");
+    }
+}
+
 /// On an instanced scene a removed instance leaves the top tree at the next addition (it stayed
 /// in it, hidden, so the tree and each addition's time grew with every instance ever added;
 /// found by a soak of 5,000 add-and-remove cycles: 4 ms an edit at the start, 23 at the end).
@@ -534,18 +553,8 @@ fn instances_added_and_removed_leave_the_top_tree_as_it_was() {
         scene["tree"]["nodes"].as_u64().unwrap()
     };
     let start = nodes();
-    let placed = |x: f64| json!({"mesh": 1, "transform": translate(x)});
-    for k in 0..12 {
-        let (status, answer) = call(
-            "POST",
-            &format!("{base}/objects"),
-            Some(&placed(k as f64 - 4.0)),
-        );
-        assert_eq!((status, &answer), (200, &json!({"object": 2 + k})));
-        let (status, answer) = call("DELETE", &format!("{base}/objects/{}", 2 + k), None);
-        assert_eq!(status, 200, "{answer}");
-    }
-    let (status, answer) = call("POST", &format!("{base}/objects"), Some(&placed(20.0)));
+    add_and_remove_boxes(&base, 12);
+    let (status, answer) = call("POST", &format!("{base}/objects"), Some(&placed_box(20.0)));
     assert_eq!((status, &answer), (200, &json!({"object": 14})));
     // The two instances it started with and the one added: one leaf and one node more.
     assert_eq!(nodes(), start + 2);
@@ -575,23 +584,11 @@ fn objects_added_and_removed_leave_nothing_behind() {
         (scene["tree"]["nodes"].as_u64().unwrap(), listed)
     };
     let start = tree_and_triangles();
-    let far_box = |x: f64| json!({"mesh": 1, "transform": translate(x)});
-    for k in 0..12 {
-        // Inside the bounds and at their edge: a removal inside them leaves the scene as it
-        // is until the next addition.
-        let (status, answer) = call(
-            "POST",
-            &format!("{base}/objects"),
-            Some(&far_box(k as f64 - 4.0)),
-        );
-        assert_eq!(status, 200, "{answer}");
-        let id = answer["object"].as_u64().unwrap();
-        assert_eq!(id, 2 + k);
-        let (status, answer) = call("DELETE", &format!("{base}/objects/{id}"), None);
-        assert_eq!(status, 200, "{answer}");
-    }
+    // Inside the bounds and at their edge: a removal inside them leaves the scene as it is
+    // until the next addition.
+    add_and_remove_boxes(&base, 12);
     // One more addition empties every removed object.
-    let (status, answer) = call("POST", &format!("{base}/objects"), Some(&far_box(0.0)));
+    let (status, answer) = call("POST", &format!("{base}/objects"), Some(&placed_box(0.0)));
     assert_eq!((status, &answer), (200, &json!({"object": 14})));
     let (nodes, triangles) = tree_and_triangles();
     assert_eq!(triangles, start.1 + 12);
@@ -631,15 +628,14 @@ fn far_edits_are_refused_on(scene: Arc<BuiltScene>, instanced: bool) {
         assert!(!error.contains('\n') && error.len() < 400, "{error}");
         error
     };
-    let far_box = |x: f64| json!({"mesh": 1, "transform": translate(x)});
     // The refusal names the object edited (the new one, 2, or the moved one, 1): a far move
     // re-centres the frame half-way, and the sentence named object 0, left behind as far from
     // the centre, for every edit.
-    let error = refused("POST", "/objects", far_box(1e12));
+    let error = refused("POST", "/objects", placed_box(1e12));
     assert!(error.contains("single-precision frame"), "{error}");
     let kind = if instanced { "instance" } else { "object" };
     assert!(error.contains(&format!("{kind} 2 ")), "{error}");
-    refused("POST", "/objects", far_box(1e300));
+    refused("POST", "/objects", placed_box(1e300));
     let error = refused(
         "POST",
         "/objects",
@@ -669,7 +665,7 @@ fn far_edits_are_refused_on(scene: Arc<BuiltScene>, instanced: bool) {
         Some(&json!({"transform": translate(10.0)})),
     );
     assert_eq!((status, &answer), (200, &json!({"object": 1})));
-    let (status, answer) = call("POST", &format!("{base}/objects"), Some(&far_box(1e4)));
+    let (status, answer) = call("POST", &format!("{base}/objects"), Some(&placed_box(1e4)));
     assert_eq!((status, &answer), (200, &json!({"object": 2})));
     assert_eq!(down(&base, &[0.5, 10.5], u32::MAX), [Some(0), Some(1)]);
 }
