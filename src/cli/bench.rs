@@ -85,14 +85,14 @@ fn run_ray_file(
     // Described inside the pool: the CPU paths name the threads they will pick on.
     let picking = &mut *picker;
     let described = pool.install(move || picking.describe());
-    println!(
+    say!(
         "scene: {} triangles, loaded in {:.0} ms, built in {:.0} ms; {} rays from {}; {described}",
         built.scene.triangle_count(),
         load_s * 1e3,
         build_s * 1e3,
         rays.len(),
         path.display(),
-    );
+    )?;
     let mut best = f64::INFINITY;
     let mut hits = 0;
     // One untimed pass first (the engine's wide tree, GPU buffers, page faults).
@@ -102,21 +102,21 @@ fn run_ray_file(
         let answers = pool.install(|| picker.pick(&rays))?;
         let s = start.elapsed().as_secs_f64();
         hits = answers.iter().filter(|h| h.hit).count();
-        println!(
+        say!(
             "pass {}: {:.1} ms ({:.0} rays/s)",
             pass + 1,
             s * 1e3,
             rays.len() as f64 / s
-        );
+        )?;
         best = best.min(s);
     }
     super::show_notes(&mut *picker);
-    println!(
+    say!(
         "hits: {hits} of {} rays; best of {}, {}",
         rays.len(),
         counted(args.repeat as usize, "pass", "passes"),
         counted(threads, "thread", "threads")
-    );
+    )?;
     // The tracer alone on the same rays (scene-frame rays made once, in input order, no
     // reordering, no f64 refinement): what the pick pipeline costs around it. For the GPU, the
     // kernel's dispatches with their uploads and readbacks.
@@ -148,13 +148,13 @@ fn run_ray_file(
             pool.install(|| tracer.trace(&local, &settings))?;
             trace_best = trace_best.min(start.elapsed().as_secs_f64());
         }
-        println!(
+        say!(
             "trace alone: {:.0} rays/s; pick / trace = {:.2}",
             rays.len() as f64 / trace_best,
             trace_best / best
-        );
+        )?;
     }
-    println!("pick_rays_per_s={:.0}", rays.len() as f64 / best);
+    say!("pick_rays_per_s={:.0}", rays.len() as f64 / best)?;
     Ok(ExitCode::SUCCESS)
 }
 
@@ -199,19 +199,19 @@ pub fn run(args: BenchArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     })?;
     let built = Arc::new(built);
     let triangles = built.scene.triangle_count();
-    println!(
+    say!(
         "scene: {} object(s), {triangles} triangles (loaded in {:.0} ms); tree: {} nodes, depth {}",
         built.scene.objects().len(),
         load_s * 1e3,
         built.bvh.nodes.len(),
         built.bvh.depth(),
-    );
-    println!(
+    )?;
+    say!(
         "build: {build_ms:.1} ms (median of {repeat}, {} threads); {:.1} GPU bytes/triangle ({:.1} MiB)",
         rayon::current_num_threads(),
         built.bvh.gpu_bytes() as f64 / triangles.max(1) as f64,
         built.bvh.gpu_bytes() as f64 / (1024.0 * 1024.0),
-    );
+    )?;
 
     let camera = rays(&built.scene, RayKind::Camera, CAMERA_RAYS, args.seed);
     let random = rays(&built.scene, RayKind::Random, args.rays as usize, args.seed);
@@ -233,11 +233,11 @@ pub fn run(args: BenchArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         let n = hits.len().max(1) as f64;
         let b: u64 = hits.iter().map(|h| u64::from(h.box_tests)).sum();
         let i: u64 = hits.iter().map(|h| u64::from(h.triangle_tests)).sum();
-        println!(
+        say!(
             "{name} rays: mean box tests b = {:.2}, triangle tests i = {:.2} per ray (T = bB + iI)",
             b as f64 / n,
             i as f64 / n
-        );
+        )?;
     }
 
     let mut table = Vec::new();
@@ -268,7 +268,7 @@ pub fn run(args: BenchArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let context = GpuContext::new();
     let mut gpu = match &context {
         Ok(context) => {
-            println!("gpu: {}", context.describe());
+            say!("gpu: {}", context.describe())?;
             let picker = GpuPicker::new(context, built.clone())?;
             // Again with what the GPU's driver left (under `ulimit -v` its mappings count).
             super::check_rays(
@@ -279,7 +279,7 @@ pub fn run(args: BenchArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             Some(picker)
         }
         Err(e) => {
-            println!("gpu: none ({e}); GPU figures are left out");
+            say!("gpu: none ({e}); GPU figures are left out")?;
             None
         }
     };
@@ -310,7 +310,7 @@ pub fn run(args: BenchArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     row.path = "auto".to_string();
     super::show_notes(&mut auto);
     table.push(row);
-    println!(
+    say!(
         "{}; GPU used from: {}",
         auto.describe(),
         if auto_crossover == usize::MAX {
@@ -318,13 +318,13 @@ pub fn run(args: BenchArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         } else {
             format!("{auto_crossover} rays")
         }
-    );
+    )?;
     drop(auto);
 
-    println!();
-    print_table(&table, args.rays, repeat, args.picks);
+    say!()?;
+    print_table(&table, args.rays, repeat, args.picks)?;
 
-    println!();
+    say!()?;
     crossover(&built, gpu.as_mut(), args.seed, repeat)?;
     Ok(ExitCode::SUCCESS)
 }
@@ -371,7 +371,7 @@ impl Sets<'_> {
     }
 }
 
-fn print_table(table: &[Row], random_rays: u64, repeat: usize, picks: u64) {
+fn print_table(table: &[Row], random_rays: u64, repeat: usize, picks: u64) -> Result<(), Error> {
     let headers = [
         "path".to_string(),
         format!("{CAMERA_RAYS} camera rays/s"),
@@ -408,16 +408,16 @@ fn print_table(table: &[Row], random_rays: u64, repeat: usize, picks: u64) {
         for (c, value) in row.iter().enumerate().skip(1) {
             text.push_str(&format!("  {value:>w$}", w = widths[c]));
         }
-        println!("{}", text.trim_end());
+        say!("{}", text.trim_end())
     };
-    line(&headers);
+    line(&headers)?;
     for row in &cells {
-        line(row);
+        line(row)?;
     }
-    println!(
+    say!(
         "(throughput and end to end: median of {repeat}; end to end = build + upload (GPU) + \
          pick, GPU context already open; latency: {picks} single-ray picks, scene resident)"
-    );
+    )
 }
 
 fn cell(value: Option<f64>, format: impl Fn(f64) -> String) -> String {
@@ -433,14 +433,17 @@ fn crossover(
     repeat: usize,
 ) -> Result<(), Error> {
     let mut cpu = CpuPicker::new(built.clone());
-    println!(
+    say!(
         "cpu/gpu crossover (camera rays; ms per batch, median of {repeat}; cpu on {} threads)",
         rayon::current_num_threads()
-    );
-    println!(
+    )?;
+    say!(
         "{:>8}  {:>10}  {:>10}  {:>8}",
-        "rays", "cpu ms", "gpu ms", "gpu/cpu"
-    );
+        "rays",
+        "cpu ms",
+        "gpu ms",
+        "gpu/cpu"
+    )?;
     let mut first_faster = None;
     for size in CROSSOVER_SIZES {
         let batch = rays(&built.scene, RayKind::Camera, size, seed);
@@ -464,19 +467,19 @@ fn crossover(
         if first_faster.is_none() && gpu_ms.is_some_and(|g| g < cpu_ms) {
             first_faster = Some(size);
         }
-        println!(
+        say!(
             "{size:>8}  {cpu_ms:>10.3}  {:>10}  {:>8}",
             cell(gpu_ms, |g| format!("{g:.3}")),
             cell(gpu_ms, |g| format!("{:.2}", g / cpu_ms)),
-        );
+        )?;
     }
     match (first_faster, gpu.is_some()) {
-        (Some(size), _) => println!("the GPU is faster from {size} rays per batch"),
-        (None, true) => println!(
+        (Some(size), _) => say!("the GPU is faster from {size} rays per batch")?,
+        (None, true) => say!(
             "the GPU is faster from: never (up to {} rays)",
             CROSSOVER_SIZES[4]
-        ),
-        (None, false) => println!("the GPU is faster from: - (no GPU)"),
+        )?,
+        (None, false) => say!("the GPU is faster from: - (no GPU)")?,
     }
     Ok(())
 }

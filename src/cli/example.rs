@@ -25,7 +25,7 @@ pub fn run(args: ExampleArgs) -> Result<ExitCode, Error> {
     for (name, text) in example_scene_files() {
         let path = args.out.join(name);
         std::fs::write(&path, text).map_err(io_error(&path))?;
-        println!("{}", path.display());
+        say!("{}", path.display())?;
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -1,5 +1,17 @@
 //! The command-line front end: one file per command, shared scene and query options.
 
+/// `println!` that hands a failed write back as an error naming standard output (a closed pipe:
+/// `raypick verify | head -1`), for `?`, instead of panicking as `println!` does.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        writeln!(std::io::stdout().lock(), $($arg)*).map_err(|source| raypick::Error::Io {
+            path: "<stdout>".to_string(),
+            source,
+        })
+    }};
+}
+
 pub mod bench;
 pub mod build;
 pub mod camera_args;

@@ -48,20 +48,23 @@ pub fn run(args: ProbeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         ));
     }
     let context = GpuContext::new()?;
-    println!(
+    say!(
         "{} probes at shared edges and interior vertices; gpu: {}",
         probes.len(),
         context.describe()
-    );
+    )?;
     let mut gpu = GpuPicker::new(&context, built.clone())?;
     // Again with what the GPU's driver left (under `ulimit -v` its mappings count).
     check_probes(args.probes)?;
     let mut cpu = CpuPicker::new(built);
     let mut watertight_leaks = 0;
-    println!(
+    say!(
         "{:<16} {:<5} {:>9} {:>14}",
-        "intersector", "path", "leaks", "rays/s"
-    );
+        "intersector",
+        "path",
+        "leaks",
+        "rays/s"
+    )?;
     for intersector in [Intersector::MollerTrumbore, Intersector::Watertight] {
         let query = Query {
             intersector,
@@ -78,11 +81,11 @@ pub fn run(args: ProbeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             if intersector == Intersector::Watertight {
                 watertight_leaks += leaked;
             }
-            println!(
+            say!(
                 "{:<16} {name:<5} {leaked:>9} {:>14.0}",
                 format!("{intersector:?}"),
                 probes.len() as f64 / seconds
-            );
+            )?;
         }
     }
     Ok(if watertight_leaks == 0 {

@@ -162,10 +162,10 @@ pub fn run(args: ServeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
                 );
             }
         }
-        println!(
+        say!(
             "raypick serve: {triangles} on {}; listening on http://{bound}/",
             server.device()
-        );
+        )?;
         let _ = std::io::stdout().flush();
         server.serve(listener).await
     })?;

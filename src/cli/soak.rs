@@ -81,7 +81,7 @@ pub fn run(args: SoakArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let mut cpu = CpuPicker::new(built.clone());
     let batches = args.rays.div_ceil(batch as u64);
     let checked = args.check.min(batch);
-    println!(
+    say!(
         "soak: {} rays in {batches} {} of {batch} on {}; {checked} rays of each batch checked \
          against the CPU path; resident memory may grow by {} MiB after {WARM_UP_BATCHES} \
          warm-up batches",
@@ -89,12 +89,17 @@ pub fn run(args: SoakArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         if batches == 1 { "batch" } else { "batches" },
         context.describe(),
         args.max_growth
-    );
-    println!("rays, GPU seconds and mismatches are totals so far; rays/s is their ratio");
-    println!(
+    )?;
+    say!("rays, GPU seconds and mismatches are totals so far; rays/s is their ratio")?;
+    say!(
         "{:>8} {:>12} {:>10} {:>12} {:>10} {:>11}",
-        "batch", "rays", "gpu s", "gpu rays/s", "rss MiB", "mismatches"
-    );
+        "batch",
+        "rays",
+        "gpu s",
+        "gpu rays/s",
+        "rss MiB",
+        "mismatches"
+    )?;
     let (mut gpu_seconds, mut sent, mut mismatches) = (0.0, 0u64, 0usize);
     let mut rss: Vec<f64> = Vec::new();
     let started = Instant::now();
@@ -114,7 +119,7 @@ pub fn run(args: SoakArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         sent += n as u64;
         rss.push(resident_mib());
         if b < 3 || (b + 1) % 10 == 0 || b + 1 == batches {
-            println!(
+            say!(
                 "{:>8} {:>12} {:>10.1} {:>12.0} {:>10.1} {:>11}",
                 b + 1,
                 sent,
@@ -122,19 +127,19 @@ pub fn run(args: SoakArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
                 sent as f64 / gpu_seconds,
                 rss[rss.len() - 1],
                 mismatches
-            );
+            )?;
         }
     }
     // Memory after the warm-up batches (buffers allocated) must not keep growing.
     let growth = growth_after_warm_up(&rss);
-    println!(
+    say!(
         "\n{sent} rays in {:.1} s ({:.1} s on the GPU); resident memory grew by {growth:.1} MiB \
          after warm-up (bound {} MiB); {mismatches} mismatches in {} checked rays",
         started.elapsed().as_secs_f64(),
         gpu_seconds,
         args.max_growth,
         batches as usize * checked
-    );
+    )?;
     let mut failed = false;
     if mismatches > 0 {
         eprintln!("soak failed: {mismatches} GPU answers differ from the CPU path's");

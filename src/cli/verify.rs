@@ -73,19 +73,19 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
                 96,
             )?;
             baked = instances.baked()?;
-            println!(
+            say!(
                 "instances: {} of {} meshes, top tree {} nodes",
                 instances.instances().len(),
                 instances.meshes().len(),
                 instances.top_nodes()
-            );
+            )?;
             &baked
         }
         None => &built.scene,
     };
     let bvh = &built.bvh;
     let triangles = world.triangle_count();
-    println!(
+    say!(
         "scene: {} object(s), {triangles} triangles, loaded in {:.0} ms; tree: {} nodes, depth {}, {:.1} GPU bytes/triangle, built in {:.0} ms",
         world.objects().len(),
         load_s * 1e3,
@@ -93,10 +93,10 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         bvh.depth(),
         bvh.gpu_bytes() as f64 / triangles.max(1) as f64,
         build_s * 1e3
-    );
+    )?;
     let q = &args.query;
     let query = q.query();
-    println!("query: {query:?}, ray mask {:#x}", q.ray_mask);
+    say!("query: {query:?}, ray mask {:#x}", q.ray_mask)?;
     let labelled: Vec<(&str, Ray)> = match &args.rays {
         Some(path) => {
             let rays = read_rays(path, q.tmin, q.tmax, q.ray_mask)?;
@@ -117,11 +117,11 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
 
     let mut gpu = match GpuContext::new().and_then(|c| GpuPicker::new(&c, built.clone())) {
         Ok(gpu) => {
-            println!("gpu: {}", gpu.context().describe());
+            say!("gpu: {}", gpu.context().describe())?;
             Some(gpu)
         }
         Err(e) => {
-            println!("gpu: none ({e}); comparing the CPU paths and the oracle only");
+            say!("gpu: none ({e}); comparing the CPU paths and the oracle only")?;
             None
         }
     };
@@ -130,14 +130,14 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let collapse_start = Instant::now();
     let wide = built.wide()?;
     let collapse_s = collapse_start.elapsed().as_secs_f64();
-    println!(
+    say!(
         "engine: {} wide nodes, depth {}, {:.1} bytes/triangle of its own, collapsed in {:.1} ms ({:.0}% of the build)",
         wide.nodes.len(),
         wide.depth,
         wide.bytes() as f64 / triangles.max(1) as f64,
         collapse_s * 1e3,
         100.0 * collapse_s / build_s.max(1e-9)
-    );
+    )?;
     let mut engine = CpuPicker::new(built.clone());
     let engine_name = engine.describe();
     let mut reference = ReferencePicker::new(built.clone());
@@ -156,15 +156,15 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     for (name, a, s) in &paths {
         let b: u64 = a.nearest.iter().map(|h| h.box_tests as u64).sum();
         let i: u64 = a.nearest.iter().map(|h| h.triangle_tests as u64).sum();
-        println!(
+        say!(
             "{name:>9}: {} rays in {s:.3} s ({:.0} rays/s); b = {:.2}, i = {:.2} per ray (T = bB + iI)",
             rays.len(),
             n / s,
             b as f64 / n,
             i as f64 / n
-        );
+        )?;
     }
-    println!("engine: {engine_name}");
+    say!("engine: {engine_name}")?;
     // Within the budget of triangle tests, the oracle's own copy of the triangles must fit the
     // memory budget too: a baked field of instances can be tens of millions of triangles.
     let tests_fit = triangles as f64 * n <= args.oracle_budget;
@@ -176,7 +176,7 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         )
     });
     let oracle = if let Some(Err(e)) = room {
-        println!("brute force: skipped ({e})");
+        say!("brute force: skipped ({e})")?;
         None
     } else if tests_fit {
         // Rays valid in f64 whose origin the scene's f32 frame cannot hold (beyond f32's range
@@ -203,9 +203,9 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             .filter(|(a, b)| a.is_valid() != b.is_valid())
             .count();
         if unframed > 0 {
-            println!(
+            say!(
                 "{unframed} rays valid in f64 lie beyond what the scene's f32 frame holds: every path reports them invalid, and they are not compared with the oracle"
-            );
+            )?;
         }
         let bar = super::progress::rays_bar(rays.len() as u64, "brute force");
         let ((answers, every), s) = timed(|| {
@@ -214,13 +214,13 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             }))
         })?;
         bar.finish_and_clear();
-        println!("brute force: {} rays in {s:.3} s", rays.len());
+        say!("brute force: {} rays in {s:.3} s", rays.len())?;
         Some((answers, every))
     } else {
-        println!(
+        say!(
             "brute force: skipped ({triangles} triangles × {} rays is over --oracle-budget)",
             rays.len()
-        );
+        )?;
         None
     };
 
@@ -230,11 +230,11 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             kinds.push(k);
         }
     }
-    println!(
+    say!(
         "\ndifferences (rays whose answers differ in any bit) and mismatches against the oracle \
          (ties: shared edge + boundary) per ray kind"
-    );
-    println!(
+    )?;
+    say!(
         "{:<14} {:>9} {:>9} {:>8} {:>12} {:>12} {:>17} {:>17} {:>17}",
         "kind",
         "rays",
@@ -245,7 +245,7 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         "engine/oracle",
         "gpu/oracle",
         "ref/oracle"
-    );
+    )?;
     let answers = |name: &str| paths.iter().find(|p| p.0 == name).map(|p| &p.1);
     let (gpu_answers, engine_answers, reference_answers) = (
         answers("gpu"),
@@ -297,7 +297,7 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
                 format!("{} ({}+{})", t.mismatches, t.shared_edge, t.boundary)
             })
         };
-        println!(
+        say!(
             "{:<14} {:>9} {:>9} {:>8} {:>12} {:>12} {:>17} {:>17} {:>17}",
             kind,
             base.rays,
@@ -308,17 +308,17 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             cell(eo),
             cell(go),
             cell(ro)
-        );
+        )?;
         total_differences += engine_diff + gpu_diff.unwrap_or(0);
         total_mismatches += [eo, go, ro]
             .iter()
             .map(|t| t.map_or(0, |t| t.mismatches))
             .sum::<usize>();
     }
-    println!(
+    say!(
         "\n{} rays, {total_differences} differences, {total_mismatches} mismatches",
         rays.len()
-    );
+    )?;
     Ok(if total_mismatches == 0 && total_differences == 0 {
         ExitCode::SUCCESS
     } else {

@@ -1360,3 +1360,47 @@ fn a_viewshed_over_a_grid_with_no_data_says_so() {
         &["3 x 1 samples", "--targets"],
     );
 }
+
+/// Commands that report on standard output, read by a reader that goes away (`raypick verify |
+/// head -1`): a failed write is an error naming standard output, exit 2, not a panic (their
+/// lines were `println!`, which panicked with exit 101: found by a helper's fuzzing).
+#[test]
+fn a_closed_standard_output_is_an_error_not_a_panic() {
+    let runs: [&[&str]; 4] = [
+        &["verify", "--random", "2000"],
+        &["probe", "--probes", "2000"],
+        &[
+            "bench",
+            "--rays",
+            "2000",
+            "--repeat",
+            "1",
+            "--picks",
+            "10",
+            "--backend",
+            "cpu",
+        ],
+        &[
+            "soak", "--rays", "4000", "--batch", "1000", "--check", "100",
+        ],
+    ];
+    for args in runs {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_raypick"))
+            .args(args)
+            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("run raypick");
+        // The reading end closed before the command has written a line.
+        drop(child.stdout.take());
+        let out = child.wait_with_output().expect("wait for raypick");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            err.contains("<stdout>") && err.contains("Broken pipe"),
+            "{args:?}: {err}"
+        );
+    }
+}
