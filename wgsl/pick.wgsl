@@ -437,12 +437,17 @@ fn sibling(index: u32, parent: u32, parent_node: GpuNode) -> u32 {
     return parent + 1u;
 }
 
-// A half float the host wrote (a normal one, or 0), exactly as f32; by hand, as
-// `unpack2x16float` needs a capability not every adapter has.
+// The spacing of subnormal half floats, 2^-24.
+const HALF_SUBNORMAL_STEP: f32 = 5.9604645e-8;
+
+// A finite half float the host wrote (normal, subnormal or 0), exactly as f32; by hand, as
+// `unpack2x16float` needs a capability not every adapter has. A subnormal's mantissa times
+// 2^-24 is exact (a power of two, and a normal f32).
 fn half_to_f32(h: u32) -> f32 {
     let e = (h >> 10u) & 31u;
     if e == 0u {
-        return 0.0;
+        let m = f32(h & 0x3ffu) * HALF_SUBNORMAL_STEP;
+        return select(m, -m, (h & 0x8000u) != 0u);
     }
     return bitcast<f32>(((h & 0x8000u) << 16u) | ((e + 112u) << 23u) | ((h & 0x3ffu) << 13u));
 }

@@ -50,7 +50,7 @@ fn sibling(index: u32, parent: u32, parent_node: &GpuNode) -> u32 {
 }
 
 /// The rest of the ray's origin after rounding to f32 ([`GpuRay::origin_lo`]): three half
-/// floats, each normal or 0 (`frame::put_origin_lo`), decoded exactly (the kernel's
+/// floats, each normal, subnormal or 0 (`frame::put_origin_lo`), decoded exactly (the kernel's
 /// `half_to_f32`).
 #[inline]
 pub fn origin_lo(ray: &GpuRay) -> Vec3 {
@@ -61,13 +61,18 @@ pub fn origin_lo(ray: &GpuRay) -> Vec3 {
     )
 }
 
-/// A half float that is normal or 0 (what `frame::put_origin_lo` writes), exactly in f32: the
-/// kernel's `half_to_f32`, line for line.
+/// The spacing of subnormal half floats, 2^-24.
+pub const HALF_SUBNORMAL_STEP: f32 = 5.960_464_5e-8;
+
+/// A finite half float (what `frame::put_origin_lo` writes), exactly in f32: the kernel's
+/// `half_to_f32`, line for line. A subnormal's mantissa times 2^-24 is exact (a power of two,
+/// and a normal f32).
 #[inline]
 fn half_to_f32(h: u32) -> f32 {
     let e = (h >> 10) & 31;
     if e == 0 {
-        return 0.0;
+        let m = (h & 0x3ff) as f32 * HALF_SUBNORMAL_STEP;
+        return if h & 0x8000 != 0 { -m } else { m };
     }
     f32::from_bits(((h & 0x8000) << 16) | ((e + 112) << 23) | ((h & 0x3ff) << 13))
 }

@@ -35,9 +35,10 @@ pub fn f32_step(reach: f64) -> f64 {
 }
 
 /// How finely an instanced scene places rays `reach` units from its frame's origin: f32
-/// offsets refined by a half-float rest (`frame::put_origin_lo`: 11 more bits).
+/// offsets refined by a half-float rest (`frame::put_origin_lo`: 11 more bits, and no finer
+/// than the subnormal half floats' 2^-24).
 pub fn ray_step(reach: f64) -> f64 {
-    f32_step(reach) / 2048.0
+    (f32_step(reach) / 2048.0).max(2f64.powi(-24))
 }
 
 /// The widest reach from a frame's centre at which the single-precision triangle tests keep

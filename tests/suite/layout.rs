@@ -196,7 +196,14 @@ fn wgsl_constants_match_rust() {
     for (name, value) in unsigned {
         assert_eq!(wgsl_constant(&module, name), f64::from(value), "{name}");
     }
-    for (name, value) in [("BOX_PAD", BOX_PAD), ("MIN_DIR", MIN_DIR), ("HUGE", HUGE)] {
+    use raypick::cpu::traverse::HALF_SUBNORMAL_STEP;
+    assert_eq!(HALF_SUBNORMAL_STEP, 2f32.powi(-24));
+    for (name, value) in [
+        ("BOX_PAD", BOX_PAD),
+        ("MIN_DIR", MIN_DIR),
+        ("HUGE", HUGE),
+        ("HALF_SUBNORMAL_STEP", HALF_SUBNORMAL_STEP),
+    ] {
         assert_eq!(wgsl_constant(&module, name) as f32, value, "{name}");
     }
 }
