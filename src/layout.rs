@@ -20,6 +20,13 @@ pub const MAX_NODES: u32 = u32::MAX >> KIND_BITS;
 pub const NO_HIT: u32 = u32::MAX;
 /// `GpuHit::prim` of a ray whose traversal reached its iteration cap (a corrupted tree).
 pub const CAP_REACHED: u32 = u32::MAX - 1;
+/// `GpuHit::prim` the kernel writes for a ray whose walk was cut short by the driver, not by
+/// the kernel: Mesa's llvmpipe ends every loop of a shader invocation once its lanes together
+/// have run 65,535 iterations (`LP_MAX_TGSI_LOOP_ITERATIONS`, shared by all its loops), so
+/// several long walks side by side in one group of lanes stopped part way, and their rays
+/// missed or hit another triangle. The GPU picker traces such rays again on the twin
+/// (`cpu::traverse`), whose answers are the kernel's bit for bit. Hit ids stay below it.
+pub const UNFINISHED: u32 = u32::MAX - 2;
 
 /// One node of the flattened median-cut tree, in depth-first order.
 ///

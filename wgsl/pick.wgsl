@@ -92,6 +92,7 @@ const KIND_BITS: u32 = 5u;
 const KIND_MASK: u32 = 31u;
 const NO_HIT: u32 = 0xffffffffu;
 const CAP_REACHED: u32 = 0xfffffffeu;
+const UNFINISHED: u32 = 0xfffffffdu;
 const MODE_CLOSEST: u32 = 0u;
 const MODE_ANY: u32 = 1u;
 const MODE_ALL: u32 = 2u;
@@ -496,15 +497,20 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
     var current = 0u;
     var state = FROM_PARENT;
     var iterations = 0u;
+    // Set at each of the walk's own ends; left false where the driver cut the loop short
+    // (llvmpipe's shared iteration limit: UNFINISHED in src/layout.rs).
+    var finished = false;
     loop {
         if iterations == params.iteration_cap {
             best.prim = CAP_REACHED;
+            finished = true;
             break;
         }
         iterations += 1u;
         let node = nodes[current];
         if state == FROM_CHILD {
             if current == 0u {
+                finished = true;
                 break;
             }
             if inside != NO_INSTANCE && current == instance.root {
@@ -605,12 +611,14 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
             }
         }
         if done {
+            finished = true;
             break;
         }
         if descend {
             current = near_child(current, node, dir);
             state = FROM_PARENT;
         } else if current == 0u {
+            finished = true;
             break;
         } else if inside != NO_INSTANCE && current == instance.root {
             // Missed the instance's root box: back to its leaf and the world ray.
@@ -629,6 +637,10 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
             current = parent_of(node);
             state = FROM_CHILD;
         }
+    }
+    if !finished {
+        best.prim = UNFINISHED;
+        return best;
     }
     if mode == MODE_ALL && best.count > 0u && best.prim != CAP_REACHED {
         let nearest = hit_lists[list_base];

@@ -6,7 +6,9 @@ use super::bindings::{Binding, bindings, group_entries, layout_entries};
 use super::context::GpuContext;
 use crate::cpu::TraceSettings;
 use crate::error::{Error, Result};
-use crate::layout::{GpuHit, GpuHitEntry, GpuInstance, GpuNode, GpuParams, GpuRay, GpuTriangle};
+use crate::layout::{
+    GpuHit, GpuHitEntry, GpuInstance, GpuNode, GpuParams, GpuRay, GpuTriangle, UNFINISHED,
+};
 use crate::picker::{BuiltScene, Picker, Refit, Tracer};
 use crate::ray_order::DEFAULT_REORDER_FROM;
 use rayon::prelude::*;
@@ -467,7 +469,49 @@ impl GpuPicker {
             }
             traced?;
         }
+        self.finish_cut_walks(rays, max_hits, watertight, &mut hits, &mut lists);
         Ok((hits, lists))
+    }
+
+    /// Traces again, on the twin (`cpu::traverse`, the kernel line for line, so the same bits),
+    /// each ray whose walk the driver cut short ([`UNFINISHED`]: llvmpipe's iteration limit,
+    /// shared by a group of lanes, which long walks side by side used up). Other adapters
+    /// never cut a walk.
+    fn finish_cut_walks(
+        &self,
+        rays: &[GpuRay],
+        max_hits: u32,
+        watertight: bool,
+        hits: &mut [GpuHit],
+        lists: &mut [GpuHitEntry],
+    ) {
+        if !hits.iter().any(|h| h.prim == UNFINISHED) {
+            return;
+        }
+        let settings = TraceSettings {
+            triangle_masks: &self.built.triangle_masks,
+            max_hits,
+            watertight,
+            instances: self.built.instances(),
+        };
+        let buffers = crate::cpu::buffers(&self.built.bvh, &settings);
+        let again = |(ray, hit, list): (&GpuRay, &mut GpuHit, &mut [GpuHitEntry])| {
+            if hit.prim == UNFINISHED {
+                list.fill(GpuHitEntry::default());
+                *hit = crate::cpu::traverse::trace(buffers, ray, list);
+            }
+        };
+        let k = max_hits as usize;
+        if k == 0 {
+            rays.par_iter()
+                .zip(hits.par_iter_mut())
+                .for_each(|(ray, hit)| again((ray, hit, &mut [])));
+        } else {
+            rays.par_iter()
+                .zip(hits.par_iter_mut())
+                .zip(lists.par_chunks_mut(k))
+                .for_each(|((ray, hit), list)| again((ray, hit, list)));
+        }
     }
 
     /// The most rays one dispatch may carry with `max_hits` list entries per ray: every per-chunk

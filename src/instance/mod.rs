@@ -18,7 +18,7 @@ pub mod top;
 use crate::bvh::{BuildOptions, Bvh};
 use crate::engine::WideBvh;
 use crate::error::{Error, Result};
-use crate::layout::{CAP_REACHED, GpuInstance, GpuNode, INSTANCE_MIRRORED, KIND_BITS, MAX_NODES};
+use crate::layout::{GpuInstance, GpuNode, INSTANCE_MIRRORED, KIND_BITS, MAX_NODES, UNFINISHED};
 use crate::scene::{Scene, apply_transform, check_transform};
 use glam::{DMat3, DVec3, Vec3};
 use std::sync::{Arc, OnceLock};
@@ -217,10 +217,10 @@ impl Instances {
         for (i, _) in instances.iter().zip(&removed).filter(|(_, r)| !**r) {
             total += meshes[i.mesh as usize].scene.triangle_count() as u64;
         }
-        if total >= u64::from(CAP_REACHED) {
+        if total >= u64::from(UNFINISHED) {
             return Err(Error::Invalid(format!(
                 "the instances hold {total} triangles in all; hits can name at most {}",
-                CAP_REACHED - 1
+                UNFINISHED - 1
             )));
         }
         let mut mesh_nodes = Vec::with_capacity(meshes.len());

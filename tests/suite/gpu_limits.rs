@@ -100,3 +100,77 @@ fn a_long_all_hits_list_never_breaks_later_requests() {
         assert_eq!(g, c, "closest after max_hits {max_hits}");
     }
 }
+
+/// Long walks side by side: 20,000 large triangles that overlap across the whole box, so every
+/// ray's walk visits nearly every node and tests nearly every triangle (about 30,000 loop
+/// iterations each, well under the tree's own cap). On llvmpipe a group of lanes shares one
+/// limit of 65,535 loop iterations, after which the driver ends every loop: rays traced
+/// together there stopped part way and missed or hit another triangle, while each traced
+/// alone was right (found by a helper's fuzzing, on far rays through an instanced scene). The
+/// picker traces such rays again on the twin, so the GPU answers as the twin, bit for bit,
+/// in every mode, on any adapter.
+#[test]
+fn walks_cut_short_by_the_driver_are_finished_on_the_twin() {
+    use rand::Rng;
+    use raypick::check::synthetic::rng;
+    use raypick::{Mode, Query, Ray, ReferencePicker};
+    let mut g = rng(8);
+    let mut positions = Vec::new();
+    let mut triangles = Vec::new();
+    for k in 0..20_000u32 {
+        for _ in 0..3 {
+            positions.push(glam::DVec3::new(
+                g.random_range(0.0..100.0),
+                g.random_range(0.0..100.0),
+                g.random_range(0.0..100.0),
+            ));
+        }
+        triangles.push([3 * k, 3 * k + 1, 3 * k + 2]);
+    }
+    let big = built(raypick::Mesh {
+        positions,
+        triangles,
+    });
+    let rays: Vec<Ray> = (0..96)
+        .map(|_| {
+            let at = glam::DVec3::new(
+                g.random_range(0.0..100.0),
+                g.random_range(0.0..100.0),
+                g.random_range(0.0..100.0),
+            );
+            let dir = glam::DVec3::new(
+                g.random_range(-1.0..1.0),
+                g.random_range(-1.0..1.0),
+                g.random_range(-1.0..1.0),
+            );
+            Ray::new(at, dir)
+        })
+        .collect();
+    let mut gpu = GpuPicker::new(crate::common::gpu(), big.clone()).unwrap();
+    let mut twin = ReferencePicker::new(big);
+    for query in [
+        Query::default(),
+        Query {
+            mode: Mode::All,
+            max_hits: 8,
+            ..Query::default()
+        },
+    ] {
+        let want = twin.query(&rays, &query).unwrap();
+        let heavy = want
+            .nearest
+            .iter()
+            .filter(|h| h.box_tests + h.triangle_tests > 10_000)
+            .count();
+        assert!(
+            heavy > 48,
+            "{query:?}: the walks are long ({heavy} of 96 over 10,000 tests)"
+        );
+        let got = gpu.query(&rays, &query).unwrap();
+        assert_eq!(
+            format!("{got:?}"),
+            format!("{want:?}"),
+            "{query:?}: the GPU's answers differ from the twin's"
+        );
+    }
+}

@@ -186,6 +186,7 @@ fn wgsl_constants_match_rust() {
         ("KIND_MASK", (1 << KIND_BITS) - 1),
         ("NO_HIT", NO_HIT),
         ("CAP_REACHED", CAP_REACHED),
+        ("UNFINISHED", UNFINISHED),
         ("MODE_CLOSEST", MODE_CLOSEST),
         ("MODE_ANY", MODE_ANY),
         ("MODE_ALL", MODE_ALL),
