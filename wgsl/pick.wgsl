@@ -497,20 +497,15 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
     var current = 0u;
     var state = FROM_PARENT;
     var iterations = 0u;
-    // Set at each of the walk's own ends; left false where the driver cut the loop short
-    // (llvmpipe's shared iteration limit: UNFINISHED in src/layout.rs).
-    var finished = false;
     loop {
         if iterations == params.iteration_cap {
             best.prim = CAP_REACHED;
-            finished = true;
             break;
         }
         iterations += 1u;
         let node = nodes[current];
         if state == FROM_CHILD {
             if current == 0u {
-                finished = true;
                 break;
             }
             if inside != NO_INSTANCE && current == instance.root {
@@ -611,14 +606,12 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
             }
         }
         if done {
-            finished = true;
             break;
         }
         if descend {
             current = near_child(current, node, dir);
             state = FROM_PARENT;
         } else if current == 0u {
-            finished = true;
             break;
         } else if inside != NO_INSTANCE && current == instance.root {
             // Missed the instance's root box: back to its leaf and the world ray.
@@ -638,7 +631,10 @@ fn trace(ray: GpuRay, list_base: u32) -> GpuHit {
             state = FROM_CHILD;
         }
     }
-    if !finished {
+    // The walk's own ends leave it at the root (its subtree done), done (any-hit mode) or at
+    // the cap; anywhere else the driver cut the loop short (llvmpipe's iteration limit, shared
+    // by a group of lanes: UNFINISHED in src/layout.rs), and the host finishes it on the twin.
+    if current != 0u && !done && best.prim != CAP_REACHED {
         best.prim = UNFINISHED;
         return best;
     }

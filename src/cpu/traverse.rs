@@ -219,8 +219,8 @@ pub fn trace<N: NodeSource + ?Sized, T: TriangleSource + ?Sized>(
     let mut current = 0u32;
     let mut state = FROM_PARENT;
     let mut iterations = 0u32;
-    // (The kernel also keeps a `finished` flag here, set at each of these ends: a driver may
-    // cut its loops short, `UNFINISHED`, and the GPU picker then asks this walk instead.)
+    // (After the loop the kernel tells its own ends, at the root, done or at the cap, from a
+    // driver's cut (`UNFINISHED`), for which the GPU picker asks this walk instead.)
     loop {
         if iterations == buffers.iteration_cap {
             best.prim = CAP_REACHED;
