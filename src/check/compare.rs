@@ -193,7 +193,8 @@ fn pair_hits(scene: &Scene, ray: &Ray, a: &[Hit], b: &[Hit]) -> (Vec<bool>, Vec<
 /// ([`near_boundary`]), and a hit of `every` past a list that overflowed needs none. A list that
 /// overflowed claims one hit more than it kept: one of `every` past its last kept hit, or else a
 /// triangle passed within reach of an edge (or hit within reach of a range end) past it, which the
-/// list may count where the oracle does not. Past those, the count is wrong: a list cut short
+/// list may count where the oracle does not, or the oracle's hit that a kept hit within reach of
+/// an edge took as its partner at equal t. Past those, the count is wrong: a list cut short
 /// without its flag, or a flag on a list that held every hit. The check is the lists' against
 /// every hit, not the cut one: [`classify_lists`] against the oracle's own cut list cannot see a
 /// list one short of its last hit.
@@ -235,8 +236,19 @@ pub fn classify_count(
         }
     }
     if overflowed && !beyond {
+        // A kept hit on a triangle the oracle does not count, within reach of an edge, was
+        // paired by t with a hit the oracle does count (a ray through a vertex of one of two
+        // coplanar triangles, inside the other): the list counted both, so that hit is the
+        // one more its flag claims.
+        let boundary_pair = by_t
+            && kept.iter().any(|x| {
+                !every
+                    .iter()
+                    .any(|e| (e.object, e.triangle) == (x.object, x.triangle))
+                    && near_boundary(scene, ray, x)
+            });
         let from = kept.last().map_or(f64::NEG_INFINITY, |last| last.t);
-        if !edge_within_reach_from(scene, ray, from, kept) {
+        if !boundary_pair && !edge_within_reach_from(scene, ray, from, kept) {
             return Verdict::Mismatch;
         }
         verdict = verdict.max(Verdict::Boundary);
