@@ -115,36 +115,23 @@ fn walks_cut_short_by_the_driver_are_finished_on_the_twin() {
     use raypick::check::synthetic::rng;
     use raypick::{Mode, Query, Ray, ReferencePicker};
     let mut g = rng(8);
-    let mut positions = Vec::new();
-    let mut triangles = Vec::new();
-    for k in 0..20_000u32 {
-        for _ in 0..3 {
-            positions.push(glam::DVec3::new(
-                g.random_range(0.0..100.0),
-                g.random_range(0.0..100.0),
-                g.random_range(0.0..100.0),
-            ));
-        }
-        triangles.push([3 * k, 3 * k + 1, 3 * k + 2]);
-    }
+    let mut point = |range: std::ops::Range<f64>| {
+        glam::DVec3::new(
+            g.random_range(range.clone()),
+            g.random_range(range.clone()),
+            g.random_range(range),
+        )
+    };
+    let positions: Vec<_> = (0..60_000).map(|_| point(0.0..100.0)).collect();
+    let triangles = (0..20_000u32)
+        .map(|k| [3 * k, 3 * k + 1, 3 * k + 2])
+        .collect();
     let big = built(raypick::Mesh {
         positions,
         triangles,
     });
     let rays: Vec<Ray> = (0..96)
-        .map(|_| {
-            let at = glam::DVec3::new(
-                g.random_range(0.0..100.0),
-                g.random_range(0.0..100.0),
-                g.random_range(0.0..100.0),
-            );
-            let dir = glam::DVec3::new(
-                g.random_range(-1.0..1.0),
-                g.random_range(-1.0..1.0),
-                g.random_range(-1.0..1.0),
-            );
-            Ray::new(at, dir)
-        })
+        .map(|_| Ray::new(point(0.0..100.0), point(-1.0..1.0)))
         .collect();
     let mut gpu = GpuPicker::new(crate::common::gpu(), big.clone()).unwrap();
     let mut twin = ReferencePicker::new(big);
