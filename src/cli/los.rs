@@ -33,13 +33,13 @@ pub struct ViewshedArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
     /// Observer position `x y z`.
-    #[arg(long, required = true, num_args = 3, value_names = ["X", "Y", "Z"], allow_negative_numbers = true)]
+    #[arg(long, required = true, num_args = 3, value_names = ["X", "Y", "Z"], allow_hyphen_values = true)]
     pub observer: Vec<f64>,
     /// Targets file: one `x y z` per line. Default: every sample of every terrain grid in the scene.
     #[arg(long)]
     pub targets: Option<PathBuf>,
     /// Height added to each target's z (e.g. a person's eye height).
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub target_height: f64,
     #[command(flatten)]
     pub sight: SightArgs,
@@ -48,7 +48,7 @@ pub struct ViewshedArgs {
 #[derive(Args, Debug)]
 pub struct SightArgs {
     /// End-point margin ε, as a fraction of the segment: hits with t in (ε, 1 − ε) block it.
-    #[arg(long, default_value_t = 1e-6)]
+    #[arg(long, default_value_t = 1e-6, allow_hyphen_values = true)]
     pub epsilon: f64,
     /// Layer mask of the sight lines: only objects sharing a bit can block them.
     #[arg(long, value_parser = parse_mask, default_value = "0xffffffff")]

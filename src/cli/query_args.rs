@@ -26,10 +26,10 @@ pub struct QueryArgs {
     #[arg(long, value_parser = parse_mask, default_value = "0xffffffff")]
     pub ray_mask: u32,
     /// Default tmin of every ray (hits need t > tmin).
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = parse_ray_parameter)]
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = parse_ray_parameter)]
     pub tmin: f64,
     /// Default tmax of every ray (hits need t <= tmax); a ray line's 7th number overrides it.
-    #[arg(long, default_value_t = f64::INFINITY, allow_negative_numbers = true, value_parser = parse_ray_parameter)]
+    #[arg(long, default_value_t = f64::INFINITY, allow_hyphen_values = true, value_parser = parse_ray_parameter)]
     pub tmax: f64,
 }
 

@@ -116,7 +116,8 @@ pub fn run_idbuffer(args: IdBufferArgs, matches: &ArgMatches) -> Result<ExitCode
     let view = args.view.view()?;
     check_id_buffer_size(view.width, view.height)?;
     let built = Arc::new(args.scene.build_checked(matches, |scene| {
-        if args.raw_ids && scene.objects().len() >= u16::MAX as usize {
+        // Ids 0 ..= 65,534 are written as id + 1; 0 is nothing.
+        if args.raw_ids && scene.objects().len() > usize::from(u16::MAX) {
             return Err(Error::Invalid(format!(
                 "the scene has {} objects, too many for a 16-bit id image; leave out --raw-ids \
                  or write CSV",

@@ -29,7 +29,7 @@ pub struct SoakArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Most growth of resident memory allowed after the warm-up batches, in MiB; more exits 1.
-    #[arg(long, value_name = "MIB", default_value_t = DEFAULT_MAX_GROWTH_MIB, allow_negative_numbers = true)]
+    #[arg(long, value_name = "MIB", default_value_t = DEFAULT_MAX_GROWTH_MIB, allow_hyphen_values = true)]
     pub max_growth: f64,
 }
 

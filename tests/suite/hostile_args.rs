@@ -1404,3 +1404,72 @@ fn a_closed_standard_output_is_an_error_not_a_panic() {
         );
     }
 }
+
+/// Negative numbers in every form a number takes are values, not flags: clap's own test for a
+/// negative number left out `-1e+3`, `-.5`, `-0` and `-inf`, so `--observer -1e+30 3 5` was
+/// "unexpected argument '-1'" (found by a helper's fuzzing); a value that is not a number is
+/// still refused by name.
+#[test]
+fn negative_numbers_in_any_form_are_values_not_flags() {
+    for observer in ["-1e+3", "-1.5e-3", "-.5", "-0"] {
+        let (code, _, err) = raypick(&[
+            "viewshed",
+            "--observer",
+            observer,
+            "3",
+            "5",
+            "--target-height",
+            "-1e+0",
+            "--epsilon",
+            "-0",
+            "--backend",
+            "cpu",
+            "-q",
+        ]);
+        assert_eq!(code, 0, "--observer {observer}: {err}");
+    }
+    for tmin in ["-1e+3", "-.5", "-0"] {
+        let (code, _, err) = raypick(&["pick", "--tmin", tmin, "--backend", "cpu", "-q"]);
+        assert_eq!(code, 0, "--tmin {tmin}: {err}");
+    }
+    assert_refused(
+        &["viewshed", "--observer", "-inf", "3", "5"],
+        &["--observer", "not finite"],
+    );
+}
+
+/// A 16-bit id image holds ids 0 ..= 65,534 (written as id + 1, 0 for nothing): a scene of
+/// 65,535 objects fits, one of 65,536 is refused by name. (65,535 was refused: found by a
+/// helper's fuzzing.)
+#[test]
+fn a_16_bit_id_image_holds_65535_objects() {
+    let obj = temp_file("one-triangle.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let name = file_name(&obj);
+    for (count, refused) in [(65_535usize, false), (65_536, true)] {
+        let listing = format!(r#"{{"file": "{name}"}}"#);
+        let description = temp_file(
+            &format!("objects-{count}.json"),
+            &format!(r#"{{"objects": [{}]}}"#, vec![listing; count].join(",")),
+        );
+        let png = temp_file(&format!("ids-{count}.png"), "");
+        let args = [
+            "idbuffer",
+            "--scenes",
+            &description,
+            "--width",
+            "4",
+            "--height",
+            "3",
+            "--raw-ids",
+            "--out",
+            &png,
+            "-q",
+        ];
+        if refused {
+            assert_refused(&args, &["65536 objects", "--raw-ids"]);
+        } else {
+            let (code, _, err) = raypick(&args);
+            assert_eq!(code, 0, "{count} objects: {err}");
+        }
+    }
+}
