@@ -486,7 +486,11 @@ impl BuiltScene {
             .par_iter()
             .enumerate()
             .map(|(i, f)| {
-                let mut hits = lists[i * k..i * k + f.count as usize]
+                // In the walk's order: by f32 t, equal t by the lower scene triangle id (object,
+                // then triangle), so the first is the closest-mode answer. (Sorted again by the
+                // refined f64 t, two hits within f32's resolution of each other could swap, and
+                // the first was then not the closest-mode answer, nor this ray's `nearest`.)
+                let hits = lists[i * k..i * k + f.count as usize]
                     .iter()
                     .map(|e| {
                         let entry = GpuHit {
@@ -499,12 +503,6 @@ impl BuiltScene {
                         resolved(i, &entry)
                     })
                     .collect::<Vec<Hit>>();
-                // The tie rule: equal t, the lower scene triangle id (object, then triangle).
-                hits.sort_by(|a, b| {
-                    a.t.total_cmp(&b.t)
-                        .then(a.object.cmp(&b.object))
-                        .then(a.triangle.cmp(&b.triangle))
-                });
                 Ok((hits, f.overflow != 0))
             })
             .collect::<Result<Vec<_>>>()?;

@@ -193,3 +193,86 @@ fn query_into_reuses_answers_across_batches_and_modes() {
         }
     }
 }
+
+/// Coplanar duplicates (two squares and a triangle, one copy wound the other way) seen from far
+/// off: their hits' refined f64 `t` are equal while the walk's f32 `t` differ by a rounding, so
+/// the lists sorted again by the f64 `t` put another triangle first than the closest-mode
+/// answer and the list's own `nearest` (found by a helper's fuzzing). An all-hits list is in the
+/// walk's order, the same on every backend: its first hit is the closest-mode answer.
+#[test]
+fn an_all_hits_lists_first_hit_is_the_closest_mode_answer() {
+    use rand::Rng;
+    use raypick::{CpuPicker, GpuPicker, Picker, Ray, ReferencePicker};
+    let corners = [[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]];
+    let mut positions = Vec::new();
+    let mut triangles = Vec::new();
+    for copy in 0..3u32 {
+        positions.extend(corners.map(|[x, y]| glam::DVec3::new(x, y, 0.0)));
+        let b = 4 * copy;
+        triangles.extend([[b, b + 1, b + 2], [b, b + 2, b + 3]]);
+    }
+    // The second triangle of the square again, wound the other way.
+    triangles.push([0, 3, 2]);
+    let scene = Scene::from_meshes([(
+        "coplanar".to_string(),
+        raypick::Mesh {
+            positions,
+            triangles,
+        },
+    )])
+    .unwrap();
+    let built = Arc::new(BuiltScene::new(scene, &BuildOptions::default()).unwrap());
+    let mut g = raypick::check::synthetic::rng(108);
+    let rays: Vec<Ray> = (0..2000)
+        .map(|_| {
+            let at = glam::DVec3::new(g.random_range(0.5..9.5), g.random_range(0.5..9.5), 0.0);
+            let from = glam::DVec3::new(
+                g.random_range(-1.0..1.0),
+                g.random_range(-1.0..1.0),
+                g.random_range(0.2..1.0),
+            )
+            .normalize()
+                * g.random_range(1.0..1e7);
+            Ray::new(at + from, -from)
+        })
+        .collect();
+    let closest = Query::default();
+    let all = Query {
+        mode: Mode::All,
+        max_hits: 8,
+        ..Query::default()
+    };
+    let mut pickers: Vec<Box<dyn Picker>> = vec![
+        Box::new(CpuPicker::new(built.clone())),
+        Box::new(ReferencePicker::new(built.clone())),
+        Box::new(GpuPicker::new(common::gpu(), built.clone()).unwrap()),
+    ];
+    let mut swapped = 0;
+    for picker in &mut pickers {
+        let near = picker.query(&rays, &closest).unwrap();
+        let lists = picker.query(&rays, &all).unwrap();
+        for (i, h) in near.nearest.iter().enumerate() {
+            let list = lists.hits_of(i);
+            assert!(h.hit && !list.is_empty(), "ray {i}");
+            let key = |h: &raypick::Hit| (h.object, h.triangle, h.t.to_bits());
+            assert_eq!(
+                key(&list[0]),
+                key(h),
+                "ray {i}: the list's first against closest"
+            );
+            assert_eq!(
+                key(&lists.nearest[i]),
+                key(h),
+                "ray {i}: the list's nearest"
+            );
+            swapped +=
+                usize::from(list.windows(2).any(|w| {
+                    w[1].t < w[0].t || (w[1].t == w[0].t && w[1].triangle < w[0].triangle)
+                }));
+        }
+    }
+    assert!(
+        swapped > 0,
+        "no ray's f32 order differs from its f64 order: the test tests nothing"
+    );
+}
