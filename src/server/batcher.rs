@@ -617,23 +617,29 @@ impl Batcher {
                     let built = scene_of(picker.as_ref())?;
                     let loaded = self.loaded_positions(&built, object);
                     let current = objects[object as usize].0;
+                    // Where the vertices are now: the loaded ones through the transform last
+                    // set, as that move placed them (bit for bit).
+                    let placed = |t: &Option<[[f64; 4]; 3]>| -> Vec<DVec3> {
+                        match t {
+                            Some(t) => loaded
+                                .iter()
+                                .map(|&p| crate::scene::apply_transform(t, p))
+                                .collect(),
+                            None => loaded.clone(),
+                        }
+                    };
+                    let moved = placed(&Some(transform));
+                    frame_faults::refuse_collapse(
+                        object,
+                        &object_triangles(&built.scene, object),
+                        &placed(&current),
+                        &moved,
+                    )?;
                     if mirrors(&Some(transform)) == mirrors(&current) {
                         // The same handedness: the vertices move, the tree is refitted.
                         let frame = built.bvh.origin;
                         drop(built);
-                        // Where the vertices are now: the loaded ones through the transform
-                        // last set, as that move placed them (bit for bit).
-                        let placed = |t: &Option<[[f64; 4]; 3]>| -> Vec<DVec3> {
-                            match t {
-                                Some(t) => loaded
-                                    .iter()
-                                    .map(|&p| crate::scene::apply_transform(t, p))
-                                    .collect(),
-                                None => loaded.clone(),
-                            }
-                        };
                         let here = box_of(placed(&current));
-                        let moved = placed(&Some(transform));
                         let refit = picker.set_positions(object, &moved).map_err(invalid)?;
                         // A refit keeps the frame and every triangle it held, so only the moved
                         // object can leave its reach; a rebuild re-centres the frame, which may
@@ -739,8 +745,18 @@ impl Batcher {
                         .map(|v| scene.position(v))
                         .collect()
                 });
-                if let Some(transform) = &transform {
+                if let (Some(transform), Some(before)) = (&transform, &before_transform) {
                     scene.transform_object(id, transform).map_err(invalid)?;
+                    let after: Vec<DVec3> = scene
+                        .object_vertices(id)
+                        .map(|v| scene.position(v))
+                        .collect();
+                    frame_faults::refuse_collapse(
+                        id,
+                        &object_triangles(&scene, id),
+                        before,
+                        &after,
+                    )?;
                 }
                 if let Some(mask) = mask {
                     scene.set_object_mask(id, mask).map_err(invalid)?;

@@ -111,6 +111,34 @@ pub(crate) fn moved(
     })
 }
 
+/// Refuses placing object `object` where f64 can no longer tell the corners of triangles apart
+/// that had area where it was (`before`; `after` where the edit would put its vertices,
+/// `triangles` indexing both): a translation so far for the object's size that its extent is
+/// rounded away (a DEM moved 10³⁰⁰ out became a wall no ray crosses). Not the frame's doing, so
+/// a lone object, whose frame follows it, was let through; the command line warns of such
+/// triangles in a file, and an edit that makes them is refused, with nothing changed.
+pub(crate) fn refuse_collapse(
+    object: u32,
+    triangles: &[[u32; 3]],
+    before: &[DVec3],
+    after: &[DVec3],
+) -> Result<(), EditError> {
+    let has_area = |p: &[DVec3], t: &[u32; 3]| !crate::scene::zero_area(t.map(|v| p[v as usize]));
+    let mut collapsed = triangles
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| has_area(before, t) && !has_area(after, t));
+    let Some((first, _)) = collapsed.next() else {
+        return Ok(());
+    };
+    let n = 1 + collapsed.count();
+    Err(refusal(format!(
+        "object {object} would leave {n} of its triangles with no area in double precision \
+         (the first: its triangle {first}): placed that far for its size, its corners can no \
+         longer be told apart"
+    )))
+}
+
 fn refusal(why: String) -> EditError {
     EditError::Invalid(format!(
         "refused, nothing was changed: after this edit, {why}"

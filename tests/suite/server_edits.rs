@@ -855,3 +855,60 @@ fn refused_edits_name_objects_by_file_name(folder: &str) {
         assert!(error.contains(&format!("\"{name}\"")), "{error}");
     }
 }
+
+/// A lone object (its frame follows it, so no frame check refuses a far move) moved, or an
+/// object added, so far for its size that f64 can no longer tell its corners apart: refused,
+/// nothing changed. A ground plane moved 10³⁰⁰ out had been accepted and became a wall no ray
+/// from above met (found by a helper's fuzzing); the same move with a second object loaded
+/// was refused by the frame checks.
+#[test]
+fn a_move_that_rounds_an_objects_triangles_flat_is_refused() {
+    let mut ground = Scene::new();
+    ground
+        .add_mesh("ground", terrain(41, 11, -5.0, 5.0, 1.0, |_, _| 0.0))
+        .unwrap();
+    let base = start_on(
+        Arc::new(BuiltScene::new(ground, &BuildOptions::default()).unwrap()),
+        Backend::Cpu,
+    );
+    let refused = |method: &str, path: &str, body: Value| {
+        let (status, answer) = call(method, &format!("{base}{path}"), Some(&body));
+        assert_eq!(status, 400, "{method} {path} {body}: {answer}");
+        let error = answer["error"].as_str().unwrap().to_owned();
+        assert!(
+            error.contains("no longer be told apart") && error.contains("nothing was changed"),
+            "{error}"
+        );
+    };
+    refused(
+        "PATCH",
+        "/objects/0",
+        json!({"transform": translate(1e300)}),
+    );
+    // A mirror as well: the tree is built anew on that path.
+    refused(
+        "PATCH",
+        "/objects/0",
+        json!({"transform": [[-1.0, 0.0, 0.0, 1e300], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]}),
+    );
+    refused(
+        "POST",
+        "/objects",
+        json!({
+            "vertices": [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            "triangles": [[0, 1, 2]],
+            "transform": translate(1e300),
+        }),
+    );
+    let (_, scene) = call("GET", &format!("{base}/scene"), None);
+    assert_eq!(scene["objects"].as_array().unwrap().len(), 1, "{scene}");
+    assert_eq!(scene["objects"][0]["transform"], Value::Null, "{scene}");
+    assert_eq!(down(&base, &[0.5, 10.5, 30.5], u32::MAX), [Some(0); 3]);
+    // A far move that keeps the triangles' shape goes through (the frame follows the object).
+    let (status, answer) = call(
+        "PATCH",
+        &format!("{base}/objects/0"),
+        Some(&json!({"transform": translate(1e6)})),
+    );
+    assert_eq!((status, &answer), (200, &json!({"object": 0})));
+}
