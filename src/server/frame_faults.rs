@@ -5,7 +5,9 @@
 //! shape or out of f32's range, every pick on it off or every ray invalid, for every client,
 //! and no removal would bring the frame back. The worker refuses such an edit (400) with
 //! nothing changed. Plain scenes only: an instanced scene's meshes keep frames of their own,
-//! and placing an instance checks itself (`Instances::add`, `Instances::set_transform`).
+//! and placing an instance checks itself (`Instances::add`, `Instances::set_transform`). Also
+//! a placement so far out for an object's size that f64 itself rounds its triangles flat
+//! ([`refuse_collapse`]), which no frame can hold.
 
 use super::batcher::EditError;
 use crate::frame::reach::{Unresolved, f32_step, unresolved_objects};
