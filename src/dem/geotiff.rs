@@ -444,10 +444,10 @@ fn gdal_nodata<R: Read + Seek>(name: &str, decoder: &mut Decoder<R>) -> Result<O
         ));
     };
     let trimmed = text.trim_matches(|c: char| c.is_whitespace() || c == '\0');
-    trimmed
-        .parse::<f64>()
-        .map(Some)
-        .map_err(|_| parse_error(name, None, format!("{LABEL} is not a number: '{trimmed}'")))
+    trimmed.parse::<f64>().map(Some).map_err(|_| {
+        let quoted = crate::budget::quote(trimmed);
+        parse_error(name, None, format!("{LABEL} is not a number: '{quoted}'"))
+    })
 }
 
 impl SampleType {
@@ -1053,6 +1053,22 @@ mod tests {
             &geo,
         ));
         assert_eq!(e, "t.tif: GDAL_NODATA (42113) is not a number: 'none'");
+        // Quoted as every bad token is: a control character escaped (the sentence on one
+        // line), at most 60 characters shown.
+        let long = format!("no\ndata{}", "x".repeat(150));
+        let geo = Geo {
+            nodata: Some(&long),
+            ..std_geo()
+        };
+        let e = err(&striped::<colortype::Gray16>(
+            1,
+            1,
+            &[1],
+            Compression::Uncompressed,
+            None,
+            &geo,
+        ));
+        assert!(!e.contains('\n') && e.len() < 200 && e.contains('…'), "{e}");
     }
 
     #[test]
