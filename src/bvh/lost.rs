@@ -81,7 +81,11 @@ pub fn lost_triangles(scene: &Scene, bvh: &Bvh) -> Lost {
             return None;
         }
         if scene.is_degenerate(i) {
-            return Some(false);
+            // A height grid's NODATA cell (its triangles one corner thrice, `dem::mesh`) is no
+            // fault of the file's: not counted.
+            let [a, b, c] = scene.triangle_vertices(i);
+            let grid = scene.objects()[object as usize].grid.is_some();
+            return (!(grid && a == b && b == c)).then_some(false);
         }
         // Collapsed by the frame: its box spans few of the frame's steps where it lies (a
         // sliver, long but flat, collapses wherever it lies: not the frame's doing).
@@ -110,6 +114,48 @@ pub fn lost_triangles(scene: &Scene, bvh: &Bvh) -> Lost {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A height grid's NODATA cells are not counted as triangles with no area (every DEM with
+    /// NODATA was warned about so, as if the file held broken faces).
+    #[test]
+    fn nodata_cells_are_not_triangles_with_no_area() {
+        let grid = crate::dem::ElevationGrid {
+            ncols: 3,
+            nrows: 3,
+            x0: 0.0,
+            y0: 2.0,
+            dx: 1.0,
+            dy: 1.0,
+            heights: vec![
+                Some(1.0),
+                Some(2.0),
+                Some(1.0),
+                Some(0.5),
+                None,
+                Some(1.5),
+                Some(1.0),
+                Some(2.0),
+                Some(3.0),
+            ],
+        };
+        let mut scene = Scene::new();
+        scene
+            .add_grid_mesh(
+                "dem",
+                crate::dem::grid_to_mesh(&grid),
+                crate::scene::GridShape {
+                    columns: 3,
+                    rows: 3,
+                },
+            )
+            .unwrap();
+        let bvh = Bvh::build(&scene, &crate::bvh::BuildOptions::default()).unwrap();
+        assert!(
+            bvh.triangle_ids.len() < scene.triangle_count(),
+            "NODATA cells left out"
+        );
+        assert_eq!(lost_triangles(&scene, &bvh), Lost::default());
+    }
     use crate::bvh::BuildOptions;
     use crate::scene::Mesh;
     use glam::DVec3;
