@@ -114,6 +114,9 @@ pub fn lost_triangles(scene: &Scene, bvh: &Bvh) -> Lost {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bvh::BuildOptions;
+    use crate::scene::Mesh;
+    use glam::DVec3;
 
     /// A height grid's NODATA cells are not counted as triangles with no area (every DEM with
     /// NODATA was warned about so, as if the file held broken faces).
@@ -149,16 +152,13 @@ mod tests {
                 },
             )
             .unwrap();
-        let bvh = Bvh::build(&scene, &crate::bvh::BuildOptions::default()).unwrap();
+        let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
         assert!(
             bvh.triangle_ids.len() < scene.triangle_count(),
             "NODATA cells left out"
         );
         assert_eq!(lost_triangles(&scene, &bvh), Lost::default());
     }
-    use crate::bvh::BuildOptions;
-    use crate::scene::Mesh;
-    use glam::DVec3;
 
     /// A unit triangle at the origin, a degenerate one, and a unit triangle at `far` on x.
     fn scene(far: f64) -> Scene {

@@ -1040,34 +1040,27 @@ mod tests {
             "t.tif: infinite sample inf at row 0, column 1 (not the GDAL_NODATA value)"
         );
 
-        let geo = Geo {
-            nodata: Some("none"),
-            ..std_geo()
+        let nodata_error = |text: &str| {
+            let geo = Geo {
+                nodata: Some(text),
+                ..std_geo()
+            };
+            err(&striped::<colortype::Gray16>(
+                1,
+                1,
+                &[1],
+                Compression::Uncompressed,
+                None,
+                &geo,
+            ))
         };
-        let e = err(&striped::<colortype::Gray16>(
-            1,
-            1,
-            &[1],
-            Compression::Uncompressed,
-            None,
-            &geo,
-        ));
-        assert_eq!(e, "t.tif: GDAL_NODATA (42113) is not a number: 'none'");
+        assert_eq!(
+            nodata_error("none"),
+            "t.tif: GDAL_NODATA (42113) is not a number: 'none'"
+        );
         // Quoted as every bad token is: a control character escaped (the sentence on one
         // line), at most 60 characters shown.
-        let long = format!("no\ndata{}", "x".repeat(150));
-        let geo = Geo {
-            nodata: Some(&long),
-            ..std_geo()
-        };
-        let e = err(&striped::<colortype::Gray16>(
-            1,
-            1,
-            &[1],
-            Compression::Uncompressed,
-            None,
-            &geo,
-        ));
+        let e = nodata_error(&format!("no\ndata{}", "x".repeat(150)));
         assert!(!e.contains('\n') && e.len() < 200 && e.contains('…'), "{e}");
     }
 

@@ -628,18 +628,18 @@ impl Batcher {
                             None => loaded.clone(),
                         }
                     };
-                    let moved = placed(&Some(transform));
+                    let (now_at, moved) = (placed(&current), placed(&Some(transform)));
                     frame_faults::refuse_collapse(
                         object,
                         &object_triangles(&built.scene, object),
-                        &placed(&current),
+                        &now_at,
                         &moved,
                     )?;
                     if mirrors(&Some(transform)) == mirrors(&current) {
                         // The same handedness: the vertices move, the tree is refitted.
                         let frame = built.bvh.origin;
                         drop(built);
-                        let here = box_of(placed(&current));
+                        let here = box_of(now_at.iter().copied());
                         let refit = picker.set_positions(object, &moved).map_err(invalid)?;
                         // A refit keeps the frame and every triangle it held, so only the moved
                         // object can leave its reach; a rebuild re-centres the frame, which may
@@ -658,7 +658,7 @@ impl Batcher {
                         match refused {
                             (after, None) => self.faults = Some(after),
                             (_, Some(refused)) => {
-                                self.move_back(picker, object, &placed(&current), frame)?;
+                                self.move_back(picker, object, &now_at, frame)?;
                                 return Err(refused);
                             }
                         }
