@@ -19,6 +19,9 @@
 //! - A node's world transform is `parent world · node local` composed in
 //!   f64, where the local transform is its `matrix` or
 //!   `translation · rotation · scale` (the quaternion is normalised in f64).
+//!   The numbers are read from the JSON's text as f64 (the `gltf` crate reads
+//!   them as f32, 6 cm apart at 10⁶ m), so a node placed far from the origin
+//!   keeps its millimetres.
 //!   A `matrix` whose last row is not `0 0 0 1`, or a node with both a
 //!   `matrix` and TRS properties, is an error (glTF asks for one affine
 //!   transform); so is a node reached twice within one scene (a cycle, or a
@@ -227,12 +230,23 @@ pub fn load_gltf_shared(path: &Path) -> Result<Shared, Error> {
         }
     })?;
     validate(&root).map_err(|m| parse(None, m))?;
+    // The same JSON again, for the nodes' transforms in f64: the parse above succeeded, so
+    // this one fails only on a number f64 cannot hold, which f32 cannot either.
+    let exact: ExactNodes = serde_json::from_slice(json_bytes)
+        .map_err(|e| parse(None, format!("a node's transform cannot be read: {e}")))?;
+    if exact.nodes.len() != root.nodes.len() {
+        return Err(parse(
+            None,
+            "the nodes cannot be read twice alike".to_owned(),
+        ));
+    }
     let document = Document::from_json_without_validation(root);
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let mut loader = Loader {
         file: &name,
         dir,
         document: &document,
+        exact: &exact.nodes,
         blob,
         buffers: vec![None; document.buffers().len()],
         input_bytes: bytes.len() as u64,
@@ -536,6 +550,23 @@ fn validate(root: &json::Root) -> Result<(), String> {
     }
 }
 
+/// The JSON's `nodes` as far as their transforms go, read as f64.
+#[derive(serde::Deserialize)]
+struct ExactNodes {
+    #[serde(default)]
+    nodes: Vec<ExactNode>,
+}
+
+/// A node's `matrix` (column-major) or translation, rotation (x, y, z, w) and scale, as the
+/// JSON's text writes them; glTF's defaults where absent.
+#[derive(serde::Deserialize)]
+struct ExactNode {
+    matrix: Option<[f64; 16]>,
+    translation: Option<[f64; 3]>,
+    rotation: Option<[f64; 4]>,
+    scale: Option<[f64; 3]>,
+}
+
 /// A primitive in its own frame: local positions and triangles.
 struct LocalPrimitive {
     positions: Vec<DVec3>,
@@ -555,6 +586,8 @@ struct Loader<'a> {
     file: &'a str,
     dir: PathBuf,
     document: &'a Document,
+    /// The nodes' transforms in f64, by node index.
+    exact: &'a [ExactNode],
     blob: Option<&'a [u8]>,
     buffers: Vec<Option<Vec<u8>>>,
     /// The glTF file's size plus the sizes of the external buffers loaded.
@@ -889,22 +922,23 @@ impl Loader<'_> {
                 node.name().map(|n| format!(" ('{n}')")).unwrap_or_default()
             ))
         };
+        // The crate's reading decides which form the node has (validation refused both); the
+        // numbers are the f64 ones.
+        let exact = &self.exact[node.index()];
         let m = match node.transform() {
-            Transform::Matrix { matrix } => {
-                let cols = matrix.map(|c| c.map(f64::from));
-                if cols.iter().flatten().any(|v| !v.is_finite()) {
+            Transform::Matrix { .. } => {
+                let cols = exact.matrix.unwrap_or([
+                    1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0,
+                ]);
+                if cols.iter().any(|v| !v.is_finite()) {
                     return Err(bad("the matrix has a non-finite value"));
                 }
-                DMat4::from_cols_array_2d(&cols)
+                DMat4::from_cols_array(&cols)
             }
-            Transform::Decomposed {
-                translation,
-                rotation,
-                scale,
-            } => {
-                let t = DVec3::from_array(translation.map(f64::from));
-                let s = DVec3::from_array(scale.map(f64::from));
-                let q = DQuat::from_array(rotation.map(f64::from));
+            Transform::Decomposed { .. } => {
+                let t = DVec3::from_array(exact.translation.unwrap_or([0.0; 3]));
+                let s = DVec3::from_array(exact.scale.unwrap_or([1.0; 3]));
+                let q = DQuat::from_array(exact.rotation.unwrap_or([0.0, 0.0, 0.0, 1.0]));
                 if !t.is_finite() || !s.is_finite() || !q.is_finite() {
                     return Err(bad("the translation, rotation or scale is not finite"));
                 }

@@ -1152,3 +1152,94 @@ fn a_description_without_repeats_loads_as_copies_from_one_read_of_each_file() {
     let instance_names: Vec<String> = instances.iter().map(|i| i.name.clone()).collect();
     assert_eq!(instance_names, names(&copies));
 }
+
+/// Node transforms keep the JSON's f64 numbers (issue 15: instances 10⁶ m out pick within
+/// 1 mm): the `gltf` crate reads them as f32, which put these nodes up to 6 cm off. Both the
+/// copies and the instances of a shared mesh are where the file says, and picks on both land
+/// on the exact point.
+#[test]
+fn node_transforms_far_from_the_origin_keep_their_millimetres() {
+    use raypick::io::scene_files::{Loaded, SceneFile, load_instanced, load_scene};
+    use raypick::{Query, ReferencePicker};
+    let dir = TempDir::new();
+    let (asset, mesh) = triangle_asset();
+    let far = [1_000_000.123_456, 2_000_000.654_321, 3_000.000_7];
+    let other = [-1_000_000.031_25, 2_000_000.001, 0.000_3];
+    // A rotation by 90° about z written as a matrix, placed far out.
+    let matrix = [
+        0.0,
+        1.0,
+        0.0,
+        0.0,
+        -1.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        1.0,
+        0.0,
+        999_999.987_654,
+        -4.003,
+        0.5,
+        1.0,
+    ];
+    let doc = asset.gltf(json!({
+        "meshes": [mesh],
+        "nodes": [
+            {"mesh": 0, "translation": far},
+            {"mesh": 0, "translation": other, "scale": [1.000_000_1, 1.0, 1.0]},
+            {"mesh": 0, "matrix": matrix}
+        ],
+        "scenes": [{"nodes": [0, 1, 2]}]
+    }));
+    let path = dir.write_json("far.gltf", &doc);
+    let objects = load_gltf(&path).unwrap();
+    let t = |p: [f64; 3]| DVec3::from_array(p);
+    assert_eq!(objects[0].1.positions[1], t(far) + DVec3::X);
+    assert_eq!(
+        objects[1].1.positions[1],
+        t(other) + DVec3::new(1.000_000_1, 0.0, 0.0)
+    );
+    assert_eq!(
+        objects[2].1.positions[1],
+        DVec3::new(999_999.987_654, -4.003 + 1.0, 0.5)
+    );
+    // Straight down onto each placed triangle at local (0.25, 0.25), on the instances and on
+    // the copies.
+    let files = [SceneFile {
+        file: path,
+        mask: None,
+        transform: None,
+    }];
+    let Loaded::Instanced(meshes, instances) = load_instanced(&files).unwrap() else {
+        panic!("a mesh placed three times is instanced");
+    };
+    let points = [
+        t(far) + DVec3::new(0.25, 0.25, 0.0),
+        t(other) + DVec3::new(0.25 * 1.000_000_1, 0.25, 0.0),
+        DVec3::new(999_999.987_654 - 0.25, -4.003 + 0.25, 0.5),
+    ];
+    let rays: Vec<Ray> = points
+        .iter()
+        .map(|p| Ray::new(*p + DVec3::new(0.0, 0.0, 10.0), DVec3::NEG_Z))
+        .collect();
+    let built = [
+        BuiltScene::instanced(meshes, instances, &BuildOptions::default()).unwrap(),
+        BuiltScene::new(load_scene(&files).unwrap(), &BuildOptions::default()).unwrap(),
+    ];
+    for scene in built {
+        let answers = ReferencePicker::new(Arc::new(scene))
+            .query(&rays, &Query::default())
+            .unwrap();
+        for (k, (hit, want)) in answers.nearest.iter().zip(points).enumerate() {
+            assert!(hit.hit && hit.object == k as u32, "ray {k}: {hit:?}");
+            let off = (hit.position - want).length();
+            assert!(
+                off < 1e-6,
+                "ray {k}: {} is {off} m from {want}",
+                hit.position
+            );
+        }
+    }
+}
