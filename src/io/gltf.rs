@@ -45,7 +45,8 @@
 //! odd `i`; `TRIANGLE_FAN` triangle `i` is `(v[i+1], v[i+2], v[0])` (the
 //! glTF 2.0 rules). `v` is the index accessor, or `0, 1, 2, …` for a
 //! non-indexed primitive. Degenerate triangles are kept, so ids stay
-//! aligned with the file. Each object holds all of its primitive's `POSITION`
+//! aligned with the file. A strip or fan of fewer than 3 vertices keeps its
+//! object with no triangle, said once per file on standard error. Each object holds all of its primitive's `POSITION`
 //! vertices, used or not.
 //!
 //! # Not read
@@ -567,6 +568,21 @@ struct ExactNode {
     scale: Option<[f64; 3]>,
 }
 
+/// Says on standard error, once for the file, when triangle primitives give no triangle (a
+/// strip or fan of fewer than 3 vertices, an empty list): their objects are kept, so ids stay
+/// aligned with the file, but nothing can hit them (an OBJ file's short faces say the same).
+fn warn_of_empty_primitives(file: &str, primitives: &[SharedPrimitive]) {
+    let mut empty = primitives.iter().filter(|p| p.mesh.triangles.is_empty());
+    if let Some(first) = empty.next() {
+        eprintln!(
+            "warning: {file}: {} triangle primitive(s) give no triangle (too few vertices; the \
+             first: {}), so their objects cannot be hit",
+            1 + empty.count(),
+            first.what
+        );
+    }
+}
+
 /// A primitive in its own frame: local positions and triangles.
 struct LocalPrimitive {
     positions: Vec<DVec3>,
@@ -627,11 +643,11 @@ impl Loader<'_> {
                                  positions,
                                  triangles,
                              }| {
-                                let mesh_name = describe_mesh(&mesh);
                                 primitives.push(SharedPrimitive {
                                     name: format!(
-                                        "{}#{mesh_name}/{}",
+                                        "{}#{}/{}",
                                         self.file,
+                                        mesh_label(&mesh),
                                         primitive.index()
                                     ),
                                     mesh: Mesh {
@@ -639,7 +655,8 @@ impl Loader<'_> {
                                         triangles,
                                     },
                                     what: format!(
-                                        "mesh {mesh_name} primitive {}",
+                                        "mesh {} primitive {}",
+                                        describe_mesh(&mesh),
                                         primitive.index()
                                     ),
                                 });
@@ -661,6 +678,7 @@ impl Loader<'_> {
             }
         }
         self.warn_if_empty(placements.len(), &instances);
+        warn_of_empty_primitives(self.file, &primitives);
         Ok(Shared {
             file: self.file.to_owned(),
             primitives,
@@ -706,13 +724,8 @@ impl Loader<'_> {
         instances
             .iter()
             .map(|instance| {
-                let mut label = match self
-                    .document
-                    .meshes()
-                    .nth(instance.mesh)
-                    .and_then(|m| m.name().filter(|n| !n.is_empty()).map(str::to_owned))
-                {
-                    Some(name) => name,
+                let mut label = match self.document.meshes().nth(instance.mesh) {
+                    Some(mesh) => mesh_label(&mesh),
                     None => instance.mesh.to_string(),
                 };
                 if per_mesh[&instance.mesh] > 1 {
@@ -919,7 +932,9 @@ impl Loader<'_> {
             self.parse(format!(
                 "node {}{}: {what}",
                 node.index(),
-                node.name().map(|n| format!(" ('{n}')")).unwrap_or_default()
+                node.name()
+                    .map(|n| format!(" ('{}')", quote(n)))
+                    .unwrap_or_default()
             ))
         };
         // The crate's reading decides which form the node has (validation refused both); the
@@ -1417,7 +1432,15 @@ fn type_name(t: Dimensions) -> &'static str {
 /// `index` or `index ('name')`.
 fn describe_mesh(mesh: &::gltf::Mesh<'_>) -> String {
     match mesh.name() {
-        Some(name) => format!("{} ('{name}')", mesh.index()),
+        Some(name) => format!("{} ('{}')", mesh.index(), quote(name)),
+        None => mesh.index().to_string(),
+    }
+}
+
+/// A mesh's part of an object's name: its name, or its index when unnamed or empty.
+fn mesh_label(mesh: &::gltf::Mesh<'_>) -> String {
+    match mesh.name().filter(|n| !n.is_empty()) {
+        Some(name) => name.to_owned(),
         None => mesh.index().to_string(),
     }
 }

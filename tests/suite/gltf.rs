@@ -1243,3 +1243,38 @@ fn node_transforms_far_from_the_origin_keep_their_millimetres() {
         }
     }
 }
+
+/// Strips and fans of fewer than 3 vertices give an object with no triangle: kept (ids stay
+/// aligned with the file), and said once on standard error, as an OBJ file's short faces are.
+#[test]
+fn primitives_too_short_for_a_triangle_are_kept_and_said_once() {
+    let dir = TempDir::new();
+    let (mut asset, _) = triangle_asset();
+    let two = asset.indices_u16(&[0, 1]);
+    let mesh = json!({"name": "short", "primitives": [
+        {"attributes": {"POSITION": 0}, "indices": 1},
+        {"attributes": {"POSITION": 0}, "indices": two, "mode": 5},
+        {"attributes": {"POSITION": 0}, "indices": two, "mode": 6}
+    ]});
+    let path = dir.write_json(
+        "short.gltf",
+        &asset.gltf(json!({"meshes": [mesh], "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}]})),
+    );
+    let objects = load_gltf(&path).unwrap();
+    let triangles: Vec<usize> = objects.iter().map(|(_, m)| m.triangles.len()).collect();
+    assert_eq!(triangles, [1, 0, 0]);
+    let name = path.display().to_string();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_raypick"))
+        .args(["pick", "--backend", "cpu", "-q", "--scene", &name])
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let warning = format!(
+        "warning: {name}: 2 triangle primitive(s) give no triangle (too few vertices; the first: \
+         mesh 0 ('short') primitive 1), so their objects cannot be hit"
+    );
+    assert_eq!(stderr.matches(&warning).count(), 1, "{stderr}");
+    assert_eq!(stderr.matches("warning").count(), 1, "{stderr}");
+}
