@@ -186,9 +186,15 @@ pub enum Note {
 /// missed or off without a word (a scene 10¹⁴ units across missed most of its hits).
 fn warn_frame(py: Python<'_>, built: &BuiltScene) -> PyResult<()> {
     let warnings = py.detach(|| threads::run(|| raypick::frame::faults::frame_warnings(built)))?;
+    warn_all(py, warnings)
+}
+
+/// Raises each of `warnings` as a `UserWarning`, in order.
+fn warn_all(py: Python<'_>, warnings: Vec<String>) -> PyResult<()> {
     let category = py.get_type::<pyo3::exceptions::PyUserWarning>();
     for warning in warnings {
-        PyErr::warn(py, &category, &std::ffi::CString::new(warning)?, 1)?;
+        let text = std::ffi::CString::new(warning.replace('\0', "\\0"))?;
+        PyErr::warn(py, &category, &text, 1)?;
     }
     Ok(())
 }
@@ -417,31 +423,37 @@ impl Scene {
             return Ok(Scene::new(built));
         }
         let options = build_options(builder, leaf_size)?;
-        let built = py.detach(|| {
-            threads::run(|| -> PyResult<BuiltScene> {
-                let mut files = Vec::new();
-                for (path, mask) in paths.iter().zip(&masks) {
-                    if is_description(path) {
-                        if mask.is_some() {
-                            return Err(value_error(format!(
-                                "{}: a scene description gives its files' masks itself; \
+        // The readers' warnings (a file that gave no triangle, …) are collected on the thread
+        // that reads and raised below as `UserWarning`s, not written on standard error.
+        let (built, said) = py.detach(|| {
+            threads::run(|| {
+                raypick::io::warnings::collect(|| -> PyResult<BuiltScene> {
+                    let mut files = Vec::new();
+                    for (path, mask) in paths.iter().zip(&masks) {
+                        if is_description(path) {
+                            if mask.is_some() {
+                                return Err(value_error(format!(
+                                    "{}: a scene description gives its files' masks itself; \
                                      give None as its mask",
-                                path.display()
-                            )));
+                                    path.display()
+                                )));
+                            }
+                            files.extend(load_description(path).map_err(to_py)?);
+                        } else {
+                            files.push(SceneFile {
+                                file: path.clone(),
+                                mask: *mask,
+                                transform: None,
+                            });
                         }
-                        files.extend(load_description(path).map_err(to_py)?);
-                    } else {
-                        files.push(SceneFile {
-                            file: path.clone(),
-                            mask: *mask,
-                            transform: None,
-                        });
                     }
-                }
-                let scene = load_scene(&files).map_err(to_py)?;
-                BuiltScene::new(scene, &options).map_err(to_py)
+                    let scene = load_scene(&files).map_err(to_py)?;
+                    BuiltScene::new(scene, &options).map_err(to_py)
+                })
             })
-        })??;
+        })?;
+        warn_all(py, said)?;
+        let built = built?;
         warn_frame(py, &built)?;
         Ok(Scene::new(built))
     }

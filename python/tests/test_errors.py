@@ -729,3 +729,19 @@ def test_array_like_objects_are_read_as_numpy_reads_them(bunny):
     for given in [b"\x00" * 48, "rays"]:
         with pytest.raises(ValueError, match=f"got {type(given).__name__}"):
             bunny.pick(given)
+
+
+def test_what_the_readers_warn_of_is_a_user_warning_not_standard_error(tmp_path, capfd):
+    """A file that gives no triangle loads with a warning: the CLI writes it on standard error,
+    which a notebook never shows (it goes to the server's terminal); here it is a UserWarning
+    naming the file, and nothing is written on standard error."""
+    empty = tmp_path / "empty.obj"
+    empty.write_text("v 0 0 0\nv 1 0 0\n")
+    short = tmp_path / "short.obj"
+    short.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2\n")
+    with pytest.warns(UserWarning) as said:
+        raypick.Scene.load([str(empty), str(short)])
+    messages = [str(w.message) for w in said]
+    assert any(str(empty) in m and "no face" in m for m in messages), messages
+    assert any(str(short) in m and "fewer than 3 vertices" in m for m in messages), messages
+    assert capfd.readouterr().err == ""

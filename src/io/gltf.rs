@@ -574,12 +574,12 @@ struct ExactNode {
 fn warn_of_empty_primitives(file: &str, primitives: &[SharedPrimitive]) {
     let mut empty = primitives.iter().filter(|p| p.mesh.triangles.is_empty());
     if let Some(first) = empty.next() {
-        eprintln!(
-            "warning: {file}: {} triangle primitive(s) give no triangle (too few vertices; the \
+        crate::io::warnings::warn(format!(
+            "{file}: {} triangle primitive(s) give no triangle (too few vertices; the \
              first: {}), so their objects cannot be hit",
             1 + empty.count(),
             first.what
-        );
+        ));
     }
 }
 
@@ -703,10 +703,10 @@ impl Loader<'_> {
         } else {
             "its placed meshes hold only point and line primitives".to_owned()
         };
-        eprintln!(
-            "warning: {}: no triangle is placed ({why}), so it adds no object",
+        crate::io::warnings::warn(format!(
+            "{}: no triangle is placed ({why}), so it adds no object",
             self.file
-        );
+        ));
     }
 
     /// Each placement's label: the mesh's name (or index), with the node (and the scene, when

@@ -21,6 +21,7 @@ pub mod ply;
 pub mod ray_file;
 pub mod scene_files;
 pub mod stl;
+pub mod warnings;
 
 use std::fs::{File, FileType, Metadata};
 use std::io::Read;

@@ -70,9 +70,9 @@ pub fn load_obj(path: &Path) -> Result<Mesh, Error> {
     let chunk_bytes = chunk_bytes_for(bytes.len());
     let (mesh, short, vertices) = parse_with(&name, &bytes, chunk_bytes, file, &pages)?;
     if let Some(short) = short {
-        eprintln!("warning: {name}: {}", short.describe());
+        crate::io::warnings::warn(format!("{name}: {}", short.describe()));
     } else if mesh.triangles.is_empty() {
-        eprintln!("warning: {name}: {}", nothing_read(vertices));
+        crate::io::warnings::warn(format!("{name}: {}", nothing_read(vertices)));
     }
     Ok(mesh)
 }

@@ -252,18 +252,18 @@ fn read_ply<R: BufRead>(input: &Input, mut reader: R) -> Result<Mesh, Error> {
         }
     }
     if let Some((count, first)) = short {
-        eprintln!(
-            "warning: {}: {count} face(s) with fewer than 3 vertices give no triangle and were \
+        crate::io::warnings::warn(format!(
+            "{}: {count} face(s) with fewer than 3 vertices give no triangle and were \
              skipped (the first is face {first})",
             input.name
-        );
+        ));
     } else if mesh.triangles.is_empty() {
         // As the OBJ reader says of its files.
         let read = match mesh.positions.len() {
             1 => "1 vertex but no face was read".to_owned(),
             n => format!("{n} vertices but no face were read"),
         };
-        eprintln!("warning: {}: {read}, so its object is empty", input.name);
+        crate::io::warnings::warn(format!("{}: {read}, so its object is empty", input.name));
     }
     Ok(mesh)
 }

@@ -54,10 +54,10 @@ pub fn load_stl(path: &Path) -> Result<Mesh, Error> {
     let mesh = read_stl_file(path)?;
     if mesh.triangles.is_empty() {
         // As the OBJ and PLY readers say of theirs.
-        eprintln!(
-            "warning: {}: no facet was read, so its object is empty",
+        crate::io::warnings::warn(format!(
+            "{}: no facet was read, so its object is empty",
             path.display()
-        );
+        ));
     }
     Ok(mesh)
 }
