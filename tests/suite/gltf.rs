@@ -1050,6 +1050,20 @@ fn nodes_sharing_a_mesh_load_as_instances_of_it_and_answer_as_the_copies() {
     }
 }
 
+/// Runs `raypick pick -q` on the file (it must succeed); its name as given, and what it wrote
+/// on standard error.
+fn quiet_pick_stderr(path: &Path) -> (String, String) {
+    let name = path.display().to_string();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_raypick"))
+        .args(["pick", "--backend", "cpu", "-q", "--scene", &name])
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{stderr}");
+    (name, stderr)
+}
+
 #[test]
 fn a_file_that_places_no_triangle_says_so_once() {
     let dir = TempDir::new();
@@ -1072,14 +1086,7 @@ fn a_file_that_places_no_triangle_says_so_once() {
         ),
     ] {
         let path = dir.write_json(file, &asset.gltf(rest));
-        let name = path.display().to_string();
-        let out = std::process::Command::new(env!("CARGO_BIN_EXE_raypick"))
-            .args(["pick", "--backend", "cpu", "-q", "--scene", &name])
-            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success(), "{stderr}");
+        let (name, stderr) = quiet_pick_stderr(&path);
         let warning =
             format!("warning: {name}: no triangle is placed ({why}), so it adds no object");
         assert_eq!(stderr.matches(&warning).count(), 1, "{stderr}");
@@ -1263,14 +1270,7 @@ fn primitives_too_short_for_a_triangle_are_kept_and_said_once() {
     let objects = load_gltf(&path).unwrap();
     let triangles: Vec<usize> = objects.iter().map(|(_, m)| m.triangles.len()).collect();
     assert_eq!(triangles, [1, 0, 0]);
-    let name = path.display().to_string();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_raypick"))
-        .args(["pick", "--backend", "cpu", "-q", "--scene", &name])
-        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
+    let (name, stderr) = quiet_pick_stderr(&path);
     let warning = format!(
         "warning: {name}: 2 triangle primitive(s) give no triangle (too few vertices; the first: \
          mesh 0 ('short') primitive 1), so their objects cannot be hit"
