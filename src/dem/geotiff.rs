@@ -74,6 +74,8 @@ pub fn read_geotiff(mut reader: impl Read + Seek, name: &str) -> Result<Elevatio
         .and_then(|end| reader.seek(SeekFrom::Start(0)).map(|_| end))
         .map_err(|e| io_error(name, e))?;
 
+    check_text_tags(&mut reader, file_bytes).map_err(fail)?;
+
     // Tags are read under the decoder's default limits, so a tag claiming a huge value count
     // cannot make it reserve gigabytes before reading anything (found by fuzzing: a 98-byte
     // file asked for 16 GiB). The limits are raised only for the raster itself, below.
@@ -674,6 +676,127 @@ impl Placement<'_> {
 }
 
 /// Maps a `tiff` crate error to ours; a short read means the file is truncated.
+/// Refuses a text (ASCII) tag of the first image whose bytes lie past the end of the file (or
+/// are more than the decoder's limit for one value), before the decoder reads the header: the `tiff` crate reads any tag of that type (the sample
+/// format given as text, say) into memory it sizes by the claimed count, and one over its limit
+/// printed a `dbg!` line on standard error before its error ("image too large for the
+/// decoder"). Anything else amiss in the header is left to the decoder; the reader is put back
+/// at the start.
+fn check_text_tags(reader: &mut (impl Read + Seek), file_bytes: u64) -> Result<(), String> {
+    const ASCII: u16 = 2;
+    let mut head = [0u8; 16];
+    let got = read_up_to(reader, &mut head)?;
+    let little = match &head[..2] {
+        b"II" => true,
+        b"MM" => false,
+        _ => return rewind(reader),
+    };
+    let u16_at = |b: &[u8]| {
+        let b = [b[0], b[1]];
+        if little {
+            u16::from_le_bytes(b)
+        } else {
+            u16::from_be_bytes(b)
+        }
+    };
+    let u32_at = |b: &[u8]| {
+        let b = [b[0], b[1], b[2], b[3]];
+        if little {
+            u32::from_le_bytes(b)
+        } else {
+            u32::from_be_bytes(b)
+        }
+    };
+    let u64_at = |b: &[u8]| {
+        let b: [u8; 8] = b[..8].try_into().expect("eight bytes");
+        if little {
+            u64::from_le_bytes(b)
+        } else {
+            u64::from_be_bytes(b)
+        }
+    };
+    // Classic TIFF: 12-byte entries, 4-byte counts and values; BigTIFF: 20, 8 and 8.
+    let big = match (got >= 8, u16_at(&head[2..4])) {
+        (true, 42) => false,
+        (true, 43) if got >= 16 => true,
+        _ => return rewind(reader),
+    };
+    let first = if big {
+        u64_at(&head[8..16])
+    } else {
+        u64::from(u32_at(&head[4..8]))
+    };
+    let (count_bytes, entry_bytes, inline) = if big { (8, 20, 8) } else { (2, 12, 4) };
+    let mut count = [0u8; 8];
+    // A directory that cannot be reached is the decoder's to report.
+    if reader.seek(SeekFrom::Start(first)).is_err()
+        || read_up_to(reader, &mut count[..count_bytes])? < count_bytes
+    {
+        return rewind(reader);
+    }
+    let entries = if big {
+        u64_at(&count)
+    } else {
+        u64::from(u16_at(&count))
+    };
+    // No more entries than the file holds after the count.
+    let room = file_bytes.saturating_sub(first + count_bytes as u64) / entry_bytes as u64;
+    let mut entry = [0u8; 20];
+    for _ in 0..entries.min(room) {
+        if read_up_to(reader, &mut entry[..entry_bytes])? < entry_bytes {
+            break;
+        }
+        let (tag, kind) = (u16_at(&entry[0..2]), u16_at(&entry[2..4]));
+        if kind != ASCII {
+            continue;
+        }
+        let (bytes, offset) = if big {
+            (u64_at(&entry[4..12]), u64_at(&entry[12..20]))
+        } else {
+            (
+                u64::from(u32_at(&entry[4..8])),
+                u64::from(u32_at(&entry[8..12])),
+            )
+        };
+        if bytes > inline && offset.checked_add(bytes).is_none_or(|end| end > file_bytes) {
+            return Err(format!(
+                "the text of tag {tag} claims {bytes} bytes at offset {offset}, past the end of \
+                 the file ({file_bytes} bytes): the file is truncated or corrupt"
+            ));
+        }
+        let most = Limits::default().decoding_buffer_size as u64;
+        if bytes > most {
+            return Err(format!(
+                "the text of tag {tag} claims {bytes} bytes, more than the {most} the decoder \
+                 reads"
+            ));
+        }
+    }
+    rewind(reader)
+}
+
+/// Reads into `buf` until it is full or the reader ends; how many bytes were read.
+fn read_up_to(reader: &mut impl Read, buf: &mut [u8]) -> Result<usize, String> {
+    let mut got = 0;
+    while got < buf.len() {
+        match reader.read(&mut buf[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(format!("reading the TIFF header failed: {e}")),
+        }
+    }
+    Ok(got)
+}
+
+/// Puts the reader back at the start of the file.
+fn rewind(reader: &mut impl Seek) -> Result<(), String> {
+    reader
+        .seek(SeekFrom::Start(0))
+        .map(|_| ())
+        .map_err(|e| format!("reading the TIFF header failed: {e}"))
+}
+
 fn tiff_error(name: &str, what: &str, e: TiffError) -> Error {
     let message = match e {
         TiffError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {

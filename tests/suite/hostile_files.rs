@@ -1099,6 +1099,52 @@ fn a_tiff_offset_past_its_file_says_what_failed() {
     );
 }
 
+/// A tag the decoder reads itself (the sample format, the compression, …) given as text of 2^30
+/// bytes in a 730-byte GeoTIFF: refused in one line naming the tag (the `tiff` crate printed a
+/// `dbg!` line with its build path before its "image too large" error). Classic and BigTIFF.
+#[test]
+fn a_tiff_tag_given_as_text_past_the_file_is_refused_in_one_line() {
+    let dir = TempDir::new("tiff-text-tag");
+    let mut bytes = Vec::new();
+    {
+        use tiff::encoder::{TiffEncoder, colortype::Gray16};
+        let mut encoder = TiffEncoder::new(std::io::Cursor::new(&mut bytes)).unwrap();
+        encoder.write_image::<Gray16>(2, 2, &[1, 2, 3, 4]).unwrap();
+    }
+    // The first directory's entries: a u32 offset at 4, a u16 count, 12-byte entries.
+    let first = u32::from_le_bytes(bytes[4..8].try_into().unwrap()) as usize;
+    let count = u16::from_le_bytes([bytes[first], bytes[first + 1]]) as usize;
+    for tag in [258u16, 259, 262, 277] {
+        let mut patched = bytes.clone();
+        let at = (0..count)
+            .map(|k| first + 2 + 12 * k)
+            .find(|&e| u16::from_le_bytes([patched[e], patched[e + 1]]) == tag)
+            .expect("the encoder writes the tag");
+        patched[at + 2..at + 4].copy_from_slice(&2u16.to_le_bytes());
+        patched[at + 4..at + 8].copy_from_slice(&(1u32 << 30).to_le_bytes());
+        patched[at + 8..at + 12].copy_from_slice(&16u32.to_le_bytes());
+        let file = dir.write(&format!("text-{tag}.tif"), &patched);
+        assert_scene_refused(
+            &file,
+            &format!("the text of tag {tag} claims 1073741824 bytes at offset 16, past the end"),
+        );
+    }
+    // BigTIFF: a header, one directory of one 20-byte entry (the width, as text, 2^40 bytes).
+    let mut big = b"II+\0\x08\0\0\0".to_vec();
+    big.extend_from_slice(&16u64.to_le_bytes());
+    big.extend_from_slice(&1u64.to_le_bytes());
+    big.extend_from_slice(&256u16.to_le_bytes());
+    big.extend_from_slice(&2u16.to_le_bytes());
+    big.extend_from_slice(&(1u64 << 40).to_le_bytes());
+    big.extend_from_slice(&8u64.to_le_bytes());
+    big.extend_from_slice(&0u64.to_le_bytes());
+    let file = dir.write("text-big.tif", &big);
+    assert_scene_refused(
+        &file,
+        "the text of tag 256 claims 1099511627776 bytes at offset 8",
+    );
+}
+
 // --- Grids whose stray values make the frame too coarse for their cells ----------------------
 
 /// An ASCII grid of 10-unit cells with one undeclared NODATA spike of 10¹⁰: the object is
