@@ -14,19 +14,26 @@ use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyString};
 use raypick::auto::AutoPicker;
-use raypick::io::scene_files::{SceneFile, load_description, load_scene};
+use raypick::io::scene_files::{Loaded, SceneFile, load_description, load_instanced};
 use raypick::{
     Backend, BuildOptions, Builder, BuiltScene, CpuPicker, Mesh, Picker, ReferencePicker, rpk,
 };
 use std::collections::HashSet;
 use std::path::PathBuf;
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 
 /// A scene and its tree, ready to pick. Load one with `Scene.load(paths)` or make one with
 /// `Scene.from_arrays(vertices, triangles)`.
 #[pyclass(name = "Scene", module = "raypick", frozen)]
 pub struct Scene {
+    /// What `pick` answers on: an instanced scene where a file is listed several times or
+    /// glTF nodes share a mesh, as the CLI's `pick` builds it.
     built: Arc<BuiltScene>,
+    /// How an instanced scene's copies are built for `los` and `viewshed`.
+    options: BuildOptions,
+    /// An instanced scene's instances baked into objects, for `los` and `viewshed`, which pick
+    /// copies as the CLI's `los` and `viewshed` do: made on first use.
+    baked: OnceLock<Box<Scene>>,
     /// The GPU picker (`backend="gpu"`), made on first use: it holds the scene's buffers;
     /// with the process that made it (a forked child cannot use its parent's device).
     gpu: Mutex<Option<(u32, Box<dyn Picker + Send>)>>,
@@ -58,9 +65,11 @@ fn own<T>(owner: u32, picker: T) -> Option<T> {
 }
 
 impl Scene {
-    fn new(built: BuiltScene) -> Self {
+    fn new(built: BuiltScene, options: BuildOptions) -> Self {
         Self {
             built: Arc::new(built),
+            options,
+            baked: OnceLock::new(),
             gpu: Mutex::new(None),
             auto: Mutex::new(Auto::Unopened),
         }
@@ -73,7 +82,25 @@ impl Scene {
 
     /// Whether some object is a terrain grid (answers then carry `row` and `col`).
     pub fn has_grid(&self) -> bool {
-        self.built.scene.objects().iter().any(|o| o.grid.is_some())
+        self.built.has_grid()
+    }
+
+    /// The scene `los` and `viewshed` answer on: this one, or an instanced scene's copies
+    /// (the same objects, ids and names), built on first use as the CLI's `los` builds them.
+    pub fn for_sight(&self, py: Python<'_>) -> PyResult<&Scene> {
+        let Some(instances) = self.built.instances() else {
+            return Ok(self);
+        };
+        if let Some(baked) = self.baked.get() {
+            return Ok(baked);
+        }
+        let options = &self.options;
+        let built = py
+            .detach(|| threads::run(|| BuiltScene::new(instances.baked()?, options)))?
+            .map_err(to_py)?;
+        // Another thread may have made it meanwhile: the same scene either way.
+        let _ = self.baked.set(Box::new(Scene::new(built, options.clone())));
+        Ok(self.baked.get().expect("set just above"))
     }
 
     /// Runs `work` on `backend`'s picker, telling it whether the picker may run on a GPU (call
@@ -407,20 +434,11 @@ impl Scene {
             }
             let path = paths[0].clone();
             let built = py
-                .detach(|| {
-                    threads::run(|| {
-                        let built = rpk::load(&path)?;
-                        // A saved instanced scene is picked here as copies, as a description
-                        // loads (the same object ids and names), built as by default (as the
-                        // CLI's commands that bake one build it).
-                        match built.instances() {
-                            Some(i) => BuiltScene::new(i.baked()?, &BuildOptions::default()),
-                            None => Ok(built),
-                        }
-                    })
-                })?
+                .detach(|| threads::run(|| rpk::load(&path)))?
                 .map_err(to_py)?;
-            return Ok(Scene::new(built));
+            // A saved instanced scene is picked as its instances, as the CLI's `pick` picks
+            // it; `los` and `viewshed` bake its copies as by default (as the CLI's do).
+            return Ok(Scene::new(built, BuildOptions::default()));
         }
         let options = build_options(builder, leaf_size)?;
         // The readers' warnings (a file that gave no triangle, …) are collected on the thread
@@ -447,15 +465,22 @@ impl Scene {
                             });
                         }
                     }
-                    let scene = load_scene(&files).map_err(to_py)?;
-                    BuiltScene::new(scene, &options).map_err(to_py)
+                    // As the CLI's `pick` loads it: a file listed several times, or glTF nodes
+                    // sharing a mesh, built once per mesh and placed by its transforms.
+                    match load_instanced(&files).map_err(to_py)? {
+                        Loaded::Copies(scene) => BuiltScene::new(scene, &options),
+                        Loaded::Instanced(meshes, instances) => {
+                            BuiltScene::instanced(meshes, instances, &options)
+                        }
+                    }
+                    .map_err(to_py)
                 })
             })
         })?;
         warn_all(py, said)?;
         let built = built?;
         warn_frame(py, &built)?;
-        Ok(Scene::new(built))
+        Ok(Scene::new(built, options))
     }
 
     /// Scene.from_arrays(vertices, triangles, builder="auto", leaf_size=8)
@@ -487,7 +512,7 @@ impl Scene {
             })?
             .map_err(to_py)?;
         warn_frame(py, &built)?;
-        Ok(Scene::new(built))
+        Ok(Scene::new(built, options))
     }
 
     /// scene.save(path): writes the scene and its trees as an `.rpk` file, which
@@ -543,7 +568,7 @@ impl Scene {
         #[pyo3(from_py_with = name_arg::backend)] backend: &str,
     ) -> PyResult<Bound<'py, PyAny>> {
         let args = SightArgs::parse(epsilon, ray_mask, backend)?;
-        sight::los(py, self, a, b, &args)
+        sight::los(py, self.for_sight(py)?, a, b, &args)
     }
 
     /// scene.viewshed(observer, targets=None, target_height=0.0, epsilon=1e-6,
@@ -565,13 +590,20 @@ impl Scene {
         #[pyo3(from_py_with = name_arg::backend)] backend: &str,
     ) -> PyResult<Bound<'py, PyDict>> {
         let args = SightArgs::parse(epsilon, ray_mask, backend)?;
-        sight::viewshed(py, self, observer, targets, target_height, &args)
+        sight::viewshed(
+            py,
+            self.for_sight(py)?,
+            observer,
+            targets,
+            target_height,
+            &args,
+        )
     }
 
-    /// The number of triangles.
+    /// The number of triangles (an instanced scene's counted once per instance).
     #[getter]
-    fn triangle_count(&self) -> usize {
-        self.built.scene.triangle_count()
+    fn triangle_count(&self) -> u64 {
+        self.built.world_triangle_count()
     }
 
     /// The objects, in id order: dicts with `id`, `name`, `triangles`, `mask` and `grid`
@@ -579,14 +611,28 @@ impl Scene {
     #[getter]
     fn objects<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
         let list = PyList::empty(py);
-        for o in self.built.scene.objects() {
+        let add = |id: u32, name: &str, o: &raypick::scene::Object, mask: u32| -> PyResult<()> {
             let d = PyDict::new(py);
-            d.set_item("id", o.id)?;
-            d.set_item("name", &o.name)?;
+            d.set_item("id", id)?;
+            d.set_item("name", name)?;
             d.set_item("triangles", o.triangle_count)?;
-            d.set_item("mask", o.mask)?;
+            d.set_item("mask", mask)?;
             d.set_item("grid", o.grid.map(|g| (g.rows, g.columns)))?;
-            list.append(d)?;
+            list.append(d)
+        };
+        match self.built.instances() {
+            // An instance is its mesh's object, under the instance's name and mask.
+            Some(instances) => {
+                for (k, i) in instances.instances().iter().enumerate() {
+                    let mesh = &instances.meshes()[i.mesh as usize].scene;
+                    add(k as u32, &i.name, &mesh.objects()[0], i.mask)?;
+                }
+            }
+            None => {
+                for o in self.built.scene.objects() {
+                    add(o.id, &o.name, o, o.mask)?;
+                }
+            }
         }
         Ok(list)
     }
@@ -594,7 +640,7 @@ impl Scene {
     /// The world bounds as two float64 arrays (min, max), or None for an empty scene.
     #[getter]
     fn bounds<'py>(&self, py: Python<'py>) -> Option<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-        self.built.scene.bounds().map(|(lo, hi)| {
+        self.built.bounds().map(|(lo, hi)| {
             (
                 lo.to_array().to_pyarray(py).into_any(),
                 hi.to_array().to_pyarray(py).into_any(),
@@ -603,11 +649,11 @@ impl Scene {
     }
 
     fn __repr__(&self) -> String {
-        let objects = self.built.scene.objects().len();
+        let objects = self.built.object_count();
         format!(
             "raypick.Scene({objects} object{}, {} triangles)",
             if objects == 1 { "" } else { "s" },
-            self.built.scene.triangle_count()
+            self.built.world_triangle_count()
         )
     }
 }
