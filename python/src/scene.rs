@@ -99,7 +99,7 @@ impl Scene {
             .detach(|| threads::run(|| BuiltScene::new(instances.baked()?, options)))?
             .map_err(to_py)?;
         // Another thread may have made it meanwhile: the same scene either way.
-        let _ = self.baked.set(Box::new(Scene::new(built, options.clone())));
+        let _ = self.baked.set(Box::new(Scene::new(built, *options)));
         Ok(self.baked.get().expect("set just above"))
     }
 
