@@ -164,6 +164,11 @@ def pick(scene, rays, *, masks=None, builder=None, leaf_size=None, **query):
         raise ValueError("rays has unknown chunk sizes; call rays.compute_chunk_sizes() first")
     if len(rays.chunks[1]) != 1:
         rays = rays.rechunk({1: 6})
+    # Empty chunks (rays filtered by a mask, say) are left out: dask's cumsum of the all-hits
+    # counts fails on an empty chunk before the last.
+    kept = tuple(c for c in rays.chunks[0] if c) or (0,)
+    if kept != rays.chunks[0]:
+        rays = rays.rechunk({0: kept})
 
     pid = os.getpid()
     layout = dask.delayed(_layout, pure=False)(key, query, pid).compute()

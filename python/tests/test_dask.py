@@ -83,6 +83,24 @@ def test_threads_scheduler_without_a_cluster(bunny):
     assert_same_answers(bunny.pick(rays), got)
 
 
+def test_rays_filtered_into_empty_chunks(bunny):
+    """Rays filtered by a mask leave empty chunks: mode all failed in dask's cumsum of the
+    hit counts when one came before the last (`operands could not be broadcast`)."""
+    rays = np.random.default_rng(6).normal(size=(9_000, 6))
+    rays[:, 2] += 20
+    rays[:3_000, 5] = 1.0  # the first chunk's rays all point up: filtered out below
+    x = da.from_array(rays, chunks=(3_000, 6))
+    down = x[x[:, 5] < 0].compute_chunk_sizes()
+    assert down.chunks[0][0] == 0
+    kept, = dask.compute(down, scheduler="threads")
+    for mode in ["all", "closest"]:
+        got, = dask.compute(raypick.dask.pick(BUNNY, down, mode=mode), scheduler="threads")
+        assert_same_answers(bunny.pick(kept, mode=mode), got)
+    nothing = x[x[:, 0] > 1e9].compute_chunk_sizes()
+    got, = dask.compute(raypick.dask.pick(BUNNY, nothing, mode="all"), scheduler="threads")
+    assert list(got["offsets"]) == [0] and len(got["ray"]) == 0
+
+
 def test_refusals(client, bunny):
     rays = da.zeros((10, 6), chunks=(5, 6))
     with pytest.raises(ValueError, match="needs the scene's path"):
