@@ -44,12 +44,23 @@ pub fn float(value: &Bound<'_, PyAny>, argument: &str) -> PyResult<f64> {
 
 /// `tmin=`.
 pub fn tmin(value: &Bound<'_, PyAny>) -> PyResult<f64> {
-    float(value, "tmin")
+    ray_parameter(value, "tmin")
 }
 
 /// `tmax=`.
 pub fn tmax(value: &Bound<'_, PyAny>) -> PyResult<f64> {
-    float(value, "tmax")
+    ray_parameter(value, "tmax")
+}
+
+/// A ray parameter: a number or ±inf, not NaN, which no `t` compares with (every ray came back
+/// invalid without a word; the CLI refuses `--tmin NaN`).
+fn ray_parameter(value: &Bound<'_, PyAny>, argument: &str) -> PyResult<f64> {
+    match float(value, argument)? {
+        t if t.is_nan() => Err(value_error(format!(
+            "{argument} is NaN; give a ray parameter (a number, or inf)"
+        ))),
+        t => Ok(t),
+    }
 }
 
 /// `epsilon=`.

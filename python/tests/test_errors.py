@@ -538,6 +538,12 @@ def test_float_arguments_refuse_bools_and_ints_past_a_float(bunny, dem):
             with pytest.raises(ValueError) as e:
                 call(value)
             assert one_sentence(e).startswith(f"{argument} is out of range"), one_sentence(e)
+    # NaN, which no t compares with, made every ray invalid without a word (the CLI refuses it).
+    for argument in ["tmin", "tmax"]:
+        for value in [float("nan"), np.float32("nan")]:
+            with pytest.raises(ValueError) as e:
+                calls[argument](value)
+            assert one_sentence(e) == f"{argument} is NaN; give a ray parameter (a number, or inf)"
     want = bunny.pick(rays, tmin=0.0, tmax=1e9)
     for tmin, tmax in [(0, 10**9), (np.float32(0), np.float64(1e9)), (np.int64(0), 1e9)]:
         got = bunny.pick(rays, tmin=tmin, tmax=tmax)

@@ -3,7 +3,8 @@
 //! or too narrow for the f32 tests' products ([`reach::scale_fault`]), triangles with no area
 //! and triangles the frame loses ([`crate::bvh::lost`]), objects or instances it rounds too
 //! coarsely, and triangles of a resolved object rounded out of shape
-//! ([`reach::unresolved_triangles`]). Without them, picks on those parts would be missed or
+//! ([`reach::unresolved_triangles`]); and before them, parts placed so far from the world's
+//! origin that f64 itself rounds them out of shape ([`reach::unresolved_in_world`]). Without them, picks on those parts would be missed or
 //! off without a word.
 
 use super::reach::{self, f32_step, unresolved_objects, unresolved_triangles};
@@ -14,6 +15,22 @@ use glam::DVec3;
 /// The warnings for `built`, each one sentence, most basic first; empty for a sound scene.
 pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
     let mut said = Vec::new();
+    // Parts placed so far from the world's origin for their size that f64 itself rounds them
+    // out of shape (a small mesh 10¹⁶ out): no frame gives those positions back.
+    let (in_world, kind) = match built.instances() {
+        None => (reach::unresolved_in_world(&built.scene), "object"),
+        Some(i) => (i.unresolved_in_world(), "instance"),
+    };
+    if let Some(first) = in_world.first() {
+        let others = match in_world.len() {
+            1 => String::new(),
+            n => format!("{n} {kind}s are too small for where they lie in the world; the first, "),
+        };
+        said.push(format!(
+            "{others}{}",
+            first.describe_in_world(&format!("{kind} {}", first.part))
+        ));
+    }
     // The frames: the scene's, or each of an instanced scene's meshes' (a mesh lies in a frame
     // of its own), with whether it is a mesh's.
     let frames: Vec<(&Scene, DVec3, bool)> = match built.instances() {

@@ -34,6 +34,17 @@ pub fn f32_step(reach: f64) -> f64 {
     f64::from(x.next_up() - x)
 }
 
+/// The spacing of f64 values `reach` units from zero: what world positions that far from the
+/// world's origin are rounded to, before any frame (2 units at 10¹⁶). Infinite past f64's range.
+pub fn f64_step(reach: f64) -> f64 {
+    let x = reach.abs();
+    if x.is_finite() {
+        x.next_up() - x
+    } else {
+        f64::INFINITY
+    }
+}
+
 /// How finely an instanced scene places rays `reach` units from its frame's origin: f32
 /// offsets refined by a half-float rest (`frame::put_origin_lo`: 11 more bits, and no finer
 /// than the subnormal half floats' 2^-24).
@@ -134,6 +145,20 @@ impl Unresolved {
         self.describe_asking(what, "are some objects in other coordinates?")
     }
 
+    /// The sentence for a part measured in world f64 ([`f64_step`] from the world's origin):
+    /// placed that far for its size, its positions were rounded out of shape when it was
+    /// loaded or placed, and no frame gives them back.
+    pub fn describe_in_world(&self, what: &str) -> String {
+        format!(
+            "{what} lies {} from the world's origin, where double precision rounds positions to \
+             {:.1e} units: too coarse for its {:.3e} units, so its triangles are rounded out of \
+             shape and picks on it are off (give its coordinates in a frame nearer the origin)",
+            units(self.reach),
+            self.step,
+            self.size
+        )
+    }
+
     /// [`Unresolved::describe`] with the question `question` at its end.
     pub fn describe_asking(&self, what: &str, question: &str) -> String {
         let rounds = if self.step.is_finite() {
@@ -158,13 +183,24 @@ impl Unresolved {
 /// resolve ([`Unresolved::of`] with [`f32_step`]), in id order; objects with layer mask 0 (never
 /// hit: removed) are not counted. One pass over the vertices.
 pub fn unresolved_objects(scene: &Scene, origin: DVec3) -> Vec<Unresolved> {
+    unresolved_objects_by(scene, origin, f32_step)
+}
+
+/// The objects of `scene` that world f64 does not resolve where they lie ([`Unresolved::of`]
+/// with [`f64_step`] from the world's origin), in id order, as [`unresolved_objects`] counts.
+pub fn unresolved_in_world(scene: &Scene) -> Vec<Unresolved> {
+    unresolved_objects_by(scene, DVec3::ZERO, f64_step)
+}
+
+/// [`unresolved_objects`] with steps `step(reach)`.
+fn unresolved_objects_by(scene: &Scene, origin: DVec3, step: fn(f64) -> f64) -> Vec<Unresolved> {
     scene
         .objects()
         .par_iter()
         .filter(|o| o.triangle_count > 0 && o.mask != 0)
         .filter_map(|o| {
             let b = box_of(scene.object_vertices(o.id).map(|v| scene.position(v)));
-            Unresolved::of(o.id, b, origin, f32_step)
+            Unresolved::of(o.id, b, origin, step)
         })
         .collect()
 }
@@ -257,6 +293,9 @@ mod tests {
         assert_eq!(f32_step(-5e8), 32.0);
         assert_eq!(f32_step(1e39), f64::INFINITY);
         assert_eq!(ray_step(5e8), 32.0 / 2048.0);
+        assert_eq!(f64_step(1e16), 2.0);
+        assert_eq!(f64_step(-1.0), f64::EPSILON);
+        assert_eq!(f64_step(f64::INFINITY), f64::INFINITY);
     }
 
     /// Two one-unit boxes: nearby both are resolved; 10⁸ apart, the frame's centre lies 5 × 10⁷

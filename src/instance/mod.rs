@@ -818,6 +818,19 @@ impl Instances {
             .collect()
     }
 
+    /// The instances that can be hit whose world boxes world f64 does not resolve where they
+    /// lie ([`crate::frame::reach::f64_step`] from the world's origin: placed that far for their
+    /// size, their world positions, and so the refined answers, are rounded out of shape), in
+    /// id order.
+    pub fn unresolved_in_world(&self) -> Vec<crate::frame::reach::Unresolved> {
+        use crate::frame::reach::{Unresolved, f64_step};
+        let boxes = self.world_boxes();
+        (0..self.instances.len())
+            .filter(|&k| self.instances[k].mask != 0)
+            .filter_map(|k| Unresolved::of(k as u32, boxes[k]?, DVec3::ZERO, f64_step))
+            .collect()
+    }
+
     /// Instance `k`, where it is placed now, when it can be hit and the frame does not resolve it.
     fn unresolved_at(&self, k: usize) -> Option<crate::frame::reach::Unresolved> {
         self.unresolved_in(k, self.world_box(k)?)

@@ -299,3 +299,57 @@ fn bad_transforms_are_refused_with_a_sentence_naming_the_object() {
         }
     }
 }
+
+/// A transform that places a 1-unit box 10¹⁶ out, where f64 values are 2 units apart: its world
+/// positions are rounded out of shape when it is placed, so its picks are off (a bunny there
+/// answered another triangle, or a normal across the ray) without a word. Warned about now, as
+/// copies (listed once) and as instances (listed twice); the same box 10⁶ out is not.
+#[test]
+fn a_part_placed_where_f64_cannot_hold_its_shape_is_warned_about() {
+    let dir = folder("f64-far");
+    std::fs::write(dir.join("box.obj"), obj(&box_mesh(DVec3::ZERO, DVec3::ONE))).unwrap();
+    let rays = dir.join("rays.txt");
+    std::fs::write(&rays, "0 0 5 0 0 -1\n").unwrap();
+    let say = "lies 1.000e16 units from the world's origin, where double precision rounds \
+               positions to 2.0e0 units: too coarse for its ";
+    for (x, listed, warned) in [
+        ("1e16", 1, Some("object 0 ")),
+        (
+            "1e16",
+            2,
+            Some("2 instances are too small for where they lie in the world"),
+        ),
+        ("1e6", 1, None),
+        ("1e6", 2, None),
+    ] {
+        let entry = format!(
+            r#"{{"file": "box.obj", "transform": [[1, 0, 0, {x}], [0, 1, 0, 0], [0, 0, 1, 0]]}}"#
+        );
+        let description = dir.join(format!("far-{x}-{listed}.json"));
+        let entries = vec![entry; listed].join(", ");
+        std::fs::write(&description, format!(r#"{{"objects": [{entries}]}}"#)).unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
+            .args(["pick", "-q", "--backend", "cpu", "--scenes"])
+            .arg(&description)
+            .arg("--rays")
+            .arg(&rays)
+            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{x} ×{listed}: {stderr}");
+        match warned {
+            Some(what) => {
+                assert!(
+                    stderr.contains(what) && stderr.contains(say),
+                    "{x} ×{listed}: {stderr}"
+                );
+                assert_eq!(stderr.matches("world's origin").count(), 1, "{stderr}");
+            }
+            None => assert!(
+                !stderr.contains("world's origin"),
+                "{x} ×{listed}: {stderr}"
+            ),
+        }
+    }
+}
