@@ -11,7 +11,7 @@ use crate::errors::{collect_for, value_error, vec_for};
 use crate::pick::{QueryArgs, answer};
 use crate::scene::{Scene, parse_name};
 use numpy::{IntoPyArray, PyArrayMethods};
-use pyo3::exceptions::PyRuntimeWarning;
+use pyo3::exceptions::{PyRuntimeWarning, PyUserWarning};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rayon::prelude::*;
@@ -77,6 +77,13 @@ fn visible(
         backend: args.backend,
         ray_mask: args.ray_mask,
     };
+    // As the CLI warns: ends so long (an observer far out) that ε skips the scene.
+    if let Some(warning) =
+        raypick::apps::sight::long_ends(scene.built().bounds(), segments, eps, what, "epsilon")
+    {
+        py.import("warnings")?
+            .call_method1("warn", (warning, py.get_type::<PyUserWarning>(), 3))?;
+    }
     let mut seen = vec_for::<bool>(segments.len(), "the visibility column")?;
     let mut invalid = 0usize;
     answer(py, scene, segments.len(), &read, &query, |answers| {

@@ -751,3 +751,19 @@ def test_what_the_readers_warn_of_is_a_user_warning_not_standard_error(tmp_path,
     assert any(str(empty) in m and "no face" in m for m in messages), messages
     assert any(str(short) in m and "fewer than 3 vertices" in m for m in messages), messages
     assert capfd.readouterr().err == ""
+
+
+def test_segments_whose_ends_skip_the_scene_are_warned_about(bunny):
+    """From 10⁹ units out the default epsilon skips the last 1,000 units of every segment, more
+    than the bunny, so everything reads visible: the CLI warned on standard error, Python said
+    nothing. Now a UserWarning with the CLI's words; segments near the scene are not warned of."""
+    lo, hi = bunny.bounds
+    centre = (lo + hi) / 2
+    with pytest.warns(UserWarning, match=r"2 pair\(s\) ignore more than a thousandth of the "
+                                         r"scene's size at each end \(epsilon 0\.000001 of"):
+        seen = bunny.los([[1e9, 0, 0], [0, 1e9, 0]], centre)
+    assert seen.all()
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        bunny.los(lo - 1, hi + 1)

@@ -94,7 +94,11 @@ fn visible(
                 .with_mask(sight.ray_mask)
         })
         .collect();
-    warn_long_ends(&built, segments, eps, what);
+    if let Some(warning) =
+        raypick::apps::sight::long_ends(built.bounds(), segments, eps, what, "--epsilon")
+    {
+        eprintln!("warning: {warning}");
+    }
     let mut picker = make_picker(sight.backend, built)?;
     // Again with what a GPU's driver left (under `ulimit -v` its mappings count).
     super::check_rays(
@@ -115,35 +119,6 @@ fn visible(
         .iter()
         .map(|h| !h.hit && !h.invalid)
         .collect())
-}
-
-/// Warns when segments ignore ends longer than a thousandth of the scene's size: ε is a part
-/// of each segment's length, so from an observer 10⁹ units out the default ε skips the last
-/// 1,000 units of every segment, more than a 100-unit scene, and everything reads visible.
-fn warn_long_ends(built: &BuiltScene, segments: &[(DVec3, DVec3)], eps: f64, what: &str) {
-    let Some((lo, hi)) = built.bounds() else {
-        return;
-    };
-    let size = (hi - lo).length();
-    // Scaled first, so that no square overflows.
-    let ends = |&(a, b): &(DVec3, DVec3)| eps * raypick::scene::scaled_length(b - a);
-    let long = segments.iter().filter(|s| ends(s) > size * 1e-3).count();
-    if long > 0 {
-        let longest = segments.iter().map(ends).fold(0.0, f64::max);
-        // A segment longer than f64 holds (ends 10^200 apart: its squared length overflowed,
-        // and the warning said "up to 0.000e0 units").
-        let longest = if longest.is_finite() {
-            format!("{longest:.3e} units")
-        } else {
-            "more units than f64 holds".to_owned()
-        };
-        eprintln!(
-            "warning: {long} {what}(s) ignore more than a thousandth of the scene's size at each \
-             end (--epsilon {} of their length: up to {longest}, the scene being {size:.3e} \
-             across); give a smaller --epsilon for ends this far apart",
-            csv_number(eps)
-        );
-    }
 }
 
 /// A finite number of an argument, or an error naming it.
