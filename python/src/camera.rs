@@ -10,7 +10,7 @@ use crate::arrays::{self, Dtype};
 use crate::errors::{to_py, value_error, vec_for};
 use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyString};
+use pyo3::types::{IntoPyDict, PyDict, PyString};
 use rayon::prelude::*;
 use raypick::Ray;
 use raypick::apps::camera::Camera;
@@ -21,7 +21,14 @@ fn camera_of(camera: &Bound<'_, PyAny>) -> PyResult<Camera> {
         camera
             .py()
             .import("json")?
-            .call_method1("dumps", (camera,))
+            // NaN and infinities refused here, in Python's words ("Out of range float values are
+            // not JSON compliant: nan"): written as JSON's non-standard `NaN`, the parse below
+            // said "camera:1: expected value (column 26)" of text the user never wrote.
+            .call_method(
+                "dumps",
+                (camera,),
+                Some(&[("allow_nan", false)].into_py_dict(camera.py())?),
+            )
             .map_err(|e| {
                 value_error(format!(
                     "camera cannot be written as JSON ({})",

@@ -314,8 +314,21 @@ fn path_list(paths: &Bound<'_, PyAny>) -> PyResult<Vec<PathBuf>> {
         ))
     };
     let items = paths.try_iter().map_err(|_| wrong())?;
+    // An item that is not a path is named by its place ("got list" named the list).
     items
-        .map(|item| item.and_then(|i| i.extract::<PathBuf>().map_err(|_| wrong())))
+        .enumerate()
+        .map(|(k, item)| {
+            let item = item?;
+            item.extract::<PathBuf>().map_err(|_| {
+                value_error(format!(
+                    "paths[{k}] must be a path (str or os.PathLike); got {}",
+                    item.get_type()
+                        .name()
+                        .map(|n| n.to_string())
+                        .unwrap_or_default()
+                ))
+            })
+        })
         .collect()
 }
 

@@ -112,6 +112,8 @@ def test_bad_load_arguments(bunny, tmp_path):
     cases = [
         (lambda: raypick.Scene.load([]), "paths is empty; give at least one scene file"),
         (lambda: raypick.Scene.load(3), "paths must be a path or a list of paths; got int"),
+        (lambda: raypick.Scene.load([BUNNY, b"x.obj"]),
+         "paths[1] must be a path (str or os.PathLike); got bytes"),
         (lambda: raypick.Scene.load(BUNNY, builder="octree"),
          "builder: unknown value octree (expected one of: auto, median-cut, sah, grid)"),
         (lambda: raypick.Scene.load(BUNNY, builder="grid"),
@@ -184,6 +186,14 @@ def test_bad_cameras_and_pixels():
     with pytest.raises(ValueError) as e:
         raypick.camera_rays(42)
     assert one_sentence(e) == "camera must be a dict (the CLI's camera JSON) or JSON text; got int"
+    # NaN was written as JSON's non-standard NaN and refused as "camera:1: expected value
+    # (column 26)", of text the user never wrote.
+    for bad in [float("nan"), float("inf")]:
+        with pytest.raises(ValueError) as e:
+            raypick.camera_rays({"perspective": dict(good["perspective"], eye=[bad, 0, 10])})
+        assert one_sentence(e).startswith(
+            "camera cannot be written as JSON (Out of range float values are not JSON compliant"
+        ), one_sentence(e)
     with pytest.raises(ValueError) as e:
         raypick.camera_rays(good, np.zeros((3, 3)))
     assert one_sentence(e) == "pixels must be a numeric array of shape (N, 2); got shape (3, 3)"

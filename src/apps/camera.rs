@@ -519,12 +519,27 @@ impl Camera {
                 crate::error::shorten_tokens(full.strip_suffix(&suffix).unwrap_or(&full), 300);
             // serde_json says only "expected value" when well-formed JSON has the wrong keys at
             // the top (none, or more than one).
-            if message == "expected value"
-                && serde_json::from_str::<serde_json::Value>(text).is_ok()
-            {
+            let well_formed = || serde_json::from_str::<serde_json::Value>(text).is_ok();
+            if message == "expected value" && well_formed() {
                 message = "a camera file must be an object with exactly one key: \
                            `perspective`, `orthographic` or `matrices`"
                     .to_owned();
+            }
+            // In well-formed JSON serde_json says "trailing characters" of a list longer than
+            // the point or matrix it is read into (an `eye` of four numbers).
+            if message == "trailing characters" && well_formed() {
+                message = "a list has too many numbers (`eye`, `target` and `up` take 3, `view` \
+                           and `projection` 16)"
+                    .to_owned();
+            }
+            // A size of 2^64 or more is read as a float by serde_json, and a fraction is one.
+            if message.starts_with("invalid type: floating point")
+                && message.ends_with("expected u32")
+            {
+                message = format!(
+                    "{message}: `width` and `height` are whole numbers of pixels, 1 to {}",
+                    u32::MAX
+                );
             }
             if e.column() > 0 {
                 message = format!("{message} (column {})", e.column());

@@ -44,10 +44,24 @@ pub fn marquee(
     mask: u32,
 ) -> Result<Vec<Selected>> {
     let (w, h) = (camera.width(), camera.height());
-    if rect.x0 >= rect.x1 || rect.y0 >= rect.y1 || rect.x1 > w || rect.y1 > h || step == 0 {
+    let marquee = format!(
+        "marquee {}..{} × {}..{}",
+        rect.x0, rect.x1, rect.y0, rect.y1
+    );
+    // Each refusal says which: a step of 0, an empty marquee, or one reaching past the view.
+    if step == 0 {
         return Err(Error::Invalid(format!(
-            "marquee {}..{} × {}..{} (step {step}) is empty or outside the {w}×{h} view",
-            rect.x0, rect.x1, rect.y0, rect.y1
+            "the {marquee}'s step is 0; give a step of at least 1 (1 samples every pixel)"
+        )));
+    }
+    if rect.x0 >= rect.x1 || rect.y0 >= rect.y1 {
+        return Err(Error::Invalid(format!(
+            "{marquee} is empty: each range's end must be past its start"
+        )));
+    }
+    if rect.x1 > w || rect.y1 > h {
+        return Err(Error::Invalid(format!(
+            "{marquee} reaches past the {w}×{h} view (columns 0..{w}, rows 0..{h})"
         )));
     }
     let (columns, rows) = (

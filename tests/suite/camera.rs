@@ -444,6 +444,19 @@ fn malformed_camera_files_name_file_and_line() {
         ),
         ("", 1, "EOF"),
         ("not json", 1, "expected"),
+        // A list too long said "trailing characters"; a size of 2^64 "invalid type: floating
+        // point" alone.
+        (
+            r#"{"perspective": {"eye": [0, 0, 1, 0], "target": [0,0,0], "up": [0,1,0], "fov_y_deg": 45, "width": 8, "height": 6}}"#,
+            1,
+            "a list has too many numbers (`eye`, `target` and `up` take 3, `view` and \
+             `projection` 16) (column 35)",
+        ),
+        (
+            r#"{"perspective": {"eye": [0, 0, 1], "target": [0,0,0], "up": [0,1,0], "fov_y_deg": 45, "width": 18446744073709551616, "height": 6}}"#,
+            1,
+            "expected u32: `width` and `height` are whole numbers of pixels, 1 to 4294967295",
+        ),
     ];
     for (text, line, needle) in cases {
         let (path, got_line, message) = parse_error(Camera::from_json_str("cam.json", text));

@@ -733,9 +733,31 @@ fn select_and_idbuffer_frame_the_scene_without_a_camera() {
     let (code, out, err) = raypick(&["select", "--rect", "0", "0", "800", "600", "--step", "8"]);
     assert_eq!(code, 0, "{err}");
     assert_eq!(out.lines().count(), 4, "every object is in view: {out}");
-    let (code, _, err) = raypick(&["select", "--rect", "0", "0", "801", "600"]);
-    assert_eq!(code, 2, "outside the default 800 x 600 view");
-    assert!(err.contains("800×600"), "{err}");
+    // Each refusal says which it is (all three said "is empty or outside the view").
+    for (rect, step, says) in [
+        (
+            ["0", "0", "801", "600"],
+            "1",
+            "marquee 0..801 × 0..600 reaches past the 800×600 view (columns 0..800, rows 0..600)",
+        ),
+        (
+            ["10", "0", "10", "600"],
+            "1",
+            "marquee 10..10 × 0..600 is empty: each range's end must be past its start",
+        ),
+        (
+            ["0", "0", "800", "600"],
+            "0",
+            "the marquee 0..800 × 0..600's step is 0; give a step of at least 1",
+        ),
+    ] {
+        let mut args = vec!["select", "--rect"];
+        args.extend(rect);
+        args.extend(["--step", step]);
+        let (code, _, err) = raypick(&args);
+        assert_eq!(code, 2, "{err}");
+        assert!(err.contains(says), "{err}");
+    }
     let (code, out, err) = raypick(&[
         "select", "--width", "80", "--height", "60", "--rect", "0", "0", "80", "60",
     ]);
