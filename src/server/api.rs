@@ -1037,11 +1037,13 @@ struct RenderParams {
 /// A `/render` image size parameter: a whole number of pixels, or 400 quoting it (the query's
 /// own parse said "width: invalid digit found in string" for `width=-1`).
 fn pixel_count(name: &str, text: &str) -> Result<u32, ApiError> {
-    text.parse::<u32>().map_err(|_| {
-        ApiError::bad_request(format!(
-            "{name} '{}' is not a whole number of pixels",
-            crate::budget::quote(text)
-        ))
+    text.parse::<u32>().map_err(|e| {
+        // A whole number past u32 said it was not one.
+        let what = match e.kind() {
+            std::num::IntErrorKind::PosOverflow => format!("more pixels than {}", u32::MAX),
+            _ => "not a whole number of pixels".to_owned(),
+        };
+        ApiError::bad_request(format!("{name} '{}' is {what}", crate::budget::quote(text)))
     })
 }
 

@@ -695,6 +695,11 @@ fn bad_requests_get_clear_4xx_json_errors() {
             400,
             "height '-1' is not a whole number of pixels",
         ),
+        (
+            "width=4294967296",
+            400,
+            "width '4294967296' is more pixels than 4294967295",
+        ),
     ] {
         let (got, answer) = get_json(&format!("{base}/render?{query}"));
         assert_eq!(got, status, "{query}: {answer}");
