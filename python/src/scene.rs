@@ -94,12 +94,17 @@ impl Scene {
         if let Some(baked) = self.baked.get() {
             return Ok(baked);
         }
-        let options = &self.options;
+        // The grid builder needs one grid, which copies of a grid listed twice are not: "auto"
+        // takes the grid builder where it can (every builder gives the same answers).
+        let mut options = self.options;
+        if options.builder == Builder::Grid {
+            options.builder = Builder::Auto;
+        }
         let built = py
-            .detach(|| threads::run(|| BuiltScene::new(instances.baked()?, options)))?
+            .detach(|| threads::run(|| BuiltScene::new(instances.baked()?, &options)))?
             .map_err(to_py)?;
         // Another thread may have made it meanwhile: the same scene either way.
-        let _ = self.baked.set(Box::new(Scene::new(built, *options)));
+        let _ = self.baked.set(Box::new(Scene::new(built, options)));
         Ok(self.baked.get().expect("set just above"))
     }
 

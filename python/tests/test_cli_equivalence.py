@@ -190,3 +190,22 @@ def test_a_saved_instanced_scene_loads_as_its_description(cli, tmp_path):
     assert answers["hit"].any()
     for key in expected:
         assert np.array_equal(expected[key], answers[key], equal_nan=True), key
+
+
+def test_a_grid_listed_twice_with_the_grid_builder(cli, tmp_path):
+    """The DEM listed twice with builder="grid": the CLI's `pick` builds one grid tree and
+    places it twice; Python refused ("2 objects"). Now the same answers, cells included, and
+    `los` answers on the copies (each builder gives the same answers)."""
+    scene = raypick.Scene.load([DEM, DEM], builder="grid")
+    assert [o["grid"] for o in scene.objects] == [(344, 403)] * 2
+    rays = rays_at(scene, 2000, spread=0.1)
+    write_numbers(tmp_path / "rays.txt", rays)
+    rows = run_cli(cli, "pick", "-q", "--backend", "cpu", "--builder", "grid", "--scene", DEM,
+                   "--scene", DEM, "--rays", tmp_path / "rays.txt")
+    answers = scene.pick(rays, backend="cpu")
+    assert answers["hit"].mean() > 0.9
+    for i, row in enumerate(rows):
+        expect_row(row, answers, i, cells=True)
+    a, b = rays[:500, :3], rays[:500, :3] + 5000 * rays[:500, 3:]
+    want = raypick.Scene.load([DEM, DEM]).los(a, b)
+    assert (scene.los(a, b) == want).all() and 0 < want.sum() < len(want)
