@@ -46,8 +46,8 @@
 //! glTF 2.0 rules). `v` is the index accessor, or `0, 1, 2, …` for a
 //! non-indexed primitive. Degenerate triangles are kept, so ids stay
 //! aligned with the file. A strip or fan of fewer than 3 vertices keeps its
-//! object with no triangle, said once per file on standard error. Each object holds all of its primitive's `POSITION`
-//! vertices, used or not.
+//! object with no triangle, said once per file ([`crate::io::warnings`]).
+//! Each object holds all of its primitive's `POSITION` vertices, used or not.
 //!
 //! # Not read
 //!
@@ -568,7 +568,7 @@ struct ExactNode {
     scale: Option<[f64; 3]>,
 }
 
-/// Says on standard error, once for the file, when triangle primitives give no triangle (a
+/// Says once for the file ([`crate::io::warnings`]) when triangle primitives give no triangle (a
 /// strip or fan of fewer than 3 vertices, an empty list): their objects are kept, so ids stay
 /// aligned with the file, but nothing can hit them (an OBJ file's short faces say the same).
 fn warn_of_empty_primitives(file: &str, primitives: &[SharedPrimitive]) {
@@ -686,7 +686,7 @@ impl Loader<'_> {
         })
     }
 
-    /// Says on standard error when the file places no triangle primitive: it then adds no
+    /// Says ([`crate::io::warnings`]) when the file places no triangle primitive: it then adds no
     /// object to the scene, which is otherwise silent (an OBJ file says the same).
     fn warn_if_empty(&self, placed: usize, instances: &[Instance]) {
         if placed > 0 {
