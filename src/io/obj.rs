@@ -21,8 +21,8 @@
 //!   from the last vertex read so far (`-1` is the latest). A face may only use vertices defined
 //!   before it.
 //! - A face with k ≥ 3 corners (i0 … i(k−1)) is fan-triangulated as (i0, i1, i2), (i0, i2, i3),
-//!   …. Faces with fewer than 3 vertices give no triangle: they are skipped with one warning on
-//!   standard error (their count and the first one's line). A file that gives no triangle
+//!   …. Faces with fewer than 3 vertices give no triangle: they are skipped with one warning
+//!   ([`crate::io::warnings`]: their count and the first one's line). A file that gives no triangle
 //!   otherwise (no face at all, or no `v` or `f` line: not an OBJ file, perhaps) is warned about
 //!   once too.
 //! - A `v` or `f` line whose last character before any comment (spaces aside) is `\` continues
@@ -55,7 +55,7 @@ const MAX_CHUNK_BYTES: usize = 1 << 20;
 
 /// Loads the triangle mesh of the OBJ file at `path`.
 ///
-/// A file with no faces gives an empty mesh, with one warning on standard error (that no vertex
+/// A file with no faces gives an empty mesh, with one warning ([`crate::io::warnings`]) (that no vertex
 /// or face was read, or how many vertices but no face). Malformed content (unparseable or non-finite
 /// coordinates, face indices that are 0, out of range or not integers) is an [`Error::Parse`]
 /// naming the file and the line. The file must be a regular file whose length fits the memory

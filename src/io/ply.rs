@@ -15,7 +15,7 @@
 //!   count (`uchar`, `ushort`, `uint`, `char`, `short`, `int`) and integer indices. Each
 //!   polygon `i0 i1 … in` is fan-triangulated in file order, `(i0,i1,i2), (i0,i2,i3), …`, so
 //!   triangle ids follow the faces exactly as in the OBJ reader. Faces with fewer than 3
-//!   vertices give no triangle: they are skipped with one warning on standard error (their count
+//!   vertices give no triangle: they are skipped with one warning ([`crate::io::warnings`]: their count
 //!   and the first one's index). Other face properties are skipped.
 //! - Every other element is skipped, whatever its properties. A file without a `face` element
 //!   gives an empty mesh (with a warning, as an OBJ without faces).
