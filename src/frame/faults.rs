@@ -4,10 +4,10 @@
 //! and triangles the frame loses ([`crate::bvh::lost`]), objects or instances it rounds too
 //! coarsely, and triangles of a resolved object rounded out of shape
 //! ([`reach::unresolved_triangles`]); and before them, parts placed so far from the world's
-//! origin that f64 itself rounds them out of shape ([`reach::unresolved_in_world`]). Without them, picks on those parts would be missed or
-//! off without a word.
+//! origin that f64 itself rounds them out of shape ([`reach::f64_step`]). Without them, picks
+//! on those parts would be missed or off without a word.
 
-use super::reach::{self, f32_step, unresolved_objects, unresolved_triangles};
+use super::reach::{self, f32_step, unresolved_triangles};
 use crate::picker::BuiltScene;
 use crate::scene::Scene;
 use glam::DVec3;
@@ -17,8 +17,15 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
     let mut said = Vec::new();
     // Parts placed so far from the world's origin for their size that f64 itself rounds them
     // out of shape (a small mesh 10¹⁶ out): no frame gives those positions back.
+    let boxes = match built.instances() {
+        None => reach::object_boxes(&built.scene),
+        Some(_) => Vec::new(),
+    };
     let (in_world, kind) = match built.instances() {
-        None => (reach::unresolved_in_world(&built.scene), "object"),
+        None => (
+            reach::unresolved_among(&boxes, DVec3::ZERO, reach::f64_step),
+            "object",
+        ),
         Some(i) => (i.unresolved_in_world(), "instance"),
     };
     if let Some(first) = in_world.first() {
@@ -70,7 +77,10 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
         ));
     }
     let (unresolved, kind) = match built.instances() {
-        None => (unresolved_objects(&built.scene, built.bvh.origin), "object"),
+        None => (
+            reach::unresolved_among(&boxes, built.bvh.origin, f32_step),
+            "object",
+        ),
         Some(i) => (i.unresolved(), "instance"),
     };
     if let Some(first) = unresolved.first() {

@@ -183,25 +183,34 @@ impl Unresolved {
 /// resolve ([`Unresolved::of`] with [`f32_step`]), in id order; objects with layer mask 0 (never
 /// hit: removed) are not counted. One pass over the vertices.
 pub fn unresolved_objects(scene: &Scene, origin: DVec3) -> Vec<Unresolved> {
-    unresolved_objects_by(scene, origin, f32_step)
+    unresolved_among(&object_boxes(scene), origin, f32_step)
 }
 
-/// The objects of `scene` that world f64 does not resolve where they lie ([`Unresolved::of`]
-/// with [`f64_step`] from the world's origin), in id order, as [`unresolved_objects`] counts.
-pub fn unresolved_in_world(scene: &Scene) -> Vec<Unresolved> {
-    unresolved_objects_by(scene, DVec3::ZERO, f64_step)
-}
-
-/// [`unresolved_objects`] with steps `step(reach)`.
-fn unresolved_objects_by(scene: &Scene, origin: DVec3, step: fn(f64) -> f64) -> Vec<Unresolved> {
+/// The boxes of the objects of `scene` that [`unresolved_objects`] looks at (with triangles,
+/// layer mask not 0), with their ids, in id order. One pass over the vertices.
+pub fn object_boxes(scene: &Scene) -> Vec<(u32, (DVec3, DVec3))> {
     scene
         .objects()
         .par_iter()
         .filter(|o| o.triangle_count > 0 && o.mask != 0)
-        .filter_map(|o| {
+        .map(|o| {
             let b = box_of(scene.object_vertices(o.id).map(|v| scene.position(v)));
-            Unresolved::of(o.id, b, origin, step)
+            (o.id, b)
         })
+        .collect()
+}
+
+/// Of `boxes` ([`object_boxes`]), those not resolved in a frame centred on `origin` with steps
+/// `step(reach)`: [`f32_step`] about the frame's origin, or [`f64_step`] about the world's
+/// (`DVec3::ZERO`: what world f64 itself rounds out of shape).
+pub fn unresolved_among(
+    boxes: &[(u32, (DVec3, DVec3))],
+    origin: DVec3,
+    step: fn(f64) -> f64,
+) -> Vec<Unresolved> {
+    boxes
+        .iter()
+        .filter_map(|&(id, b)| Unresolved::of(id, b, origin, step))
         .collect()
 }
 
