@@ -942,12 +942,16 @@ impl Loader<'_> {
         let exact = &self.exact[node.index()];
         let m = match node.transform() {
             Transform::Matrix { .. } => {
-                let cols = exact.matrix.unwrap_or([
+                let mut cols = exact.matrix.unwrap_or([
                     1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0,
                 ]);
                 if cols.iter().any(|v| !v.is_finite()) {
                     return Err(bad("the matrix has a non-finite value"));
                 }
+                // The last row is 0 0 0 1 within the rounding noise validation lets through:
+                // made exactly that, as glTF means it (kept, a child's w of 1.0000009 scaled its
+                // parent's translation of 10⁶ into a shift of 0.9).
+                [cols[3], cols[7], cols[11], cols[15]] = [0.0, 0.0, 0.0, 1.0];
                 DMat4::from_cols_array(&cols)
             }
             Transform::Decomposed { .. } => {
@@ -957,9 +961,16 @@ impl Loader<'_> {
                 if !t.is_finite() || !s.is_finite() || !q.is_finite() {
                     return Err(bad("the translation, rotation or scale is not finite"));
                 }
+                // Scaled by a power of two first (exactly), so that a quaternion of tiny or huge
+                // components normalises instead of its length underflowing or overflowing.
+                let largest = glam::DVec4::from(q).abs().max_element();
+                if largest == 0.0 {
+                    return Err(bad("the rotation quaternion is 0 0 0 0"));
+                }
+                let q = q * 2f64.powi(-largest.log2().floor() as i32).min(f64::MAX);
                 let length = q.length();
                 if length == 0.0 || !length.is_finite() {
-                    return Err(bad("the rotation quaternion has zero length"));
+                    return Err(bad("the rotation quaternion cannot be normalised"));
                 }
                 DMat4::from_scale_rotation_translation(s, q / length, t)
             }

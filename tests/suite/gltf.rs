@@ -802,7 +802,7 @@ fn malformed_data_is_a_parse_error_not_a_panic() {
                 json!({"meshes": [mesh], "nodes": [{"mesh": 0, "rotation": [0.0, 0.0, 0.0, 0.0]}],
                 "scenes": [{"nodes": [0]}]}),
             ),
-            "node 0: the rotation quaternion has zero length",
+            "node 0: the rotation quaternion is 0 0 0 0",
         ));
         // A world transform that overflows f64 through the hierarchy.
         let (asset, mesh) = triangle_asset();
@@ -1277,4 +1277,59 @@ fn primitives_too_short_for_a_triangle_are_kept_and_said_once() {
     );
     assert_eq!(stderr.matches(&warning).count(), 1, "{stderr}");
     assert_eq!(stderr.matches("warning").count(), 1, "{stderr}");
+}
+
+/// A child's matrix with rounding noise in its last row (w = 1.0000009, within what validation
+/// lets through) under a parent 10⁶ out: the noise was composed, and the child moved 0.9 units.
+/// The last row is made 0 0 0 1 now, as a root's already was. A rotation quaternion of tiny
+/// components (1e-170: its length underflowed) is normalised, not refused as "zero length".
+#[test]
+fn a_matrix_rows_noise_and_tiny_quaternions_place_nodes_where_they_mean() {
+    let dir = TempDir::new();
+    let (asset, mesh) = triangle_asset();
+    let parent = [
+        1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1e6, 0.0, 0.0, 1.0,
+    ];
+    let noisy = [
+        1.0,
+        0.0,
+        0.0,
+        4e-7,
+        0.0,
+        1.0,
+        0.0,
+        -3e-7,
+        0.0,
+        0.0,
+        1.0,
+        2e-7,
+        0.0,
+        0.0,
+        0.0,
+        1.000_000_9,
+    ];
+    let h = std::f64::consts::FRAC_1_SQRT_2 * 1e-170;
+    let doc = asset.gltf(json!({
+        "meshes": [mesh],
+        "nodes": [
+            {"matrix": parent, "children": [1]},
+            {"mesh": 0, "matrix": noisy},
+            {"mesh": 0, "rotation": [0.0, 0.0, h, h], "translation": [0.0, 0.0, 5.0]}
+        ],
+        "scenes": [{"nodes": [0, 2]}]
+    }));
+    let objects = load_gltf(&dir.write_json("noise.gltf", &doc)).unwrap();
+    let placed: Vec<DVec3> = TRIANGLE
+        .iter()
+        .map(|&p| dvec(p) + DVec3::new(1e6, 0.0, 0.0))
+        .collect();
+    assert_eq!(objects[0].1.positions, placed);
+    let turned = [
+        DVec3::new(0.0, 0.0, 5.0),
+        DVec3::new(0.0, 1.0, 5.0),
+        DVec3::new(-1.0, 0.0, 5.0),
+    ];
+    for (got, want) in objects[1].1.positions.iter().zip(turned) {
+        assert!((*got - want).length() < 1e-12, "{got} vs {want}");
+    }
 }
