@@ -105,7 +105,17 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
         };
         if small.count > 0 {
             said.push(small.describe(object));
-            break;
+            return said;
+        }
+    }
+    // An instanced scene's meshes resolved in their own frames: its rays enter them from the
+    // scene frame, whose step where an instance lies may be too coarse for its triangles.
+    if let Some(i) = built.instances() {
+        let small = i.unresolved_triangles();
+        if small.count > 0 {
+            said.push(
+                small.describe(|k| format!("instance {k} ({})", i.instances()[k as usize].name)),
+            );
         }
     }
     said
