@@ -353,3 +353,42 @@ fn a_part_placed_where_f64_cannot_hold_its_shape_is_warned_about() {
         }
     }
 }
+
+/// A box listed twice, the second listing 10⁸ out: the scene frame's rays reach the first box
+/// within 2 × 10⁻³ units, so as instances each is resolved as a whole (16 steps), but a ray
+/// can enter a triangle a step off, 0.1% of the box's faces, which put hits near edges on the
+/// neighbouring triangle without a word (the bunny: 3 to 9 rays of 2,000 from 5 × 10⁷ out).
+/// Warned about now; the same listings 10⁶ apart are not.
+#[test]
+fn instance_triangles_the_frames_rays_reach_too_coarsely_are_warned_about() {
+    let dir = folder("instance-triangles");
+    std::fs::write(dir.join("box.obj"), obj(&box_mesh(DVec3::ZERO, DVec3::ONE))).unwrap();
+    let rays = dir.join("rays.txt");
+    std::fs::write(&rays, "0.5 0.5 5 0 0 -1\n").unwrap();
+    for (far, warned) in [("1e8", true), ("1e6", false)] {
+        let description = dir.join(format!("two-{far}.json"));
+        std::fs::write(
+            &description,
+            format!(
+                r#"{{"objects": [{{"file": "box.obj"}}, {{"file": "box.obj", "transform": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, {far}]]}}]}}"#
+            ),
+        )
+        .unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
+            .args(["pick", "-q", "--backend", "cpu", "--scenes"])
+            .arg(&description)
+            .arg("--rays")
+            .arg(&rays)
+            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{far}: {stderr}");
+        let says = "24 triangle(s) are too small for where they lie, so picks on them may miss or \
+                    name a neighbour; the first, instance 0 (";
+        assert_eq!(stderr.contains(says), warned, "{far}: {stderr}");
+        if warned {
+            assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+        }
+    }
+}
