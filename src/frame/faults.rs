@@ -17,16 +17,21 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
     let mut said = Vec::new();
     // Parts placed so far from the world's origin for their size that f64 itself rounds them
     // out of shape (a small mesh 10¹⁶ out): no frame gives those positions back.
+    // Each part's box once: the objects', or the instances' in the world.
     let boxes = match built.instances() {
         None => reach::object_boxes(&built.scene),
         Some(_) => Vec::new(),
     };
+    let instance_boxes = built
+        .instances()
+        .map(|i| i.world_boxes())
+        .unwrap_or_default();
     let (in_world, kind) = match built.instances() {
         None => (
             reach::unresolved_among(&boxes, DVec3::ZERO, reach::f64_step),
             "object",
         ),
-        Some(i) => (i.unresolved_in_world(), "instance"),
+        Some(i) => (i.unresolved_in_world(&instance_boxes), "instance"),
     };
     if let Some(first) = in_world.first() {
         let others = match in_world.len() {
@@ -81,7 +86,7 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
             reach::unresolved_among(&boxes, built.bvh.origin, f32_step),
             "object",
         ),
-        Some(i) => (i.unresolved(), "instance"),
+        Some(i) => (i.unresolved_among(&instance_boxes), "instance"),
     };
     if let Some(first) = unresolved.first() {
         let what = format!("{kind} {}", first.part);
@@ -111,7 +116,7 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
     // An instanced scene's meshes resolved in their own frames: its rays enter them from the
     // scene frame, whose step where an instance lies may be too coarse for its triangles.
     if let Some(i) = built.instances() {
-        let small = i.unresolved_triangles();
+        let small = i.unresolved_triangles(&instance_boxes);
         if small.count > 0 {
             said.push(
                 small.describe(|k| format!("instance {k} ({})", i.instances()[k as usize].name)),

@@ -799,7 +799,7 @@ impl Instances {
     }
 
     /// Each instance's world box in f64 (`None` for a mesh with nothing to hit), on all cores.
-    fn world_boxes(&self) -> Vec<Option<(DVec3, DVec3)>> {
+    pub fn world_boxes(&self) -> Vec<Option<(DVec3, DVec3)>> {
         use rayon::prelude::*;
         (0..self.instances.len())
             .into_par_iter()
@@ -822,9 +822,12 @@ impl Instances {
     /// lie ([`crate::frame::reach::f64_step`] from the world's origin: placed that far for their
     /// size, their world positions, and so the refined answers, are rounded out of shape), in
     /// id order.
-    pub fn unresolved_in_world(&self) -> Vec<crate::frame::reach::Unresolved> {
+    /// `boxes` are [`Instances::world_boxes`].
+    pub fn unresolved_in_world(
+        &self,
+        boxes: &[Option<(DVec3, DVec3)>],
+    ) -> Vec<crate::frame::reach::Unresolved> {
         use crate::frame::reach::{Unresolved, f64_step};
-        let boxes = self.world_boxes();
         (0..self.instances.len())
             .filter(|&k| self.instances[k].mask != 0)
             .filter_map(|k| Unresolved::of(k as u32, boxes[k]?, DVec3::ZERO, f64_step))
@@ -840,7 +843,11 @@ impl Instances {
     /// is counted, once per instance placing it (a 16 cm bunny 10⁷ from the other instances
     /// was picked wrong, 15 rays of 2,000, without a word). The first is the lowest instance's
     /// lowest such triangle, its size taken back into world units by that row sum.
-    pub fn unresolved_triangles(&self) -> crate::frame::reach::UnresolvedTriangles {
+    /// `boxes` are [`Instances::world_boxes`].
+    pub fn unresolved_triangles(
+        &self,
+        boxes: &[Option<(DVec3, DVec3)>],
+    ) -> crate::frame::reach::UnresolvedTriangles {
         use crate::frame::reach::{
             TRIANGLE_RESOLVED_STEPS, Unresolved, UnresolvedTriangles, ray_step, reach_of,
         };
@@ -855,7 +862,6 @@ impl Instances {
         // Each mesh's triangle sizes, sorted, made only for meshes an instance places.
         let mut sizes: Vec<Option<Vec<f64>>> = vec![None; self.meshes.len()];
         let mut out = UnresolvedTriangles::default();
-        let boxes = self.world_boxes();
         for (k, i) in self.instances.iter().enumerate() {
             let Some(b) = boxes[k].filter(|_| i.mask != 0) else {
                 continue;
@@ -906,6 +912,16 @@ impl Instances {
             }
         }
         out
+    }
+
+    /// [`Instances::unresolved`] from the instances' `boxes` ([`Instances::world_boxes`]).
+    pub fn unresolved_among(
+        &self,
+        boxes: &[Option<(DVec3, DVec3)>],
+    ) -> Vec<crate::frame::reach::Unresolved> {
+        (0..self.instances.len())
+            .filter_map(|k| self.unresolved_in(k, boxes[k]?))
+            .collect()
     }
 
     /// Instance `k`, where it is placed now, when it can be hit and the frame does not resolve it.
