@@ -114,13 +114,11 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
         }
     }
     // An instanced scene's meshes resolved in their own frames: its rays enter them from the
-    // scene frame, whose step where an instance lies may be too coarse for its triangles.
+    // scene frame, whose step where an instance lies may be coarser than picks are held to.
     if let Some(i) = built.instances() {
-        let small = i.unresolved_triangles(&instance_boxes);
-        if small.count > 0 {
-            said.push(
-                small.describe(|k| format!("instance {k} ({})", i.instances()[k as usize].name)),
-            );
+        let coarse = i.coarsely_placed(&instance_boxes);
+        if let Some(first) = coarse.first() {
+            said.push(first.describe_coarse(coarse.len() - 1));
         }
     }
     said

@@ -24,14 +24,6 @@ use rayon::prelude::*;
 /// The least number of steps ([`f32_step`], [`ray_step`]) a part's box must span where it lies.
 pub const RESOLVED_STEPS: f64 = 16.0;
 
-/// The least number of steps a triangle of an instance's mesh must span where the instance
-/// lies ([`crate::instance::Instances::unresolved_triangles`]): a ray enters the mesh off by up
-/// to a step, which puts hits near an edge on the neighbouring triangle: the bunny's answers
-/// differed from the oracle's for 9 rays of 2,000 with an instance 10⁹ from the other (a step
-/// 3% of its smallest triangle), 3 at 5 × 10⁷ (0.2%), none at 2 × 10⁷ or 10⁶. At 1,024 steps
-/// a step is under 0.1% of a triangle.
-pub const TRIANGLE_RESOLVED_STEPS: f64 = 1024.0;
-
 /// The spacing of f32 values `reach` units from zero: what a frame rounds offsets that far out
 /// to. Infinite past f32's range.
 pub fn f32_step(reach: f64) -> f64 {
@@ -161,6 +153,26 @@ impl Unresolved {
             "{what} lies {} from the world's origin, where double precision rounds positions to \
              {:.1e} units: too coarse for its {:.3e} units, so its triangles are rounded out of \
              shape and picks on it are off (give its coordinates in a frame nearer the origin)",
+            units(self.reach),
+            self.step,
+            self.size
+        )
+    }
+
+    /// The sentence for an instance whose rays are placed more coarsely than picks are held to
+    /// ([`crate::instance::Instances::coarsely_placed`]), `others` more after it.
+    pub fn describe_coarse(&self, others: usize) -> String {
+        let more = match others {
+            0 => String::new(),
+            1 => "; so does 1 more instance".to_owned(),
+            n => format!("; so do {n} more instances"),
+        };
+        format!(
+            "instance {} lies {} from the centre of the scene, where its rays are placed to \
+             {:.1e} units: more than a hundred-thousandth of its {:.3e} units, so hits near its \
+             triangles' edges may name a neighbouring triangle{more} (are some instances in \
+             other coordinates?)",
+            self.part,
             units(self.reach),
             self.step,
             self.size

@@ -834,84 +834,35 @@ impl Instances {
             .collect()
     }
 
-    /// The triangles of the instances that can be hit which the scene frame's rays reach too
-    /// coarsely, though each instance as a whole is resolved ([`Instances::unresolved`]): a ray
-    /// enters a mesh from its f32 origin and half-float rest, so its place in the mesh is off
-    /// by up to [`ray_step`](crate::frame::reach::ray_step) where the instance lies, times the
-    /// inverse linear part's largest row sum; a triangle whose box diagonal (in the mesh's
-    /// units) spans fewer than [`TRIANGLE_RESOLVED_STEPS`](crate::frame::reach::TRIANGLE_RESOLVED_STEPS) of that
-    /// is counted, once per instance placing it (a 16 cm bunny 10⁷ from the other instances
-    /// was picked wrong, 15 rays of 2,000, without a word). The first is the lowest instance's
-    /// lowest such triangle, its size taken back into world units by that row sum.
-    /// `boxes` are [`Instances::world_boxes`].
-    pub fn unresolved_triangles(
+    /// The instances that can be hit whose rays the scene frame places more coarsely than picks
+    /// are held to, though each is resolved as a whole ([`Instances::unresolved`]): a ray enters
+    /// a mesh from its f32 origin and half-float rest, off by up to half a
+    /// [`ray_step`](crate::frame::reach::ray_step) where the instance lies, which puts a hit
+    /// near an edge on the neighbouring triangle once it is more than `raypick verify`'s
+    /// tolerance ([`crate::check::compare::RELATIVE_TOLERANCE`] of the instance's size, at least
+    /// of one unit). Two bunnies 5 × 10⁷ apart answered 3 rays of 2,000 otherwise than the
+    /// oracle, 10⁹ apart 9, a 1.6 cm bunny 10⁷ from another 78, all without a word; 10⁶ apart,
+    /// and the dragon 10⁶ from another, none. `boxes` are [`Instances::world_boxes`].
+    pub fn coarsely_placed(
         &self,
         boxes: &[Option<(DVec3, DVec3)>],
-    ) -> crate::frame::reach::UnresolvedTriangles {
-        use crate::frame::reach::{
-            TRIANGLE_RESOLVED_STEPS, Unresolved, UnresolvedTriangles, ray_step, reach_of,
-        };
-        use crate::scene::{scaled_length, zero_area};
-        use rayon::prelude::*;
-        let size = |scene: &Scene, t: usize| {
-            let corners = scene.world_triangle(t);
-            let lo = corners[0].min(corners[1]).min(corners[2]);
-            let hi = corners[0].max(corners[1]).max(corners[2]);
-            (!zero_area(corners)).then(|| scaled_length(hi - lo))
-        };
-        // Each mesh's triangle sizes, sorted, made only for meshes an instance places.
-        let mut sizes: Vec<Option<Vec<f64>>> = vec![None; self.meshes.len()];
-        let mut out = UnresolvedTriangles::default();
-        for (k, i) in self.instances.iter().enumerate() {
-            let Some(b) = boxes[k].filter(|_| i.mask != 0) else {
-                continue;
-            };
-            let scene = &self.meshes[i.mesh as usize].scene;
-            let sorted = sizes[i.mesh as usize].get_or_insert_with(|| {
-                let mut all: Vec<f64> = (0..scene.triangle_count())
-                    .into_par_iter()
-                    .filter_map(|t| size(scene, t))
-                    .collect();
-                all.par_sort_unstable_by(f64::total_cmp);
-                all
-            });
-            // World → mesh: the inverse of the linear part (a checked transform is invertible).
-            let m = &i.transform;
-            let inverse = DMat3::from_cols_array_2d(&[
-                [m[0][0], m[1][0], m[2][0]],
-                [m[0][1], m[1][1], m[2][1]],
-                [m[0][2], m[1][2], m[2][2]],
-            ])
-            .inverse();
-            let stretch = (0..3)
-                .map(|r| inverse.row(r).abs().element_sum())
-                .fold(0.0, f64::max);
-            let reach = reach_of(b, self.origin);
-            let step = ray_step(reach);
-            let enough = TRIANGLE_RESOLVED_STEPS * step * stretch;
-            let here = sorted.partition_point(|&s| s < enough);
-            if here == 0 {
-                continue;
-            }
-            out.count += here;
-            if out.first.is_none() {
-                let t = (0..scene.triangle_count())
-                    .find(|&t| size(scene, t).is_some_and(|s| s < enough))
-                    .unwrap_or(0);
-                let world = size(scene, t).unwrap_or(0.0) / stretch.max(f64::MIN_POSITIVE);
-                out.first = Some((
-                    k as u32,
-                    t as u32,
-                    Unresolved {
-                        part: k as u32,
-                        reach,
-                        step,
-                        size: world,
-                    },
-                ));
-            }
-        }
-        out
+    ) -> Vec<crate::frame::reach::Unresolved> {
+        use crate::check::compare::RELATIVE_TOLERANCE;
+        use crate::frame::reach::{Unresolved, ray_step, reach_of};
+        (0..self.instances.len())
+            .filter(|&k| self.instances[k].mask != 0)
+            .filter_map(|k| {
+                let b = boxes[k]?;
+                let reach = reach_of(b, self.origin);
+                let (step, size) = (ray_step(reach), crate::scene::scaled_length(b.1 - b.0));
+                (step / 2.0 > RELATIVE_TOLERANCE * size.max(1.0)).then_some(Unresolved {
+                    part: k as u32,
+                    reach,
+                    step,
+                    size,
+                })
+            })
+            .collect()
     }
 
     /// [`Instances::unresolved`] from the instances' `boxes` ([`Instances::world_boxes`]).

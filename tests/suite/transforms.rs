@@ -356,11 +356,11 @@ fn a_part_placed_where_f64_cannot_hold_its_shape_is_warned_about() {
 
 /// A box listed twice, the second listing 10⁸ out: the scene frame's rays reach the first box
 /// within 2 × 10⁻³ units, so as instances each is resolved as a whole (16 steps), but a ray
-/// can enter a triangle a step off, 0.1% of the box's faces, which put hits near edges on the
-/// neighbouring triangle without a word (the bunny: 3 to 9 rays of 2,000 from 5 × 10⁷ out).
-/// Warned about now; the same listings 10⁶ apart are not.
+/// can enter it a step off, more than the 10⁻⁵ of its size picks are held to, which put hits
+/// near edges on the neighbouring triangle without a word (the bunny: 3 to 9 rays of 2,000
+/// from 5 × 10⁷ out). Warned about now; the same listings 10⁶ apart are not.
 #[test]
-fn instance_triangles_the_frames_rays_reach_too_coarsely_are_warned_about() {
+fn instances_whose_rays_the_frame_places_too_coarsely_are_warned_about() {
     let dir = folder("instance-triangles");
     std::fs::write(dir.join("box.obj"), obj(&box_mesh(DVec3::ZERO, DVec3::ONE))).unwrap();
     let rays = dir.join("rays.txt");
@@ -384,8 +384,10 @@ fn instance_triangles_the_frames_rays_reach_too_coarsely_are_warned_about() {
             .unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert!(out.status.success(), "{far}: {stderr}");
-        let says = "24 triangle(s) are too small for where they lie, so picks on them may miss or \
-                    name a neighbour; the first, instance 0 (";
+        let says = "instance 0 lies 5.000e7 units from the centre of the scene, where its rays \
+                    are placed to 2.0e-3 units: more than a hundred-thousandth of its 1.732e0 \
+                    units, so hits near its triangles' edges may name a neighbouring triangle; so \
+                    does 1 more instance (are some instances in other coordinates?)";
         assert_eq!(stderr.contains(says), warned, "{far}: {stderr}");
         if warned {
             assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
