@@ -300,6 +300,22 @@ fn bad_transforms_are_refused_with_a_sentence_naming_the_object() {
     }
 }
 
+/// Runs `raypick pick -q --backend cpu` on the description and the ray file (it must succeed);
+/// what it wrote on standard error.
+fn quiet_pick_stderr(description: &Path, rays: &Path) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
+        .args(["pick", "-q", "--backend", "cpu", "--scenes"])
+        .arg(description)
+        .arg("--rays")
+        .arg(rays)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{}: {stderr}", description.display());
+    stderr
+}
+
 /// A transform that places a 1-unit box 10¹⁶ out, where f64 values are 2 units apart: its world
 /// positions are rounded out of shape when it is placed, so its picks are off (a bunny there
 /// answered another triangle, or a normal across the ray) without a word. Warned about now, as
@@ -328,16 +344,7 @@ fn a_part_placed_where_f64_cannot_hold_its_shape_is_warned_about() {
         let description = dir.join(format!("far-{x}-{listed}.json"));
         let entries = vec![entry; listed].join(", ");
         std::fs::write(&description, format!(r#"{{"objects": [{entries}]}}"#)).unwrap();
-        let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
-            .args(["pick", "-q", "--backend", "cpu", "--scenes"])
-            .arg(&description)
-            .arg("--rays")
-            .arg(&rays)
-            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success(), "{x} ×{listed}: {stderr}");
+        let stderr = quiet_pick_stderr(&description, &rays);
         match warned {
             Some(what) => {
                 assert!(
@@ -374,16 +381,7 @@ fn instances_whose_rays_the_frame_places_too_coarsely_are_warned_about() {
             ),
         )
         .unwrap();
-        let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
-            .args(["pick", "-q", "--backend", "cpu", "--scenes"])
-            .arg(&description)
-            .arg("--rays")
-            .arg(&rays)
-            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(out.status.success(), "{far}: {stderr}");
+        let stderr = quiet_pick_stderr(&description, &rays);
         let says = "instance 0 lies 5.000e7 units from the centre of the scene, where its rays \
                     are placed to 2.0e-3 units: more than a hundred-thousandth of its 1.732e0 \
                     units, so hits near its triangles' edges may name a neighbouring triangle; so \
