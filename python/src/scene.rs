@@ -34,6 +34,8 @@ pub struct Scene {
     /// An instanced scene's instances baked into objects, for `los` and `viewshed`, which pick
     /// copies as the CLI's `los` and `viewshed` do: made on first use.
     baked: OnceLock<Box<Scene>>,
+    /// Held while `baked` is made, so that two threads do not bake at once.
+    baking: Mutex<()>,
     /// The GPU picker (`backend="gpu"`), made on first use: it holds the scene's buffers;
     /// with the process that made it (a forked child cannot use its parent's device).
     gpu: Mutex<Option<(u32, Box<dyn Picker + Send>)>>,
@@ -70,6 +72,7 @@ impl Scene {
             built: Arc::new(built),
             options,
             baked: OnceLock::new(),
+            baking: Mutex::new(()),
             gpu: Mutex::new(None),
             auto: Mutex::new(Auto::Unopened),
         }
@@ -100,12 +103,39 @@ impl Scene {
         if options.builder == Builder::Grid {
             options.builder = Builder::Auto;
         }
-        let built = py
-            .detach(|| threads::run(|| BuiltScene::new(instances.baked()?, &options)))?
-            .map_err(to_py)?;
-        // Another thread may have made it meanwhile: the same scene either way.
-        let _ = self.baked.set(Box::new(Scene::new(built, options)));
-        Ok(self.baked.get().expect("set just above"))
+        // One thread bakes; another asking meanwhile waits for it (taken without the
+        // interpreter, which the baking thread does not hold either).
+        let made = py.detach(|| {
+            let _baking = self.baking.lock().unwrap_or_else(PoisonError::into_inner);
+            if self.baked.get().is_some() {
+                return Ok(None);
+            }
+            threads::run(|| {
+                // Every instance's world triangles are copied: checked before they are made, as
+                // a description's copies are (the CLI's `verify` counts 96 bytes a triangle).
+                raypick::budget::check(
+                    "baking the instances into copies for los and viewshed",
+                    instances.prim_count(),
+                    96,
+                )?;
+                BuiltScene::new(instances.baked()?, &options)
+            })?
+            .map_err(to_py)
+            .map(|built| {
+                let _ = self.baked.set(Box::new(Scene::new(built, options)));
+                Some(())
+            })
+        })?;
+        let baked = self
+            .baked
+            .get()
+            .expect("made above or by the thread that held the lock");
+        // The copies' own frame warnings, as the CLI's `los` gives them (once, by the thread
+        // that made them).
+        if made.is_some() {
+            warn_frame(py, baked.built())?;
+        }
+        Ok(baked)
     }
 
     /// Runs `work` on `backend`'s picker, telling it whether the picker may run on a GPU (call

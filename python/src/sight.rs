@@ -82,7 +82,7 @@ fn visible(
         raypick::apps::sight::long_ends(scene.built().bounds(), segments, eps, what, "epsilon")
     {
         py.import("warnings")?
-            .call_method1("warn", (warning, py.get_type::<PyUserWarning>(), 3))?;
+            .call_method1("warn", (warning, py.get_type::<PyUserWarning>(), 1))?;
     }
     let mut seen = vec_for::<bool>(segments.len(), "the visibility column")?;
     let mut invalid = 0usize;
@@ -97,7 +97,7 @@ fn visible(
              the same point) and are reported as not visible"
         );
         py.import("warnings")?
-            .call_method1("warn", (message, py.get_type::<PyRuntimeWarning>(), 3))?;
+            .call_method1("warn", (message, py.get_type::<PyRuntimeWarning>(), 1))?;
     }
     Ok(seen)
 }

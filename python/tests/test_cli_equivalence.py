@@ -7,6 +7,7 @@ import csv
 import io
 import json
 import subprocess
+import warnings
 
 import numpy as np
 import pytest
@@ -138,7 +139,6 @@ def test_a_description_listing_a_file_twice_is_picked_as_the_clis_instances(cli,
         {"file": "bunny.obj"},
         {"file": "bunny.obj", "transform": [[1, 0, 0, 1e6], [0, 1, 0, 0], [0, 0, 1, 0]]},
     ]}))
-    import warnings
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         scene = raypick.Scene.load(desc)
@@ -162,9 +162,34 @@ def test_a_description_listing_a_file_twice_is_picked_as_the_clis_instances(cli,
     a, b = np.vstack([a, a + [1e6, 0, 0]]), np.vstack([b, b + [1e6, 0, 0]])
     write_numbers(tmp_path / "pairs.txt", np.hstack([a, b]))
     rows = run_cli(cli, "los", "--scenes", desc, "--pairs", tmp_path / "pairs.txt")
-    seen = scene.los(a, b)
+    # The copies' frame, 10⁶ wide, is warned about as the CLI's `los` warns about it (once).
+    with pytest.warns(UserWarning, match="too small for where they lie"):
+        seen = scene.los(a, b)
     assert [r["visible"] == "1" for r in rows] == list(seen)
     assert 0 < seen.sum() < len(seen)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert (scene.los(a, b) == seen).all()
+
+
+def test_the_copies_for_los_are_checked_against_the_memory_budget(tmp_path):
+    """`los` on a scene of instances bakes every instance's triangles: checked before they are
+    made (400 bunnies, 1.5M triangles, under a 64 MiB budget), not allocated and then refused."""
+    (tmp_path / "bunny.obj").write_bytes(BUNNY.read_bytes())
+    desc = tmp_path / "many.json"
+    desc.write_text(json.dumps({"objects": [
+        {"file": "bunny.obj", "transform": [[1, 0, 0, 20 * k], [0, 1, 0, 0], [0, 0, 1, 0]]}
+        for k in range(400)
+    ]}))
+    default = raypick.max_memory()
+    raypick.set_max_memory("64M")
+    try:
+        scene = raypick.Scene.load(desc)
+        assert len(scene.objects) == 400
+        with pytest.raises(ValueError, match="baking the instances into copies for los"):
+            scene.los([0, 50, 0], [0, -50, 0])
+    finally:
+        raypick.set_max_memory(default)
 
 
 def test_a_saved_instanced_scene_loads_as_its_description(cli, tmp_path):

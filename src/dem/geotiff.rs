@@ -675,11 +675,21 @@ impl Placement<'_> {
     }
 }
 
-/// Maps a `tiff` crate error to ours; a short read means the file is truncated.
-/// Refuses a text (ASCII) tag of the first image whose bytes lie past the end of the file (or
-/// are more than the decoder's limit for one value), before the decoder reads the header: the `tiff` crate reads any tag of that type (the sample
-/// format given as text, say) into memory it sizes by the claimed count, and one over its limit
-/// printed a `dbg!` line on standard error before its error ("image too large for the
+/// The tags the decoder or this reader reads from the first image: the image's own (size,
+/// samples, compression, strips, tiles, predictor, sample format, JPEG tables) and the
+/// georeferencing ones (pixel scale, tie points, transformation, GeoKey directory and its
+/// double and text parameters, GDAL_NODATA). Others (DateTime, Software, GDAL_METADATA, …)
+/// are never read, so nothing amiss in them stops a file from loading.
+const READ_TAGS: [u16; 25] = [
+    256, 257, 258, 259, 262, 273, 277, 278, 279, 284, 317, 322, 323, 324, 325, 338, 339, 347,
+    33550, 33922, 34264, 34735, 34736, 34737, 42113,
+];
+
+/// Refuses a tag that the decoder or this reader reads ([`READ_TAGS`]) given as text (ASCII)
+/// whose bytes lie past the end of the file, or are more than the decoder's limit for one
+/// value, before the decoder reads the header: the `tiff` crate reads a tag of that type (the
+/// sample format given as text, say) into memory it sizes by the claimed count, and one over
+/// its limit printed a `dbg!` line on standard error before its error ("image too large for the
 /// decoder"). Anything else amiss in the header is left to the decoder; the reader is put back
 /// at the start.
 fn check_text_tags(reader: &mut (impl Read + Seek), file_bytes: u64) -> Result<(), String> {
@@ -747,7 +757,7 @@ fn check_text_tags(reader: &mut (impl Read + Seek), file_bytes: u64) -> Result<(
             break;
         }
         let (tag, kind) = (u16_at(&entry[0..2]), u16_at(&entry[2..4]));
-        if kind != ASCII {
+        if kind != ASCII || !READ_TAGS.contains(&tag) {
             continue;
         }
         let (bytes, offset) = if big {
@@ -797,6 +807,7 @@ fn rewind(reader: &mut impl Seek) -> Result<(), String> {
         .map_err(|e| format!("reading the TIFF header failed: {e}"))
 }
 
+/// Maps a `tiff` crate error to ours; a short read means the file is truncated.
 fn tiff_error(name: &str, what: &str, e: TiffError) -> Error {
     let message = match e {
         TiffError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {

@@ -1129,6 +1129,35 @@ fn a_tiff_tag_given_as_text_past_the_file_is_refused_in_one_line() {
             &format!("the text of tag {tag} claims 1073741824 bytes at offset 16, past the end"),
         );
     }
+    // A tag nothing reads (DateTime, 306) whose text lies past the end is passed over, as it
+    // was (its value is never read): the file is read on, to its missing georeferencing.
+    let mut dated = bytes.clone();
+    let mut entries: Vec<[u8; 12]> = (0..count)
+        .map(|k| {
+            dated[first + 2 + 12 * k..first + 14 + 12 * k]
+                .try_into()
+                .unwrap()
+        })
+        .collect();
+    let mut date = [0u8; 12];
+    date[0..2].copy_from_slice(&306u16.to_le_bytes());
+    date[2..4].copy_from_slice(&2u16.to_le_bytes());
+    date[4..8].copy_from_slice(&(1u32 << 30).to_le_bytes());
+    date[8..12].copy_from_slice(&16u32.to_le_bytes());
+    entries.push(date);
+    entries.sort_by_key(|e| u16::from_le_bytes([e[0], e[1]]));
+    // The directory grows by one entry: written at the end of the file, the header pointed there.
+    let new_first = dated.len();
+    dated.extend_from_slice(&((count + 1) as u16).to_le_bytes());
+    for e in &entries {
+        dated.extend_from_slice(e);
+    }
+    dated.extend_from_slice(&0u32.to_le_bytes());
+    dated[4..8].copy_from_slice(&(new_first as u32).to_le_bytes());
+    let file = dir.write("dated.tif", &dated);
+    let message = parse_message(load_elevation(&file), &file);
+    assert!(message.contains("no georeferencing"), "{message}");
+
     // BigTIFF: a header, one directory of one 20-byte entry (the width, as text, 2^40 bytes).
     let mut big = b"II+\0\x08\0\0\0".to_vec();
     big.extend_from_slice(&16u64.to_le_bytes());
