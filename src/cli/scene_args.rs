@@ -241,7 +241,13 @@ impl SceneArgs {
                 return Ok((built, start.elapsed().as_secs_f64(), 0.0));
             };
             // A saved instanced scene, for a command that picks copies: its instances baked
-            // into objects (the same ids and names) and built again.
+            // into objects (the same ids and names) and built again; their triangles checked
+            // against the budget before they are made (as `verify` counts them).
+            raypick::budget::check(
+                "baking the saved instances into copies",
+                instances.prim_count(),
+                96,
+            )?;
             let scene = instances.baked()?;
             check(&scene)?;
             let loaded = start.elapsed().as_secs_f64();

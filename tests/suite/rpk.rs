@@ -732,3 +732,51 @@ fn the_python_seed_writer_agrees_with_the_reader() {
         );
     }
 }
+
+/// A saved scene of 2,000 bunny instances (7.3M triangles as copies) rendered under a 256 MiB
+/// budget: the command bakes the instances into copies, which is refused before the copies are
+/// made (they were allocated first, and the budget only checked at the tree's build).
+#[test]
+fn baking_a_saved_instanced_scene_is_checked_against_the_budget() {
+    let description = scratch("many-bunnies.json");
+    let mesh = scratch("many-bunnies.obj");
+    std::fs::copy(data("bunny.obj"), &mesh).unwrap();
+    let name = mesh.file_name().unwrap().to_str().unwrap();
+    let listings: Vec<String> = (0..2000)
+        .map(|k| {
+            format!(
+                r#"{{"file": {name:?}, "transform": [[1, 0, 0, {}], [0, 1, 0, 0], [0, 0, 1, 0]]}}"#,
+                20 * k
+            )
+        })
+        .collect();
+    std::fs::write(
+        &description,
+        format!(r#"{{"objects": [{}]}}"#, listings.join(", ")),
+    )
+    .unwrap();
+    let saved = scratch("many-bunnies.rpk");
+    let (description, saved) = (description.to_str().unwrap(), saved.to_str().unwrap());
+    let (code, _, err) = common::raypick(&["build", "-q", "--scenes", description, "--out", saved]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = common::raypick(&[
+        "render",
+        "--scene",
+        saved,
+        "--max-memory",
+        "256M",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--out",
+        "-",
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("baking the saved instances into copies would need"),
+        "{err}"
+    );
+    let _ = std::fs::remove_file(saved);
+    let _ = std::fs::remove_file(&mesh);
+}
