@@ -174,23 +174,36 @@ fn load_scene_reading(files: &[SceneFile], mut read: Vec<(&Path, Shared)>) -> Re
     // The triangles listed so far: a small file listed many times is copied that many times,
     // so the copies are checked against the budget before they are made.
     let mut triangles = 0u64;
-    for file in files {
+    let count_of = |objects: &[FileObject]| {
+        objects
+            .iter()
+            .map(|o| o.1.triangles.len() as u64)
+            .sum::<u64>()
+    };
+    for (at, file) in files.iter().enumerate() {
         let first = scene.objects().len() as u32;
         let objects = match loaded.iter().position(|(path, _)| *path == file.file) {
             Some(k) => {
-                let copy = loaded[k]
-                    .1
-                    .iter()
-                    .map(|o| o.1.triangles.len() as u64)
-                    .sum::<u64>();
-                crate::budget::check(
-                    &format!(
-                        "the triangles of the scene's {} listings (a file listed again is copied)",
-                        files.len()
-                    ),
-                    triangles.saturating_add(copy),
-                    COPIED_TRIANGLE_BYTES,
-                )?;
+                let copy = count_of(&loaded[k].1);
+                let what = format!(
+                    "the triangles of the scene's {} listings (a file listed again is copied)",
+                    files.len()
+                );
+                if crate::budget::check(&what, triangles + copy, COPIED_TRIANGLE_BYTES).is_err() {
+                    // Said with what the whole scene needs as far as it is known (the listings
+                    // of the files read so far, to the end), not the sum at the listing where
+                    // it crossed the budget: that figure, given as the budget, failed again.
+                    let rest: u64 = files[at..]
+                        .iter()
+                        .filter_map(|f| loaded.iter().find(|(path, _)| *path == f.file))
+                        .map(|(_, objects)| count_of(objects))
+                        .sum();
+                    crate::budget::check(
+                        &format!("{what}, counting the files read so far,"),
+                        triangles.saturating_add(rest),
+                        COPIED_TRIANGLE_BYTES,
+                    )?;
+                }
                 loaded[k].1.clone()
             }
             None => {
@@ -204,10 +217,7 @@ fn load_scene_reading(files: &[SceneFile], mut read: Vec<(&Path, Shared)>) -> Re
                 objects
             }
         };
-        triangles += objects
-            .iter()
-            .map(|o| o.1.triangles.len() as u64)
-            .sum::<u64>();
+        triangles += count_of(&objects);
         for (name, mesh, grid, mirrored) in objects {
             let id = match grid {
                 Some(shape) => scene.add_grid_mesh(name, mesh, shape)?,

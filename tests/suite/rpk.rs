@@ -780,3 +780,51 @@ fn baking_a_saved_instanced_scene_is_checked_against_the_budget() {
     let _ = std::fs::remove_file(saved);
     let _ = std::fs::remove_file(&mesh);
 }
+
+/// The same refusal for a description read as copies (`render --scenes`): it named the sum at
+/// the listing where the budget was crossed ("would need 8.0 MiB …, over the memory budget of
+/// 8.0 MiB"), which, given as the budget, failed again; it names the whole scene's need now.
+#[test]
+fn copying_a_listed_file_names_what_the_whole_scene_needs() {
+    let description = scratch("copied-bunnies.json");
+    let mesh = scratch("copied-bunnies.obj");
+    std::fs::copy(data("bunny.obj"), &mesh).unwrap();
+    let name = mesh.file_name().unwrap().to_str().unwrap();
+    let listings: Vec<String> = (0..200)
+        .map(|k| {
+            format!(
+                r#"{{"file": {name:?}, "transform": [[1, 0, 0, {}], [0, 1, 0, 0], [0, 0, 1, 0]]}}"#,
+                20 * k
+            )
+        })
+        .collect();
+    std::fs::write(
+        &description,
+        format!(r#"{{"objects": [{}]}}"#, listings.join(", ")),
+    )
+    .unwrap();
+    for budget in ["8M", "40M"] {
+        let (code, _, err) = common::raypick(&[
+            "render",
+            "--scenes",
+            description.to_str().unwrap(),
+            "--max-memory",
+            budget,
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--out",
+            "-",
+        ]);
+        assert_eq!(code, 2, "{err}");
+        assert!(
+            err.contains(
+                "the triangles of the scene's 200 listings (a file listed again is copied), \
+                 counting the files read so far, would need 72.9 MiB (734800 × 104 bytes)"
+            ),
+            "{err}"
+        );
+    }
+    let _ = std::fs::remove_file(&mesh);
+}
