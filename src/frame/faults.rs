@@ -4,7 +4,7 @@
 //! and triangles the frame loses ([`crate::bvh::lost`]), objects or instances it rounds too
 //! coarsely, and triangles of a resolved object rounded out of shape
 //! ([`reach::unresolved_triangles`]); and before them, parts placed so far from the world's
-//! origin that f64 itself rounds them out of shape ([`reach::f64_step`]). Without them, picks
+//! origin that f64 itself rounds them out of shape ([`reach::coarse_in_world`]). Without them, picks
 //! on those parts would be missed or off without a word.
 
 use super::reach::{self, f32_step, unresolved_triangles};
@@ -28,15 +28,20 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
         .unwrap_or_default();
     let (in_world, kind) = match built.instances() {
         None => (
-            reach::unresolved_among(&boxes, DVec3::ZERO, reach::f64_step),
+            boxes
+                .iter()
+                .filter_map(|&(id, b)| reach::coarse_in_world(id, b))
+                .collect(),
             "object",
         ),
-        Some(i) => (i.unresolved_in_world(&instance_boxes), "instance"),
+        Some(i) => (i.coarse_in_world(&instance_boxes), "instance"),
     };
     if let Some(first) = in_world.first() {
         let others = match in_world.len() {
             1 => String::new(),
-            n => format!("{n} {kind}s are too small for where they lie in the world; the first, "),
+            n => format!(
+                "{n} {kind}s lie where double precision rounds them too coarsely; the first, "
+            ),
         };
         said.push(format!(
             "{others}{}",

@@ -45,6 +45,23 @@ pub fn f64_step(reach: f64) -> f64 {
     }
 }
 
+/// A part with the world box `b` when world f64 rounds its positions, where it lies, by more
+/// than picks are held to (`raypick verify`'s tolerance,
+/// [`crate::check::compare::RELATIVE_TOLERANCE`] of its size, at least of one unit): placed that
+/// far for its size, its positions were rounded when it was loaded or placed, and no frame
+/// gives them back (a bunny listed twice 10¹³ out: 66 mismatches of 3,000 rays).
+pub fn coarse_in_world(part: u32, b: (DVec3, DVec3)) -> Option<Unresolved> {
+    let reach = reach_of(b, DVec3::ZERO);
+    let (step, size) = (f64_step(reach), scaled_length(b.1 - b.0));
+    let tolerance = crate::check::compare::RELATIVE_TOLERANCE * size.max(1.0);
+    (step / 2.0 > tolerance).then_some(Unresolved {
+        part,
+        reach,
+        step,
+        size,
+    })
+}
+
 /// How finely an instanced scene places rays `reach` units from its frame's origin: f32
 /// offsets refined by a half-float rest (`frame::put_origin_lo`: 11 more bits, and no finer
 /// than the subnormal half floats' 2^-24).
@@ -145,14 +162,13 @@ impl Unresolved {
         self.describe_asking(what, "are some objects in other coordinates?")
     }
 
-    /// The sentence for a part measured in world f64 ([`f64_step`] from the world's origin):
-    /// placed that far for its size, its positions were rounded out of shape when it was
-    /// loaded or placed, and no frame gives them back.
+    /// The sentence for a part world f64 rounds too coarsely ([`coarse_in_world`]).
     pub fn describe_in_world(&self, what: &str) -> String {
         format!(
             "{what} lies {} from the world's origin, where double precision rounds positions to \
-             {:.1e} units: too coarse for its {:.3e} units, so its triangles are rounded out of \
-             shape and picks on it are off (give its coordinates in a frame nearer the origin)",
+             {:.1e} units: more than a hundred-thousandth of its {:.3e} units, so its triangles \
+             are rounded out of shape and picks on it are off (give its coordinates in a frame \
+             nearer the origin)",
             units(self.reach),
             self.step,
             self.size

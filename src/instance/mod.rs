@@ -818,19 +818,16 @@ impl Instances {
             .collect()
     }
 
-    /// The instances that can be hit whose world boxes world f64 does not resolve where they
-    /// lie ([`crate::frame::reach::f64_step`] from the world's origin: placed that far for their
-    /// size, their world positions, and so the refined answers, are rounded out of shape), in
-    /// id order.
-    /// `boxes` are [`Instances::world_boxes`].
-    pub fn unresolved_in_world(
+    /// The instances that can be hit whose world positions world f64 rounds more coarsely than
+    /// picks are held to where they lie ([`crate::frame::reach::coarse_in_world`]: the refined
+    /// answers are made from them), in id order. `boxes` are [`Instances::world_boxes`].
+    pub fn coarse_in_world(
         &self,
         boxes: &[Option<(DVec3, DVec3)>],
     ) -> Vec<crate::frame::reach::Unresolved> {
-        use crate::frame::reach::{Unresolved, f64_step};
         (0..self.instances.len())
             .filter(|&k| self.instances[k].mask != 0)
-            .filter_map(|k| Unresolved::of(k as u32, boxes[k]?, DVec3::ZERO, f64_step))
+            .filter_map(|k| crate::frame::reach::coarse_in_world(k as u32, boxes[k]?))
             .collect()
     }
 
