@@ -79,6 +79,10 @@ impl Bvh {
         let what = match scene.objects() {
             [] => "building the tree".to_owned(),
             [one] => format!("building the tree over the triangles of {}", one.name),
+            [first, other] => format!(
+                "building the tree over the triangles of {} and {}",
+                first.name, other.name
+            ),
             [first, rest @ ..] => format!(
                 "building the tree over the triangles of {} and {} other objects",
                 first.name,

@@ -99,7 +99,12 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
             1 => String::new(),
             n => format!("{n} {kind}s are too small for where they lie; the first, "),
         };
-        said.push(format!("{others}{}", first.describe(&what)));
+        // Asked of the parts the sentence names.
+        let question = format!("are some {kind}s in other coordinates?");
+        said.push(format!(
+            "{others}{}",
+            first.describe_asking(&what, &question)
+        ));
         return said;
     }
     if lost.triangles > 0 {
