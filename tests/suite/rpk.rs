@@ -733,16 +733,14 @@ fn the_python_seed_writer_agrees_with_the_reader() {
     }
 }
 
-/// A saved scene of 2,000 bunny instances (7.3M triangles as copies) rendered under a 256 MiB
-/// budget: the command bakes the instances into copies, which is refused before the copies are
-/// made (they were allocated first, and the budget only checked at the tree's build).
-#[test]
-fn baking_a_saved_instanced_scene_is_checked_against_the_budget() {
-    let description = scratch("many-bunnies.json");
-    let mesh = scratch("many-bunnies.obj");
+/// A description (and its copy of the bunny, beside it) listing the bunny `count` times, 20
+/// units apart along x.
+fn bunny_listings(stem: &str, count: usize) -> (PathBuf, PathBuf) {
+    let description = scratch(&format!("{stem}.json"));
+    let mesh = scratch(&format!("{stem}.obj"));
     std::fs::copy(data("bunny.obj"), &mesh).unwrap();
     let name = mesh.file_name().unwrap().to_str().unwrap();
-    let listings: Vec<String> = (0..2000)
+    let listings: Vec<String> = (0..count)
         .map(|k| {
             format!(
                 r#"{{"file": {name:?}, "transform": [[1, 0, 0, {}], [0, 1, 0, 0], [0, 0, 1, 0]]}}"#,
@@ -755,16 +753,18 @@ fn baking_a_saved_instanced_scene_is_checked_against_the_budget() {
         format!(r#"{{"objects": [{}]}}"#, listings.join(", ")),
     )
     .unwrap();
-    let saved = scratch("many-bunnies.rpk");
-    let (description, saved) = (description.to_str().unwrap(), saved.to_str().unwrap());
-    let (code, _, err) = common::raypick(&["build", "-q", "--scenes", description, "--out", saved]);
-    assert_eq!(code, 0, "{err}");
+    (description, mesh)
+}
+
+/// `raypick render` of an 8 × 8 view of the scene `path` (given after `flag`) under the memory
+/// budget `budget`: its exit code and standard error.
+fn tiny_render(flag: &str, path: &str, budget: &str) -> (i32, String) {
     let (code, _, err) = common::raypick(&[
         "render",
-        "--scene",
-        saved,
+        flag,
+        path,
         "--max-memory",
-        "256M",
+        budget,
         "--width",
         "8",
         "--height",
@@ -772,6 +772,20 @@ fn baking_a_saved_instanced_scene_is_checked_against_the_budget() {
         "--out",
         "-",
     ]);
+    (code, err)
+}
+
+/// A saved scene of 2,000 bunny instances (7.3M triangles as copies) rendered under a 256 MiB
+/// budget: the command bakes the instances into copies, which is refused before the copies are
+/// made (they were allocated first, and the budget only checked at the tree's build).
+#[test]
+fn baking_a_saved_instanced_scene_is_checked_against_the_budget() {
+    let (description, mesh) = bunny_listings("many-bunnies", 2000);
+    let saved = scratch("many-bunnies.rpk");
+    let (description, saved) = (description.to_str().unwrap(), saved.to_str().unwrap());
+    let (code, _, err) = common::raypick(&["build", "-q", "--scenes", description, "--out", saved]);
+    assert_eq!(code, 0, "{err}");
+    let (code, err) = tiny_render("--scene", saved, "256M");
     assert_eq!(code, 2, "{err}");
     assert!(
         err.contains("baking the saved instances into copies would need"),
@@ -786,37 +800,9 @@ fn baking_a_saved_instanced_scene_is_checked_against_the_budget() {
 /// 8.0 MiB"), which, given as the budget, failed again; it names the whole scene's need now.
 #[test]
 fn copying_a_listed_file_names_what_the_whole_scene_needs() {
-    let description = scratch("copied-bunnies.json");
-    let mesh = scratch("copied-bunnies.obj");
-    std::fs::copy(data("bunny.obj"), &mesh).unwrap();
-    let name = mesh.file_name().unwrap().to_str().unwrap();
-    let listings: Vec<String> = (0..200)
-        .map(|k| {
-            format!(
-                r#"{{"file": {name:?}, "transform": [[1, 0, 0, {}], [0, 1, 0, 0], [0, 0, 1, 0]]}}"#,
-                20 * k
-            )
-        })
-        .collect();
-    std::fs::write(
-        &description,
-        format!(r#"{{"objects": [{}]}}"#, listings.join(", ")),
-    )
-    .unwrap();
+    let (description, mesh) = bunny_listings("copied-bunnies", 200);
     for budget in ["8M", "40M"] {
-        let (code, _, err) = common::raypick(&[
-            "render",
-            "--scenes",
-            description.to_str().unwrap(),
-            "--max-memory",
-            budget,
-            "--width",
-            "8",
-            "--height",
-            "8",
-            "--out",
-            "-",
-        ]);
+        let (code, err) = tiny_render("--scenes", description.to_str().unwrap(), budget);
         assert_eq!(code, 2, "{err}");
         assert!(
             err.contains(
