@@ -4,7 +4,8 @@
 //! and triangles the frame loses ([`crate::bvh::lost`]), objects or instances it rounds too
 //! coarsely, and triangles of a resolved object rounded out of shape
 //! ([`reach::unresolved_triangles`]); and before them, parts placed so far from the world's
-//! origin that f64 itself rounds them out of shape ([`reach::coarse_in_world`]). Without them, picks
+//! origin that f64 itself rounds them out of shape, and instances whose rays the frame places
+//! more coarsely than picks are held to ([`reach::coarser_than_picks`]). Without them, picks
 //! on those parts would be missed or off without a word.
 
 use super::reach::{self, f32_step, unresolved_triangles};
@@ -15,27 +16,31 @@ use glam::DVec3;
 /// The warnings for `built`, each one sentence, most basic first; empty for a sound scene.
 pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
     let mut said = Vec::new();
-    // Parts placed so far from the world's origin for their size that f64 itself rounds them
-    // out of shape (a small mesh 10¹⁶ out): no frame gives those positions back.
-    // Each part's box once: the objects', or the instances' in the world.
-    let boxes = match built.instances() {
-        None => reach::object_boxes(&built.scene),
-        Some(_) => Vec::new(),
-    };
-    let instance_boxes = built
-        .instances()
-        .map(|i| i.world_boxes())
-        .unwrap_or_default();
-    let (in_world, kind) = match built.instances() {
+    // Each part's box once, for every check: the objects', or the instances' in the world; and
+    // the frame the parts are measured in (an instanced scene's rays carry half-float rests).
+    let (parts, origin, step, kind) = match built.instances() {
         None => (
-            boxes
-                .iter()
-                .filter_map(|&(id, b)| reach::coarse_in_world(id, b))
-                .collect(),
+            reach::object_boxes(&built.scene),
+            built.bvh.origin,
+            f32_step as fn(f64) -> f64,
             "object",
         ),
-        Some(i) => (i.coarse_in_world(&instance_boxes), "instance"),
+        Some(i) => (
+            i.hittable_boxes(),
+            i.origin(),
+            reach::ray_step as _,
+            "instance",
+        ),
     };
+    let coarser = |origin: DVec3, step: fn(f64) -> f64| -> Vec<reach::Unresolved> {
+        parts
+            .iter()
+            .filter_map(|&(id, b)| reach::coarser_than_picks(id, b, origin, step))
+            .collect()
+    };
+    // Parts placed so far from the world's origin for their size that f64 itself rounds them
+    // out of shape (a small mesh 10¹⁶ out): no frame gives those positions back.
+    let in_world = coarser(DVec3::ZERO, reach::f64_step);
     if let Some(first) = in_world.first() {
         let others = match in_world.len() {
             1 => String::new(),
@@ -86,13 +91,7 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
             reach::units(span),
         ));
     }
-    let (unresolved, kind) = match built.instances() {
-        None => (
-            reach::unresolved_among(&boxes, built.bvh.origin, f32_step),
-            "object",
-        ),
-        Some(i) => (i.unresolved_among(&instance_boxes), "instance"),
-    };
+    let unresolved = reach::unresolved_among(&parts, origin, step);
     if let Some(first) = unresolved.first() {
         let what = format!("{kind} {}", first.part);
         let others = match unresolved.len() {
@@ -125,8 +124,8 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
     }
     // An instanced scene's meshes resolved in their own frames: its rays enter them from the
     // scene frame, whose step where an instance lies may be coarser than picks are held to.
-    if let Some(i) = built.instances() {
-        let coarse = i.coarsely_placed(&instance_boxes);
+    if built.instances().is_some() {
+        let coarse = coarser(origin, reach::ray_step);
         if let Some(first) = coarse.first() {
             said.push(first.describe_coarse(coarse.len() - 1));
         }

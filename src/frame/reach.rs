@@ -45,14 +45,23 @@ pub fn f64_step(reach: f64) -> f64 {
     }
 }
 
-/// A part with the world box `b` when world f64 rounds its positions, where it lies, by more
-/// than picks are held to (`raypick verify`'s tolerance,
-/// [`crate::check::compare::RELATIVE_TOLERANCE`] of its size, at least of one unit): placed that
-/// far for its size, its positions were rounded when it was loaded or placed, and no frame
-/// gives them back (a bunny listed twice 10¹³ out: 66 mismatches of 3,000 rays).
-pub fn coarse_in_world(part: u32, b: (DVec3, DVec3)) -> Option<Unresolved> {
-    let reach = reach_of(b, DVec3::ZERO);
-    let (step, size) = (f64_step(reach), scaled_length(b.1 - b.0));
+/// A part with the box `b` when positions are rounded, where it lies from `origin`, to steps
+/// `step(reach)` of which half is more than picks are held to (`raypick verify`'s tolerance,
+/// [`crate::check::compare::RELATIVE_TOLERANCE`] of its size, at least of one unit): with
+/// [`f64_step`] about the world's origin, world f64 itself rounds its positions when it is
+/// loaded or placed, and no frame gives them back (a bunny listed twice 10¹³ out: 66 mismatches
+/// of 3,000 rays); with [`ray_step`] about an instanced scene's frame origin, a ray enters the
+/// instance off by up to half a step, which puts hits near an edge on the neighbouring triangle
+/// (two bunnies 5 × 10⁷ apart: 3 rays of 2,000; 10⁹: 9; a 1.6 cm bunny 10⁷ from another: 78;
+/// 10⁶ apart, and the dragon 10⁶ from another: none).
+pub fn coarser_than_picks(
+    part: u32,
+    b: (DVec3, DVec3),
+    origin: DVec3,
+    step: fn(f64) -> f64,
+) -> Option<Unresolved> {
+    let reach = reach_of(b, origin);
+    let (step, size) = (step(reach), scaled_length(b.1 - b.0));
     let tolerance = crate::check::compare::RELATIVE_TOLERANCE * size.max(1.0);
     (step / 2.0 > tolerance).then_some(Unresolved {
         part,
@@ -162,7 +171,8 @@ impl Unresolved {
         self.describe_asking(what, "are some objects in other coordinates?")
     }
 
-    /// The sentence for a part world f64 rounds too coarsely ([`coarse_in_world`]).
+    /// The sentence for a part world f64 rounds too coarsely ([`coarser_than_picks`] with
+    /// [`f64_step`]).
     pub fn describe_in_world(&self, what: &str) -> String {
         format!(
             "{what} lies {} from the world's origin, where double precision rounds positions to \
@@ -176,7 +186,7 @@ impl Unresolved {
     }
 
     /// The sentence for an instance whose rays are placed more coarsely than picks are held to
-    /// ([`crate::instance::Instances::coarsely_placed`]), `others` more after it.
+    /// ([`coarser_than_picks`] with [`ray_step`]), `others` more after it.
     pub fn describe_coarse(&self, others: usize) -> String {
         let more = match others {
             0 => String::new(),
@@ -236,9 +246,8 @@ pub fn object_boxes(scene: &Scene) -> Vec<(u32, (DVec3, DVec3))> {
         .collect()
 }
 
-/// Of `boxes` ([`object_boxes`]), those not resolved in a frame centred on `origin` with steps
-/// `step(reach)`: [`f32_step`] about the frame's origin, or [`f64_step`] about the world's
-/// (`DVec3::ZERO`: what world f64 itself rounds out of shape).
+/// Of `boxes` ([`object_boxes`], `Instances::hittable_boxes`), those not resolved in a frame
+/// centred on `origin` with steps `step(reach)` ([`f32_step`], or [`ray_step`] for instances).
 pub fn unresolved_among(
     boxes: &[(u32, (DVec3, DVec3))],
     origin: DVec3,

@@ -799,7 +799,7 @@ impl Instances {
     }
 
     /// Each instance's world box in f64 (`None` for a mesh with nothing to hit), on all cores.
-    pub fn world_boxes(&self) -> Vec<Option<(DVec3, DVec3)>> {
+    fn world_boxes(&self) -> Vec<Option<(DVec3, DVec3)>> {
         use rayon::prelude::*;
         (0..self.instances.len())
             .into_par_iter()
@@ -818,57 +818,15 @@ impl Instances {
             .collect()
     }
 
-    /// The instances that can be hit whose world positions world f64 rounds more coarsely than
-    /// picks are held to where they lie ([`crate::frame::reach::coarse_in_world`]: the refined
-    /// answers are made from them), in id order. `boxes` are [`Instances::world_boxes`].
-    pub fn coarse_in_world(
-        &self,
-        boxes: &[Option<(DVec3, DVec3)>],
-    ) -> Vec<crate::frame::reach::Unresolved> {
-        (0..self.instances.len())
-            .filter(|&k| self.instances[k].mask != 0)
-            .filter_map(|k| crate::frame::reach::coarse_in_world(k as u32, boxes[k]?))
-            .collect()
-    }
-
-    /// The instances that can be hit whose rays the scene frame places more coarsely than picks
-    /// are held to, though each is resolved as a whole ([`Instances::unresolved`]): a ray enters
-    /// a mesh from its f32 origin and half-float rest, off by up to half a
-    /// [`ray_step`](crate::frame::reach::ray_step) where the instance lies, which puts a hit
-    /// near an edge on the neighbouring triangle once it is more than `raypick verify`'s
-    /// tolerance ([`crate::check::compare::RELATIVE_TOLERANCE`] of the instance's size, at least
-    /// of one unit). Two bunnies 5 × 10⁷ apart answered 3 rays of 2,000 otherwise than the
-    /// oracle, 10⁹ apart 9, a 1.6 cm bunny 10⁷ from another 78, all without a word; 10⁶ apart,
-    /// and the dragon 10⁶ from another, none. `boxes` are [`Instances::world_boxes`].
-    pub fn coarsely_placed(
-        &self,
-        boxes: &[Option<(DVec3, DVec3)>],
-    ) -> Vec<crate::frame::reach::Unresolved> {
-        use crate::check::compare::RELATIVE_TOLERANCE;
-        use crate::frame::reach::{Unresolved, ray_step, reach_of};
-        (0..self.instances.len())
-            .filter(|&k| self.instances[k].mask != 0)
-            .filter_map(|k| {
-                let b = boxes[k]?;
-                let reach = reach_of(b, self.origin);
-                let (step, size) = (ray_step(reach), crate::scene::scaled_length(b.1 - b.0));
-                (step / 2.0 > RELATIVE_TOLERANCE * size.max(1.0)).then_some(Unresolved {
-                    part: k as u32,
-                    reach,
-                    step,
-                    size,
-                })
-            })
-            .collect()
-    }
-
-    /// [`Instances::unresolved`] from the instances' `boxes` ([`Instances::world_boxes`]).
-    pub fn unresolved_among(
-        &self,
-        boxes: &[Option<(DVec3, DVec3)>],
-    ) -> Vec<crate::frame::reach::Unresolved> {
-        (0..self.instances.len())
-            .filter_map(|k| self.unresolved_in(k, boxes[k]?))
+    /// The instances that can be hit (mask not 0, not removed), with their world boxes, in id
+    /// order: what the frame warnings measure ([`crate::frame::faults`]), as
+    /// [`crate::frame::reach::object_boxes`] lists a plain scene's objects.
+    pub fn hittable_boxes(&self) -> Vec<(u32, (DVec3, DVec3))> {
+        self.world_boxes()
+            .into_iter()
+            .enumerate()
+            .filter(|&(k, _)| self.instances[k].mask != 0)
+            .filter_map(|(k, b)| Some((k as u32, b?)))
             .collect()
     }
 

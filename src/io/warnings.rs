@@ -27,16 +27,15 @@ pub fn warn(message: String) {
 /// Runs `f` and returns what it returned with the warnings said on this thread meanwhile, in
 /// order, instead of writing them. Nested calls each get their own.
 pub fn collect<R>(f: impl FnOnce() -> R) -> (R, Vec<String>) {
-    let outer = COLLECTED.with(|c| c.replace(Some(Vec::new())));
-    // Put back on the way out, a panic included.
-    struct Restore(Option<Option<Vec<String>>>);
+    // The outer collection (if any), put back on the way out, a panic included.
+    struct Restore(Option<Vec<String>>);
     impl Drop for Restore {
         fn drop(&mut self) {
-            let outer = self.0.take().flatten();
+            let outer = self.0.take();
             COLLECTED.with(|c| *c.borrow_mut() = outer);
         }
     }
-    let restore = Restore(Some(outer));
+    let restore = Restore(COLLECTED.with(|c| c.replace(Some(Vec::new()))));
     let result = f();
     let said = COLLECTED
         .with(|c| c.borrow_mut().take())
