@@ -112,12 +112,8 @@ impl Scene {
             }
             threads::run(|| {
                 // Every instance's world triangles are copied: checked before they are made, as
-                // a description's copies are (the CLI's `verify` counts 96 bytes a triangle).
-                raypick::budget::check(
-                    "baking the instances into copies for los and viewshed",
-                    instances.prim_count(),
-                    96,
-                )?;
+                // a description's copies are.
+                instances.check_bake("baking the instances into copies for los and viewshed")?;
                 BuiltScene::new(instances.baked()?, &options)
             })?
             .map_err(to_py)

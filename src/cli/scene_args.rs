@@ -242,12 +242,8 @@ impl SceneArgs {
             };
             // A saved instanced scene, for a command that picks copies: its instances baked
             // into objects (the same ids and names) and built again; their triangles checked
-            // against the budget before they are made (as `verify` counts them).
-            raypick::budget::check(
-                "baking the saved instances into copies",
-                instances.prim_count(),
-                96,
-            )?;
+            // against the budget before they are made.
+            instances.check_bake("baking the saved instances into copies")?;
             let scene = instances.baked()?;
             check(&scene)?;
             let loaded = start.elapsed().as_secs_f64();

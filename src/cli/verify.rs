@@ -67,11 +67,7 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let baked;
     let world = match built.instances() {
         Some(instances) => {
-            raypick::budget::check(
-                "baking the instances into world triangles for the oracle",
-                instances.prim_count(),
-                96,
-            )?;
+            instances.check_bake("baking the instances into world triangles for the oracle")?;
             baked = instances.baked()?;
             say!(
                 "instances: {} of {} meshes, top tree {} nodes",

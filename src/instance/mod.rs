@@ -23,6 +23,10 @@ use crate::scene::{Scene, apply_transform, check_transform};
 use glam::{DMat3, DVec3, Vec3};
 use std::sync::{Arc, OnceLock};
 
+/// Bytes a world triangle of [`Instances::baked`] takes: its three f64 corners (72) and its
+/// indices and share of the scene's other arrays.
+pub const BAKED_TRIANGLE_BYTES: u64 = 96;
+
 pub use resolve::{resolve_chunk, resolve_with};
 
 /// The identity transform (3 × 4, row-major).
@@ -770,9 +774,15 @@ impl Instances {
         }
     }
 
+    /// Checks that [`Instances::baked`]'s copies fit the memory budget, before they are made:
+    /// [`BAKED_TRIANGLE_BYTES`] a world triangle; `what` names the bake in the refusal.
+    pub fn check_bake(&self, what: &str) -> Result<()> {
+        crate::budget::check(what, self.prim_count(), BAKED_TRIANGLE_BYTES)
+    }
+
     /// The same scene with every instance's mesh copied and transformed into world f64
     /// positions: one object per instance, ids in order (what the brute-force oracle and a
-    /// scene without instances see).
+    /// scene without instances see). Callers check its size first ([`Instances::check_bake`]).
     pub fn baked(&self) -> Result<Scene> {
         let mut scene = Scene::new();
         for (k, i) in self.instances.iter().enumerate() {
