@@ -189,7 +189,13 @@ fn load_scene_reading(files: &[SceneFile], mut read: Vec<(&Path, Shared)>) -> Re
                     "the triangles of the scene's {} listings (a file listed again is copied)",
                     files.len()
                 );
-                if crate::budget::check(&what, triangles + copy, COPIED_TRIANGLE_BYTES).is_err() {
+                if crate::budget::check(
+                    &what,
+                    triangles.saturating_add(copy),
+                    COPIED_TRIANGLE_BYTES,
+                )
+                .is_err()
+                {
                     // Said with what the whole scene needs as far as it is known (the listings
                     // of the files read so far, to the end), not the sum at the listing where
                     // it crossed the budget: that figure, given as the budget, failed again.
