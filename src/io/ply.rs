@@ -21,7 +21,9 @@
 //!   gives an empty mesh (with a warning, as an OBJ without faces).
 //! - In an ascii body each item is a line of its own, as the format says: a line with more or
 //!   fewer values than the header's properties, and anything after the last item, are errors
-//!   naming the line (blank lines, spaces and CRLF line ends are not values).
+//!   naming the line (blank lines, spaces and CRLF line ends are not values). A binary body
+//!   followed by anything but blanks is an error too: the header's counts ask for fewer items
+//!   than the file holds.
 //!
 //! # Sizes
 //!
@@ -209,6 +211,36 @@ impl Input {
     }
 }
 
+/// Refuses bytes after a binary body's last item, as the ascii reader refuses values there:
+/// they mean the header's counts ask for fewer items than the file holds (a mesh cut short
+/// without a word). Blanks alone (a newline some writers add) are no data. Reads to the end,
+/// which the file's length (or, compressed, its inflation limit) bounds.
+fn check_binary_tail<R: BufRead>(input: &Input, reader: &mut R) -> Result<(), Error> {
+    let (mut bytes, mut data) = (0u64, 0u64);
+    loop {
+        let buf = reader
+            .fill_buf()
+            .map_err(|e| input.io(e, "reading past the data"))?;
+        if buf.is_empty() {
+            break;
+        }
+        let n = buf.len();
+        data += buf.iter().filter(|b| !b.is_ascii_whitespace()).count() as u64;
+        bytes += n as u64;
+        reader.consume(n);
+    }
+    if data == 0 {
+        return Ok(());
+    }
+    Err(input.parse(
+        None,
+        format!(
+            "{bytes} byte(s) follow the binary body's last item (the header's counts ask for \
+             fewer items than the file holds)"
+        ),
+    ))
+}
+
 /// Reads a whole PLY stream (already decompressed).
 fn read_ply<R: BufRead>(input: &Input, mut reader: R) -> Result<Mesh, Error> {
     let header = read_header(input, &mut reader)?;
@@ -249,6 +281,7 @@ fn read_ply<R: BufRead>(input: &Input, mut reader: R) -> Result<Mesh, Error> {
                 big_endian: header.format == Format::BinaryBigEndian,
             };
             read_body(input, &header, &plan, &mut body, &mut mesh, &mut short)?;
+            check_binary_tail(input, &mut body.reader)?;
         }
     }
     if let Some((count, first)) = short {

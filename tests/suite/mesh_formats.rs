@@ -920,6 +920,48 @@ fn truncated_binary_ply_files_are_refused() {
     error_naming(load_ply(&file), &file, None);
 }
 
+/// A binary body followed by data is refused, as an ascii body is: the header's counts asked
+/// for fewer items than the file holds (the mesh was cut short without a word before). A
+/// trailing newline is no data.
+#[test]
+fn binary_ply_files_with_data_after_the_last_item_are_refused() {
+    let dir = TempDir::new("binary-tail");
+    let obj = bunny();
+    for style in [STYLES[3], STYLES[5]] {
+        let whole = ply_bytes(&obj, style);
+        // The header says 3,000 faces of the file's 3,674: the rest follows the last item.
+        let text = String::from_utf8_lossy(&whole);
+        let header_end = text.find("end_header\n").unwrap() + "end_header\n".len();
+        let header = text[..header_end].replace("element face 3674", "element face 3000");
+        assert_ne!(header, text[..header_end], "the header names 3674 faces");
+        let mut cut = header.into_bytes();
+        cut.extend_from_slice(&whole[header_end..]);
+        let file = dir.write("fewer.ply", &cut);
+        let e = error_naming(load_ply(&file), &file, None);
+        assert!(
+            e.contains("follow the binary body's last item"),
+            "{style:?}: {e}"
+        );
+        let file = dir.write("fewer.ply.gz", &gzip(&cut));
+        let e = error_naming(load_ply(&file), &file, None);
+        assert!(
+            e.contains("follow the binary body's last item"),
+            "{style:?}: {e}"
+        );
+        // Zeros after the data are data too.
+        let mut padded = whole.clone();
+        padded.extend_from_slice(&[0; 3]);
+        let file = dir.write("padded.ply", &padded);
+        let e = error_naming(load_ply(&file), &file, None);
+        assert!(e.contains("3 byte(s) follow"), "{style:?}: {e}");
+        // A newline (some writers add one) is not.
+        let mut newline = whole.clone();
+        newline.extend_from_slice(b"\r\n");
+        let file = dir.write("newline.ply", &newline);
+        assert_eq!(load_ply(&file).unwrap().triangles.len(), 3674);
+    }
+}
+
 #[test]
 fn bad_stl_files_give_one_sentence_naming_the_file() {
     let file = formats("stl-bad-number.stl");
