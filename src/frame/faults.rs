@@ -132,3 +132,44 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
     }
     said
 }
+
+/// The warnings about part `part` (an object, or an instance) alone where an edit has just
+/// placed it, as [`frame_warnings`] gives them for a loaded scene: f64 rounding it out of
+/// shape in the world, and an instance's rays placed more coarsely than picks are held to.
+/// What an edit makes worse for the whole scene is refused, not warned about; these are the
+/// placements that are allowed and still picked less exactly. Empty for a part that cannot
+/// be hit (removed, mask 0, no triangles). One pass over the part's vertices.
+pub fn placement_warnings(built: &BuiltScene, part: u32) -> Vec<String> {
+    let (b, kind) = match built.instances() {
+        Some(i) => (i.hittable_box(part), "instance"),
+        None => (
+            built
+                .scene
+                .objects()
+                .get(part as usize)
+                .filter(|o| o.triangle_count > 0 && o.mask != 0)
+                .map(|o| {
+                    crate::scene::box_of(
+                        built
+                            .scene
+                            .object_vertices(o.id)
+                            .map(|v| built.scene.position(v)),
+                    )
+                }),
+            "object",
+        ),
+    };
+    let Some(b) = b else {
+        return Vec::new();
+    };
+    let mut said = Vec::new();
+    if let Some(u) = reach::coarser_than_picks(part, b, DVec3::ZERO, reach::f64_step) {
+        said.push(u.describe_in_world(&format!("{kind} {part}")));
+    }
+    if let Some(i) = built.instances()
+        && let Some(u) = reach::coarser_than_picks(part, b, i.origin(), reach::ray_step)
+    {
+        said.push(u.describe_coarse(0));
+    }
+    said
+}

@@ -349,10 +349,88 @@ impl Instances {
             }
             self.instances[i] = placed;
         }
+        // Where the instance was, as its leaf box holds it (rounded outward): where that reached
+        // the edge of the bounds, they are worked out again after the move (an instance moved
+        // far out and back left them reaching its far place, and with them the frame's reach,
+        // so rays from far out were no longer moved near the scene before rounding); else the
+        // move only grows them.
+        let left_the_edge = self.instances[i].mask != 0
+            && self.leaf_world_box(bvh, i).is_some_and(|(lo, hi)| {
+                !self
+                    .bounds
+                    .is_some_and(|(blo, bhi)| lo.cmpgt(blo).all() && hi.cmplt(bhi).all())
+            });
         self.records[i] = self.record(i, self.records[i].prim_base);
         self.refit_leaf(bvh, i, placed_box);
+        if left_the_edge {
+            self.bounds = self.bounds_by_leaves(bvh);
+        }
         self.refit_top_wide(bvh);
         Ok(())
+    }
+
+    /// Instance `k`'s leaf box in the top tree, in the world: its world box rounded outward
+    /// (it holds the exact box); `None` for an instance without a leaf.
+    fn leaf_world_box(&self, bvh: &Bvh, k: usize) -> Option<(DVec3, DVec3)> {
+        let leaf = *self.leaf_of.get(k)?;
+        let node = bvh.nodes.get(leaf as usize).filter(|_| leaf != NO_LEAF)?;
+        Some((
+            self.origin + Vec3::from(node.min).as_dvec3(),
+            self.origin + Vec3::from(node.max).as_dvec3(),
+        ))
+    }
+
+    /// The bounds of what can be hit, worked out again exactly from a few instances' world
+    /// boxes: each side's extreme is that of the instance whose leaf box reaches farthest there,
+    /// or of one whose leaf box (which holds its exact box) reaches past that. So a move
+    /// costs one pass over the leaf boxes and a few meshes' vertices, not every instance's.
+    fn bounds_by_leaves(&self, bvh: &Bvh) -> Option<(DVec3, DVec3)> {
+        let live: Vec<(usize, (DVec3, DVec3))> = (0..self.instances.len())
+            .filter(|&k| self.instances[k].mask != 0 && !self.removed[k])
+            .filter_map(|k| Some((k, self.leaf_world_box(bvh, k)?)))
+            .collect();
+        if live.is_empty() {
+            let boxes = self.world_boxes();
+            return self.live_bounds(&boxes).or_else(|| all_bounds(&boxes));
+        }
+        let mut exact = std::collections::HashMap::new();
+        let mut exact_box = |k: usize| *exact.entry(k).or_insert_with(|| self.world_box(k));
+        let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for axis in 0..3 {
+            // The highest side: the farthest-reaching leaf's exact extreme, then any leaf past it.
+            let (first, _) = live
+                .iter()
+                .max_by(|a, b| a.1.1[axis].total_cmp(&b.1.1[axis]))
+                .copied()
+                .expect("live instances");
+            let mut top = exact_box(first).map_or(f64::NEG_INFINITY, |b| b.1[axis]);
+            let past = top;
+            for &(k, (_, leaf_hi)) in &live {
+                if leaf_hi[axis] > past
+                    && let Some(b) = exact_box(k)
+                {
+                    top = top.max(b.1[axis]);
+                }
+            }
+            hi[axis] = top;
+            // The lowest side.
+            let (first, _) = live
+                .iter()
+                .min_by(|a, b| a.1.0[axis].total_cmp(&b.1.0[axis]))
+                .copied()
+                .expect("live instances");
+            let mut bottom = exact_box(first).map_or(f64::INFINITY, |b| b.0[axis]);
+            let past = bottom;
+            for &(k, (leaf_lo, _)) in &live {
+                if leaf_lo[axis] < past
+                    && let Some(b) = exact_box(k)
+                {
+                    bottom = bottom.min(b.0[axis]);
+                }
+            }
+            lo[axis] = bottom;
+        }
+        (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
     }
 
     /// Sets instance `k`'s layer mask (0: never hit, until shown again). Fails on an unknown or
@@ -838,6 +916,15 @@ impl Instances {
             .filter(|&(k, _)| self.instances[k].mask != 0)
             .filter_map(|(k, b)| Some((k as u32, b?)))
             .collect()
+    }
+
+    /// Instance `k`'s world box when it can be hit (placed, mask not 0), as
+    /// [`Instances::hittable_boxes`] lists it; `None` for an unknown id.
+    pub fn hittable_box(&self, k: u32) -> Option<(DVec3, DVec3)> {
+        let k = k as usize;
+        (self.instances.get(k)?.mask != 0)
+            .then(|| self.world_box(k))
+            .flatten()
     }
 
     /// Instance `k`, where it is placed now, when it can be hit and the frame does not resolve it.

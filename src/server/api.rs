@@ -909,14 +909,15 @@ fn object_id(id: &str) -> Result<u32, ApiError> {
         })
 }
 
-/// Hands `edit` to the worker and answers `{"object": id}`.
+/// Hands `edit` to the worker and answers `{"object": id}`, with `"warnings"` (sentences) where
+/// the object now lies where it is picked less exactly.
 async fn submit_edit(state: &AppState, edit: Edit) -> Result<Response, ApiError> {
     let (reply, answer) = oneshot::channel();
     state
         .worker
         .submit(Job::Edit { edit, reply })
         .map_err(ApiError::internal)?;
-    let object = answer
+    let edited = answer
         .await
         .map_err(|_| ApiError::internal("the picking worker dropped the edit"))?
         .map_err(|e| match e {
@@ -926,7 +927,12 @@ async fn submit_edit(state: &AppState, edit: Edit) -> Result<Response, ApiError>
             EditError::Invalid(m) => ApiError::bad_request(m),
             EditError::OverBudget(m) => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, m),
         })?;
-    Ok(json_response(StatusCode::OK, &json!({ "object": object })))
+    // Warnings only where there are some: most answers stay `{"object": id}`.
+    let body = match edited.warnings.is_empty() {
+        true => json!({ "object": edited.object }),
+        false => json!({ "object": edited.object, "warnings": edited.warnings }),
+    };
+    Ok(json_response(StatusCode::OK, &body))
 }
 
 /// `POST /objects`.

@@ -74,7 +74,7 @@ pub(crate) enum Job {
         /// What to change.
         edit: Edit,
         /// The object added or changed, or why not.
-        reply: oneshot::Sender<std::result::Result<u32, EditError>>,
+        reply: oneshot::Sender<std::result::Result<Edited, EditError>>,
     },
     /// Render `camera`'s view.
     Render {
@@ -85,6 +85,17 @@ pub(crate) enum Job {
         /// Where the image goes.
         reply: Reply<Image>,
     },
+}
+
+/// What an edit did: the object added, changed or removed, and the warnings about where it
+/// now lies ([`crate::frame::faults::placement_warnings`]: placements that are allowed and
+/// still picked less exactly), each one sentence.
+#[derive(Debug)]
+pub(crate) struct Edited {
+    /// The object's id.
+    pub(crate) object: u32,
+    /// The sentences; empty for most edits.
+    pub(crate) warnings: Vec<String>,
 }
 
 /// A scene edit (`POST /objects`, `PATCH` and `DELETE /objects/{id}`).
@@ -509,8 +520,18 @@ impl Batcher {
                         self.answer(picker.as_mut(), std::mem::take(&mut part));
                         // What the picks so far had to say: the edit may replace the picker.
                         show_notes(picker.as_mut(), &mut self.notes_shown);
+                        let removal = matches!(edit, Edit::Remove { .. });
                         let done = catch_unwind(AssertUnwindSafe(|| self.apply(picker, edit)))
                             .unwrap_or_else(|_| Err(EditError::Failed("the edit panicked".into())))
+                            .map(|object| Edited {
+                                object,
+                                warnings: match (removal, picker.current_scene()) {
+                                    (false, Some(built)) => {
+                                        crate::frame::faults::placement_warnings(&built, object)
+                                    }
+                                    _ => Vec::new(),
+                                },
+                            })
                             .map_err(|e| self.without_paths(e));
                         let _ = reply.send(done);
                     }

@@ -107,7 +107,9 @@
 //!
 //! ## `POST /objects`, `PATCH /objects/{id}`, `DELETE /objects/{id}`
 //!
-//! Scene edits, answered `{"object": id}`. `POST` adds `{"mesh": id}` (a copy of that object's
+//! Scene edits, answered `{"object": id}`, with `"warnings"` (a list of sentences) where the
+//! edit placed the object where it is picked less exactly
+//! ([`crate::frame::faults::placement_warnings`]). `POST` adds `{"mesh": id}` (a copy of that object's
 //! mesh as it was loaded or added) or `{"vertices": [[x, y, z], ...], "triangles": [[i, j, k],
 //! ...]}`, either with an optional `"transform"` (3 × 4 row-major, file → world) and `"mask"`;
 //! the tree is built again. `PATCH` sets `"transform"` (relative to the object as loaded or

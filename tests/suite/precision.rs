@@ -286,3 +286,58 @@ fn rays_from_far_out_pick_the_nearest_triangle_on_every_path() {
         }
     }
 }
+
+/// An instance moved far out and back leaves the scene's bounds (what `GET /scene` reports and
+/// the viewer frames, and the frame's reach, which decides which rays come from far out) as
+/// they were: they kept reaching the far place. Rays from far out then still pick the nearest
+/// triangle, as the oracle does.
+#[test]
+fn an_instance_moved_far_out_and_back_gives_the_bounds_back() {
+    use raypick::check::synthetic::box_mesh;
+    use raypick::instance::Instance;
+    let mut tower = Scene::new();
+    let mesh = box_mesh(DVec3::new(30.0, 40.0, 0.0), DVec3::new(38.0, 48.0, 30.0));
+    tower.add_mesh("tower", mesh).unwrap();
+    let placed = |x: f64| {
+        [
+            [1.0, 0.0, 0.0, x],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+        ]
+    };
+    let instances = ["west", "east"]
+        .iter()
+        .zip([0.0, 20.0])
+        .map(|(name, x)| Instance {
+            name: (*name).into(),
+            mesh: 0,
+            transform: placed(x),
+            mask: u32::MAX,
+        })
+        .collect();
+    let mut built =
+        BuiltScene::instanced(vec![tower], instances, &BuildOptions::default()).unwrap();
+    let bounds = built.bounds();
+    built.set_instance_transform(1, placed(1e8)).unwrap();
+    assert_ne!(built.bounds(), bounds, "out there");
+    built.set_instance_transform(1, placed(20.0)).unwrap();
+    assert_eq!(built.bounds(), bounds, "back");
+    // Hidden and moved, shown again: the bounds of what can be hit.
+    built.set_instance_mask(0, 0).unwrap();
+    built.set_instance_transform(0, placed(-5e7)).unwrap();
+    built.set_instance_transform(1, placed(-40.0)).unwrap();
+    built.set_instance_transform(0, placed(0.0)).unwrap();
+    built.set_instance_mask(0, u32::MAX).unwrap();
+    built.set_instance_transform(1, placed(20.0)).unwrap();
+    assert_eq!(built.bounds(), bounds, "back again");
+    let built = Arc::new(built);
+    let mut rays = far_rays(bounds.unwrap(), 1024, 23);
+    rays.extend(
+        [2e2, 1e6, 1e9]
+            .iter()
+            .map(|&x| Ray::new(DVec3::new(x, 44.0, 10.0), DVec3::NEG_X)),
+    );
+    let baked = built.instances().unwrap().baked().unwrap();
+    let hits = CpuPicker::new(built.clone()).pick(&rays).unwrap();
+    assert_nearest("moved back", &baked, &rays, &hits);
+}

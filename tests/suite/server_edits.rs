@@ -658,6 +658,37 @@ fn far_edits_are_refused_on(scene: Arc<BuiltScene>, instanced: bool) {
     assert_eq!(scene["objects"].as_array().unwrap().len(), 2, "{scene}");
     assert_eq!(scene["objects"][1]["transform"], Value::Null, "{scene}");
     assert_eq!(down(&base, &[0.5, 10.5], u32::MAX), [Some(1), Some(0)]);
+    if instanced {
+        // An instance moved where the frame still resolves it, but places its rays to about
+        // 4e-3 units (a unit box's picks are held to a hundred-thousandth of its size): allowed,
+        // with the warning the command line gives for such a scene. Moved back, none; and the
+        // bounds (and with them the frame's reach, which decides whether rays from far out are
+        // moved near the scene before rounding) are the scene's again: they kept reaching
+        // 10⁸.
+        let bounds = call("GET", &format!("{base}/scene"), None).1["bounds"].clone();
+        let (status, answer) = call(
+            "PATCH",
+            &format!("{base}/objects/1"),
+            Some(&json!({"transform": translate(1e8)})),
+        );
+        assert_eq!(status, 200, "{answer}");
+        let warnings = answer["warnings"].as_array().expect("warnings");
+        assert_eq!(warnings.len(), 1, "{answer}");
+        let warning = warnings[0].as_str().unwrap();
+        assert!(
+            warning.starts_with("instance 1 lies") && warning.contains("neighbouring triangle"),
+            "{warning}"
+        );
+        let (status, answer) = call(
+            "PATCH",
+            &format!("{base}/objects/1"),
+            Some(&json!({"transform": translate(0.0)})),
+        );
+        assert_eq!((status, &answer), (200, &json!({"object": 1})));
+        let (_, scene) = call("GET", &format!("{base}/scene"), None);
+        assert_eq!(scene["bounds"], bounds, "{scene}");
+        assert_eq!(down(&base, &[0.5, 10.5], u32::MAX), [Some(1), Some(0)]);
+    }
     // Nearby edits still go through.
     let (status, answer) = call(
         "PATCH",
