@@ -110,7 +110,7 @@ pub fn read_rays(path: &Path, tmin: f64, tmax: f64, mask: u32) -> Result<Vec<Ray
 }
 
 /// Whether `path`'s extension is `extension` (ASCII case ignored).
-fn has_extension(path: &Path, extension: &str) -> bool {
+pub(crate) fn has_extension(path: &Path, extension: &str) -> bool {
     path.extension()
         .is_some_and(|e| e.eq_ignore_ascii_case(extension))
 }

@@ -83,7 +83,7 @@ pub fn run(args: ProbeArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             }
             say!(
                 "{:<16} {name:<5} {leaked:>9} {:>14.0}",
-                format!("{intersector:?}"),
+                intersector.to_string(),
                 probes.len() as f64 / seconds
             )?;
         }

@@ -92,7 +92,18 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     )?;
     let q = &args.query;
     let query = q.query();
-    say!("query: {query:?}, ray mask {:#x}", q.ray_mask)?;
+    // The command line's names (`closest`, `watertight`), not the library's type names.
+    let max_hits = match query.mode {
+        raypick::Mode::All => format!(", max hits {}", query.max_hits),
+        _ => String::new(),
+    };
+    say!(
+        "query: mode {}, cull {}{max_hits}, intersector {}, ray mask {:#x}",
+        query.mode,
+        query.cull,
+        query.intersector,
+        q.ray_mask
+    )?;
     let labelled: Vec<(&str, Ray)> = match &args.rays {
         Some(path) => {
             let rays = read_rays(path, q.tmin, q.tmax, q.ray_mask)?;
