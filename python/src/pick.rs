@@ -72,7 +72,7 @@ impl QueryArgs {
 /// `max_hits=`: an integer in 1 ..= 1024.
 pub fn max_hits(value: &Bound<'_, PyAny>) -> PyResult<u32> {
     int_arg::integer(value, "max_hits", 1..=MAX_HITS_LIMIT, |v| {
-        format!("max hits {v} is out of range; it must be 1 ..= {MAX_HITS_LIMIT}")
+        format!("max_hits {v} is out of range; it must be 1 ..= {MAX_HITS_LIMIT}")
     })
 }
 

@@ -305,7 +305,7 @@ fn build_options(builder: Option<&str>, leaf_size: Option<u32>) -> PyResult<Buil
 fn leaf_size(value: &Bound<'_, PyAny>) -> PyResult<u32> {
     let most = raypick::layout::MAX_LEAF_SIZE;
     int_arg::integer(value, "leaf_size", 1..=most, |v| {
-        format!("leaf size {v} is out of range; it must be 1 ..= {most}")
+        format!("leaf_size {v} is out of range; it must be 1 ..= {most}")
     })
 }
 

@@ -57,8 +57,8 @@ def test_bad_origin_direction_pairs(bunny):
         ({"cull": "both"}, "cull: unknown value both (expected one of: none, back, front)"),
         ({"intersector": "fast"}, "intersector: unknown value fast (expected one of: moller-trumbore, watertight)"),
         ({"backend": "tpu"}, "backend: unknown value tpu (expected one of: auto, gpu, cpu, reference)"),
-        ({"mode": "all", "max_hits": 0}, "max hits 0 is out of range; it must be 1 ..= 1024"),
-        ({"max_hits": 5000}, "max hits 5000 is out of range; it must be 1 ..= 1024"),
+        ({"mode": "all", "max_hits": 0}, "max_hits 0 is out of range; it must be 1 ..= 1024"),
+        ({"max_hits": 5000}, "max_hits 5000 is out of range; it must be 1 ..= 1024"),
         ({"ray_mask": -1}, "ray_mask -1 is out of range; it must be 0 ..= 0xFFFFFFFF"),
         ({"ray_mask": 2**32}, "ray_mask 4294967296 is out of range; it must be 0 ..= 0xFFFFFFFF"),
     ],
@@ -120,8 +120,8 @@ def test_bad_load_arguments(bunny, tmp_path):
          "the grid builder needs a scene that is one height grid, but this scene has 1 object(s) "
          "that is not a grid; "
          'use builder="median-cut"'),
-        (lambda: raypick.Scene.load(BUNNY, leaf_size=0), "leaf size 0 is out of range; it must be 1 ..= 15"),
-        (lambda: raypick.Scene.load(BUNNY, leaf_size=-2), "leaf size -2 is out of range; it must be 1 ..= 15"),
+        (lambda: raypick.Scene.load(BUNNY, leaf_size=0), "leaf_size 0 is out of range; it must be 1 ..= 15"),
+        (lambda: raypick.Scene.load(BUNNY, leaf_size=-2), "leaf_size -2 is out of range; it must be 1 ..= 15"),
         (lambda: raypick.Scene.load([BUNNY, BUNNY], masks=1),
          "masks must be a list of 2 masks (an integer or None each), one per path"),
         (lambda: raypick.Scene.load([BUNNY, BUNNY], masks=[1]),
@@ -417,10 +417,10 @@ def integer_arguments(bunny, dem):
     rays = rays_at(bunny, 3)
     v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
     return [
-        ("leaf size", lambda value: raypick.Scene.load(BUNNY, leaf_size=value)),
-        ("leaf size", lambda value: raypick.Scene.from_arrays(v, [[0, 1, 2]], leaf_size=value)),
-        ("max hits", lambda value: bunny.pick(rays, max_hits=value)),
-        ("max hits", lambda value: bunny.pick(rays, mode="all", max_hits=value)),
+        ("leaf_size", lambda value: raypick.Scene.load(BUNNY, leaf_size=value)),
+        ("leaf_size", lambda value: raypick.Scene.from_arrays(v, [[0, 1, 2]], leaf_size=value)),
+        ("max_hits", lambda value: bunny.pick(rays, max_hits=value)),
+        ("max_hits", lambda value: bunny.pick(rays, mode="all", max_hits=value)),
         ("ray_mask", lambda value: bunny.pick(rays, ray_mask=value)),
         ("ray_mask", lambda value: bunny.los(rays[:, :3], rays[:, 3:], ray_mask=value)),
         ("ray_mask", lambda value: dem.viewshed([518775.0, 4030000, 4000], ray_mask=value)),
@@ -461,7 +461,7 @@ def test_bools_are_not_integer_arguments(bunny, dem):
     nothing); a bool for an integer argument is a TypeError naming it. numpy integers are
     integers."""
     for name, call in integer_arguments(bunny, dem):
-        argument = {"leaf size": "leaf_size", "max hits": "max_hits"}.get(name, name)
+        argument = name
         for value in [True, False, np.True_, np.bool_(False)]:
             with pytest.raises(TypeError) as e:
                 call(value)

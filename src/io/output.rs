@@ -9,7 +9,7 @@
 //! and `invalid` empty. Numbers are printed in Rust's shortest
 //! round-trip form, so an f64 world coordinate keeps every digit (well below a millimetre at map
 //! coordinates); beyond 1e-7 ..= 1e21 in magnitude, with an exponent ([`csv_number`]). JSON
-//! numbers take the exponent form below 1e-5 and from 1e16 (Rust's `{:?}`).
+//! numbers take the exponent form below 1e-4 and from 1e16 (Rust's `{:?}`).
 
 use crate::query::{Answers, Mode};
 use crate::ray::Hit;

@@ -51,7 +51,7 @@
 //! | 28 | CRC-32 (IEEE, as zlib and `crc32fast`) of bytes 0..28 |
 //!
 //! **Section header:** the kind (4 ASCII bytes), the CRC-32 of the payload (u32), the payload's
-//! length in bytes (u64). Version 2 has these eleven sections, each once, in this order (element
+//! length in bytes (u64). Version 3 has these eleven sections, each once, in this order (element
 //! sizes in bytes):
 //!
 //! | kind | what | element |
@@ -207,7 +207,7 @@ pub const WIDE: Kind = Kind {
     what: "wide tree nodes",
 };
 
-/// Version 2's sections, in file order.
+/// Version 3's sections, in file order.
 pub const SECTIONS: [Kind; 11] = [
     SUMM, VERT, TRIS, OBJS, NAME, NODE, LTRI, TIDS, MASK, BLKS, WIDE,
 ];
