@@ -254,11 +254,18 @@ impl SceneView {
                 removed,
             })
             .collect();
+        // With every object removed nothing can be hit: no bounds, as an instanced scene's
+        // (the tree keeps the last one's triangles, masked, until an edit builds it again, and
+        // its bounds framed the removed object in `GET /scene` and the viewer's first view).
+        let bounds = match objects.iter().all(|o| o.removed) {
+            true => None,
+            false => scene.bounds(),
+        };
         SceneView {
             triangles: live_triangles(&objects),
             tree_triangles: scene.triangle_count(),
             objects,
-            bounds: scene.bounds(),
+            bounds,
             origin: bvh.origin,
             tree,
         }

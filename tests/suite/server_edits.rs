@@ -764,6 +764,36 @@ fn removals_give_back_the_bounds_on(scene: Arc<BuiltScene>, instanced: bool) {
     );
 }
 
+/// With every object removed, `GET /scene` has no bounds (null), on copies as on instances:
+/// the copies' kept the last object's, so the viewer's first view and `/render` without a
+/// camera framed a removed object. Picks miss; `/render` still draws (an empty view).
+fn removing_every_object_leaves_no_bounds_on(scene: Arc<BuiltScene>) {
+    let base = start_on(scene, Backend::Cpu);
+    for object in [0, 1] {
+        let (status, answer) = call("DELETE", &format!("{base}/objects/{object}"), None);
+        assert_eq!(status, 200, "{answer}");
+    }
+    let (_, scene) = call("GET", &format!("{base}/scene"), None);
+    assert_eq!(scene["bounds"], Value::Null, "{scene}");
+    assert_eq!(scene["objects"], json!([]), "{scene}");
+    assert_eq!(down(&base, &[0.5, 10.5], u32::MAX), [None, None]);
+    let response = agent()
+        .get(format!("{base}/render?width=8&height=6"))
+        .call()
+        .expect("render");
+    assert_eq!(response.status().as_u16(), 200);
+}
+
+#[test]
+fn removing_every_object_leaves_no_bounds() {
+    removing_every_object_leaves_no_bounds_on(scene());
+}
+
+#[test]
+fn removing_every_instance_leaves_no_bounds() {
+    removing_every_object_leaves_no_bounds_on(instanced_scene());
+}
+
 #[test]
 fn removals_give_back_the_bounds() {
     removals_give_back_the_bounds_on(scene(), false);
