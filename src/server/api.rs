@@ -111,7 +111,7 @@ impl MemoryBudget {
     }
 
     /// The KiB permits of `bytes`; 503 if they can never fit the budget.
-    fn fits(&self, what: &str, bytes: u64) -> Result<u64, ApiError> {
+    pub(crate) fn fits(&self, what: &str, bytes: u64) -> Result<u64, ApiError> {
         let kib = bytes.div_ceil(1024).max(1);
         if kib > self.total_kib {
             return Err(ApiError::new(
@@ -150,6 +150,13 @@ impl MemoryBudget {
                 ),
             )),
         }
+    }
+}
+
+impl Reservation {
+    /// The bytes its permits cover.
+    fn bytes(&self) -> u64 {
+        self._permit.num_permits() as u64 * 1024
     }
 }
 
@@ -485,15 +492,26 @@ impl PickRequest {
     }
 }
 
+/// The memory reserved for a body before any of it arrives, and the least a reservation grows
+/// by as it does: a client that declares a large body and sends nothing holds this much, not
+/// what it declared (42 such uploads held a 2.9 GiB budget for the body timeout, and every
+/// other request got 503).
+const BODY_RESERVE_STEP: u64 = 64 * 1024;
+
 /// Reads a request body of at most `limit` bytes, which must arrive whole within `timeout`
-/// (408 otherwise); a larger one is refused with `advice` (what to send instead).
+/// (408 otherwise; a larger one is refused with `advice`, what to send instead), reserving its
+/// memory from `memory` for `what` ("this pick's body") as it arrives, and then what its
+/// records take once parsed ([`PARSED_BYTES_PER_BODY_BYTE`]): the body, and its reservation. A
+/// body whose declared length could never fit the budget parsed is refused (503) before any of
+/// it is read.
 async fn read_body(
+    memory: &MemoryBudget,
     headers: &HeaderMap,
     body: Body,
-    limit: usize,
-    timeout: Duration,
+    (limit, timeout): (usize, Duration),
     advice: &str,
-) -> Result<Bytes, ApiError> {
+    what: &str,
+) -> Result<(Bytes, Reservation), ApiError> {
     let too_large = || {
         ApiError::too_large(format!(
             "the request body is larger than this server's limit of {limit} bytes; {advice}"
@@ -506,39 +524,80 @@ async fn read_body(
     if declared.is_some_and(|n| n > limit as u64) {
         return Err(too_large());
     }
-    let read = tokio::time::timeout(timeout, axum::body::to_bytes(body, limit))
+    if let Some(n) = declared {
+        memory.fits(what, n.saturating_mul(1 + PARSED_BYTES_PER_BODY_BYTE))?;
+    }
+    let held = memory.reserve(what, BODY_RESERVE_STEP).await?;
+    let read = async move {
+        let (mut body, mut held) = (body, held);
+        let first = declared.map_or(0, |n| n.min(BODY_RESERVE_STEP) as usize);
+        let mut data: Vec<u8> = Vec::with_capacity(first);
+        while let Some(frame) = std::future::poll_fn(|cx| {
+            http_body::Body::poll_frame(std::pin::Pin::new(&mut body), cx)
+        })
         .await
-        .map_err(|_| {
-            ApiError::new(
-                StatusCode::REQUEST_TIMEOUT,
-                format!(
-                    "the request body did not arrive whole within {} s; send it at once",
-                    timeout.as_secs_f64()
-                ),
-            )
-        })?;
-    read.map_err(|e| {
-        // The error's chain, read once: a body over the limit anywhere in it, or hyper's outer
-        // words ("error reading a body from connection"), which name no cause, with the
-        // chain's own (a chunk's size line that is not hexadecimal, say).
-        let mut words: Vec<String> = Vec::new();
-        let mut source: Option<&dyn std::error::Error> = Some(&e);
-        while let Some(err) = source {
-            let text = err.to_string();
-            if text.contains("length limit exceeded") {
-                return too_large();
+        {
+            let Ok(chunk) = frame.map_err(|e| body_error(e, too_large))?.into_data() else {
+                continue;
+            };
+            let length = data.len() + chunk.len();
+            if length > limit {
+                return Err(too_large());
             }
-            if !words.iter().any(|w| w.contains(&text)) {
-                words.push(text);
+            if length as u64 > held.bytes() {
+                let more = (length as u64).max(held.bytes().saturating_mul(2));
+                held = memory.grow(held, what, more.min(limit as u64)).await?;
             }
-            source = err.source();
+            data.extend_from_slice(&chunk);
         }
-        words.truncate(3);
-        ApiError::bad_request(format!(
-            "the request body could not be read: {}",
-            words.join(": ")
-        ))
-    })
+        Ok((data, held))
+    };
+    let (data, held) = tokio::time::timeout(timeout, read).await.map_err(|_| {
+        ApiError::new(
+            StatusCode::REQUEST_TIMEOUT,
+            format!(
+                "the request body did not arrive whole within {} s; send it at once",
+                timeout.as_secs_f64()
+            ),
+        )
+    })??;
+    let parsed = (data.len() as u64).saturating_mul(1 + PARSED_BYTES_PER_BODY_BYTE);
+    let held = memory.grow(held, what, parsed).await?;
+    Ok((Bytes::from(data), held))
+}
+
+/// A body that could not be read: `too_large()` for one over a limit anywhere in the error's
+/// chain, else 400 with hyper's outer words ("error reading a body from connection"), which name no
+/// cause, and the chain's own (a chunk's size line that is not hexadecimal, say).
+fn body_error(e: axum::Error, too_large: impl Fn() -> ApiError) -> ApiError {
+    let mut words: Vec<String> = Vec::new();
+    let mut source: Option<&dyn std::error::Error> = Some(&e);
+    while let Some(err) = source {
+        let text = err.to_string();
+        if text.contains("length limit exceeded") {
+            return too_large();
+        }
+        if !words.iter().any(|w| w.contains(&text)) {
+            words.push(text);
+        }
+        source = err.source();
+    }
+    words.truncate(3);
+    ApiError::bad_request(format!(
+        "the request body could not be read: {}",
+        words.join(": ")
+    ))
+}
+
+/// Runs `work` (seconds of CPU for the largest bodies and answers: parsing 8 MiB of JSON,
+/// writing hundreds of MB) on the blocking pool, so the runtime's threads go on serving other
+/// connections meanwhile (two large picks held `GET /stats` for 3–6 s).
+async fn blocking<T: Send + 'static>(
+    work: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
+) -> Result<T, ApiError> {
+    tokio::task::spawn_blocking(work)
+        .await
+        .map_err(|e| ApiError::internal(format!("the request's work failed: {e}")))?
 }
 
 /// `POST /pick`.
@@ -547,27 +606,27 @@ async fn pick(
     headers: HeaderMap,
     body: Body,
 ) -> Result<Response, ApiError> {
-    let limit = state.config.max_body_bytes;
-    // The body and the records parsed from it, reserved before reading it.
-    let body_bytes = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|s| s.trim().parse::<u64>().ok())
-        .map_or(limit as u64, |n| n.min(limit as u64));
-    let body_memory = state
-        .memory
-        .reserve(
-            "this pick's body",
-            body_bytes.saturating_mul(1 + PARSED_BYTES_PER_BODY_BYTE),
-        )
-        .await?;
+    let limits = (state.config.max_body_bytes, state.config.body_timeout);
     let advice = "send fewer rays per request";
-    let bytes = read_body(&headers, body, limit, state.config.body_timeout, advice).await?;
-    let request: PickRequest = parse_body(&bytes, "pick request")?;
-    drop(bytes);
-    let (rays, query) = request.into_rays(&state.config)?;
-    // The body is gone (its records are the rays now): its memory goes on to the pick.
-    let _pick_memory = state
+    let (bytes, body_memory) = read_body(
+        &state.memory,
+        &headers,
+        body,
+        limits,
+        advice,
+        "this pick's body",
+    )
+    .await?;
+    let config = state.clone();
+    let (rays, query) = blocking(move || {
+        let request: PickRequest = parse_body(&bytes, "pick request")?;
+        drop(bytes);
+        request.into_rays(&config.config)
+    })
+    .await?;
+    // The body is gone (its records are the rays now): its memory goes on to the pick, and
+    // stays reserved until the answer has been sent.
+    let pick_memory = state
         .memory
         .grow(
             body_memory,
@@ -589,28 +648,43 @@ async fn pick(
             .map_err(ApiError::of_job)?
     };
     let view = state.view();
-    let names: Vec<&str> = view.objects.iter().map(|o| public_name(&o.name)).collect();
-    Ok(if query.mode == Mode::All {
-        let results: Vec<ListOut> = (0..answers.nearest.len())
-            .map(|i| ListOut {
-                invalid: answers.nearest[i].invalid,
-                overflow: answers.overflow.get(i).copied().unwrap_or(false),
-                hits: answers
-                    .hits_of(i)
-                    .iter()
-                    .map(|h| HitOut::new(h, &names))
-                    .collect(),
-            })
-            .collect();
-        json_response(StatusCode::OK, &PickResponse { results })
-    } else {
-        let results: Vec<HitOut> = answers
-            .nearest
-            .iter()
-            .map(|h| HitOut::new(h, &names))
-            .collect();
-        json_response(StatusCode::OK, &PickResponse { results })
+    let json = blocking(move || {
+        let names: Vec<&str> = view.objects.iter().map(|o| public_name(&o.name)).collect();
+        let written = if query.mode == Mode::All {
+            let results: Vec<ListOut> = (0..answers.nearest.len())
+                .map(|i| ListOut {
+                    invalid: answers.nearest[i].invalid,
+                    overflow: answers.overflow.get(i).copied().unwrap_or(false),
+                    hits: answers
+                        .hits_of(i)
+                        .iter()
+                        .map(|h| HitOut::new(h, &names))
+                        .collect(),
+                })
+                .collect();
+            serde_json::to_vec(&PickResponse { results })
+        } else {
+            let results: Vec<HitOut> = answers
+                .nearest
+                .iter()
+                .map(|h| HitOut::new(h, &names))
+                .collect();
+            serde_json::to_vec(&PickResponse { results })
+        };
+        written.map_err(|e| {
+            ApiError::internal(format!("the answer could not be written as JSON: {e}"))
+        })
     })
+    .await?;
+    Ok((
+        StatusCode::OK,
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        )],
+        super::held_body::holding(json, pick_memory),
+    )
+        .into_response())
 }
 
 /// An object's name as answers show it: the file name without its folders, so answers never
@@ -801,28 +875,24 @@ struct ChangeRequest {
 }
 
 /// Reads a JSON edit body within the body limit and the memory budget.
-async fn edit_body<T: serde::de::DeserializeOwned>(
+async fn edit_body<T: serde::de::DeserializeOwned + Send + 'static>(
     state: &AppState,
     headers: &HeaderMap,
     body: Body,
-    what: &str,
+    what: &'static str,
 ) -> Result<T, ApiError> {
-    let limit = state.config.max_body_bytes;
-    let body_bytes = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|s| s.trim().parse::<u64>().ok())
-        .map_or(limit as u64, |n| n.min(limit as u64));
-    let _memory = state
-        .memory
-        .reserve(
-            &format!("this {what}'s body"),
-            body_bytes.saturating_mul(1 + PARSED_BYTES_PER_BODY_BYTE),
-        )
-        .await?;
+    let limits = (state.config.max_body_bytes, state.config.body_timeout);
     let advice = "send a smaller mesh, or add it in parts";
-    let bytes = read_body(headers, body, limit, state.config.body_timeout, advice).await?;
-    parse_body(&bytes, what)
+    let (bytes, _memory) = read_body(
+        &state.memory,
+        headers,
+        body,
+        limits,
+        advice,
+        &format!("this {what}'s body"),
+    )
+    .await?;
+    blocking(move || parse_body(&bytes, what)).await
 }
 
 /// A JSON request body as `T`, or 400 with a sentence naming where it went wrong: the field's

@@ -133,6 +133,7 @@ mod api;
 mod bare_errors;
 pub mod batcher;
 mod frame_faults;
+mod held_body;
 pub mod host;
 mod object_only;
 mod origin;
