@@ -212,6 +212,8 @@ fn human(bytes: u64) -> String {
     const MIB: f64 = (1u64 << 20) as f64;
     if bytes >= 1 << 30 {
         format!("{:.1} GiB", bytes as f64 / (MIB * 1024.0))
+    } else if bytes < 1 << 20 {
+        format!("{} KiB", bytes.div_ceil(1024))
     } else {
         format!("{:.1} MiB", bytes as f64 / MIB)
     }
@@ -916,6 +918,10 @@ fn parse_body<T: serde::de::DeserializeOwned>(bytes: &[u8], what: &str) -> Resul
             true => path.rsplit_once('.').map_or("", |(parent, _)| parent),
             false => path.as_str(),
         };
+        // serde_path_to_error's `?` is a place it could not name (the body ended before a
+        // field's name was read): the path is what comes before it.
+        let path = path.strip_suffix(".?").unwrap_or(path);
+        let path = if path == "?" { "" } else { path };
         let reason = field_reason(path, reason);
         match path {
             "" | "." => bad(reason),

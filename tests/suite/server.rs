@@ -548,6 +548,18 @@ fn bad_requests_get_clear_4xx_json_errors() {
             "pick request: it must be a JSON object",
         ),
         ("  [1".into(), 400, "it must be a JSON object"),
+        // serde_path_to_error's `?` (a place it cannot name) was shown as the path: "`?`: EOF
+        // while parsing", "`rays[0].?`".
+        (
+            "{".into(),
+            400,
+            "not a valid pick request: EOF while parsing an object at line 1 column 1",
+        ),
+        (
+            "{\"rays\": [{".into(),
+            400,
+            "not a valid pick request: `rays[0]`: EOF while parsing an object",
+        ),
         (
             r#"{"rays": [[[0, 0, 50], [0, 0, -1], 0, null, 1]]}"#.into(),
             400,
