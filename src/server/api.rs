@@ -526,6 +526,20 @@ async fn read_body(
     if declared.is_some_and(|n| n > limit as u64) {
         return Err(too_large());
     }
+    // A compressed body would be read as JSON and refused for its bytes: say why instead.
+    if let Some(coding) = headers
+        .get(header::CONTENT_ENCODING)
+        .filter(|v| !v.as_bytes().eq_ignore_ascii_case(b"identity"))
+    {
+        return Err(ApiError::new(
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            format!(
+                "the request body is sent with Content-Encoding {}, which this server does not \
+                 read; send it uncompressed",
+                crate::budget::quote(&String::from_utf8_lossy(coding.as_bytes()))
+            ),
+        ));
+    }
     if let Some(n) = declared {
         memory.fits(what, n.saturating_mul(1 + PARSED_BYTES_PER_BODY_BYTE))?;
     }

@@ -269,6 +269,33 @@ fn idle_uploads_hold_only_what_they_have_sent() {
     drop(held);
 }
 
+/// A compressed body gets 415 and a sentence naming its coding (it was read as JSON and
+/// refused for its bytes); `identity` is no coding.
+#[test]
+fn a_compressed_body_is_refused_with_415() {
+    let addr = start(ServerConfig::default());
+    for (coding, status) in [("gzip", 415), ("br", 415), ("identity", 200)] {
+        let mut stream = connect(addr, Duration::from_secs(20));
+        let head = format!(
+            "POST /pick HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\
+             Content-Encoding: {coding}\r\nContent-Type: application/json\r\n\
+             Content-Length: {}\r\n\r\n{ONE_PICK}",
+            ONE_PICK.len()
+        );
+        stream.write_all(head.as_bytes()).expect("send");
+        let mut answer = Vec::new();
+        stream.read_to_end(&mut answer).expect("read the answer");
+        let (got, body) = parse(&answer);
+        assert_eq!(got, status, "{coding}: {body}");
+        if status == 415 {
+            assert!(
+                body.contains(&format!("Content-Encoding {coding}")),
+                "{body}"
+            );
+        }
+    }
+}
+
 /// A pick's memory stays reserved until its answer has been sent: a client that does not read
 /// its 30 MB answer holds it, so a second such pick waits and then hears the server is busy,
 /// and once the first client is gone the next is answered. The reservation used to end with
