@@ -907,10 +907,19 @@ impl Batcher {
             }
             Edit::Remove { object } => {
                 live(objects, object)?;
+                let bounds = |p: &dyn Picker| p.current_scene().and_then(|b| b.bounds());
+                let before = bounds(picker.as_ref());
                 picker
                     .edit(&mut |b| b.remove_instance(object))
                     .map_err(invalid)?;
                 objects[object as usize].1 = true;
+                // An instance that reached the bounds' edge drew the frame's centre towards it:
+                // the top tree is laid out again, re-centred where that resolves the rest as
+                // finely (a huge instance added and removed left the others in a frame centred
+                // far away, picked more coarsely, until the next addition).
+                if bounds(picker.as_ref()) != before {
+                    picker.edit(&mut |b| b.rebuild_top()).map_err(failed)?;
+                }
                 object
             }
             Edit::Add {

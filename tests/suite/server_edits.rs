@@ -794,6 +794,28 @@ fn removing_every_instance_leaves_no_bounds() {
     removing_every_object_leaves_no_bounds_on(instanced_scene());
 }
 
+/// A huge instance added (which re-centres the frame on the bounds it widens) and removed
+/// gives the frame its centre back: it stayed far out until the next addition, and the other
+/// instances were picked in a frame centred far from them.
+#[test]
+fn removing_a_huge_instance_gives_the_frame_back() {
+    let base = start_on(instanced_scene(), Backend::Cpu);
+    let get = || call("GET", &format!("{base}/scene"), None).1;
+    let (bounds, origin) = (get()["bounds"].clone(), get()["origin"].clone());
+    let huge = json!({
+        "mesh": 1,
+        "transform": [[1e4, 0.0, 0.0, 1e5], [0.0, 1e4, 0.0, 0.0], [0.0, 0.0, 1e4, 0.0]],
+    });
+    let (status, added) = call("POST", &format!("{base}/objects"), Some(&huge));
+    assert_eq!(status, 200, "{added}");
+    assert_ne!(get()["origin"], origin, "re-centred on the widened bounds");
+    let (status, answer) = call("DELETE", &format!("{base}/objects/2"), None);
+    assert_eq!(status, 200, "{answer}");
+    assert_eq!(get()["bounds"], bounds);
+    assert_eq!(get()["origin"], origin, "{}", get());
+    assert_eq!(down(&base, &[0.5, 10.5], u32::MAX), [Some(1), Some(0)]);
+}
+
 #[test]
 fn removals_give_back_the_bounds() {
     removals_give_back_the_bounds_on(scene(), false);
