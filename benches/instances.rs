@@ -15,7 +15,10 @@
 //!   `BuiltScene::set_instance_transform`) and one click picked again on the CPU engine; target
 //!   ≤ 1 ms;
 //! - `instances/move_pick_gpu`: the same on the GPU picker (lavapipe here), the round trip with
-//!   the upload; target ≤ 5 ms.
+//!   the upload; target ≤ 5 ms;
+//! - the corner instance moved out past the field's edge and back, a click picked after each
+//!   move: each move leaves the edge of the bounds, which are worked out again from the top
+//!   tree's leaf boxes and a few instances' exact boxes (printed only).
 //!
 //! Before criterion runs it prints the medians of repeated runs and the ratios. Run with
 //! `cargo bench --bench instances`.
@@ -190,6 +193,19 @@ fn instances(c: &mut Criterion) {
     let mut cpu = CpuPicker::new(built.clone());
     move_pick(&mut cpu);
     let move_cpu_ms = median_ms(101, || move_pick(&mut cpu));
+    // The corner instance moved out past the field's edge and back: each move leaves the edge
+    // of the bounds, which are worked out again (`Instances::set_transform`).
+    let corner = placed[0].transform;
+    let mut outside = corner;
+    outside[0][3] -= step;
+    outside[1][3] -= step;
+    let mut out = false;
+    let move_edge_ms = median_ms(101, || {
+        out = !out;
+        let m = if out { outside } else { corner };
+        cpu.edit(&mut |b| b.set_instance_transform(0, m)).unwrap();
+        black_box(cpu.pick(&[click(&m)]).unwrap());
+    });
     let gpu = GpuContext::new()
         .and_then(|context| GpuPicker::new(&context, built.clone()))
         .ok();
@@ -208,7 +224,9 @@ fn instances(c: &mut Criterion) {
          pick, {} camera rays, {} threads: field {:.2} M rays/s ({field_hits} hits), one bunny \
          {:.2} M rays/s ({one_hits} hits): field ÷ one = {:.3} (target ≥ 0.5, medians of 7)\n\
          move one of 10,000 and pick a click again: cpu {move_cpu_ms:.3} ms (target ≤ 1 ms, \
-         median of 101); gpu {gpu_line}",
+         median of 101); gpu {gpu_line}\n\
+         the corner one out past the edge and back, each move followed by a click: cpu \
+         {move_edge_ms:.3} ms (median of 101)",
         placed.len(),
         i.prim_count(),
         i.top_nodes(),
