@@ -282,6 +282,24 @@ const BLOCK_BYTES: usize = 8 << 20;
 /// Text one parallel task parses, about: below it, a task costs more than it saves.
 const PIECE_BYTES: usize = 128 << 10;
 
+/// The longest header line read (64 KiB; no header line needs more); the first data line,
+/// which the header loop reads too, goes on past it in blocks.
+const HEADER_LINE_BYTES: usize = 64 << 10;
+
+/// A line read whole before it is cut at a blank, where blocks are smaller (tests' blocks of a
+/// few bytes); a line longer than a block and this is parsed in parts (its error messages
+/// then found part by part).
+const LONG_LINE: usize = 1 << 20;
+
+/// The error for a header line of more than [`HEADER_LINE_BYTES`].
+fn long_line(path: &str, line: usize) -> Error {
+    parse_error(
+        path,
+        Some(line),
+        format!("a header line of more than {HEADER_LINE_BYTES} bytes"),
+    )
+}
+
 /// Reads a grid from `reader` (`size_hint`: the file's length, when known), the values in
 /// blocks of `sizes.0` bytes and pieces of about `sizes.1`.
 fn parse(
@@ -297,10 +315,13 @@ fn parse(
     let mut buf = Vec::new();
     let mut line_no = 0usize;
 
-    // The header, a line at a time, up to the first line that starts with a number.
+    // The header, a line at a time, up to the first line that starts with a number. A line is
+    // read up to [`HEADER_LINE_BYTES`]: the first data line may be far longer (a whole grid on
+    // one line), and goes on in the values' blocks; a header line may not.
     let g = loop {
         buf.clear();
-        let read = reader
+        let read = (&mut reader)
+            .take(HEADER_LINE_BYTES as u64)
             .read_until(b'\n', &mut buf)
             .map_err(|e| io_error(path, e))?;
         if read == 0 {
@@ -309,17 +330,30 @@ fn parse(
             return Err(too_few(path, &g, 0, line_no));
         }
         line_no += 1;
-        let mut text = std::str::from_utf8(&buf)
+        // A line cut short: its tokens are those before its last blank (the rest of a cut
+        // token follows in the blocks).
+        let cut = read == HEADER_LINE_BYTES && !buf.ends_with(b"\n");
+        let whole = match cut {
+            false => buf.len(),
+            true => buf.iter().rposition(|&b| is_space(b)).unwrap_or(0),
+        };
+        let mut text = std::str::from_utf8(&buf[..whole])
             .map_err(|_| parse_error(path, Some(line_no), "line is not valid UTF-8 text"))?;
         if line_no == 1 {
             text = text.strip_prefix('\u{feff}').unwrap_or(text);
         }
         let mut tokens = text.split_whitespace();
         let Some(first) = tokens.next() else {
+            if cut {
+                return Err(long_line(path, line_no));
+            }
             continue; // blank header line
         };
         if first.parse::<f64>().is_ok() {
             break header.geometry()?;
+        }
+        if cut {
+            return Err(long_line(path, line_no));
         }
         let value = tokens.next().ok_or_else(|| {
             parse_error(
@@ -361,6 +395,8 @@ fn parse(
     // The values, from the first data line on, a block of whole lines at a time.
     let (block_bytes, piece_bytes) = sizes;
     let mut text = buf;
+    // The last byte parsed: whether the file's last line has its newline.
+    let mut last = None;
     loop {
         let want = block_bytes as u64;
         let read = (&mut reader).take(want).read_to_end(&mut text);
@@ -373,17 +409,34 @@ fn parse(
                 return Err(io_error(path, e));
             }
         };
+        // Up to the last line's end; a line longer than a block (a grid on one line, up to the
+        // file's whole size) up to its last blank, whole tokens a block at a time, not read
+        // whole.
         let whole = if at_end {
             text.len()
         } else {
             match text.iter().rposition(|&b| b == b'\n') {
                 Some(i) => i + 1,
-                None => continue, // one long line: read on
+                None if text.len() < block_bytes.max(LONG_LINE) => continue, // read on
+                None => match text.iter().rposition(|&b| is_space(b)) {
+                    Some(i) => i + 1,
+                    None => {
+                        return Err(parse_error(
+                            path,
+                            Some(values.lines + 1),
+                            format!(
+                                "a token of more than {} bytes, which is no number",
+                                text.len()
+                            ),
+                        ));
+                    }
+                },
             }
         };
         values.parse_block(&text[..whole], piece_bytes)?;
+        last = text[..whole].last().copied().or(last);
         if at_end {
-            if !text.is_empty() && !text.ends_with(b"\n") {
+            if last.is_some_and(|b| b != b'\n') {
                 values.lines += 1; // the last line has no newline
             }
             break;
@@ -440,7 +493,8 @@ struct Scanned {
 }
 
 impl Values<'_> {
-    /// Parses `text`, whole lines (the last one may lack its newline), in pieces of about
+    /// Parses `text`, whole lines (the last one may lack its newline, or be a part of a line
+    /// longer than a block, cut at a blank), in pieces of about
     /// `piece_bytes` in parallel; the pieces are joined in file order, and a piece that is not
     /// [`Scanned::clean`] or would overflow the grid is parsed again by [`Self::parse_lines`],
     /// which finds its first error.
@@ -450,10 +504,13 @@ impl Values<'_> {
             self.scratch.resize_with(pieces.len(), Vec::new);
         }
         let nodata = self.g.nodata;
+        // No piece keeps more values than the grid has room for (a 40 MB line of a 3 × 2 grid
+        // held 16 bytes a value before its count was checked).
+        let most = self.g.count - self.heights.len();
         let mut scratch = std::mem::take(&mut self.scratch);
         let scan_piece = |(r, values): (&Range<usize>, &mut Vec<Option<f64>>)| {
             values.clear();
-            scan(&text[r.clone()], nodata, values)
+            scan(&text[r.clone()], nodata, most, values)
         };
         let scanned: Vec<Scanned> = if pieces.len() == 1 {
             pieces.iter().zip(&mut scratch).map(scan_piece).collect()
@@ -561,7 +618,7 @@ fn is_space(b: u8) -> bool {
 /// `str::parse`. All three give the correctly rounded value. A token that is not a number, a NaN
 /// or infinite value that is not the NODATA value, or any non-ASCII byte, stops the scan with
 /// `clean: false`.
-fn scan(text: &[u8], nodata: Option<f64>, values: &mut Vec<Option<f64>>) -> Scanned {
+fn scan(text: &[u8], nodata: Option<f64>, most: usize, values: &mut Vec<Option<f64>>) -> Scanned {
     let mut newlines = 0;
     let unclean = |newlines| Scanned {
         newlines,
@@ -604,6 +661,8 @@ fn scan(text: &[u8], nodata: Option<f64>, values: &mut Vec<Option<f64>>) -> Scan
             },
         };
         match cell(value, nodata) {
+            // More values than the grid has room for: an error, found by the line parser.
+            Some(_) if values.len() == most => return unclean(newlines),
             Some(height) => values.push(height),
             None => return unclean(newlines),
         }
@@ -808,6 +867,48 @@ mod tests {
     fn bad_number_reports_its_line() {
         let e = err("ncols 2\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 2\n3 x4\n");
         assert_eq!(e, "t.asc:7: bad number 'x4'");
+    }
+
+    /// A line longer than a block (a grid on one line) is read a block at a time, cut at
+    /// blanks, and gives the grid read from short lines; too many values on such a line are
+    /// found without holding the line or its values whole (a 3 × 2 grid's 40 MB line peaked at
+    /// 2.2 GB); a header line past 64 KiB and a token past a block are refused.
+    #[test]
+    fn lines_longer_than_a_block_are_read_in_parts() {
+        let header = "ncols 300\nnrows 2000\nxllcorner 0\nyllcorner 0\ncellsize 1\n";
+        let values: Vec<String> = (0..600_000).map(|k| format!("{}.5", k % 977)).collect();
+        let one_line = format!("{header}{}\n", values.join(" "));
+        assert!(one_line.len() > LONG_LINE * 3);
+        let short_lines = format!("{header}{}\n", values.join("\n"));
+        let a = read_asc_in_pieces(one_line.as_bytes(), "a.asc", 1 << 16, 1 << 12).unwrap();
+        let b = read(&short_lines).unwrap();
+        assert_eq!(a.heights, b.heights);
+        // Without its newline, and with a blank at the end.
+        for end in ["", " "] {
+            let text = format!("{header}{}{end}", values.join(" "));
+            let g = read_asc_in_pieces(text.as_bytes(), "a.asc", 1 << 16, 1 << 12).unwrap();
+            assert_eq!(g.heights, b.heights);
+        }
+        let small = "ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n";
+        let long = format!("{small}{}\n", "1 ".repeat(10 << 20));
+        let e = read_asc_in_pieces(long.as_bytes(), "t.asc", 1 << 20, 1 << 16)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("t.asc:6: too many values: expected 6"), "{e}");
+        let e = err(&format!("ncols 3{}\n", " ".repeat(70_000)));
+        assert!(
+            e.contains("t.asc:1: a header line of more than 65536 bytes"),
+            "{e}"
+        );
+        let e = read_asc_in_pieces(
+            format!("{small}1 {}", "7".repeat(3 << 20)).as_bytes(),
+            "t.asc",
+            1 << 20,
+            1 << 16,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("t.asc:6: a token of more than"), "{e}");
     }
 
     #[test]
