@@ -5,7 +5,7 @@
 //!
 //! - [`scene`]: `raypick.Scene` — loading (files, arrays, `.rpk`), saving, and the pickers;
 //! - [`pick`]: `Scene.pick` — the query, the rays in, the answers out;
-//! - [`sight`]: `Scene.los` and `Scene.viewshed`, as batched any-hit queries (what `raypick los`
+//! - [`sight`]: `Scene.los` and `Scene.viewshed`, as batched nearest-hit queries (what `raypick los`
 //!   and `raypick viewshed` do);
 //! - [`camera`]: `raypick.camera_rays` — the CLI's camera JSON, pixels to rays;
 //! - [`arrays`]: numpy arrays in, checked: shapes and dtypes, one `ValueError` sentence each;

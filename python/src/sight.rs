@@ -1,5 +1,5 @@
-//! `Scene.los` and `Scene.viewshed`: batched any-hit queries, as `raypick los` and
-//! `raypick viewshed` make them (`src/cli/los.rs`).
+//! `Scene.los` and `Scene.viewshed`: batched nearest-hit queries, as `raypick los` and
+//! `raypick viewshed` make them (`src/cli/los.rs`, `raypick::apps::sight`).
 //!
 //! A segment from A to B is visible when no triangle is hit with t in (ε, 1 − ε) along
 //! A + t·(B − A), so surfaces the end points lie on do not block it. Segments with a NaN or
@@ -14,8 +14,8 @@ use numpy::{IntoPyArray, PyArrayMethods};
 use pyo3::exceptions::{PyRuntimeWarning, PyUserWarning};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use rayon::prelude::*;
-use raypick::{Backend, BuiltScene, DVec3, Mode, Query, Ray};
+use raypick::apps::sight::{self, Sight};
+use raypick::{Backend, BuiltScene, DVec3, Ray};
 use std::ops::Range;
 
 /// What a segment takes while a query runs: its two ends, and its answer.
@@ -63,17 +63,14 @@ fn visible(
     let mask = args.ray_mask;
     let read = |range: Range<usize>, out: &mut Vec<Ray>| {
         out.clear();
-        out.extend(segments[range].iter().map(|&(a, b)| {
-            Ray::new(a, b - a)
-                .with_range(eps, 1.0 - eps)
-                .with_mask(mask)
-        }));
+        out.extend(
+            segments[range]
+                .iter()
+                .map(|&(a, b)| sight::sight_ray(a, b, eps, mask)),
+        );
     };
     let query = QueryArgs {
-        query: Query {
-            mode: Mode::Any,
-            ..Query::default()
-        },
+        query: sight::first_query(),
         backend: args.backend,
         ray_mask: args.ray_mask,
     };
@@ -86,11 +83,42 @@ fn visible(
     }
     let mut seen = vec_for::<bool>(segments.len(), "the visibility column")?;
     let mut invalid = 0usize;
+    // The lines whose nearest hit is the surface the observer stands on, asked again.
+    let mut again: Vec<usize> = Vec::new();
     answer(py, scene, segments.len(), &read, &query, |answers| {
         invalid += answers.nearest.iter().filter(|h| h.invalid).count();
-        seen.par_extend(answers.nearest.par_iter().map(|h| !h.hit && !h.invalid));
+        let start = seen.len();
+        for (j, h) in answers.nearest.iter().enumerate() {
+            let judged = sight::judge_nearest(h, eps);
+            seen.push(judged == Sight::Visible);
+            if judged == Sight::Again {
+                again.push(start + j);
+            }
+        }
         Ok(())
     })?;
+    if !again.is_empty() {
+        let read_again = |range: Range<usize>, out: &mut Vec<Ray>| {
+            out.clear();
+            out.extend(again[range].iter().map(|&k| {
+                let (a, b) = segments[k];
+                sight::sight_ray(a, b, eps, mask)
+            }));
+        };
+        let query = QueryArgs {
+            query: sight::second_query(),
+            ..query
+        };
+        let mut done = 0;
+        answer(py, scene, again.len(), &read_again, &query, |answers| {
+            for j in 0..answers.nearest.len() {
+                let overflow = answers.overflow.get(j).copied().unwrap_or(false);
+                seen[again[done + j]] = sight::judge_all(answers.hits_of(j), overflow, eps);
+            }
+            done += answers.nearest.len();
+            Ok(())
+        })?;
+    }
     if invalid > 0 {
         let message = format!(
             "{invalid} {what}(s) were invalid (a NaN or infinite coordinate, or both ends at \

@@ -275,6 +275,24 @@ def test_viewshed(dem):
     assert same_bits(given["visible"], dem.los(np.array(observer, dtype=float), some))
 
 
+def test_the_ends_own_surfaces_never_block_a_sight_line(tmp_path):
+    """A target on the ground, in a frame rounding coarser than ε of the segment, was hidden by
+    its own triangle (the traversal's f32 t fell inside (ε, 1 − ε)); judged now in f64, as the
+    CLI does. Only the cell behind the spike's slope is hidden."""
+    grid = tmp_path / "spike.asc"
+    grid.write_text("ncols 3\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 30\n500 0 0\n0 2 3\n0 4 0\n")
+    scene = raypick.Scene.load(str(grid))
+    seen = scene.viewshed([45.0, 45.0, 3.7])
+    assert "".join(str(int(v)) for v in seen["visible"]) == "111111011"
+    # An observer on the ground: its own surface at t = 0 is looked past.
+    flat = tmp_path / "flat.asc"
+    flat.write_text("ncols 4\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 10\n0 0 0 0\n0 0 9 0\n0 0 0 0\n")
+    ground = raypick.Scene.load(str(flat))
+    a = np.array([[5.0, 15, 0], [5, 15, 0]])
+    b = np.array([[15.0, 15, 0.5], [35, 15, 0]])
+    assert list(ground.los(a, b)) == [True, False]
+
+
 def test_threads_and_the_gil(bunny):
     rays = incoherent_rays(bunny, 400_000)
     expected = bunny.pick(rays)

@@ -1,18 +1,19 @@
 //! `raypick los` (line of sight between pairs of points) and `raypick viewshed` (which targets an
-//! observer can see), both as batched any-hit queries.
+//! observer can see), both as batched nearest-hit queries ([`raypick::apps::sight`]).
 //!
 //! A segment from A to B is visible when no triangle is hit with t in (ε, 1 − ε), where the ray
-//! is A + t·(B − A) and ε = `--epsilon` (default 1e-6), so surfaces the end points lie on do not
-//! block the view.
+//! is A + t·(B − A) and ε = `--epsilon` (default 1e-6), t refined in f64, so surfaces the end
+//! points lie on do not block the view.
 
 use super::scene_args::{SceneArgs, parse_mask};
 use super::{csv_only, make_picker, write_output};
 use clap::{ArgMatches, Args};
 use glam::DVec3;
+use raypick::apps::sight::{self, Sight};
 use raypick::dem::cell_of_triangle;
 use raypick::io::output::{CsvNumber, csv_number};
 use raypick::io::ray_file::{load_pairs, load_points};
-use raypick::{Backend, BuiltScene, Error, Mode, Query, Ray};
+use raypick::{Backend, BuiltScene, Error, Ray};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -77,10 +78,7 @@ fn visible(
             csv_number(eps)
         )));
     }
-    let query = Query {
-        mode: Mode::Any,
-        ..Query::default()
-    };
+    let query = sight::first_query();
     super::check_rays(
         &format!("the {} {what}s", segments.len()),
         segments.len() as u64,
@@ -88,11 +86,7 @@ fn visible(
     )?;
     let rays: Vec<Ray> = segments
         .iter()
-        .map(|&(a, b)| {
-            Ray::new(a, b - a)
-                .with_range(eps, 1.0 - eps)
-                .with_mask(sight.ray_mask)
-        })
+        .map(|&(a, b)| sight::sight_ray(a, b, eps, sight.ray_mask))
         .collect();
     if let Some(warning) =
         raypick::apps::sight::long_ends(built.bounds(), segments, eps, what, "--epsilon")
@@ -114,11 +108,32 @@ fn visible(
              ends at the same point) and are reported as not visible"
         );
     }
-    Ok(answers
+    let judged: Vec<Sight> = answers
         .nearest
         .iter()
-        .map(|h| !h.hit && !h.invalid)
-        .collect())
+        .map(|h| sight::judge_nearest(h, eps))
+        .collect();
+    drop(answers);
+    let mut seen: Vec<bool> = judged.iter().map(|&j| j == Sight::Visible).collect();
+    // The lines whose nearest hit is the surface the observer stands on: what lies behind it.
+    let again: Vec<usize> = (0..judged.len())
+        .filter(|&k| judged[k] == Sight::Again)
+        .collect();
+    if !again.is_empty() {
+        let query = sight::second_query();
+        super::check_rays(
+            &format!("{} {what}s", again.len()),
+            again.len() as u64,
+            &query,
+        )?;
+        let rays: Vec<Ray> = again.iter().map(|&k| rays[k]).collect();
+        let answers = picker.query(&rays, &query)?;
+        for (j, &k) in again.iter().enumerate() {
+            let overflow = answers.overflow.get(j).copied().unwrap_or(false);
+            seen[k] = sight::judge_all(answers.hits_of(j), overflow, eps);
+        }
+    }
+    Ok(seen)
 }
 
 /// A finite number of an argument, or an error naming it.
