@@ -18,7 +18,8 @@
 //!   the upload; target ≤ 5 ms;
 //! - the corner instance moved out past the field's edge and back, a click picked after each
 //!   move: each move leaves the edge of the bounds, which are worked out again from the top
-//!   tree's leaf boxes and a few instances' exact boxes (printed only).
+//!   tree's leaf boxes and a few instances' exact boxes; and the same on a field on flat ground
+//!   (every bunny at scale 1: they share their lowest z) (printed only).
 //!
 //! Before criterion runs it prints the medians of repeated runs and the ratios. Run with
 //! `cargo bench --bench instances`.
@@ -206,6 +207,34 @@ fn instances(c: &mut Criterion) {
         cpu.edit(&mut |b| b.set_instance_transform(0, m)).unwrap();
         black_box(cpu.pick(&[click(&m)]).unwrap());
     });
+    // The same on flat ground: every bunny at scale 1, so all share their lowest z (and the
+    // side they hold), which each move of the corner one leaves and finds again.
+    let flat: Vec<Instance> = placed
+        .iter()
+        .enumerate()
+        .map(|(k, p)| {
+            let at = DVec3::new(p.transform[0][3], p.transform[1][3], 0.0);
+            Instance {
+                transform: placement(k as f64 * 0.37, 1.0, at),
+                ..p.clone()
+            }
+        })
+        .collect();
+    let flat_corner = flat[0].transform;
+    let mut flat_outside = flat_corner;
+    flat_outside[0][3] -= step;
+    flat_outside[1][3] -= step;
+    let mut flat_cpu = CpuPicker::new(Arc::new(
+        BuiltScene::instanced(vec![mesh.clone()], flat, &options).unwrap(),
+    ));
+    let move_flat_ms = median_ms(101, || {
+        out = !out;
+        let m = if out { flat_outside } else { flat_corner };
+        flat_cpu
+            .edit(&mut |b| b.set_instance_transform(0, m))
+            .unwrap();
+        black_box(flat_cpu.pick(&[click(&m)]).unwrap());
+    });
     let gpu = GpuContext::new()
         .and_then(|context| GpuPicker::new(&context, built.clone()))
         .ok();
@@ -226,7 +255,8 @@ fn instances(c: &mut Criterion) {
          move one of 10,000 and pick a click again: cpu {move_cpu_ms:.3} ms (target ≤ 1 ms, \
          median of 101); gpu {gpu_line}\n\
          the corner one out past the edge and back, each move followed by a click: cpu \
-         {move_edge_ms:.3} ms (median of 101)",
+         {move_edge_ms:.3} ms (median of 101); on flat ground (every lowest z shared): \
+         {move_flat_ms:.3} ms",
         placed.len(),
         i.prim_count(),
         i.top_nodes(),

@@ -345,6 +345,16 @@ fn parse(
         let mut tokens = text.split_whitespace();
         let Some(first) = tokens.next() else {
             if cut {
+                // One token of 64 KiB: no number, and no key.
+                let token = String::from_utf8_lossy(&buf);
+                let token = token.trim_start();
+                if !token.is_empty() {
+                    return Err(parse_error(
+                        path,
+                        Some(line_no),
+                        format!("unknown header key '{}'", quote(token)),
+                    ));
+                }
                 return Err(long_line(path, line_no));
             }
             continue; // blank header line

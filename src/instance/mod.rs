@@ -360,10 +360,11 @@ impl Instances {
                     .bounds
                     .is_some_and(|(blo, bhi)| lo.cmpgt(blo).all() && hi.cmplt(bhi).all())
             });
+        let before = self.bounds;
         self.records[i] = self.record(i, self.records[i].prim_base);
         self.refit_leaf(bvh, i, placed_box);
-        if left_the_edge {
-            self.bounds = self.bounds_by_leaves(bvh);
+        if left_the_edge && let Some(before) = before {
+            self.bounds = self.bounds_by_leaves(bvh, i, before, placed_box);
         }
         self.refit_top_wide(bvh);
         Ok(())
@@ -380,55 +381,67 @@ impl Instances {
         ))
     }
 
-    /// The bounds of what can be hit, worked out again exactly from a few instances' world
-    /// boxes: each side's extreme is that of the instance whose leaf box reaches farthest there,
-    /// or of one whose leaf box (which holds its exact box) reaches past that. So a move
-    /// costs one pass over the leaf boxes and a few meshes' vertices, not every instance's.
-    fn bounds_by_leaves(&self, bvh: &Bvh) -> Option<(DVec3, DVec3)> {
-        let live: Vec<(usize, (DVec3, DVec3))> = (0..self.instances.len())
-            .filter(|&k| self.instances[k].mask != 0 && !self.removed[k])
+    /// The bounds of what can be hit after instance `moved` was moved to `placed` (its exact
+    /// world box; `None`: nothing to hit) from where it reached the edge of `before` (the
+    /// bounds then, exact), worked out again exactly from a few instances' world boxes: on each
+    /// side, no other instance passes `before`, so the side is the moved one's where that
+    /// reaches `before`, else the farthest of the others' exact sides, looked for only among
+    /// those whose leaf box (which holds their exact box) reaches past what was found so far,
+    /// and done as soon as one reaches `before` (instances side by side on flat ground share
+    /// their lowest z). So a move costs one pass over the leaf boxes and a few meshes'
+    /// vertices, not every instance's.
+    fn bounds_by_leaves(
+        &self,
+        bvh: &Bvh,
+        moved: usize,
+        before: (DVec3, DVec3),
+        placed: Option<(DVec3, DVec3)>,
+    ) -> Option<(DVec3, DVec3)> {
+        let placed = placed.filter(|_| self.instances[moved].mask != 0);
+        let others: Vec<(usize, (DVec3, DVec3))> = (0..self.instances.len())
+            .filter(|&k| k != moved && self.instances[k].mask != 0 && !self.removed[k])
             .filter_map(|k| Some((k, self.leaf_world_box(bvh, k)?)))
             .collect();
-        if live.is_empty() {
+        if others.is_empty() && placed.is_none() {
             let boxes = self.world_boxes();
             return self.live_bounds(&boxes).or_else(|| all_bounds(&boxes));
         }
         let mut exact = std::collections::HashMap::new();
         let mut exact_box = |k: usize| *exact.entry(k).or_insert_with(|| self.world_box(k));
+        // One side: `sign` 1 for the highest, -1 for the lowest (values negated).
+        let mut side = |axis: usize, sign: f64| -> f64 {
+            let limit = sign
+                * if sign > 0.0 {
+                    before.1[axis]
+                } else {
+                    before.0[axis]
+                };
+            let of = |b: (DVec3, DVec3)| sign * if sign > 0.0 { b.1[axis] } else { b.0[axis] };
+            let mut far = placed.map_or(f64::NEG_INFINITY, of);
+            // The farthest-reaching leaf first: what it holds is likely the side.
+            let first = others
+                .iter()
+                .max_by(|a, b| of(a.1).total_cmp(&of(b.1)))
+                .map(|&(k, _)| k);
+            if let Some(b) = first.filter(|_| far < limit).and_then(&mut exact_box) {
+                far = far.max(of(b));
+            }
+            for &(k, leaf) in &others {
+                if far >= limit {
+                    break;
+                }
+                if of(leaf) > far
+                    && let Some(b) = exact_box(k)
+                {
+                    far = far.max(of(b));
+                }
+            }
+            sign * far
+        };
         let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
         for axis in 0..3 {
-            // The highest side: the farthest-reaching leaf's exact extreme, then any leaf past it.
-            let (first, _) = live
-                .iter()
-                .max_by(|a, b| a.1.1[axis].total_cmp(&b.1.1[axis]))
-                .copied()
-                .expect("live instances");
-            let mut top = exact_box(first).map_or(f64::NEG_INFINITY, |b| b.1[axis]);
-            let past = top;
-            for &(k, (_, leaf_hi)) in &live {
-                if leaf_hi[axis] > past
-                    && let Some(b) = exact_box(k)
-                {
-                    top = top.max(b.1[axis]);
-                }
-            }
-            hi[axis] = top;
-            // The lowest side.
-            let (first, _) = live
-                .iter()
-                .min_by(|a, b| a.1.0[axis].total_cmp(&b.1.0[axis]))
-                .copied()
-                .expect("live instances");
-            let mut bottom = exact_box(first).map_or(f64::INFINITY, |b| b.0[axis]);
-            let past = bottom;
-            for &(k, (leaf_lo, _)) in &live {
-                if leaf_lo[axis] < past
-                    && let Some(b) = exact_box(k)
-                {
-                    bottom = bottom.min(b.0[axis]);
-                }
-            }
-            lo[axis] = bottom;
+            hi[axis] = side(axis, 1.0);
+            lo[axis] = side(axis, -1.0);
         }
         (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
     }

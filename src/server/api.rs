@@ -158,6 +158,16 @@ impl Reservation {
     fn bytes(&self) -> u64 {
         self._permit.num_permits() as u64 * 1024
     }
+
+    /// Gives back what it holds past `bytes` (at least one KiB kept).
+    fn shrink_to(&mut self, bytes: u64) {
+        let keep = bytes.div_ceil(1024).max(1);
+        let held = self._permit.num_permits() as u64;
+        if held > keep {
+            drop(self._permit.split((held - keep) as usize));
+            self.bytes = self.bytes.min(keep * 1024);
+        }
+    }
 }
 
 impl Drop for Reservation {
@@ -543,7 +553,10 @@ async fn read_body(
     if let Some(n) = declared {
         memory.fits(what, n.saturating_mul(1 + PARSED_BYTES_PER_BODY_BYTE))?;
     }
-    let held = memory.reserve(what, BODY_RESERVE_STEP).await?;
+    // What arrives is reserved as it does: a declared small body its own size, others a
+    // first share.
+    let first = declared.map_or(BODY_RESERVE_STEP, |n| n.clamp(1, BODY_RESERVE_STEP));
+    let held = memory.reserve(what, first).await?;
     let read = async move {
         let (mut body, mut held) = (body, held);
         let first = declared.map_or(0, |n| n.min(BODY_RESERVE_STEP) as usize);
@@ -578,7 +591,9 @@ async fn read_body(
         )
     })??;
     let parsed = (data.len() as u64).saturating_mul(1 + PARSED_BYTES_PER_BODY_BYTE);
-    let held = memory.grow(held, what, parsed).await?;
+    let mut held = memory.grow(held, what, parsed).await?;
+    // What the reads' doubling reserved past that goes back.
+    held.shrink_to(parsed);
     Ok((Bytes::from(data), held))
 }
 
@@ -605,12 +620,24 @@ fn body_error(e: axum::Error, too_large: impl Fn() -> ApiError) -> ApiError {
     ))
 }
 
-/// Runs `work` (seconds of CPU for the largest bodies and answers: parsing 8 MiB of JSON,
-/// writing hundreds of MB) on the blocking pool, so the runtime's threads go on serving other
-/// connections meanwhile (two large picks held `GET /stats` for 3–6 s).
-async fn blocking<T: Send + 'static>(
+/// Bodies past this many bytes are parsed on the blocking pool ([`maybe_blocking`]).
+const LARGE_BODY_BYTES: usize = 256 << 10;
+
+/// Answers of more rays than this are written on the blocking pool ([`maybe_blocking`]).
+const LARGE_ANSWER_RAYS: usize = 4096;
+
+/// Runs `work` on the blocking pool when it is `large` (seconds of CPU for the largest bodies
+/// and answers: parsing 8 MiB of JSON, writing hundreds of MB), so the runtime's threads go on
+/// serving other connections meanwhile (two large picks held `GET /stats` for 3–6 s); small
+/// work runs here, without the hand-over. Work that holds memory takes its reservation with it
+/// and gives it back in its result: a blocking task runs on when its client has left.
+async fn maybe_blocking<T: Send + 'static>(
+    large: bool,
     work: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
 ) -> Result<T, ApiError> {
+    if !large {
+        return work();
+    }
     tokio::task::spawn_blocking(work)
         .await
         .map_err(|e| ApiError::internal(format!("the request's work failed: {e}")))?
@@ -634,10 +661,12 @@ async fn pick(
     )
     .await?;
     let config = state.clone();
-    let (rays, query) = blocking(move || {
+    let large = bytes.len() > LARGE_BODY_BYTES;
+    // The reservation goes with the work: a blocking task runs on when its client has left.
+    let ((rays, query), body_memory) = maybe_blocking(large, move || {
         let request: PickRequest = parse_body(&bytes, "pick request")?;
         drop(bytes);
-        request.into_rays(&config.config)
+        Ok((request.into_rays(&config.config)?, body_memory))
     })
     .await?;
     // The body is gone (its records are the rays now): its memory goes on to the pick, and
@@ -664,7 +693,8 @@ async fn pick(
             .map_err(ApiError::of_job)?
     };
     let view = state.view();
-    let json = blocking(move || {
+    let large = answers.nearest.len() > LARGE_ANSWER_RAYS;
+    let (json, pick_memory) = maybe_blocking(large, move || {
         let names: Vec<&str> = view.objects.iter().map(|o| public_name(&o.name)).collect();
         let written = if query.mode == Mode::All {
             let results: Vec<ListOut> = (0..answers.nearest.len())
@@ -687,9 +717,10 @@ async fn pick(
                 .collect();
             serde_json::to_vec(&PickResponse { results })
         };
-        written.map_err(|e| {
+        let json = written.map_err(|e| {
             ApiError::internal(format!("the answer could not be written as JSON: {e}"))
-        })
+        })?;
+        Ok((json, pick_memory))
     })
     .await?;
     Ok((
@@ -899,7 +930,7 @@ async fn edit_body<T: serde::de::DeserializeOwned + Send + 'static>(
 ) -> Result<T, ApiError> {
     let limits = (state.config.max_body_bytes, state.config.body_timeout);
     let advice = "send a smaller mesh, or add it in parts";
-    let (bytes, _memory) = read_body(
+    let (bytes, memory) = read_body(
         &state.memory,
         headers,
         body,
@@ -908,7 +939,13 @@ async fn edit_body<T: serde::de::DeserializeOwned + Send + 'static>(
         &format!("this {what}'s body"),
     )
     .await?;
-    blocking(move || parse_body(&bytes, what)).await
+    let large = bytes.len() > LARGE_BODY_BYTES;
+    maybe_blocking(large, move || {
+        let parsed = parse_body(&bytes, what);
+        drop((bytes, memory));
+        parsed
+    })
+    .await
 }
 
 /// A JSON request body as `T`, or 400 with a sentence naming where it went wrong: the field's
@@ -1202,7 +1239,7 @@ async fn render_view(
             state.config.max_rays
         )));
     }
-    let _memory = state
+    let memory = state
         .memory
         .reserve(
             &format!("this render of {pixels} pixels"),
@@ -1222,17 +1259,18 @@ async fn render_view(
         .await
         .map_err(|_| ApiError::internal("the picking worker dropped the request"))?
         .map_err(ApiError::of_job)?;
-    let png = tokio::task::spawn_blocking(move || image.to_png())
+    // The reservation goes with the encoding, and then with the PNG until it has been sent.
+    let (png, memory) = tokio::task::spawn_blocking(move || (image.to_png(), memory))
         .await
-        .map_err(|e| ApiError::internal(format!("encoding the PNG failed: {e}")))?
         .map_err(|e| ApiError::internal(format!("encoding the PNG failed: {e}")))?;
+    let png = png.map_err(|e| ApiError::internal(format!("encoding the PNG failed: {e}")))?;
     Ok((
         StatusCode::OK,
         [
             (header::CONTENT_TYPE, HeaderValue::from_static("image/png")),
             (header::CACHE_CONTROL, HeaderValue::from_static("no-store")),
         ],
-        png,
+        super::held_body::holding(png, memory),
     )
         .into_response())
 }

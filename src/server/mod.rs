@@ -42,8 +42,9 @@
 //! - A request body must arrive whole within [`ServerConfig::body_timeout`] (default 30 s).
 //! - Each request's memory — its body, its rays (`Query::bytes_per_ray`), its all-hits lists
 //!   and its JSON answer, or a render's pixels — is reserved from
-//!   [`ServerConfig::memory_budget`] (default a quarter of [`crate::budget::limit`]) before the
-//!   work starts and given back when the handler ends. A request that cannot fit at all is
+//!   [`ServerConfig::memory_budget`] (default a quarter of [`crate::budget::limit`]): a body's
+//!   as its bytes arrive, the rest before the work starts, given back when the answer has been
+//!   sent (a pick's JSON, a render's PNG) or the work is done. A request that cannot fit at all is
 //!   answered 503 at once; one that must wait for others to finish waits up to
 //!   [`ServerConfig::memory_wait`] (default 5 s), then gets 503. After large requests the
 //!   allocator is asked to give freed memory back to the system.

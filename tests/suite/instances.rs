@@ -1017,3 +1017,57 @@ fn grazing_rays_enter_an_instance_half_a_frame_from_its_centre_with_their_whole_
     let rays: Vec<_> = near.into_iter().map(|r| (RayKind::Grazing, r)).collect();
     assert_query_equivalent("grazing", built, &rays, &Query::default());
 }
+
+/// The bounds of what can be hit, after any sequence of moves, hides and shows (far out and
+/// back, rotated, tied on a side with others), are those of the same instances assembled
+/// afresh: a move that leaves the bounds' edge works them out again from the top tree's leaf
+/// boxes and a few exact boxes (`Instances::set_transform`), and a hidden instance's leaf
+/// follows its moves.
+#[test]
+fn bounds_after_moves_and_masks_are_those_of_a_fresh_assembly() {
+    let meshes = meshes();
+    let mut g = rng(31);
+    let mut placed: Vec<Instance> = (0..8)
+        .map(|k| Instance {
+            name: format!("i{k}"),
+            mesh: (k % meshes.len()) as u32,
+            transform: transform(DMat3::IDENTITY, DVec3::new(k as f64 * 6.0, 0.0, 0.0)),
+            mask: u32::MAX,
+        })
+        .collect();
+    let options = BuildOptions::default();
+    let mut built = BuiltScene::instanced(meshes.clone(), placed.clone(), &options).unwrap();
+    for step in 0..300 {
+        let k = g.random_range(0..placed.len());
+        match g.random_range(0..4) {
+            0 => {
+                let mask = if placed[k].mask == 0 { u32::MAX } else { 0 };
+                if mask == 0 && placed.iter().filter(|p| p.mask != 0).count() == 1 {
+                    continue;
+                }
+                placed[k].mask = mask;
+                built.set_instance_mask(k as u32, mask).unwrap();
+            }
+            kind => {
+                let at = match kind {
+                    // Far out along x, either way.
+                    1 => DVec3::new(g.random_range(-1.0..1.0) * 1e5, 0.0, 0.0),
+                    // Back on the row, on the ground (a side tied with others).
+                    2 => DVec3::new(g.random_range(0..8) as f64 * 6.0, 0.0, 0.0),
+                    _ => DVec3::new(
+                        g.random_range(-30.0..60.0),
+                        g.random_range(-20.0..20.0),
+                        g.random_range(-5.0..5.0),
+                    ),
+                };
+                let turn = DMat3::from_rotation_z(g.random_range(0.0..6.3));
+                placed[k].transform = transform(turn, at);
+                built
+                    .set_instance_transform(k as u32, placed[k].transform)
+                    .unwrap();
+            }
+        }
+        let fresh = BuiltScene::instanced(meshes.clone(), placed.clone(), &options).unwrap();
+        assert_eq!(built.bounds(), fresh.bounds(), "step {step}");
+    }
+}
