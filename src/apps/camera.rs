@@ -620,7 +620,9 @@ impl Basis {
             ));
         }
         let to_target = target - eye;
-        let length = to_target.length();
+        // Scaled first: a distance of 10^160 squared overflowed, and was said not to be
+        // representable.
+        let length = crate::scene::scaled_length(to_target);
         if !(length.is_finite() && length > 0.0) {
             return Err(format!(
                 "the distance from eye {} to target {} cannot be represented",
@@ -629,7 +631,7 @@ impl Basis {
             ));
         }
         let forward = to_target / length;
-        let up_length = up.length();
+        let up_length = crate::scene::scaled_length(up);
         if !(up_length > 0.0 && up_length.is_finite()) {
             return Err(format!(
                 "up {} has no usable length; give a non-zero vector",

@@ -885,3 +885,23 @@ fn pixel_center_ray_lattice_is_the_pixels_rays() {
         camera.pixel_center_ray_batch(9)
     );
 }
+
+/// An eye 10¹⁶⁰ from its target is a camera (its distance's square overflowed, and the
+/// camera was refused as "the distance … cannot be represented"); one whose distance does not
+/// fit f64 is refused so.
+#[test]
+fn eyes_far_beyond_the_square_roots_reach_are_cameras() {
+    let camera = |eye: DVec3| Camera::perspective(eye, DVec3::ZERO, DVec3::Y, 30.0, 4, 3);
+    let far = camera(DVec3::new(0.0, 0.0, 1e160)).expect("a camera");
+    let centre = far.pixel_center_ray(2, 1);
+    assert!(centre.dir.z < 0.0, "{centre:?}");
+    let e = invalid_message(Camera::perspective(
+        DVec3::new(1e308, 0.0, 0.0),
+        DVec3::new(-1e308, 0.0, 0.0),
+        DVec3::Y,
+        30.0,
+        4,
+        3,
+    ));
+    assert!(e.contains("cannot be represented"), "{e}");
+}
