@@ -62,7 +62,10 @@ pub struct SightArgs {
     pub out: Option<PathBuf>,
 }
 
-/// Any-hit visibility of each segment `(from, to)`.
+/// Sight lines asked again (their hits listed) at a time: about 80 MB of lists.
+const AGAIN_BATCH: usize = 16_384;
+
+/// Visibility of each segment `(from, to)` ([`raypick::apps::sight`]).
 /// Invalid segments (NaN or infinite ends, or both ends equal) are not visible, with a warning
 /// that counts them as `what`s.
 fn visible(
@@ -119,16 +122,18 @@ fn visible(
     let again: Vec<usize> = (0..judged.len())
         .filter(|&k| judged[k] == Sight::Again)
         .collect();
-    if !again.is_empty() {
-        let query = sight::second_query();
+    // In batches: every line of a viewshed from an observer on the ground may be asked again,
+    // and each keeps a list of hits.
+    let query = sight::second_query();
+    for batch in again.chunks(AGAIN_BATCH) {
         super::check_rays(
-            &format!("{} {what}s", again.len()),
-            again.len() as u64,
+            &format!("{} {what}s", batch.len()),
+            batch.len() as u64,
             &query,
         )?;
-        let rays: Vec<Ray> = again.iter().map(|&k| rays[k]).collect();
+        let rays: Vec<Ray> = batch.iter().map(|&k| rays[k]).collect();
         let answers = picker.query(&rays, &query)?;
-        for (j, &k) in again.iter().enumerate() {
+        for (j, &k) in batch.iter().enumerate() {
             let overflow = answers.overflow.get(j).copied().unwrap_or(false);
             seen[k] = sight::judge_all(answers.hits_of(j), overflow, eps);
         }
