@@ -109,15 +109,26 @@ fn visible(
             query: sight::second_query(),
             ..query
         };
-        let mut done = 0;
+        let (mut done, mut undecided) = (0, 0);
         answer(py, scene, again.len(), &read_again, &query, |answers| {
             for j in 0..answers.nearest.len() {
                 let overflow = answers.overflow.get(j).copied().unwrap_or(false);
                 seen[again[done + j]] = sight::judge_all(answers.hits_of(j), overflow, eps);
+                undecided += usize::from(sight::undecided(answers.hits_of(j), overflow, eps));
             }
             done += answers.nearest.len();
             Ok(())
         })?;
+        if undecided > 0 {
+            py.import("warnings")?.call_method1(
+                "warn",
+                (
+                    sight::undecided_warning(undecided, what),
+                    py.get_type::<PyRuntimeWarning>(),
+                    1,
+                ),
+            )?;
+        }
     }
     if invalid > 0 {
         let message = format!(

@@ -125,6 +125,7 @@ fn visible(
     // In batches: every line of a viewshed from an observer on the ground may be asked again,
     // and each keeps a list of hits.
     let query = sight::second_query();
+    let mut undecided = 0;
     for batch in again.chunks(AGAIN_BATCH) {
         super::check_rays(
             &format!("{} {what}s", batch.len()),
@@ -136,7 +137,11 @@ fn visible(
         for (j, &k) in batch.iter().enumerate() {
             let overflow = answers.overflow.get(j).copied().unwrap_or(false);
             seen[k] = sight::judge_all(answers.hits_of(j), overflow, eps);
+            undecided += usize::from(sight::undecided(answers.hits_of(j), overflow, eps));
         }
+    }
+    if undecided > 0 {
+        eprintln!("warning: {}", sight::undecided_warning(undecided, what));
     }
     Ok(seen)
 }

@@ -716,6 +716,34 @@ fn the_ends_own_surfaces_never_block_a_sight_line() {
     assert_eq!(out, "pair,visible\n0,1\n1,0\n", "{err}");
 }
 
+/// A sight line starting where more surfaces meet than the second pass lists (40 coincident
+/// triangles at the observer, in a frame 35 km wide) cannot be decided: it is reported not
+/// visible, as before, and now with a warning that counts it (it was silent).
+#[test]
+fn sight_lines_from_too_many_coincident_surfaces_are_warned_about() {
+    let mut obj = String::new();
+    for _ in 0..40 {
+        obj +=
+            "v 517995.1 4034995.3 399.95\nv 518005.1 4034996.3 401.0\nv 518000.1 4035006.3 401.0\n";
+    }
+    obj += "v 538000.1 4055000.3 20400.7\nv 538001.1 4055000.3 20400.7\nv 538000.1 4055001.3 20400.7\n";
+    for k in 0..41 {
+        obj += &format!("f {} {} {}\n", 3 * k + 1, 3 * k + 2, 3 * k + 3);
+    }
+    let scene = temp_file("coincident.obj", &obj);
+    let pairs = temp_file(
+        "coincident-pairs.txt",
+        "518000.39999999997 4035001.0 400.765 517997.39999999997 4035003.0 396.765\n",
+    );
+    let (code, out, err) = raypick(&["los", "--scene", &scene, "--pairs", &pairs]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out, "pair,visible\n0,0\n");
+    assert!(
+        err.contains("1 pair(s) start where more than 32 surfaces meet"),
+        "{err}"
+    );
+}
+
 #[test]
 fn camera_pixels_on_a_real_dem_report_row_and_col() {
     let dem = concat!(
