@@ -113,8 +113,9 @@ fn visible(
         answer(py, scene, again.len(), &read_again, &query, |answers| {
             for j in 0..answers.nearest.len() {
                 let overflow = answers.overflow.get(j).copied().unwrap_or(false);
-                seen[again[done + j]] = sight::judge_all(answers.hits_of(j), overflow, eps);
-                undecided += usize::from(sight::undecided(answers.hits_of(j), overflow, eps));
+                let judged = sight::judge_all(answers.hits_of(j), overflow, eps);
+                seen[again[done + j]] = judged == Some(true);
+                undecided += usize::from(judged.is_none());
             }
             done += answers.nearest.len();
             Ok(())

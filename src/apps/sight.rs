@@ -109,23 +109,18 @@ pub fn judge_nearest(hit: &Hit, eps: f64) -> Sight {
 }
 
 /// Whether a sight line is visible from its hits in order along it (the second pass's list):
-/// none with t in (ε, 1 − ε) in f64. A full list (`overflow`) whose hits all lie at the near
-/// end leaves the rest unknown ([`undecided`]): not visible.
-pub fn judge_all(hits: &[Hit], overflow: bool, eps: f64) -> bool {
+/// none with t in (ε, 1 − ε) in f64. `None` where the list leaves it unknown: full
+/// (`overflow`), and every hit at the near end (more surfaces meet at the observer than the
+/// list holds); such lines are reported not visible, with a warning that counts them
+/// ([`undecided_warning`]).
+pub fn judge_all(hits: &[Hit], overflow: bool, eps: f64) -> Option<bool> {
     if hits.iter().any(|h| h.t > eps && h.t < 1.0 - eps) {
-        return false;
+        return Some(false);
     }
-    !undecided(hits, overflow, eps)
+    (!overflow || hits.iter().any(|h| h.t > eps)).then_some(true)
 }
 
-/// Whether a second pass's list leaves its sight line unknown: full, and every hit at the near
-/// end (more surfaces meet at the observer than the list holds). Such lines are reported not
-/// visible, with a warning that counts them ([`undecided_warning`]).
-pub fn undecided(hits: &[Hit], overflow: bool, eps: f64) -> bool {
-    overflow && hits.iter().all(|h| h.t <= eps)
-}
-
-/// The warning for `count` sight lines left unknown ([`undecided`]), calling them `what`s.
+/// The warning for `count` sight lines left unknown ([`judge_all`]), calling them `what`s.
 pub fn undecided_warning(count: usize, what: &str) -> String {
     format!(
         "{count} {what}(s) start where more than {AGAIN_HITS} surfaces meet (coincident \

@@ -136,8 +136,9 @@ fn visible(
         let answers = picker.query(&rays, &query)?;
         for (j, &k) in batch.iter().enumerate() {
             let overflow = answers.overflow.get(j).copied().unwrap_or(false);
-            seen[k] = sight::judge_all(answers.hits_of(j), overflow, eps);
-            undecided += usize::from(sight::undecided(answers.hits_of(j), overflow, eps));
+            let judged = sight::judge_all(answers.hits_of(j), overflow, eps);
+            seen[k] = judged == Some(true);
+            undecided += usize::from(judged.is_none());
         }
     }
     if undecided > 0 {

@@ -110,7 +110,7 @@ pub fn read_rays(path: &Path, tmin: f64, tmax: f64, mask: u32) -> Result<Vec<Ray
 }
 
 /// Whether `path`'s extension is `extension` (ASCII case ignored).
-pub(crate) fn has_extension(path: &Path, extension: &str) -> bool {
+fn has_extension(path: &Path, extension: &str) -> bool {
     path.extension()
         .is_some_and(|e| e.eq_ignore_ascii_case(extension))
 }
@@ -127,9 +127,20 @@ pub fn output_format(format: Option<Format>, out: Option<&Path>) -> Format {
 /// Refuses an `--out` file named `.json` for `command`, which writes CSV only (rather than
 /// writing CSV into a file named as JSON).
 pub fn csv_only(command: &str, out: Option<&Path>) -> Result<(), Error> {
+    no_json_out(command, "CSV only", ".csv", out)
+}
+
+/// Refuses an `--out` file named `.json` for `command`, which writes `writes` ("CSV or PNG");
+/// the sentence asks for a name ending in `name_it`.
+pub fn no_json_out(
+    command: &str,
+    writes: &str,
+    name_it: &str,
+    out: Option<&Path>,
+) -> Result<(), Error> {
     match out {
         Some(path) if has_extension(path, "json") => Err(Error::Invalid(format!(
-            "--out {} names a JSON file, but {command} writes CSV only; name it .csv",
+            "--out {} names a JSON file, but {command} writes {writes}; name it {name_it}",
             path.display()
         ))),
         _ => Ok(()),

@@ -106,16 +106,12 @@ pub fn run_idbuffer(args: IdBufferArgs, matches: &ArgMatches) -> Result<ExitCode
         .as_ref()
         .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")));
     if png.is_none() {
-        if let Some(path) = args
-            .out
-            .as_deref()
-            .filter(|p| super::has_extension(p, "json"))
-        {
-            return Err(Error::Invalid(format!(
-                "--out {} names a JSON file, but idbuffer writes CSV or PNG; name it .csv or .png",
-                path.display()
-            )));
-        }
+        super::no_json_out(
+            "idbuffer",
+            "CSV or PNG",
+            ".csv or .png",
+            args.out.as_deref(),
+        )?;
         if args.raw_ids {
             return Err(Error::Invalid(
                 "--raw-ids writes a PNG; give --out a file name ending in .png".into(),

@@ -142,22 +142,7 @@ pub fn frame_warnings(built: &BuiltScene) -> Vec<String> {
 pub fn placement_warnings(built: &BuiltScene, part: u32) -> Vec<String> {
     let (b, kind) = match built.instances() {
         Some(i) => (i.hittable_box(part), "instance"),
-        None => (
-            built
-                .scene
-                .objects()
-                .get(part as usize)
-                .filter(|o| o.triangle_count > 0 && o.mask != 0)
-                .map(|o| {
-                    crate::scene::box_of(
-                        built
-                            .scene
-                            .object_vertices(o.id)
-                            .map(|v| built.scene.position(v)),
-                    )
-                }),
-            "object",
-        ),
+        None => (reach::object_box(&built.scene, part), "object"),
     };
     let Some(b) = b else {
         return Vec::new();

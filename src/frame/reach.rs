@@ -238,12 +238,16 @@ pub fn object_boxes(scene: &Scene) -> Vec<(u32, (DVec3, DVec3))> {
     scene
         .objects()
         .par_iter()
-        .filter(|o| o.triangle_count > 0 && o.mask != 0)
-        .map(|o| {
-            let b = box_of(scene.object_vertices(o.id).map(|v| scene.position(v)));
-            (o.id, b)
-        })
+        .filter_map(|o| Some((o.id, object_box(scene, o.id)?)))
         .collect()
+}
+
+/// Object `id`'s box, as [`object_boxes`] lists it: `None` for an unknown id or an object with
+/// nothing to hit (no triangles, layer mask 0). One pass over its vertices.
+pub fn object_box(scene: &Scene, id: u32) -> Option<(DVec3, DVec3)> {
+    let o = scene.objects().get(id as usize)?;
+    (o.triangle_count > 0 && o.mask != 0)
+        .then(|| box_of(scene.object_vertices(o.id).map(|v| scene.position(v))))
 }
 
 /// Of `boxes` ([`object_boxes`], `Instances::hittable_boxes`), those not resolved in a frame

@@ -355,11 +355,9 @@ impl Instances {
         // so rays from far out were no longer moved near the scene before rounding); else the
         // move only grows them.
         let left_the_edge = self.instances[i].mask != 0
-            && self.leaf_world_box(bvh, i).is_some_and(|(lo, hi)| {
-                !self
-                    .bounds
-                    .is_some_and(|(blo, bhi)| lo.cmpgt(blo).all() && hi.cmplt(bhi).all())
-            });
+            && self
+                .leaf_world_box(bvh, i)
+                .is_some_and(|b| !self.strictly_within_bounds(b));
         let before = self.bounds;
         self.records[i] = self.record(i, self.records[i].prim_base);
         self.refit_leaf(bvh, i, placed_box);
@@ -473,14 +471,18 @@ impl Instances {
         Ok(())
     }
 
+    /// Whether the box `(lo, hi)` lies within the bounds of what can be hit without touching
+    /// their edge on any side: what leaves it leaves the bounds as they are.
+    fn strictly_within_bounds(&self, (lo, hi): (DVec3, DVec3)) -> bool {
+        self.bounds
+            .is_some_and(|(blo, bhi)| lo.cmpgt(blo).all() && hi.cmplt(bhi).all())
+    }
+
     /// After an instance whose world box is `gone` can no longer be hit: where it reached the
     /// edge of the bounds of what can be hit, they are worked out again (one box per instance;
     /// around every instance left when none can be hit, none when none is left).
-    fn bounds_without(&mut self, (lo, hi): (DVec3, DVec3)) {
-        let inside = self
-            .bounds
-            .is_some_and(|(blo, bhi)| lo.cmpgt(blo).all() && hi.cmplt(bhi).all());
-        if !inside {
+    fn bounds_without(&mut self, gone: (DVec3, DVec3)) {
+        if !self.strictly_within_bounds(gone) {
             let boxes = self.world_boxes();
             self.bounds = self.live_bounds(&boxes).or_else(|| all_bounds(&boxes));
         }

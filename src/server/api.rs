@@ -559,8 +559,8 @@ async fn read_body(
     let held = memory.reserve(what, first).await?;
     let read = async move {
         let (mut body, mut held) = (body, held);
-        let first = declared.map_or(0, |n| n.min(BODY_RESERVE_STEP) as usize);
-        let mut data: Vec<u8> = Vec::with_capacity(first);
+        // Room for what was reserved first, where the body said its size.
+        let mut data: Vec<u8> = Vec::with_capacity(declared.map_or(0, |_| first as usize));
         while let Some(frame) = std::future::poll_fn(|cx| {
             http_body::Body::poll_frame(std::pin::Pin::new(&mut body), cx)
         })
