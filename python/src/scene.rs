@@ -480,6 +480,8 @@ impl Scene {
             let built = py
                 .detach(|| threads::run(|| rpk::load(&path)))?
                 .map_err(to_py)?;
+            // The warnings the scene gave when it was built, given again (as the CLI does).
+            warn_frame(py, &built)?;
             // A saved instanced scene is picked as its instances, as the CLI's `pick` picks
             // it; `los` and `viewshed` bake its copies as by default (as the CLI's do).
             return Ok(Scene::new(built, BuildOptions::default()));

@@ -411,6 +411,22 @@ def test_scenes_that_single_precision_cannot_hold_are_warned_about():
         raypick.Scene.from_arrays(corners * 1e3, triangles)
 
 
+def test_a_saved_scene_repeats_the_warnings_it_was_built_with(tmp_path):
+    """Loading a saved `.rpk` said nothing of what its frame cannot hold, so the warnings the
+    scene gave when it was built were lost to whoever loaded it; now they are given again (as
+    the CLI's picks from a `.rpk` give them), and a sound saved scene loads without one."""
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float64)
+    with pytest.warns(UserWarning, match="past 1e12"):
+        raypick.Scene.from_arrays(corners * 1e14, [[0, 1, 2]]).save(tmp_path / "wide.rpk")
+    with pytest.warns(UserWarning, match="past 1e12, the single-precision triangle tests overflow"):
+        raypick.Scene.load(tmp_path / "wide.rpk")
+    raypick.Scene.from_arrays(corners * 1e3, [[0, 1, 2]]).save(tmp_path / "sound.rpk")
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        raypick.Scene.load(tmp_path / "sound.rpk")
+
+
 
 def integer_arguments(bunny, dem):
     """Every integer argument, as (its name in messages, a call giving it `value`)."""

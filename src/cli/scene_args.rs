@@ -190,6 +190,10 @@ impl SceneArgs {
             Placement::InPlace
         };
         if let Some(built) = self.saved(matches, placement)? {
+            // The warnings `build` gave when it saved the scene, given again to whoever picks
+            // from it (worked out from the loaded trees: about 2 ms for the dragon's 202k
+            // triangles).
+            warn_lost(&built);
             return Ok((built, start.elapsed().as_secs_f64(), 0.0));
         }
         let files = self.files(matches)?;

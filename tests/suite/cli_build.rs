@@ -78,3 +78,50 @@ fn misuse_and_damage_are_exit_2_naming_the_file() {
         "{err}"
     );
 }
+
+/// The warnings `build` gives about what the scene's frame cannot hold (here a scene 10¹³
+/// across, too wide for the f32 tests' products) are given again by every command that picks
+/// from the saved scene: loading a `.rpk` said nothing, so its user picked without a word.
+#[test]
+fn a_saved_scene_repeats_the_warnings_it_was_built_with() {
+    let warnings = |err: &str| -> Vec<String> {
+        err.lines()
+            .filter(|l| l.starts_with("warning:"))
+            .map(str::to_owned)
+            .collect()
+    };
+    let wide = tmp("wide.obj");
+    std::fs::write(
+        &wide,
+        "v 0 0 0\nv 1e13 0 0\nv 0 1e13 0\nv 0 0 1e13\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n",
+    )
+    .unwrap();
+    for (obj, rpk, warned) in [
+        (wide.as_str(), tmp("wide.rpk"), true),
+        ("tests/data/bunny.obj", tmp("quiet.rpk"), false),
+    ] {
+        let (code, _, err) = raypick(&["build", "-q", "--scene", obj, "--out", &rpk]);
+        assert_eq!(code, 0, "{err}");
+        let built = warnings(&err);
+        assert_eq!(!built.is_empty(), warned, "{obj}: {built:?}");
+        if warned {
+            assert!(built[0].contains("past 1e12"), "{built:?}");
+        }
+        for command in [
+            vec!["pick", "-q", "--scene", &rpk],
+            vec!["pick", "-q", "--backend", "reference", "--scene", &rpk],
+            vec![
+                "render", "-q", "--scene", &rpk, "--width", "8", "--height", "8", "--out",
+            ],
+        ] {
+            let mut args = command.clone();
+            let png = tmp("warned.png");
+            if args.last() == Some(&"--out") {
+                args.push(&png);
+            }
+            let (code, _, err) = raypick(&args);
+            assert_eq!(code, 0, "{args:?}: {err}");
+            assert_eq!(warnings(&err), built, "{args:?}");
+        }
+    }
+}
