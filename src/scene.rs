@@ -351,6 +351,17 @@ impl Scene {
                 mesh.triangles.len()
             )));
         }
+        // One vertex per sample, row by row: what reads a grid's samples by row and column
+        // (the grid builder, `los` and `viewshed`'s targets) indexes its vertices so.
+        let samples = u64::from(grid.columns) * u64::from(grid.rows);
+        if mesh.positions.len() as u64 != samples {
+            return Err(Error::Invalid(format!(
+                "{name}: a {}×{} grid has {samples} vertices, but the mesh has {}",
+                grid.columns,
+                grid.rows,
+                mesh.positions.len()
+            )));
+        }
         let id = self.add_mesh(name, mesh)?;
         self.objects[id as usize].grid = Some(grid);
         Ok(id)

@@ -545,6 +545,70 @@ fn a_grid_too_large_for_any_triangle_count_is_refused() {
     }
 }
 
+/// Found by a review: a grid object's shape was checked against its triangles only, so a file
+/// whose 14 × 12 grid claimed 2 × 144 samples (the same 286 triangles) loaded, and `viewshed`,
+/// `los` and `render` read its samples by row and column past its vertices (a panic); a grid
+/// of 2³² − 1 × 1 samples and no triangles made `viewshed` ask for 4 GiB. Every grid's vertices
+/// are now its samples.
+#[test]
+fn a_grid_whose_shape_disagrees_with_its_vertices_is_refused() {
+    let (_, _, bytes, _) = small_files("grid-vertices").swap_remove(1);
+    let objects = section(&bytes, b"OBJS");
+    let field =
+        |b: &[u8], at: usize| u32::from_le_bytes(b[objects.start + at..][..4].try_into().unwrap());
+    assert_eq!(
+        (field(&bytes, 24), field(&bytes, 28)),
+        (14, 12),
+        "the small grid"
+    );
+    for (columns, rows, triangles) in [
+        (2u32, 144u32, None),
+        (144, 2, None),
+        (u32::MAX, 1, Some(0u32)),
+    ] {
+        let mut changed = bytes.clone();
+        changed[objects.start + 24..objects.start + 28].copy_from_slice(&columns.to_le_bytes());
+        changed[objects.start + 28..objects.start + 32].copy_from_slice(&rows.to_le_bytes());
+        if let Some(count) = triangles {
+            changed[objects.start + 8..objects.start + 12]
+                .copy_from_slice(&u32::to_le_bytes(count));
+        }
+        rpk::write::reseal(&mut changed);
+        let path = Path::new("grid.rpk");
+        let e = rpk::from_bytes(path, &changed).expect_err("a grid of other samples");
+        assert_clean_error(path, &e, "a grid of other samples");
+        let said = e.to_string();
+        assert!(
+            said.contains("grid with") && (said.contains("vertices") || triangles.is_some()),
+            "{said}"
+        );
+    }
+    // The same shape swapped (12 × 14: as many samples and triangles) stays in bounds: it loads.
+    let mut swapped = bytes.clone();
+    swapped[objects.start + 24..objects.start + 28].copy_from_slice(&12u32.to_le_bytes());
+    swapped[objects.start + 28..objects.start + 32].copy_from_slice(&14u32.to_le_bytes());
+    rpk::write::reseal(&mut swapped);
+    rpk::from_bytes(Path::new("swapped.rpk"), &swapped).expect("as many samples");
+    // And a scene is never given such a grid.
+    let mut scene = Scene::new();
+    let mesh = terrain(14, 12, 0.0, 20.0, 1.5, hills);
+    let e = scene
+        .add_grid_mesh(
+            "grid",
+            mesh,
+            raypick::GridShape {
+                columns: 2,
+                rows: 144,
+            },
+        )
+        .expect_err("a grid of other samples");
+    assert!(
+        e.to_string()
+            .contains("a 2×144 grid has 288 vertices, but the mesh has 168"),
+        "{e}"
+    );
+}
+
 /// Found by `cargo fuzz run rpk` (fuzz/artifacts/rpk/crash-27ba6e8a…): a summary section
 /// shorter than its record was read past its end. Here it is cut to nothing, the file's
 /// length and checksums made right.
