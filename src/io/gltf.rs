@@ -82,9 +82,10 @@
 //!   [`READ_PER_INPUT_BYTE`] bytes per byte of input (the file and the
 //!   external buffers loaded), or [`READ_FLOOR`] in all: more can only be
 //!   zero-filled (sparse) accessors or accessors sharing their data.
-//! - The objects placed may have at most [`OUTPUT_PER_INPUT_BYTE`] vertices
-//!   plus triangles per byte of input, or [`OUTPUT_FLOOR`] in all, and
-//!   their memory must fit the budget.
+//! - The objects placed may have at most [`OUTPUT_PER_INPUT_BYTE`] vertices,
+//!   triangles and objects per byte of input, or [`OUTPUT_FLOOR`] in all,
+//!   and their memory ([`OBJECT_BYTES`] an object beside its name, even with
+//!   no triangle) must fit the budget.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -110,12 +111,17 @@ pub const READ_PER_INPUT_BYTE: u64 = 2;
 /// Bytes the accessors of any file may claim, whatever its size (16 MiB).
 pub const READ_FLOOR: u64 = 16 << 20;
 
-/// Vertices plus triangles a file may produce per byte of input (see
+/// Vertices, triangles and objects a file may produce per byte of input (see
 /// [Sizes](self#sizes)).
 pub const OUTPUT_PER_INPUT_BYTE: u64 = 8;
 
-/// Vertices plus triangles any file may produce, whatever its size.
+/// Vertices, triangles and objects any file may produce, whatever its size.
 pub const OUTPUT_FLOOR: u64 = 1 << 23;
+
+/// Bytes a placed object costs beyond its vertices and triangles, and beyond three copies of the
+/// file's name (its placement's, its object's and its instance's records and names, and the
+/// scene's lists of them; about 680 measured with a short name).
+pub const OBJECT_BYTES: u64 = 1024;
 
 /// Bytes of memory per byte of a file's JSON while it is parsed, besides its records (see
 /// [Sizes](self#sizes)).
@@ -830,24 +836,30 @@ impl Loader<'_> {
                 }
             }
         }
-        let output = vertices.saturating_add(triangles);
+        // Objects count too: a primitive of no vertices placed by every node costs its records
+        // and names each time (3,000 nodes × 3,000 such primitives, a 137 KB file, asked for
+        // gigabytes).
+        let output = vertices.saturating_add(triangles).saturating_add(objects);
         let most = OUTPUT_FLOOR.max(input.saturating_mul(OUTPUT_PER_INPUT_BYTE));
         if output > most {
             return Err(self.parse(format!(
                 "the scene places {objects} objects with {vertices} vertices and {triangles} \
                  triangles, but a file with {input} bytes of input may give at most {most} \
-                 vertices and triangles ({OUTPUT_PER_INPUT_BYTE} per byte of input, or \
+                 vertices, triangles and objects ({OUTPUT_PER_INPUT_BYTE} per byte of input, or \
                  {OUTPUT_FLOOR} in all)"
             )));
         }
-        // The objects, plus the accessors' decoded data and indices while they are read.
+        // The objects (their records and names), plus the accessors' decoded data and indices
+        // while they are read.
         let reading: u64 = shapes.values().fold(0, |a, &(v, n, _)| {
             a.saturating_add(v.saturating_mul(12))
                 .saturating_add(n.saturating_mul(4))
         });
+        let per_object = OBJECT_BYTES.saturating_add(3 * self.file.len() as u64);
         let bytes = vertices
             .saturating_mul(24)
             .saturating_add(triangles.saturating_mul(12))
+            .saturating_add(objects.saturating_mul(per_object))
             .saturating_add(reading);
         crate::budget::check(
             &format!(

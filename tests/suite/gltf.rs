@@ -1333,3 +1333,68 @@ fn a_matrix_rows_noise_and_tiny_quaternions_place_nodes_where_they_mean() {
         assert!((*got - want).length() < 1e-12, "{got} vs {want}");
     }
 }
+
+/// A file of `nodes` nodes each placing a mesh of `primitives` primitives whose POSITION
+/// accessor holds no vertex.
+fn empty_primitives_placed(nodes: usize, primitives: usize) -> Value {
+    let primitive = json!({"attributes": {"POSITION": 0}});
+    json!({
+        "asset": {"version": "2.0"},
+        "buffers": [{"byteLength": 12, "uri": format!("data:application/octet-stream;base64,{}", base64(&[0; 12]))}],
+        "bufferViews": [{"buffer": 0, "byteLength": 12}],
+        "accessors": [{"componentType": 5126, "count": 0, "type": "VEC3", "bufferView": 0}],
+        "meshes": [{"primitives": vec![primitive; primitives]}],
+        "nodes": vec![json!({"mesh": 0}); nodes],
+        "scenes": [{"nodes": (0..nodes).collect::<Vec<_>>()}],
+        "scene": 0
+    })
+}
+
+/// Found by a review: the objects a file places were counted against no limit, only their
+/// vertices and triangles, so primitives of no vertex placed by many nodes cost their records
+/// and names unchecked: 3,000 nodes × 3,000 such primitives (a 137 KB file) aborted the
+/// process asking for 2.8 GB, and 1,000 × 1,000 (45 KB) took 676 MB past a 64 MiB budget.
+/// Objects now count with the vertices and triangles, and their memory with the budget.
+#[test]
+fn objects_placed_without_triangles_count_against_the_limits() {
+    let dir = TempDir::new();
+    let run = |path: &Path, budget: &str| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_raypick"))
+            .args([
+                "--max-memory",
+                budget,
+                "pick",
+                "--backend",
+                "cpu",
+                "-q",
+                "--scene",
+            ])
+            .arg(path)
+            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let many = dir.write_json("many.gltf", &empty_primitives_placed(3000, 3000));
+    let (code, err) = run(&many, "8G");
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("places 9000000 objects with 0 vertices and 0 triangles")
+            && err.contains("vertices, triangles and objects"),
+        "{err}"
+    );
+    let million = dir.write_json("million.gltf", &empty_primitives_placed(1000, 1000));
+    let (code, err) = run(&million, "64M");
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("1000000 objects") && err.contains("memory budget"),
+        "{err}"
+    );
+    // A few such placements load, each an object of no triangle.
+    let few = dir.write_json("few.gltf", &empty_primitives_placed(3, 2));
+    let (code, err) = run(&few, "64M");
+    assert_eq!(code, Some(0), "{err}");
+}
