@@ -654,11 +654,24 @@ impl Instances {
             wide.refit(&fresh.bvh);
             let _ = fresh.wide.set(Ok(wide));
         }
-        self.meshes[m] = Arc::new(fresh);
+        let old = std::mem::replace(&mut self.meshes[m], Arc::new(fresh));
+        // A mesh added since the combined tree was laid out is not in it (no instance placed it
+        // then): nothing there to write.
+        if m >= self.mesh_nodes.len() && refitted {
+            return Ok(crate::picker::Refit::Refitted);
+        }
         // Laid out anew too where the top tree is empty (every instance removed or with
         // nothing to hit): the combined tree then holds no mesh to write in place.
-        if !refitted || self.meshes[m].bvh.nodes.is_empty() || bvh.nodes.is_empty() {
-            self.rebuild_top(bvh)?;
+        if !refitted
+            || m >= self.mesh_nodes.len()
+            || self.meshes[m].bvh.nodes.is_empty()
+            || bvh.nodes.is_empty()
+        {
+            if let Err(e) = self.rebuild_top(bvh) {
+                // Nothing changed: the mesh as it was.
+                self.meshes[m] = old;
+                return Err(e);
+            }
             return Ok(crate::picker::Refit::Rebuilt);
         }
         // The mesh's nodes and triangles where the combined tree holds them.

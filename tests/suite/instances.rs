@@ -1071,3 +1071,78 @@ fn bounds_after_moves_and_masks_are_those_of_a_fresh_assembly() {
         assert_eq!(built.bounds(), fresh.bounds(), "step {step}");
     }
 }
+
+/// Found by a fuzz of edit sequences: reshaping a mesh added after the scene was laid out, and
+/// not yet placed by any instance, indexed the combined tree's record of its nodes, which it is
+/// not in: a panic, with the mesh already reshaped. It is now reshaped alone (nothing else
+/// holds it), and an instance placing it afterwards picks it reshaped, on every path.
+#[test]
+fn a_mesh_no_instance_places_yet_is_reshaped_and_placed_as_reshaped() {
+    use raypick::{CpuPicker, GpuPicker, ReferencePicker, Refit};
+    let built = BuiltScene::instanced(
+        meshes(),
+        random_instances(6, DVec3::ZERO, 8.0, 3),
+        &BuildOptions::default(),
+    )
+    .expect("build");
+    let mut gpu = GpuPicker::new(common::gpu(), Arc::new(built)).unwrap();
+    let mut cpu = CpuPicker::new(gpu.current_scene().unwrap());
+    let sphere = icosphere(DVec3::ZERO, 1.0, 1);
+    let doubled: Vec<DVec3> = sphere.positions.iter().map(|p| *p * 2.0).collect();
+    let mut added = None;
+    for picker in [&mut gpu as &mut dyn Picker, &mut cpu] {
+        let sphere = mesh_scene("added", sphere.clone(), None);
+        let mut mesh = 0;
+        picker
+            .edit(&mut |b: &mut BuiltScene| {
+                mesh = b.add_mesh(sphere.clone())?;
+                Ok(Refit::Moved)
+            })
+            .unwrap();
+        let refit = picker
+            .edit(&mut |b: &mut BuiltScene| b.set_mesh_positions(mesh, &doubled))
+            .unwrap();
+        assert_eq!(refit, Refit::Refitted);
+        let place = Instance {
+            name: "placed".into(),
+            mesh,
+            transform: transform(DMat3::IDENTITY, DVec3::new(0.0, 0.0, 20.0)),
+            mask: u32::MAX,
+        };
+        picker
+            .edit(&mut |b: &mut BuiltScene| b.add_instance(place.clone()).map(|_| Refit::Rebuilt))
+            .unwrap();
+        added = Some(mesh);
+    }
+    let now = gpu.current_scene().unwrap();
+    let placed = &now.instances().unwrap().meshes()[added.unwrap() as usize].scene;
+    assert_eq!(
+        placed.positions(),
+        &doubled[..],
+        "the reshaped mesh is placed"
+    );
+    // A ray down onto the placed sphere meets it 2 units above its centre, not 1.
+    let down = [raypick::Ray::new(DVec3::new(0.0, 0.0, 40.0), DVec3::NEG_Z)];
+    for (path, hits) in [
+        ("gpu", gpu.pick(&down).unwrap()),
+        ("cpu", cpu.pick(&down).unwrap()),
+        (
+            "reference",
+            ReferencePicker::new(now.clone()).pick(&down).unwrap(),
+        ),
+    ] {
+        assert!(hits[0].hit, "{path}");
+        assert!(
+            (hits[0].position.z - 22.0).abs() < 0.2,
+            "{path}: {:?}",
+            hits[0].position
+        );
+    }
+    let baked = now.instances().unwrap().baked().unwrap();
+    assert_query_equivalent(
+        "reshaped, then placed",
+        now,
+        &mixed_rays(&baked, 600, 4),
+        &Query::default(),
+    );
+}
