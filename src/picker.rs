@@ -275,7 +275,9 @@ impl BuiltScene {
     /// order; the same triangles) and refits the tree and the engine's wide tree to them,
     /// bottom-up, without building again ([`crate::bvh::Bvh::refit`]); the tree's f32 frame
     /// keeps its origin. Only when a triangle of the object becomes degenerate, or stops being
-    /// so, is the tree built again, with the options it was built with. Answers afterwards are
+    /// so, or the scene has moved away from the frame
+    /// ([`crate::frame::reach::frame_suits`]), is the tree built again, with the options it was
+    /// built with. Answers afterwards are
     /// those of a scene built from the new positions, on every backend. Fails, naming the
     /// object, on an unknown object, a wrong count or a non-finite coordinate, with nothing
     /// changed.
@@ -306,7 +308,22 @@ impl BuiltScene {
                     }
                 },
             );
-            return Ok(Refit::Refitted);
+            if crate::frame::reach::frame_suits(self.scene.bounds(), self.bvh.origin) {
+                return Ok(Refit::Refitted);
+            }
+            // The scene has moved away from the frame's origin (an object moved far out and
+            // back): built again, centred on it. Should that fail, the refitted tree stands:
+            // the answers of the kept frame, as before the move.
+            return Ok(match Bvh::build(&self.scene, &self.options) {
+                Ok(bvh) => {
+                    self.triangle_masks = masks_of(&self.scene, &bvh).into();
+                    self.bvh = bvh;
+                    self.wide = OnceLock::new();
+                    self.leaf_vertices = OnceLock::new();
+                    Refit::Rebuilt
+                }
+                Err(_) => Refit::Refitted,
+            });
         }
         // Built again on a copy of the scene, so a failed build leaves it as it was.
         let mut scene = self.scene.clone();
