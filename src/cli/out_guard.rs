@@ -2,7 +2,8 @@
 //! read or written: `raypick build --scene a.obj --out a.obj`, a render over its own camera
 //! file or a pick over its own ray file replaced the input with the output and exited 0. The
 //! inputs are every path-valued argument of the command (`--scene`, `--rays`, `--camera`, …)
-//! and every file a scene description lists ([`refuse_listed`]); the same file is the same
+//! and every file a scene description lists ([`refuse_listed`]) or a glTF file's buffers name
+//! ([`refuse_gltf_buffers`]); the same file is the same
 //! file however it is named (a link, `./a.obj`, another folder's `..`).
 
 use clap::ArgMatches;
@@ -52,6 +53,30 @@ pub fn refuse_listed<'a>(
         if FileId::of(file).as_ref() == Some(&id) {
             let input = format!("{}, listed by {}", file.display(), description.display());
             return Err(refusal(out, &input));
+        }
+    }
+    Ok(())
+}
+
+/// Refuses `--out` when it is the same file as a buffer that one of the glTF files among
+/// `files` reads ([`raypick::io::gltf::buffer_files`]): `pick --scene m.gltf --out m.bin`
+/// replaced the mesh's data with the answers.
+pub fn refuse_gltf_buffers<'a>(
+    matches: &ArgMatches,
+    files: impl IntoIterator<Item = &'a Path>,
+) -> Result<(), Error> {
+    let Some((out, id)) = existing_out(matches) else {
+        return Ok(());
+    };
+    for file in files
+        .into_iter()
+        .filter(|f| raypick::io::scene_files::is_gltf(f))
+    {
+        for buffer in raypick::io::gltf::buffer_files(file) {
+            if FileId::of(&buffer).as_ref() == Some(&id) {
+                let input = format!("{}, a buffer of {}", buffer.display(), file.display());
+                return Err(refusal(out, &input));
+            }
         }
     }
     Ok(())

@@ -70,8 +70,18 @@ impl SceneArgs {
     /// with the `--scene` before it.
     pub fn files(&self, matches: &ArgMatches) -> Result<Vec<SceneFile>, Error> {
         if let Some(path) = &self.scenes {
+            if !self.mask.is_empty() {
+                // clap keeps --mask from coming before any --scene, not from coming with
+                // --scenes: it was ignored there.
+                return Err(Error::Invalid(format!(
+                    "--mask does not apply to --scenes {}: a scene description gives each file's \
+                     mask itself (\"mask\")",
+                    path.display()
+                )));
+            }
             let files = load_description(path)?;
             super::out_guard::refuse_listed(matches, path, files.iter().map(|f| f.file.as_path()))?;
+            super::out_guard::refuse_gltf_buffers(matches, files.iter().map(|f| f.file.as_path()))?;
             return Ok(files);
         }
         let scene_at: Vec<usize> = matches
@@ -104,6 +114,7 @@ impl SceneArgs {
                 )));
             }
         }
+        super::out_guard::refuse_gltf_buffers(matches, files.iter().map(|f| f.file.as_path()))?;
         Ok(files)
     }
 

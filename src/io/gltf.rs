@@ -374,6 +374,53 @@ impl Shared {
     }
 }
 
+/// The files outside `path` that its buffers name (relative URIs inside its folder, as the
+/// loader resolves them), for a caller that must not write over an input; empty where the file
+/// cannot be read or parsed (loading it then says why). Reads the JSON once more, skipping
+/// everything but the buffers' URIs.
+pub fn buffer_files(path: &Path) -> Vec<PathBuf> {
+    #[derive(serde::Deserialize)]
+    struct Buffer {
+        uri: Option<String>,
+    }
+    #[derive(serde::Deserialize)]
+    struct Buffers {
+        #[serde(default)]
+        buffers: Vec<Buffer>,
+    }
+    let json = (|| -> std::io::Result<Vec<u8>> {
+        use std::io::Read;
+        let mut file = std::fs::File::open(path)?;
+        let mut bytes = Vec::new();
+        match glb_json_length(&mut file)? {
+            Some(length) => {
+                let mut head = [0u8; 20];
+                file.read_exact(&mut head)?;
+                file.take(length).read_to_end(&mut bytes)?;
+            }
+            None => {
+                file.read_to_end(&mut bytes)?;
+            }
+        }
+        Ok(bytes)
+    })();
+    let Ok(json) = json else {
+        return Vec::new();
+    };
+    let Ok(parsed) = serde_json::from_slice::<Buffers>(&json) else {
+        return Vec::new();
+    };
+    let dir = path.parent().unwrap_or(Path::new(""));
+    parsed
+        .buffers
+        .into_iter()
+        .filter_map(|b| b.uri)
+        .filter(|uri| !uri.starts_with("data:") && !has_scheme(uri))
+        .filter_map(|uri| percent_decode(&uri).ok())
+        .filter_map(|relative| resolve_inside(dir, Path::new(&relative)).ok())
+        .collect()
+}
+
 /// The length of a GLB file's JSON chunk, from its header (the file left at its start); `None`
 /// for a file that does not start as a GLB file with a JSON chunk (a `.gltf`, all JSON).
 fn glb_json_length(file: &mut std::fs::File) -> std::io::Result<Option<u64>> {

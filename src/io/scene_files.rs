@@ -348,7 +348,7 @@ fn repeats(shared: &Shared) -> bool {
 }
 
 /// Whether `path` names a glTF file (`.gltf` or `.glb`, any case).
-fn is_gltf(path: &Path) -> bool {
+pub fn is_gltf(path: &Path) -> bool {
     path.extension()
         .and_then(|e| e.to_str())
         .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"))

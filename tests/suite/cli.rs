@@ -1126,6 +1126,71 @@ fn an_out_file_that_is_one_of_the_inputs_is_refused_and_left_as_it_was() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// Found by a sweep of hostile arguments: a glTF's external buffer is an input too, which the
+/// guard did not know: `pick --scene m.gltf --out m.bin` replaced the mesh's data with the
+/// answers, exit 0 (so did `build`, and `los` over a description listing the glTF). And
+/// `--mask` with `--scenes` was ignored without a word (a description gives its files' masks).
+#[test]
+fn a_gltf_buffer_as_out_and_a_mask_with_scenes_are_refused() {
+    let dir = std::env::temp_dir().join(format!("raypick-cli-out-buffer-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let corners: Vec<u8> = [0f32, 0., 0., 10., 0., 0., 0., 10., 0.]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    std::fs::write(dir.join("m.bin"), &corners).unwrap();
+    let gltf = r#"{"asset":{"version":"2.0"},"buffers":[{"uri":"m%2Ebin","byteLength":36}],
+        "bufferViews":[{"buffer":0,"byteLength":36}],
+        "accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3",
+                      "min":[0,0,0],"max":[10,10,0]}],
+        "meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],
+        "nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}],"scene":0}"#;
+    std::fs::write(dir.join("m.gltf"), gltf).unwrap();
+    std::fs::write(dir.join("d.json"), r#"{"objects": [{"file": "m.gltf"}]}"#).unwrap();
+    std::fs::write(dir.join("pairs.txt"), "1 1 5 1 1 -5\n").unwrap();
+    for args in [
+        &["pick", "--scene", "m.gltf", "--out", "m.bin"][..],
+        &["build", "--scene", "m.gltf", "--out", "m.bin"],
+        &[
+            "los",
+            "--scenes",
+            "d.json",
+            "--pairs",
+            "pairs.txt",
+            "--out",
+            "m.bin",
+        ],
+    ] {
+        let out = run_in(&dir, args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            err.starts_with("error: --out m.bin is also an input (m.bin, a buffer of m.gltf)"),
+            "{args:?}: {err}"
+        );
+        assert_eq!(
+            std::fs::read(dir.join("m.bin")).unwrap(),
+            corners,
+            "{args:?}"
+        );
+    }
+    let out = run_in(&dir, &["pick", "--scene", "m.gltf", "--out", "hits.csv"]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = run_in(&dir, &["pick", "--scenes", "d.json", "--mask", "0"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--mask does not apply to --scenes d.json"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// A saved scene is picked from in place (`rpk::load_in_place`); a file shortened underneath a
 /// running command raises SIGBUS, which the tool turns into exit code 2 and one sentence. The
 /// signal is sent by hand here, once the command is surely running: it has opened the FIFO its
