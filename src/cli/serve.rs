@@ -62,11 +62,13 @@ pub struct ServeArgs {
 
 /// `seconds` as a timeout: a positive, finite number of seconds.
 fn timeout(flag: &str, seconds: f64) -> Result<Duration, Error> {
-    if seconds.is_finite() && seconds > 0.0 && seconds <= 1e9 {
+    // At least a millisecond: shorter ones (1e-10, which a Duration rounds to nothing) dropped
+    // every connection unanswered.
+    if seconds.is_finite() && (1e-3..=1e9).contains(&seconds) {
         Ok(Duration::from_secs_f64(seconds))
     } else {
         Err(Error::Invalid(format!(
-            "{flag} {} is not a timeout; give a positive number of seconds, at most 1e9",
+            "{flag} {} is not a timeout; give a number of seconds from 0.001 to 1e9",
             raypick::io::output::csv_number(seconds)
         )))
     }

@@ -114,9 +114,18 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             )?;
             rays.into_iter().map(|r| ("file", r)).collect()
         }
+        // --tmin and --tmax as a ray file's rays take them: every ray's tmin, and the tmax of
+        // those that set none (a tmax-cutoff ray keeps its own). They were ignored here.
         None => mixed_rays(world, args.random, args.seed)
             .into_iter()
-            .map(|(k, r)| (k.name(), r.with_mask(q.ray_mask)))
+            .map(|(k, r)| {
+                let tmax = if r.tmax == f64::INFINITY {
+                    q.tmax
+                } else {
+                    r.tmax
+                };
+                (k.name(), r.with_mask(q.ray_mask).with_range(q.tmin, tmax))
+            })
             .collect(),
     };
     check_count(labelled.len() as u64, &query)?;

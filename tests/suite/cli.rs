@@ -1126,6 +1126,37 @@ fn an_out_file_that_is_one_of_the_inputs_is_refused_and_left_as_it_was() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// Found by a sweep of hostile arguments: `verify --random` ignored `--tmin` and `--tmax`
+/// (`--tmax 0` gave the same table); they now apply as to a ray file's rays, a tmax-cutoff ray
+/// keeping its own tmax.
+#[test]
+fn verify_random_rays_take_tmin_and_tmax() {
+    let hits = |extra: &[&str]| -> Vec<(String, u64)> {
+        let mut args = vec!["verify", "-q", "--random", "400"];
+        args.extend_from_slice(extra);
+        let (code, out, err) = raypick(&args);
+        assert_eq!(code, 0, "{err}");
+        out.lines()
+            .skip_while(|l| !l.starts_with("kind"))
+            .skip(1)
+            .take(8)
+            .map(|l| {
+                let cols: Vec<&str> = l.split_whitespace().collect();
+                (cols[0].to_string(), cols[2].parse().unwrap())
+            })
+            .collect()
+    };
+    let all = hits(&[]);
+    assert!(all.iter().filter(|(_, h)| *h > 0).count() >= 6, "{all:?}");
+    for (kind, h) in hits(&["--tmax", "0"]) {
+        let own_tmax = kind == "tmax-cutoff";
+        assert!(own_tmax || h == 0, "{kind}: {h} hits with --tmax 0");
+    }
+    for (kind, h) in hits(&["--tmin", "1e300"]) {
+        assert_eq!(h, 0, "{kind}: {h} hits with --tmin 1e300");
+    }
+}
+
 /// Found by a sweep of hostile arguments: a glTF's external buffer is an input too, which the
 /// guard did not know: `pick --scene m.gltf --out m.bin` replaced the mesh's data with the
 /// answers, exit 0 (so did `build`, and `los` over a description listing the glTF). And

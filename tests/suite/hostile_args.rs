@@ -924,10 +924,11 @@ fn outputs_that_cannot_be_what_their_name_says_are_refused() {
     for flag in ["--max-rays", "--max-body-bytes", "--max-connections"] {
         assert_refused(&["serve", flag, "0"], &[flag, "at least 1"]);
     }
-    // The server's timeouts and work limit are positive, finite seconds.
+    // The server's timeouts and work limit are finite seconds, at least a millisecond (1e-10,
+    // which a Duration rounds to nothing, dropped every connection unanswered).
     for flag in ["--idle-timeout", "--body-timeout", "--max-work-seconds"] {
-        for bad in ["0", "nan", "inf", "1e10"] {
-            assert_refused(&["serve", flag, bad], &[flag, "positive number of seconds"]);
+        for bad in ["0", "nan", "inf", "1e10", "1e-10", "1e-320", "0.0009"] {
+            assert_refused(&["serve", flag, bad], &[flag, "from 0.001 to 1e9"]);
         }
     }
     // `--allow-host` takes a bare host name (no scheme, no port), or `*`.
