@@ -5,6 +5,24 @@
 //! example scene as files. Every command uses the built-in example scene when no `--scene` is
 //! given. Errors print as one sentence and exit with code 2.
 
+/// `std`'s `eprintln!`, but a line that cannot be written is lost instead of ending the process
+/// with a panic: a closed standard error (`raypick … 2>&1 | head -1`) made every note, warning
+/// and error sentence panic (exit 101). Defined before the modules, so they all use it.
+macro_rules! eprintln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
+
+/// `std`'s `eprint!`, losing what cannot be written (see `eprintln!`).
+macro_rules! eprint {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = write!(std::io::stderr(), $($arg)*);
+    }};
+}
+
 mod cli;
 
 /// Large buffers (files, scenes, trees, answers) on transparent huge pages, and freed large

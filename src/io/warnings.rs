@@ -20,7 +20,9 @@ pub fn warn(message: String) {
         None => Some(message),
     });
     if let Some(message) = left {
-        eprintln!("warning: {message}");
+        // Lost, not a panic, where standard error is closed.
+        let _ =
+            std::io::Write::write_fmt(&mut std::io::stderr(), format_args!("warning: {message}\n"));
     }
 }
 

@@ -466,7 +466,9 @@ fn remade(old: &dyn Picker, backend: Backend, built: Arc<BuiltScene>) -> Result<
 fn show_notes(picker: &mut dyn Picker, shown: &mut std::collections::HashSet<String>) {
     for note in picker.take_notes() {
         if shown.insert(note.clone()) {
-            eprintln!("note: {note}");
+            // Lost, not a panic, where standard error is closed.
+            let _ =
+                std::io::Write::write_fmt(&mut std::io::stderr(), format_args!("note: {note}\n"));
         }
     }
 }

@@ -1126,6 +1126,46 @@ fn an_out_file_that_is_one_of_the_inputs_is_refused_and_left_as_it_was() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// Found by a sweep of hostile arguments: with standard error closed (`raypick … 2>&1 | head
+/// -1` once `head` has gone), every note, warning and error sentence panicked (exit 101, even
+/// a bad flag's). The lines are now lost and the exit codes are the usual ones.
+#[test]
+fn a_closed_standard_error_loses_lines_without_a_panic() {
+    let dir =
+        std::env::temp_dir().join(format!("raypick-cli-closed-stderr-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("rays.txt"), "10 10 500 0 0 -1\n").unwrap();
+    // A face with no area: a warning on standard error.
+    std::fs::write(
+        dir.join("flat.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 1 2\n",
+    )
+    .unwrap();
+    for (args, code) in [
+        (&["pick", "--rays", "rays.txt"][..], 0),
+        (
+            &["pick", "-q", "--scene", "flat.obj", "--rays", "rays.txt"],
+            0,
+        ),
+        (&["pick", "--rays", "missing.txt"], 2),
+        (&["--no-such-flag"], 2),
+        (&["verify", "--random", "50"], 0),
+    ] {
+        let (reader, writer) = std::io::pipe().unwrap();
+        drop(reader);
+        let status = Command::new(env!("CARGO_BIN_EXE_raypick"))
+            .args(args)
+            .current_dir(&dir)
+            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+            .stdout(std::process::Stdio::null())
+            .stderr(writer)
+            .status()
+            .unwrap();
+        assert_eq!(status.code(), Some(code), "{args:?}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// Found by a sweep of hostile arguments: `verify --random` ignored `--tmin` and `--tmax`
 /// (`--tmax 0` gave the same table); they now apply as to a ray file's rays, a tmax-cutoff ray
 /// keeping its own tmax.
