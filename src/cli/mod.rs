@@ -148,7 +148,11 @@ pub fn no_json_out(
 }
 
 /// Runs `write` against `out` (a file) or standard output (no `out`, or `-`), turning I/O
-/// failures into errors that name the destination.
+/// failures into errors that name the destination. A new or regular file is written as a new
+/// file beside it and renamed over it once `write` succeeds, so a command that fails part way
+/// (a pick whose streamed ray file turns out bad at line 270,001) leaves no partial output and
+/// the file that was there as it was; other files (`/dev/null`, a FIFO, a link) are written
+/// where they are.
 pub fn write_output(
     out: Option<&Path>,
     write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
@@ -161,10 +165,44 @@ pub fn write_output(
     };
     match out {
         Some(path) => {
-            let mut file = std::io::BufWriter::new(std::fs::File::create(path).map_err(io_error)?);
-            write(&mut file)
-                .and_then(|()| file.flush())
-                .map_err(io_error)
+            let file_name = path.file_name().unwrap_or_default().to_string_lossy();
+            let temporary = path.with_file_name(format!(
+                ".{file_name}.raypick-{}.partial",
+                std::process::id()
+            ));
+            let replaced = match std::fs::symlink_metadata(path) {
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => true,
+                Ok(meta) => meta.file_type().is_file(),
+                Err(_) => false,
+            };
+            // A folder that takes no new file (a writable file in a read-only folder): written
+            // where it is.
+            let created = replaced
+                .then(|| std::fs::File::create(&temporary).ok())
+                .flatten();
+            let Some(created) = created else {
+                let mut file =
+                    std::io::BufWriter::new(std::fs::File::create(path).map_err(io_error)?);
+                return write(&mut file)
+                    .and_then(|()| file.flush())
+                    .map_err(io_error);
+            };
+            // The new file's errors name `--out`: it is where the output goes.
+            let written = (|| {
+                if let Ok(meta) = std::fs::metadata(path) {
+                    // The replaced file's permissions kept.
+                    let _ = created.set_permissions(meta.permissions());
+                }
+                let mut file = std::io::BufWriter::new(created);
+                write(&mut file)?;
+                file.flush()?;
+                drop(file);
+                std::fs::rename(&temporary, path)
+            })();
+            if written.is_err() {
+                let _ = std::fs::remove_file(&temporary);
+            }
+            written.map_err(io_error)
         }
         None => {
             let mut stdout = std::io::BufWriter::new(std::io::stdout().lock());

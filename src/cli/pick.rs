@@ -117,7 +117,12 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         None => rays.len() as u64,
     };
     let bar = progress::rays_bar(total, "picking");
-    write_output(args.out.as_deref(), |out| {
+    // The output's name for a failed write (`write_output` names it so too).
+    let out_name = match args.out.as_deref() {
+        Some(path) if path.as_os_str() != "-" => path.display().to_string(),
+        _ => "<stdout>".to_string(),
+    };
+    let written = write_output(args.out.as_deref(), |out| {
         let mut writer = AnswerWriter::begin(out, options)?;
         let mut sink = |answers: Answers| {
             bar.inc(answers.nearest.len() as u64);
@@ -125,7 +130,7 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             answered += answers.nearest.len() as u64;
             hit += answers.nearest.iter().filter(|h| h.hit).count() as u64;
             writer.write(out, &answers).map_err(|source| Error::Io {
-                path: "output".into(),
+                path: out_name.clone(),
                 source,
             })
         };
@@ -151,16 +156,19 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             None => picker.query_chunked(&rays, &query, chunk, &mut |_, answers| sink(answers)),
         };
         if let Err(e) = result {
+            // What was answered before stays on standard output; an --out file is not written
+            // (`write_output` leaves what was there).
             failure = Some(e);
-            return Ok(());
+            return Err(std::io::Error::other("the pick failed"));
         }
         writer.finish(out)
-    })?;
+    });
     bar.finish_and_clear();
     show_notes(picker.as_mut());
     if let Some(e) = failure {
         return Err(e);
     }
+    written?;
     if invalid > 0 {
         eprintln!(
             "warning: {invalid} ray(s) were invalid (NaN or infinite values, a zero direction or one \

@@ -1126,6 +1126,68 @@ fn an_out_file_that_is_one_of_the_inputs_is_refused_and_left_as_it_was() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// Found by a sweep of hostile arguments: a ray file read from a pipe is checked as it streams,
+/// so a bad line after the first chunk ended the pick with exit 2 and the answers so far in
+/// `--out`, the file that was there replaced. The output is now written beside it and renamed
+/// over it only when the pick succeeds.
+#[test]
+fn a_pick_that_fails_part_way_leaves_the_out_file_as_it_was() {
+    use std::io::Write as _;
+    let dir = std::env::temp_dir().join(format!("raypick-cli-partial-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("hits.csv"), "precious\n").unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_raypick"))
+        .args([
+            "pick",
+            "-q",
+            "--backend",
+            "cpu",
+            "--rays",
+            "/dev/stdin",
+            "--out",
+            "hits.csv",
+        ])
+        .current_dir(&dir)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .stdin(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut rays = "10 10 500 0 0 -1\n".repeat(270_000);
+    rays.push_str("bad\n");
+    let mut stdin = child.stdin.take().unwrap();
+    let feeding = std::thread::spawn(move || {
+        let _ = stdin.write_all(rays.as_bytes());
+    });
+    let out = child.wait_with_output().unwrap();
+    feeding.join().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("/dev/stdin:270001: 'bad' is not a number"),
+        "{err}"
+    );
+    let kept = std::fs::read_to_string(dir.join("hits.csv")).unwrap();
+    assert!(kept == "precious\n", "--out replaced: {} bytes", kept.len());
+    let left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(left.len(), 1, "{left:?}");
+    // A pick that succeeds replaces it.
+    std::fs::write(dir.join("rays.txt"), "10 10 500 0 0 -1\n").unwrap();
+    stdout_in(
+        &dir,
+        &["pick", "-q", "--rays", "rays.txt", "--out", "hits.csv"],
+    );
+    assert!(
+        std::fs::read_to_string(dir.join("hits.csv"))
+            .unwrap()
+            .starts_with("ray,hit,")
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// Found by a sweep of hostile arguments: with standard error closed (`raypick … 2>&1 | head
 /// -1` once `head` has gone), every note, warning and error sentence panicked (exit 101, even
 /// a bad flag's). The lines are now lost and the exit codes are the usual ones.
