@@ -136,7 +136,9 @@ impl BuiltScene {
     }
 
     /// Places instance `instance` by `transform` (3 × 4 row-major, its mesh's coordinates to
-    /// the world) and refits the top tree above it ([`Instances::set_transform`]). Fails,
+    /// the world) and refits the top tree above it ([`Instances::set_transform`]); a move that
+    /// takes the scene away from the frame ([`crate::frame::reach::frame_suits`]) lays the top
+    /// tree out again about it ([`Refit::Rebuilt`]). Fails,
     /// naming it, on an unknown instance or a transform that cannot place it, with nothing
     /// changed.
     pub fn set_instance_transform(
@@ -145,7 +147,16 @@ impl BuiltScene {
         transform: [[f64; 4]; 3],
     ) -> Result<Refit> {
         let (i, bvh) = self.instances_mut()?;
+        let suited = crate::frame::reach::frame_suits(i.bounds(), i.origin());
         i.set_transform(bvh, instance, transform)?;
+        // A move that takes the scene away from the frame's origin (an instance moved far out,
+        // the frame re-centred by an addition, then moved back: its rays rounded at the far
+        // centre's coarse steps) lays the top tree out again about it; one that leaves a frame
+        // already kept away (where re-centring would round others too coarsely) does not.
+        if suited && !crate::frame::reach::frame_suits(i.bounds(), i.origin()) {
+            i.rebuild_top(bvh)?;
+            return Ok(Refit::Rebuilt);
+        }
         Ok(Refit::Moved)
     }
 

@@ -149,10 +149,13 @@ pub fn no_json_out(
 
 /// Runs `write` against `out` (a file) or standard output (no `out`, or `-`), turning I/O
 /// failures into errors that name the destination. A new or regular file is written as a new
-/// file beside it and renamed over it once `write` succeeds, so a command that fails part way
-/// (a pick whose streamed ray file turns out bad at line 270,001) leaves no partial output and
-/// the file that was there as it was; other files (`/dev/null`, a FIFO, a link) are written
-/// where they are.
+/// file beside it first, so a command that fails part way (a pick whose streamed ray file turns
+/// out bad at line 270,001) leaves no partial output and the file that was there as it was;
+/// once `write` succeeds the new file is renamed over the old one, or, where a rename would
+/// change more than its contents (another owner's file, one with other hard links, a folder
+/// that refuses the rename), copied into it. An existing file must be one the command may write
+/// (a read-only one is refused, as a write in place refuses it). Other files (`/dev/null`, a
+/// FIFO, a link) are written where they are.
 pub fn write_output(
     out: Option<&Path>,
     write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
@@ -163,52 +166,82 @@ pub fn write_output(
         path: name.clone(),
         source,
     };
-    match out {
-        Some(path) => {
-            let file_name = path.file_name().unwrap_or_default().to_string_lossy();
-            let temporary = path.with_file_name(format!(
-                ".{file_name}.raypick-{}.partial",
-                std::process::id()
-            ));
-            let replaced = match std::fs::symlink_metadata(path) {
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => true,
-                Ok(meta) => meta.file_type().is_file(),
-                Err(_) => false,
-            };
-            // A folder that takes no new file (a writable file in a read-only folder): written
-            // where it is.
-            let created = replaced
-                .then(|| std::fs::File::create(&temporary).ok())
-                .flatten();
-            let Some(created) = created else {
-                let mut file =
-                    std::io::BufWriter::new(std::fs::File::create(path).map_err(io_error)?);
-                return write(&mut file)
-                    .and_then(|()| file.flush())
-                    .map_err(io_error);
-            };
-            // The new file's errors name `--out`: it is where the output goes.
-            let written = (|| {
-                if let Ok(meta) = std::fs::metadata(path) {
-                    // The replaced file's permissions kept.
-                    let _ = created.set_permissions(meta.permissions());
-                }
-                let mut file = std::io::BufWriter::new(created);
-                write(&mut file)?;
-                file.flush()?;
-                drop(file);
-                std::fs::rename(&temporary, path)
-            })();
-            if written.is_err() {
-                let _ = std::fs::remove_file(&temporary);
+    let Some(path) = out else {
+        let mut stdout = std::io::BufWriter::new(std::io::stdout().lock());
+        return write(&mut stdout)
+            .and_then(|()| stdout.flush())
+            .map_err(io_error);
+    };
+    let existing = std::fs::symlink_metadata(path);
+    let absent = matches!(&existing, Err(e) if e.kind() == std::io::ErrorKind::NotFound);
+    let regular = matches!(&existing, Ok(meta) if meta.file_type().is_file());
+    // An existing file opened for writing, not cut: refused where a write in place would be.
+    let old = if regular {
+        Some(
+            std::fs::OpenOptions::new()
+                .write(true)
+                .open(path)
+                .map_err(io_error)?,
+        )
+    } else {
+        None
+    };
+    let file_name = path.file_name().unwrap_or_default().to_string_lossy();
+    let temporary = path.with_file_name(format!(
+        ".{file_name}.raypick-{}.partial",
+        std::process::id()
+    ));
+    // Written where it is: not a regular file, or a folder that takes no new file.
+    let created = (absent || regular)
+        .then(|| std::fs::File::create(&temporary).ok())
+        .flatten();
+    let Some(created) = created else {
+        let file = match old {
+            Some(file) => file.set_len(0).map(|()| file),
+            None => std::fs::File::create(path),
+        }
+        .map_err(io_error)?;
+        let mut file = std::io::BufWriter::new(file);
+        return write(&mut file)
+            .and_then(|()| file.flush())
+            .map_err(io_error);
+    };
+    let written = (|| {
+        let mut file = std::io::BufWriter::new(created);
+        write(&mut file)?;
+        file.flush()?;
+        drop(file);
+        let Some(mut old) = old else {
+            return std::fs::rename(&temporary, path);
+        };
+        // Renamed over the old file where only its contents change: the writer's own file, of
+        // one link, its permissions kept.
+        #[cfg(unix)]
+        let renamable = {
+            use std::os::unix::fs::MetadataExt;
+            // SAFETY: geteuid has no preconditions and cannot fail.
+            let me = unsafe { libc::geteuid() };
+            existing
+                .as_ref()
+                .is_ok_and(|m| m.nlink() == 1 && m.uid() == me)
+        };
+        #[cfg(not(unix))]
+        let renamable = true;
+        if renamable {
+            if let Ok(meta) = &existing {
+                let _ = std::fs::set_permissions(&temporary, meta.permissions());
             }
-            written.map_err(io_error)
+            if std::fs::rename(&temporary, path).is_ok() {
+                return Ok(());
+            }
         }
-        None => {
-            let mut stdout = std::io::BufWriter::new(std::io::stdout().lock());
-            write(&mut stdout)
-                .and_then(|()| stdout.flush())
-                .map_err(io_error)
-        }
+        // Else copied into it.
+        old.set_len(0)?;
+        std::io::copy(&mut std::fs::File::open(&temporary)?, &mut old)?;
+        std::fs::remove_file(&temporary)
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_file(&temporary);
     }
+    written.map_err(io_error)
 }

@@ -149,12 +149,13 @@ pub fn run_idbuffer(args: IdBufferArgs, matches: &ArgMatches) -> Result<ExitCode
                     }
                 })
                 .collect();
-            Image {
+            let png = Image {
                 width: w,
                 height: h,
                 rgba,
             }
-            .save_png(path)?;
+            .to_png()?;
+            write_output(Some(path), |out| out.write_all(&png))?;
         }
         None => write_output(args.out.as_deref(), |out| {
             for row in ids.chunks(w as usize) {
@@ -182,10 +183,6 @@ fn write_id_png(path: &Path, width: u32, height: u32, ids: &[u32]) -> Result<(),
         .iter()
         .flat_map(|&id| (if id == NO_OBJECT { 0u16 } else { id as u16 + 1 }).to_be_bytes())
         .collect();
-    let io_error = |e: std::io::Error| Error::Io {
-        path: path.display().to_string(),
-        source: e,
-    };
     // Encoded in memory, then written with its errors seen: a writer dropped unfinished
     // ignored them (a full disk or `ulimit -f` left a cut file and exit 0).
     let mut bytes = Vec::new();
@@ -196,7 +193,7 @@ fn write_id_png(path: &Path, width: u32, height: u32, ids: &[u32]) -> Result<(),
     let mut writer = encoder.write_header().map_err(png_error)?;
     writer.write_image_data(&pixels).map_err(png_error)?;
     writer.finish().map_err(png_error)?;
-    std::fs::write(path, bytes).map_err(io_error)
+    write_output(Some(path), |out| out.write_all(&bytes))
 }
 
 fn csv_field(text: &str) -> String {

@@ -119,16 +119,17 @@ pub fn reach_of((lo, hi): (DVec3, DVec3), origin: DVec3) -> f64 {
 }
 
 /// Whether a frame at `origin` still suits a scene now bounded by `bounds`: it reaches the box
-/// at most four times as far as a frame at the box's centre would (two bits of the f32
-/// offsets' precision; a scene turned about a far axis stays within it). A refit keeps its
-/// tree's origin; an object moved far out and back left the frame centred between the two, its
-/// steps 32 units wide at the scene, and lost every triangle there.
+/// at most 16 times as far as a frame at the box's centre would (four bits of the f32 offsets'
+/// precision: a scene turned about a far axis, or a lone object moved a few of its own widths,
+/// stays within it). A refit keeps its tree's origin; an object moved far out and back left the
+/// frame centred between the two, its steps 32 units wide at the scene, and lost every triangle
+/// there.
 pub fn frame_suits(bounds: Option<(DVec3, DVec3)>, origin: DVec3) -> bool {
     let Some((lo, hi)) = bounds else {
         return true;
     };
     let centred = ((hi - lo) * 0.5).max_element();
-    reach_of((lo, hi), origin) <= 4.0 * centred
+    reach_of((lo, hi), origin) <= 16.0 * centred
 }
 
 /// A distance for a message: `1.000e12 units`; one past f64's range (the difference of

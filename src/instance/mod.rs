@@ -615,7 +615,8 @@ impl Instances {
     /// Moves mesh `mesh`'s vertices to `positions` (its vertex order, the same triangles) and
     /// refits its bottom tree bottom-up without building it again, then every instance of it in
     /// the top tree; the mesh's part of `bvh` is rewritten in place. Only when one of its
-    /// triangles becomes degenerate or stops being so is its tree built again with `options`
+    /// triangles becomes degenerate or stops being so, or the mesh moves away from its frame
+    /// ([`crate::frame::reach::frame_suits`]), is its tree built again with `options`
     /// (and the combined tree laid out anew). Fails on an unknown mesh, a wrong count or a
     /// non-finite coordinate, with nothing changed.
     pub fn set_mesh_positions(
@@ -639,8 +640,11 @@ impl Instances {
             .leaf_vertices
             .get_or_init(|| Arc::new(tree.bvh.leaf_vertices(&tree.scene)))
             .clone();
-        let refitted = tree_bvh.refit_with(&scene, 0, positions, &leaf_vertices);
+        let mut refitted = tree_bvh.refit_with(&scene, 0, positions, &leaf_vertices);
         scene.put_object_positions(0, positions);
+        // A mesh moved away from its frame's origin (10⁹ out: its triangles rounded at that
+        // far frame's steps) is built again about where it now lies, as a plain scene's is.
+        refitted &= crate::frame::reach::frame_suits(scene.bounds(), tree_bvh.origin);
         if !refitted {
             tree_bvh = Bvh::build(&scene, options)?;
         }

@@ -1174,17 +1174,18 @@ fn a_pick_that_fails_part_way_leaves_the_out_file_as_it_was() {
         .map(|e| e.unwrap().file_name())
         .collect();
     assert_eq!(left.len(), 1, "{left:?}");
-    // A pick that succeeds replaces it.
+    // A pick that succeeds replaces it; a file with another hard link is written into, so
+    // both names give the new contents (a rename would have left the other with the old).
     std::fs::write(dir.join("rays.txt"), "10 10 500 0 0 -1\n").unwrap();
+    std::fs::hard_link(dir.join("hits.csv"), dir.join("linked.csv")).unwrap();
     stdout_in(
         &dir,
         &["pick", "-q", "--rays", "rays.txt", "--out", "hits.csv"],
     );
-    assert!(
-        std::fs::read_to_string(dir.join("hits.csv"))
-            .unwrap()
-            .starts_with("ray,hit,")
-    );
+    for name in ["hits.csv", "linked.csv"] {
+        let text = std::fs::read_to_string(dir.join(name)).unwrap();
+        assert!(text.starts_with("ray,hit,"), "{name}: {text}");
+    }
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -397,7 +397,7 @@ fn a_large_tree_refits_in_parallel_to_boxes_exact_for_its_new_triangles() {
 /// centred between it and the rest, and moved back it was refitted in that frame (its
 /// triangles stayed as flat as they were there), whose steps are 32 units wide where the scene
 /// now is: 180 of 400 rays missed or hit wrongly on every backend, for good. A refit now keeps
-/// its frame only while it reaches the scene at most four times as far as a frame at the scene's
+/// its frame only while it reaches the scene at most 16 times as far as a frame at the scene's
 /// centre; else the tree is built again, and answers as a fresh build does.
 #[test]
 fn an_object_moved_far_out_and_back_answers_as_a_fresh_build() {
