@@ -349,7 +349,8 @@ mod avx {
         let q = cross(to_origin, e1);
         let v = _mm256_div_pd(dot(q, dir), det);
         let t = _mm256_div_pd(dot(q, e2), det);
-        // The exact values where det != 0, t, u and v are finite and t != 0.
+        // The exact values where det != 0, t, u and v are finite and t != 0, and they are
+        // plausible (`super::plausible`): u, v ≥ −1 and u + v ≤ 2.
         let splat = _mm256_set1_pd;
         let abs = |x: __m256d| _mm256_andnot_pd(splat(-0.0), x);
         let finite = |x: __m256d| _mm256_cmp_pd::<_CMP_LT_OQ>(abs(x), splat(f64::INFINITY));
@@ -360,6 +361,14 @@ mod avx {
             ),
             _mm256_and_pd(_mm256_and_pd(finite(t), finite(u)), finite(v)),
         );
+        let within = _mm256_and_pd(
+            _mm256_and_pd(
+                _mm256_cmp_pd::<_CMP_GE_OQ>(u, splat(-1.0)),
+                _mm256_cmp_pd::<_CMP_GE_OQ>(v, splat(-1.0)),
+            ),
+            _mm256_cmp_pd::<_CMP_LE_OQ>(_mm256_add_pd(u, v), splat(2.0)),
+        );
+        let exact = _mm256_and_pd(exact, within);
         // The traversal's values, asked for only where a lane needs them.
         let traced = match _mm256_movemask_pd(exact) {
             0b1111 => [[0.0; 3]; 4],

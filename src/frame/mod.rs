@@ -537,17 +537,16 @@ pub struct Refined {
 }
 
 /// The f64 refinement of a hit on the world triangle `[a, b, c]`: the exact test's t, u and v
-/// where they are finite (and t is not 0), else `traced()` (the traversal's, asked for only
-/// then).
+/// where they are finite and plausible ([`plausible`]), else `traced()` (the traversal's, asked
+/// for only then).
 #[inline]
 pub fn refine([a, b, c]: [DVec3; 3], ray: &Ray, traced: impl FnOnce() -> [f64; 3]) -> Refined {
     let exact = ray_triangle_f64([a, b, c], ray.origin, ray.dir);
-    let [t, u, v] =
-        if exact.t.is_finite() && exact.u.is_finite() && exact.v.is_finite() && exact.t != 0.0 {
-            [exact.t, exact.u, exact.v]
-        } else {
-            traced()
-        };
+    let [t, u, v] = if plausible(exact.t, exact.u, exact.v) {
+        [exact.t, exact.u, exact.v]
+    } else {
+        traced()
+    };
     Refined {
         t,
         u,
@@ -555,6 +554,25 @@ pub fn refine([a, b, c]: [DVec3; 3], ray: &Ray, traced: impl FnOnce() -> [f64; 3
         position: ray.at(t),
         normal: (b - a).cross(c - a).normalize_or_zero(),
     }
+}
+
+/// Whether the exact test's t, u and v can stand for a hit the traversal found: finite, t not
+/// 0, and u and v within a triangle's width of the triangle (u, v ≥ −1, u + v ≤ 2). A ray
+/// within 10⁻⁵ rad of a triangle's plane, which the f32 test met near a vertex, had its plane
+/// crossing refined 130 units away, behind the ray's origin (t = −8.1, u = −125); the
+/// traversal's own values (inside the triangle, within the ray's range) stand there instead.
+/// A t a little outside the ray's range with u and v in the triangle stays (faces closer than
+/// f32 resolves; the sight lines judge an observer on a surface by it).
+/// [`four::refine_four`] applies the same test in lanes.
+#[inline]
+pub fn plausible(t: f64, u: f64, v: f64) -> bool {
+    t.is_finite()
+        && u.is_finite()
+        && v.is_finite()
+        && t != 0.0
+        && u >= -1.0
+        && v >= -1.0
+        && u + v <= 2.0
 }
 
 /// The public hit on scene triangle `scene_index`, refined.
