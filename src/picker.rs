@@ -327,10 +327,7 @@ impl BuiltScene {
             // the answers of the kept frame, as before the move.
             return Ok(match Bvh::build(&self.scene, &self.options) {
                 Ok(bvh) => {
-                    self.triangle_masks = masks_of(&self.scene, &bvh).into();
-                    self.bvh = bvh;
-                    self.wide = OnceLock::new();
-                    self.leaf_vertices = OnceLock::new();
+                    self.take_tree(bvh);
                     Refit::Rebuilt
                 }
                 Err(_) => Refit::Refitted,
@@ -341,11 +338,8 @@ impl BuiltScene {
         scene.put_object_positions(object, positions);
         match Bvh::build(&scene, &self.options) {
             Ok(bvh) => {
-                self.triangle_masks = masks_of(&scene, &bvh).into();
                 self.scene = scene;
-                self.bvh = bvh;
-                self.wide = OnceLock::new();
-                self.leaf_vertices = OnceLock::new();
+                self.take_tree(bvh);
                 Ok(Refit::Rebuilt)
             }
             Err(e) => {
@@ -362,6 +356,15 @@ impl BuiltScene {
                 Err(e)
             }
         }
+    }
+
+    /// Takes `bvh`, built anew over this scene, as its tree: the per-triangle masks made for
+    /// it, the engine's tree and the refit's vertex list left to be made again.
+    fn take_tree(&mut self, bvh: Bvh) {
+        self.triangle_masks = masks_of(&self.scene, &bvh).into();
+        self.bvh = bvh;
+        self.wide = OnceLock::new();
+        self.leaf_vertices = OnceLock::new();
     }
 
     /// Sets object `object`'s layer mask (rays hit it only when their mask shares a bit; 0:

@@ -51,6 +51,12 @@ pub struct GridShape {
 }
 
 impl GridShape {
+    /// Its samples (one vertex each, row by row): what reads a grid by row and column (the grid
+    /// builder, `los` and `viewshed`'s targets) indexes its vertices so.
+    pub fn samples(&self) -> u64 {
+        u64::from(self.columns) * u64::from(self.rows)
+    }
+
     /// The `(row, col)` of the quad holding triangle `triangle`.
     pub fn cell_of(&self, triangle: u32) -> (u32, u32) {
         let k = triangle / 2;
@@ -351,9 +357,7 @@ impl Scene {
                 mesh.triangles.len()
             )));
         }
-        // One vertex per sample, row by row: what reads a grid's samples by row and column
-        // (the grid builder, `los` and `viewshed`'s targets) indexes its vertices so.
-        let samples = u64::from(grid.columns) * u64::from(grid.rows);
+        let samples = grid.samples();
         if mesh.positions.len() as u64 != samples {
             return Err(Error::Invalid(format!(
                 "{name}: a {}×{} grid has {samples} vertices, but the mesh has {}",

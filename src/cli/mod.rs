@@ -147,6 +147,14 @@ pub fn no_json_out(
     }
 }
 
+/// How errors name `out`: its path, or `<stdout>` (no `out`, or `-`).
+pub fn output_name(out: Option<&Path>) -> String {
+    match out {
+        Some(path) if path.as_os_str() != "-" => path.display().to_string(),
+        _ => "<stdout>".to_string(),
+    }
+}
+
 /// Runs `write` against `out` (a file) or standard output (no `out`, or `-`), turning I/O
 /// failures into errors that name the destination. A new or regular file is written as a new
 /// file beside it first, so a command that fails part way (a pick whose streamed ray file turns
@@ -160,8 +168,8 @@ pub fn write_output(
     out: Option<&Path>,
     write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
 ) -> Result<(), Error> {
+    let name = output_name(out);
     let out = out.filter(|p| p.as_os_str() != "-");
-    let name = out.map_or("<stdout>".to_string(), |p| p.display().to_string());
     let io_error = |source| Error::Io {
         path: name.clone(),
         source,

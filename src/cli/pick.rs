@@ -117,11 +117,8 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         None => rays.len() as u64,
     };
     let bar = progress::rays_bar(total, "picking");
-    // The output's name for a failed write (`write_output` names it so too).
-    let out_name = match args.out.as_deref() {
-        Some(path) if path.as_os_str() != "-" => path.display().to_string(),
-        _ => "<stdout>".to_string(),
-    };
+    // The output's name for a failed write, as `write_output` names it.
+    let out_name = super::output_name(args.out.as_deref());
     let written = write_output(args.out.as_deref(), |out| {
         let mut writer = AnswerWriter::begin(out, options)?;
         let mut sink = |answers: Answers| {

@@ -67,8 +67,16 @@ pub fn parse_mask(text: &str) -> Result<u32, String> {
 
 impl SceneArgs {
     /// The files with their masks; `matches` are the subcommand's, used to pair each `--mask`
-    /// with the `--scene` before it.
+    /// with the `--scene` before it. An `--out` that names a buffer one of them reads is refused
+    /// here, where the files are known.
     pub fn files(&self, matches: &ArgMatches) -> Result<Vec<SceneFile>, Error> {
+        let files = self.listed(matches)?;
+        super::out_guard::refuse_gltf_buffers(matches, files.iter().map(|f| f.file.as_path()))?;
+        Ok(files)
+    }
+
+    /// The files a description lists, or the `--scene` files with their `--mask`s.
+    fn listed(&self, matches: &ArgMatches) -> Result<Vec<SceneFile>, Error> {
         if let Some(path) = &self.scenes {
             if !self.mask.is_empty() {
                 // clap keeps --mask from coming before any --scene, not from coming with
@@ -81,7 +89,6 @@ impl SceneArgs {
             }
             let files = load_description(path)?;
             super::out_guard::refuse_listed(matches, path, files.iter().map(|f| f.file.as_path()))?;
-            super::out_guard::refuse_gltf_buffers(matches, files.iter().map(|f| f.file.as_path()))?;
             return Ok(files);
         }
         let scene_at: Vec<usize> = matches
@@ -114,7 +121,6 @@ impl SceneArgs {
                 )));
             }
         }
-        super::out_guard::refuse_gltf_buffers(matches, files.iter().map(|f| f.file.as_path()))?;
         Ok(files)
     }
 

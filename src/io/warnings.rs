@@ -21,8 +21,8 @@ pub fn warn(message: String) {
     });
     if let Some(message) = left {
         // Lost, not a panic, where standard error is closed.
-        let _ =
-            std::io::Write::write_fmt(&mut std::io::stderr(), format_args!("warning: {message}\n"));
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), "warning: {message}");
     }
 }
 

@@ -239,16 +239,15 @@ fn objects_of(
                         r.triangle_count
                     ));
                 }
-                // One vertex per sample: the grid builder and the sight lines' targets read a
-                // grid's samples by row and column.
-                let samples = u64::from(columns) * u64::from(rows);
+                let shape = GridShape { columns, rows };
+                let samples = shape.samples();
                 if vertex_end - first_vertex != samples {
                     return Err(format!(
                         "object {k} is a {columns}×{rows} grid with {} vertices instead of {samples}",
                         vertex_end - first_vertex
                     ));
                 }
-                Some(GridShape { columns, rows })
+                Some(shape)
             }
             _ => return Err(format!("object {k}'s grid fields are malformed")),
         };

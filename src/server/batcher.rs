@@ -467,8 +467,8 @@ fn show_notes(picker: &mut dyn Picker, shown: &mut std::collections::HashSet<Str
     for note in picker.take_notes() {
         if shown.insert(note.clone()) {
             // Lost, not a panic, where standard error is closed.
-            let _ =
-                std::io::Write::write_fmt(&mut std::io::stderr(), format_args!("note: {note}\n"));
+            use std::io::Write as _;
+            let _ = writeln!(std::io::stderr(), "note: {note}");
         }
     }
 }
