@@ -96,7 +96,17 @@ enum Command {
 fn main() -> ExitCode {
     let matches = match Cli::command().try_get_matches() {
         Ok(matches) => matches,
-        Err(e) => cli::exit_with_clap_error(e),
+        Err(e) => {
+            let args: Vec<_> = std::env::args_os().collect();
+            if e.use_stderr()
+                && let Some(sentence) =
+                    cli::swallowed::option_taken_as_value(&Cli::command(), &args)
+            {
+                eprintln!("error: {sentence}");
+                return ExitCode::from(2);
+            }
+            cli::exit_with_clap_error(e)
+        }
     };
     let cli = match Cli::from_arg_matches(&matches) {
         Ok(cli) => cli,
@@ -140,7 +150,16 @@ fn main() -> ExitCode {
         Err(e) => {
             // A long message (one that repeats a huge bad token: a JSON, glTF or GeoTIFF
             // reader's) is cut to short tokens; ordinary ones, with their paths, stay whole.
-            let message = raypick::error::escape_controls(&e.to_string(), true).into_owned();
+            // Line breaks stay only in a driver's own text; elsewhere one in a file name or
+            // token is written as `\n`, so the message stays one line.
+            let driver_text = matches!(
+                e,
+                raypick::Error::Gpu(_)
+                    | raypick::Error::DeviceLost(_)
+                    | raypick::Error::RequestDevice(_)
+                    | raypick::Error::NoAdapter(_)
+            );
+            let message = raypick::error::escape_controls(&e.to_string(), driver_text).into_owned();
             if message.len() > 1000 {
                 eprintln!("error: {}", raypick::error::shorten_tokens(&message, 2000));
             } else {

@@ -132,10 +132,7 @@ fn visible(
         }
     }
     if invalid > 0 {
-        let message = format!(
-            "{invalid} {what}(s) were invalid (a NaN or infinite coordinate, or both ends at \
-             the same point) and are reported as not visible"
-        );
+        let message = sight::invalid_warning(invalid, what);
         py.import("warnings")?
             .call_method1("warn", (message, py.get_type::<PyRuntimeWarning>(), 1))?;
     }

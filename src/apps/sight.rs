@@ -120,6 +120,15 @@ pub fn judge_all(hits: &[Hit], overflow: bool, eps: f64) -> Option<bool> {
     (!overflow || hits.iter().any(|h| h.t > eps)).then_some(true)
 }
 
+/// The warning for `count` sight lines that are no segment (their rays are invalid), calling
+/// them `what`s.
+pub fn invalid_warning(count: usize, what: &str) -> String {
+    format!(
+        "{count} {what}(s) were invalid (a NaN or infinite coordinate, both ends at the same \
+         point, or ends farther apart than f64 holds) and are reported as not visible"
+    )
+}
+
 /// The warning for `count` sight lines left unknown ([`judge_all`]), calling them `what`s.
 pub fn undecided_warning(count: usize, what: &str) -> String {
     format!(

@@ -43,7 +43,7 @@ pub struct BenchArgs {
     #[arg(long, requires = "ray_file", value_parser = clap::value_parser!(u32).range(1..=1024))]
     pub threads: Option<u32>,
     /// With `--ray-file`: the backend to time.
-    #[arg(long, value_parser = crate::cli::choice::choice::<raypick::Backend>(), default_value_t = raypick::Backend::Auto)]
+    #[arg(long, requires = "ray_file", value_parser = crate::cli::choice::choice::<raypick::Backend>(), default_value_t = raypick::Backend::Auto)]
     pub backend: raypick::Backend,
 }
 

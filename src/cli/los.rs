@@ -106,10 +106,7 @@ fn visible(
     let answers = picker.query(&rays, &query)?;
     let invalid = answers.nearest.iter().filter(|h| h.invalid).count();
     if invalid > 0 {
-        eprintln!(
-            "warning: {invalid} {what}(s) were invalid (a NaN or infinite coordinate, or both \
-             ends at the same point) and are reported as not visible"
-        );
+        eprintln!("warning: {}", sight::invalid_warning(invalid, what));
     }
     let judged: Vec<Sight> = answers
         .nearest

@@ -29,6 +29,7 @@ pub mod scene_args;
 pub mod select;
 pub mod serve;
 pub mod soak;
+pub mod swallowed;
 pub mod threads;
 pub mod verify;
 

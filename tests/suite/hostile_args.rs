@@ -539,6 +539,19 @@ fn nan_arguments_and_points_are_refused_or_flagged() {
         err.contains("warning: 1 pair(s) were invalid"),
         "the NaN pair is flagged: {err}"
     );
+    // Finite ends whose difference overflows are no segment either, and the warning says so.
+    let pairs = temp_file(
+        "far-pairs.txt",
+        "-1e308 0 0 1e308 0 0\n10 10 200 90 90 200\n",
+    );
+    let (code, out, err) = raypick(&["los", "--pairs", &pairs, "--backend", "cpu"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("0,0") && out.contains("1,1"), "{out}");
+    assert!(
+        err.contains("warning: 1 pair(s) were invalid")
+            && err.contains("ends farther apart than f64 holds"),
+        "the overflowing pair is flagged as such: {err}"
+    );
 }
 
 #[test]
@@ -858,6 +871,58 @@ fn missing_required_options_are_named_not_panics() {
     let pixels = temp_file("required-pixels.txt", "1 1\n");
     assert_parser_refused(&["pick", "--pixels", &pixels], &["--camera"]);
     assert_parser_refused(&["bench", "--threads", "2"], &["--ray-file"]);
+    assert_parser_refused(&["bench", "--backend", "cpu"], &["--ray-file"]);
+    // Too few values before the next option: options whose values may start with a hyphen
+    // (negative numbers) would take that option as a value; the sentence names both, not the
+    // word after them.
+    let targets = temp_file("swallowed-targets.txt", "1 1 1\n");
+    for (args, named) in [
+        (
+            vec![
+                "viewshed",
+                "--scene",
+                dem,
+                "--observer",
+                "1",
+                "2",
+                "--targets",
+                &targets,
+            ],
+            vec!["--observer takes 3 values (X Y Z) but only 2 come before --targets"],
+        ),
+        (
+            vec!["los", "--pairs", &targets, "--epsilon", "--out", "o.csv"],
+            vec!["--epsilon takes a value (EPSILON) but none comes before --out"],
+        ),
+        (
+            vec!["pick", "--rays", &targets, "--tmin", "--tmax", "5"],
+            vec!["--tmin takes a value", "before --tmax"],
+        ),
+        (
+            vec!["--quiet", "soak", "--max-growth", "--rays", "5"],
+            vec!["--max-growth takes a value (MIB)", "--rays"],
+        ),
+    ] {
+        let err = assert_refused(&args, &named);
+        assert!(!err.contains(&targets) && !err.contains("o.csv"), "{err}");
+    }
+    // Negative values are still values.
+    let (code, _, err) = raypick(&[
+        "viewshed",
+        "--scene",
+        dem,
+        "--observer",
+        "-1",
+        "-2e-3",
+        "-inf",
+        "--targets",
+        &targets,
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("--observer") && err.contains("finite"),
+        "{err}"
+    );
     // Options that exclude each other.
     assert_parser_refused(
         &[
@@ -1242,8 +1307,9 @@ fn inputs_of_unknown_length_are_refused_when_too_long_or_over_the_budget() {
 
 /// A description that lists nothing, or an empty file name, is refused naming the description
 /// (an empty list once loaded the built-in example scene without a word); a NaN `--tmin`,
-/// `--tmax` or `--oracle-budget` is refused; control bytes in a bad token are escaped; a
-/// transform too large for f64 says so in a short sentence, not as "singular" with 309 digits.
+/// `--tmax` or `--oracle-budget` is refused; control bytes in a bad token or a file's name are
+/// escaped; a transform too large for f64 says so in a short sentence, not as "singular" with
+/// 309 digits.
 #[test]
 fn empty_descriptions_nan_bounds_control_bytes_and_huge_transforms_are_refused_plainly() {
     let empty = temp_file("empty-scene.json", r#"{"objects": []}"#);
@@ -1266,6 +1332,19 @@ fn empty_descriptions_nan_bounds_control_bytes_and_huge_transforms_are_refused_p
     let nul = temp_file("nul-pairs.txt", &"\0".repeat(2000));
     let err = assert_refused(&["los", "--pairs", &nul, "--backend", "cpu"], &["\\u{0}"]);
     assert!(!err.contains('\0') && err.len() < 500, "{err:?}");
+    // A line break in a file's name is written as `\n`: the sentence stays one line.
+    let broken = std::env::temp_dir().join("raypick-no-such\nfile.obj");
+    let err = assert_refused(
+        &[
+            "pick",
+            "--scene",
+            broken.to_str().unwrap(),
+            "--backend",
+            "cpu",
+        ],
+        &["raypick-no-such\\nfile.obj"],
+    );
+    assert!(!err.trim_end().contains('\n'), "{err:?}");
     let obj = temp_file("scaled-box.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
     let name = file_name(&obj);
     let huge = temp_file(
@@ -1370,17 +1449,7 @@ fn a_closed_standard_output_is_an_error_not_a_panic() {
     let runs: [&[&str]; 4] = [
         &["verify", "--random", "2000"],
         &["probe", "--probes", "2000"],
-        &[
-            "bench",
-            "--rays",
-            "2000",
-            "--repeat",
-            "1",
-            "--picks",
-            "10",
-            "--backend",
-            "cpu",
-        ],
+        &["bench", "--rays", "2000", "--repeat", "1", "--picks", "10"],
         &[
             "soak", "--rays", "4000", "--batch", "1000", "--check", "100",
         ],
