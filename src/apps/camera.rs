@@ -291,6 +291,21 @@ impl Camera {
                 ));
             }
         }
+        // Neighbouring pixels must look along different lines: a view narrower than double
+        // precision resolves (`fov_y_deg` 1e-300, a `view_height` far below the eye's
+        // coordinates) gave every pixel the same ray.
+        let centre = camera.pixel_ray(0.5 * w, 0.5 * h);
+        for (x, y) in [(0.5 * w + 1.0, 0.5 * h), (0.5 * w, 0.5 * h + 1.0)] {
+            let next = camera.pixel_ray(x, y);
+            if (next.origin, next.dir) == (centre.origin, centre.dir) {
+                return invalid(
+                    "neighbouring pixels get the same ray: the view is narrower than double \
+                     precision resolves here (a smaller field of view or view height than its \
+                     eye's coordinates allow)"
+                        .to_string(),
+                );
+            }
+        }
         Ok(camera)
     }
 

@@ -197,7 +197,7 @@ fn write_id_png(path: &Path, width: u32, height: u32, ids: &[u32]) -> Result<(),
 }
 
 fn csv_field(text: &str) -> String {
-    if text.contains([',', '"', '\n']) {
+    if text.contains([',', '"', '\n', '\r']) {
         format!("\"{}\"", text.replace('"', "\"\""))
     } else {
         text.to_string()

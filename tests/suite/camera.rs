@@ -574,6 +574,46 @@ fn degenerate_cameras_are_rejected_with_sentences() {
         r#"{"perspective": {"eye": [0,1,9], "target": [0,0,0], "up": [0,0,1], "fov_y_deg": 180, "width": 8, "height": 6}}"#,
     ));
     assert!(m.contains("fov_y_deg is 180"), "{m}");
+    // A view narrower than f64 resolves at its eye gave every pixel one ray; a narrow one that
+    // it resolves is still a camera.
+    for (spec, narrow) in [
+        (
+            r#""perspective": {"eye": [0,1,9], "target": [0,0,0], "up": [0,0,1], "fov_y_deg": 1e-300"#,
+            true,
+        ),
+        (
+            r#""perspective": {"eye": [0,1,9], "target": [0,0,0], "up": [0,0,1], "fov_y_deg": 5e-324"#,
+            true,
+        ),
+        (
+            r#""orthographic": {"eye": [1e15,1,9], "target": [1e15,0,0], "up": [0,0,1], "view_height": 1e-6"#,
+            true,
+        ),
+        (
+            r#""perspective": {"eye": [0,1,9], "target": [0,0,0], "up": [0,0,1], "fov_y_deg": 1e-6"#,
+            false,
+        ),
+        (
+            r#""orthographic": {"eye": [1e15,1,9], "target": [1e15,0,0], "up": [0,0,1], "view_height": 10"#,
+            false,
+        ),
+    ] {
+        let made = Camera::from_json_str(
+            "c.json",
+            &format!(r#"{{{spec}, "width": 64, "height": 48}}}}"#),
+        );
+        if narrow {
+            let m = invalid_message(made);
+            assert!(m.contains("neighbouring pixels get the same ray"), "{m}");
+        } else {
+            let camera = made.unwrap();
+            assert_ne!(
+                camera.pixel_ray(0.5, 0.5),
+                camera.pixel_ray(63.5, 47.5),
+                "{spec}"
+            );
+        }
+    }
     let m = invalid_message(Camera::from_json_str(
         "c.json",
         r#"{"matrices": {"view": [1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1], "projection": [0,0,0,0, 0,0,0,0, 0,0,0,0, 0,0,0,0], "width": 8, "height": 6}}"#,

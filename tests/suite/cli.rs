@@ -800,6 +800,37 @@ fn read_png(path: &std::path::Path) -> (png::ColorType, png::BitDepth, u32, u32,
     )
 }
 
+/// `select` quotes an object's name that holds a comma, a quote or a line break, a carriage
+/// return too (left bare, it split the row for CSV readers).
+#[test]
+fn select_quotes_names_that_would_split_a_row() {
+    for odd in ["sel\rname.obj", "sel,\"odd\"\nname.obj"] {
+        let obj = temp_file(odd, "v -1 -1 0\nv 1 -1 0\nv 0 1 0\nf 1 2 3\n");
+        let (code, out, err) = raypick(&[
+            "select",
+            "--scene",
+            &obj,
+            "--width",
+            "16",
+            "--height",
+            "12",
+            "--rect",
+            "0",
+            "0",
+            "16",
+            "12",
+            "--backend",
+            "cpu",
+        ]);
+        assert_eq!(code, 0, "{err}");
+        // Named as given.
+        let quoted = format!("\"{}\"", obj.replace('"', "\"\""));
+        let (header, row) = out.split_once('\n').unwrap();
+        assert_eq!(header, "object,name,pixels", "{out:?}");
+        assert!(row.starts_with(&format!("0,{quoted},")), "{out:?}");
+    }
+}
+
 /// `select` and `idbuffer` frame the scene as `render` does when given no camera, and
 /// `idbuffer`'s PNG is a colour picture unless `--raw-ids` asks for the 16-bit ids (issue 16).
 #[test]
