@@ -2152,6 +2152,172 @@ mod tests {
         assert!(ended > 500, "only {ended} packets that meet nothing");
     }
 
+    /// [`frustum_boxes`]'s promise, checked where it is tightest: every box a ray's own padded
+    /// test ([`boxes_met`]) meets, the frustum meets too, for boxes with a corner or a face
+    /// exactly on one of the packet's rays (grazed, their intervals a point before the pad).
+    /// A frustum interval left unpadded passed every suite (a mutation test).
+    #[test]
+    fn frustums_meet_every_box_their_rays_graze() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+        let (mut met, mut checked) = (0usize, 0usize);
+        for _ in 0..4000 {
+            let origin = Vec3::new(
+                rng.random_range(-50.0..50.0),
+                rng.random_range(-50.0..50.0),
+                rng.random_range(-50.0..50.0),
+            );
+            // Eight directions within a fraction of a degree of one another, of one sign per
+            // axis (a pinhole camera's neighbouring pixels).
+            let d0 = Vec3::new(
+                rng.random_range(0.1..1.0),
+                rng.random_range(0.1..1.0),
+                rng.random_range(0.1..1.0),
+            ) * Vec3::new(
+                if rng.random_bool(0.5) { 1.0 } else { -1.0 },
+                if rng.random_bool(0.5) { 1.0 } else { -1.0 },
+                if rng.random_bool(0.5) { 1.0 } else { -1.0 },
+            );
+            let dirs: [Vec3; PACKET] = std::array::from_fn(|_| {
+                let jitter = Vec3::new(
+                    rng.random_range(-1e-3..1e-3),
+                    rng.random_range(-1e-3..1e-3),
+                    rng.random_range(-1e-3..1e-3),
+                );
+                (d0.normalize() + jitter).normalize()
+            });
+            let invs = dirs.map(safe_inverse);
+            let splat3 = |v: Vec3| [L8::splat(v.x), L8::splat(v.y), L8::splat(v.z)];
+            let (inv_lo, inv_hi) = invs
+                .iter()
+                .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), &v| {
+                    (lo.min(v), hi.max(v))
+                });
+            // Each child box has a corner on a ray (a point `origin + d t`, rounded), and
+            // reaches from it away from the ray or along an axis only (a face through it).
+            let mut node = <WideNode as bytemuck::Zeroable>::zeroed();
+            for lane in 0..WIDTH {
+                let d = dirs[rng.random_range(0..PACKET)];
+                let p = origin + d * rng.random_range(0.5f32..100.0);
+                let extent = Vec3::new(
+                    rng.random_range(0.0..2.0),
+                    rng.random_range(0.0..2.0),
+                    rng.random_range(0.0..2.0),
+                ) * Vec3::from(std::array::from_fn::<f32, 3, _>(|_| {
+                    if rng.random_bool(0.5) { 1.0 } else { 0.0 }
+                }));
+                let (lo, hi) = if rng.random_bool(0.5) {
+                    (p, p + extent)
+                } else {
+                    (p - extent, p)
+                };
+                for a in 0..3 {
+                    node.min[a][lane] = lo[a];
+                    node.max[a][lane] = hi[a];
+                }
+            }
+            let (frustum, _) = frustum_boxes::<L8>(
+                &node,
+                &splat3(origin),
+                &splat3(inv_lo),
+                &splat3(inv_hi),
+                0.0,
+                f32::INFINITY,
+            );
+            for (d, inv) in dirs.iter().zip(invs) {
+                let ray = GpuRay {
+                    origin: origin.to_array(),
+                    dir: d.to_array(),
+                    tmin: 0.0,
+                    tmax: f32::INFINITY,
+                    ..GpuRay::default()
+                };
+                let own = boxes::<L8>(&node, &RayLanes::new(&ray, inv), f32::INFINITY).0;
+                assert_eq!(
+                    own & !frustum,
+                    0,
+                    "a box the ray meets is not met by its frustum"
+                );
+                met += own.count_ones() as usize;
+                checked += WIDTH;
+            }
+        }
+        // Most grazed boxes are met by their own ray's padded test.
+        assert!(
+            met * 4 > checked / PACKET,
+            "only {met} of {checked} boxes met"
+        );
+    }
+
+    /// In a tree of one wide node (its children all leaves), a ray's box tests are the root's
+    /// eight whatever walk it takes, so a packet that walks past the root gives each ray the
+    /// single-ray walk's b. A packet walk that left the root's tests out of b passed every
+    /// suite (a mutation test: b was compared only for packets that end at the root).
+    #[test]
+    fn packets_count_the_root_s_box_tests_in_b() {
+        let mesh = terrain(4, 4, 0.0, 0.0, 1.0, hills);
+        let scene = crate::Scene::from_meshes([("small".to_string(), mesh)]).unwrap();
+        let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
+        let wide = WideBvh::collapse(&bvh).unwrap();
+        assert_eq!(wide.nodes.len(), 1, "one wide node");
+        let walk = Scene {
+            nodes: &wide.nodes,
+            triangles: &bvh.triangles,
+            triangle_ids: &bvh.triangle_ids,
+            triangle_masks: &[],
+            watertight: true,
+            packets: true,
+            size: wide.size(),
+            interleave: false,
+        };
+        let root = u32::from(wide.nodes[0].occupied).count_ones();
+        let depth = stack_size(wide.depth);
+        let mut stack = vec![Pushed::default(); depth];
+        let mut packet_stack = vec![PacketEntry::default(); depth];
+        let mut walked = 0;
+        for dir in [[0.0, 0.0, -1.0], [0.3, 0.2, -1.0]] {
+            let mut world = Vec::new();
+            for row in 0..16 {
+                for i in 0..64 {
+                    let origin = glam::DVec3::new(
+                        0.25 * (row % 4) as f64 + 0.004 * i as f64,
+                        0.25 * (row / 4) as f64,
+                        10.0,
+                    );
+                    world.push(crate::Ray::new(origin, glam::DVec3::from_array(dir)));
+                }
+            }
+            let local = crate::frame::local_rays(crate::frame::Frame::at(bvh.origin), &world);
+            for flags in FLAGS {
+                let k = if flags & 3 == MODE_ALL { 4 } else { 0 };
+                for group in local.chunks_exact(PACKET) {
+                    let group = altered(group, 0, flags);
+                    if group_of::<L8>(&group, walk.size).0 != Group::Packet {
+                        continue;
+                    }
+                    let mut lists = vec![GpuHitEntry::default(); PACKET * k];
+                    let mut out = [GpuHit::default(); PACKET];
+                    trace_packet::<L8>(
+                        &walk,
+                        &group,
+                        &L8::rays(&group),
+                        &mut lists,
+                        &mut packet_stack,
+                        &mut out,
+                    );
+                    for (ray, a) in group.iter().zip(&out) {
+                        let mut list = vec![GpuHitEntry::default(); k];
+                        let b = trace::<L8>(&walk, ray, &mut list, &mut stack);
+                        assert_eq!(b.box_tests, root, "the single walk tests the root only");
+                        assert_eq!(a.box_tests, b.box_tests, "ray {ray:?}");
+                        walked += usize::from(b.triangle_tests > 0);
+                    }
+                }
+            }
+        }
+        assert!(walked > 1000, "only {walked} rays went past the root");
+    }
+
     /// Every packet of parallel rays (an orthographic view, straight down and tilted, over the
     /// terrain and beside it) gives each ray its single-ray answer, bit for bit, in every mode;
     /// packets that meet none of the root's boxes (beside the terrain, stopped short of it, or

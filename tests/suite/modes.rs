@@ -133,6 +133,11 @@ fn layer_masks_select_objects() {
                 max_hits: 16,
                 ..Query::default()
             },
+            // Any-hit walks test the masks where they end early.
+            Query {
+                mode: Mode::Any,
+                ..Query::default()
+            },
         ] {
             let answers = assert_query_equivalent("masked", built.clone(), &rays, &query);
             let hits: Vec<_> = (0..rays.len())
