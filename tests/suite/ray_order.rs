@@ -179,11 +179,24 @@ fn assert_same_answers(what: &str, a: &Answers, b: &Answers) {
     assert_eq!(format!("{:?}", a.lists), format!("{:?}", b.lists), "{what}");
 }
 
+/// Mixed rays, some of them invalid (a zero or a NaN direction) and some with directions of
+/// other lengths: the way back must give each ray its own direction's length (a sorted batch
+/// that read another ray's flagged the wrong ray invalid, a mutation test found).
 fn world_rays(built: &BuiltScene) -> Vec<Ray> {
-    mixed_rays(&built.scene, 6000, 21)
+    let mut rays: Vec<Ray> = mixed_rays(&built.scene, 6000, 21)
         .into_iter()
         .map(|(_, r)| r)
-        .collect()
+        .collect();
+    for (i, ray) in rays.iter_mut().enumerate() {
+        match i % 97 {
+            5 => ray.dir = glam::DVec3::ZERO,
+            11 => ray.dir = glam::DVec3::new(f64::NAN, 0.0, -1.0),
+            k if k % 3 == 0 => ray.dir *= 0.5,
+            k if k % 3 == 1 => ray.dir *= 3.0,
+            _ => {}
+        }
+    }
+    rays
 }
 
 /// The twin: the same answers and the same b and i statistics in either order.

@@ -421,6 +421,40 @@ fn picks_during_moves_on(scene: Arc<BuiltScene>) {
     assert!(seen[0] + seen[1] > 0);
 }
 
+/// A pick that arrives before an edit is answered on the scene before it, even when both wait
+/// in one batch (a batch window of two seconds): edits apply between picks in arrival order.
+/// Answering the waiting picks after the edit passed every other test (a mutation test).
+#[test]
+fn a_pick_sent_before_an_edit_sees_the_scene_before_it() {
+    let config = ServerConfig {
+        batch_window: Duration::from_secs(2),
+        ..ServerConfig::default()
+    };
+    let base = start_scene(scene(), Backend::Cpu, config);
+    let early = {
+        let base = base.clone();
+        std::thread::spawn(move || down(&base, &[0.5], u32::MAX))
+    };
+    // Well inside the window: the pick is queued before the edit arrives.
+    std::thread::sleep(Duration::from_millis(600));
+    let (status, _) = call(
+        "PATCH",
+        &format!("{base}/objects/1"),
+        Some(&json!({"transform": translate(10.0)})),
+    );
+    assert_eq!(status, 200);
+    assert_eq!(
+        early.join().unwrap(),
+        [Some(1)],
+        "the pick sent first sees the box where it was"
+    );
+    assert_eq!(
+        down(&base, &[0.5, 10.5], u32::MAX),
+        [Some(0), Some(1)],
+        "a pick after the edit sees the box moved"
+    );
+}
+
 /// A server configuration whose cap on added triangles is `max`.
 fn capped(max: usize) -> ServerConfig {
     ServerConfig {
