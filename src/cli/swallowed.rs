@@ -61,9 +61,10 @@ pub fn option_taken_as_value(command: &Command, args: &[OsString]) -> Option<Str
                     1 => "only 1 comes".to_string(),
                     k => format!("only {k} come"),
                 };
+                // `--targets=…` may carry a long value: quoted short.
                 return Some(format!(
                     "{word} takes {wanted} but {given} before {}",
-                    values[k]
+                    raypick::budget::quote(values[k])
                 ));
             }
             i += 1 + count;
@@ -120,6 +121,21 @@ mod tests {
             said.as_deref(),
             Some("--epsilon takes a value (VALUE) but none comes before --targets")
         );
+    }
+
+    #[test]
+    fn a_long_option_word_is_quoted_short() {
+        let line = format!(
+            "raypick viewshed --observer 1 --targets={}",
+            "t".repeat(100_000)
+        );
+        let said = option_taken_as_value(&command(), &words(&line)).unwrap();
+        assert!(
+            said.starts_with(
+                "--observer takes 3 values (X Y Z) but only 1 comes before --targets="
+            )
+        );
+        assert!(said.len() < 200, "{} bytes", said.len());
     }
 
     #[test]
