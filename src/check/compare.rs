@@ -481,6 +481,127 @@ mod tests {
     use crate::check::synthetic::box_mesh;
     use glam::DVec3;
 
+    /// Two faces 10 units wide stacked 0.005 apart under a ray straight down: their hits (at
+    /// t = 1 and 1.005, far from every edge) and the scene.
+    fn stacked_faces() -> (Scene, Ray, Hit, Hit) {
+        let mut scene = Scene::new();
+        let mesh = crate::scene::Mesh {
+            positions: [0.0, -0.005]
+                .into_iter()
+                .flat_map(|z| {
+                    [(0.0, 0.0), (10.0, 0.0), (0.0, 10.0)].map(|(x, y)| DVec3::new(x, y, z))
+                })
+                .collect(),
+            triangles: vec![[0, 1, 2], [3, 4, 5]],
+        };
+        scene.add_mesh("stack", mesh).unwrap();
+        let ray = Ray::new(DVec3::new(0.25, 0.25, 1.0), DVec3::NEG_Z);
+        let hits = crate::check::oracle::all_hits(
+            &scene,
+            &crate::check::oracle::OracleTriangles::new(&scene),
+            &ray,
+            crate::query::Cull::None,
+        );
+        assert_eq!(hits.len(), 2, "{hits:?}");
+        (scene, ray, hits[0], hits[1])
+    }
+
+    /// One batch of all-hits answers, one ray's list, with its overflow flag.
+    fn one_list(list: &[Hit], overflow: bool) -> Answers {
+        Answers {
+            nearest: vec![list.first().copied().unwrap_or(Hit::MISS)],
+            lists: list.to_vec(),
+            list_start: vec![0, list.len()],
+            overflow: vec![overflow],
+        }
+    }
+
+    /// Faces 0.005 apart at t = 1 are two answers, not one answer on a shared edge: the
+    /// tolerance on t is 10⁻⁵ of t (a tolerance a thousand times looser called them a tie).
+    #[test]
+    fn stacked_faces_a_little_apart_are_a_mismatch() {
+        let (scene, ray, near, far) = stacked_faces();
+        assert!((far.t - near.t - 0.005).abs() < 1e-9);
+        assert_eq!(classify(&scene, &ray, &near, &near), Verdict::Same);
+        assert_eq!(classify(&scene, &ray, &near, &far), Verdict::Mismatch);
+        assert_eq!(classify(&scene, &ray, &far, &near), Verdict::Mismatch);
+    }
+
+    /// A ray one side calls invalid and the other answers is a mismatch in every mode.
+    #[test]
+    fn invalid_against_answered_is_a_mismatch() {
+        let (scene, ray, near, far) = stacked_faces();
+        let invalid = Hit::INVALID;
+        assert_eq!(classify(&scene, &ray, &invalid, &near), Verdict::Mismatch);
+        assert_eq!(classify(&scene, &ray, &near, &invalid), Verdict::Mismatch);
+        assert_eq!(
+            classify(&scene, &ray, &invalid, &Hit::MISS),
+            Verdict::Mismatch
+        );
+        assert_eq!(classify(&scene, &ray, &invalid, &invalid), Verdict::Same);
+        let every = [near, far];
+        assert_eq!(
+            classify_any(&scene, &ray, &invalid, &near, &every),
+            Verdict::Mismatch
+        );
+        assert_eq!(
+            classify_any(&scene, &ray, &Hit::MISS, &invalid, &every),
+            Verdict::Mismatch
+        );
+    }
+
+    /// An any-hit miss against a hit on an edge is a tie only when every hit of the ray lies at
+    /// a boundary: here the face below is met well inside, so the miss is a mismatch.
+    #[test]
+    fn an_any_hit_miss_is_a_tie_only_where_every_hit_is_at_a_boundary() {
+        let (scene, ray, near, far) = stacked_faces();
+        let on_edge = Hit { u: 0.0, ..near };
+        assert!(near_boundary(&scene, &ray, &on_edge));
+        assert!(!near_boundary(&scene, &ray, &far));
+        assert_eq!(
+            classify_any(&scene, &ray, &on_edge, &Hit::MISS, &[on_edge]),
+            Verdict::Boundary
+        );
+        assert_eq!(
+            classify_any(&scene, &ray, &on_edge, &Hit::MISS, &[on_edge, far]),
+            Verdict::Mismatch
+        );
+        assert_eq!(
+            classify_any(&scene, &ray, &Hit::MISS, &on_edge, &[on_edge, far]),
+            Verdict::Mismatch
+        );
+    }
+
+    /// An all-hits list cut short of the ray's second hit without its overflow flag is a
+    /// mismatch against every hit, whichever side holds it (each side's count is checked).
+    #[test]
+    fn a_list_cut_short_without_its_flag_is_a_mismatch_on_either_side() {
+        let (scene, ray, near, far) = stacked_faces();
+        let every = one_list(&[near, far], false);
+        let (flagged, unflagged) = (one_list(&[near], true), one_list(&[near], false));
+        let rays = [ray];
+        let verdict = |a: &Answers, b: &Answers| {
+            compare_answers(&scene, &rays, Mode::All, a, b, Some(&every)).0
+        };
+        assert_eq!(verdict(&flagged, &flagged).mismatches, 0);
+        assert_eq!(verdict(&every, &flagged).mismatches, 0);
+        assert_eq!(verdict(&unflagged, &flagged).mismatches, 1);
+        assert_eq!(verdict(&flagged, &unflagged).mismatches, 1);
+    }
+
+    /// Two all-hits answers that differ only in the overflow flag are a difference.
+    #[test]
+    fn differences_see_the_overflow_flag() {
+        let (_, _, near, far) = stacked_faces();
+        let (a, b) = (one_list(&[near, far], false), one_list(&[near, far], true));
+        assert!(differences(Mode::All, &a, &a).is_empty());
+        assert_eq!(differences(Mode::All, &a, &b), vec![0]);
+        assert_eq!(
+            differences(Mode::All, &a, &one_list(&[near], false)),
+            vec![0]
+        );
+    }
+
     /// Two walls of a box 8 units apart, picked from 10³ and from 10⁹ units out: the far wall
     /// is a tie of neither. Before distances were counted only as far as the scene's reaches,
     /// from 10⁹ out the far wall was within 10⁻⁵·t of the near one, a "shared edge".

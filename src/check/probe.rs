@@ -180,3 +180,27 @@ pub fn edge_probes(scene: &Scene, count: usize, seed: u64) -> Probes {
     }
     probes
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+
+    /// A probe leaks when it misses, or first hits beyond its target by more than its slack.
+    #[test]
+    fn misses_and_hits_past_the_slack_are_leaks() {
+        let ray = Ray::new(DVec3::ZERO, DVec3::X);
+        let probes = Probes {
+            rays: vec![ray; 4],
+            slack: vec![0.0, 0.0, 0.25, 0.25],
+        };
+        let at = |t: f64| Hit {
+            hit: true,
+            t,
+            ..Hit::MISS
+        };
+        assert_eq!(probes.leaks(&[at(1.0), at(0.5), at(1.2), at(0.9)]), 0);
+        assert_eq!(probes.leaks(&[Hit::MISS, at(1.0), at(1.2), at(0.9)]), 1);
+        assert_eq!(probes.leaks(&[at(1.001), at(1.0), at(1.3), Hit::MISS]), 3);
+    }
+}
