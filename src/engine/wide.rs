@@ -889,6 +889,48 @@ mod tests {
         }
     }
 
+    /// What a saved tree must not carry past `validate`: a depth other than its longest path
+    /// (which sizes the walk's stack) and a node that links to itself (a walk that never ends),
+    /// even where that node is reached from nowhere else.
+    #[test]
+    fn validate_refuses_a_wrong_depth_and_a_node_linked_to_itself() {
+        use crate::check::synthetic::{hills, terrain};
+        let mesh = terrain(40, 40, 0.0, 0.0, 1.0, hills);
+        let scene = crate::Scene::from_meshes([("hills".to_string(), mesh)]).unwrap();
+        let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
+        let count = bvh.triangles.len();
+        let wide = WideBvh::collapse(&bvh).unwrap();
+        wide.validate(count).unwrap();
+        assert!(wide.depth >= 2, "depth {}", wide.depth);
+        for depth in [wide.depth - 1, wide.depth + 1] {
+            let mut wrong = wide.clone();
+            wrong.depth = depth;
+            let error = wrong.validate(count).unwrap_err();
+            assert!(error.contains("depth"), "{error}");
+        }
+        // A parent's link to a node of leaves taken away, and that node's first slot made a
+        // link to itself: it is then reached exactly once, by itself.
+        let (parent, lane) = (0..wide.nodes.len())
+            .flat_map(|p| (0..WIDTH).map(move |lane| (p, lane)))
+            .find(|&(p, lane)| {
+                let node = &wide.nodes[p];
+                node.kind[lane] == INNER && {
+                    let child = &wide.nodes[node.child[lane] as usize];
+                    (0..WIDTH).all(|l| child.kind[l] != INNER)
+                }
+            })
+            .expect("a node of leaves under another");
+        let mut looped = wide.clone();
+        let nodes = looped.nodes.to_mut();
+        let child = nodes[parent].child[lane] as usize;
+        nodes[parent].kind[lane] = EMPTY;
+        nodes[parent].occupied &= !(1 << lane);
+        nodes[child].kind[0] = INNER;
+        nodes[child].child[0] = child as u32;
+        let error = looped.validate(count).unwrap_err();
+        assert!(error.contains("not after it"), "{error}");
+    }
+
     #[test]
     fn the_parallel_collapse_is_the_serial_one_in_another_order() {
         use crate::check::synthetic::{hills, terrain};
