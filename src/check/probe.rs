@@ -184,7 +184,6 @@ pub fn edge_probes(scene: &Scene, count: usize, seed: u64) -> Probes {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use glam::DVec3;
 
     /// A probe leaks when it misses, or first hits beyond its target by more than its slack.
     #[test]

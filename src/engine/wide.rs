@@ -926,6 +926,7 @@ mod tests {
         nodes[parent].kind[lane] = EMPTY;
         nodes[parent].occupied &= !(1 << lane);
         nodes[child].kind[0] = INNER;
+        nodes[child].occupied |= 1;
         nodes[child].child[0] = child as u32;
         let error = looped.validate(count).unwrap_err();
         assert!(error.contains("not after it"), "{error}");
