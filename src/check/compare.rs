@@ -550,6 +550,39 @@ mod tests {
         );
     }
 
+    /// A grazing ray's reach around the edges grows as the sine of its angle with the plane
+    /// shrinks, floored at 10⁻³: a ray 10⁻⁵ off a face's plane, meeting it at t = 1 half a unit
+    /// inside an edge, is not near it (reach 10⁻²; a floor of 10⁻⁶ made it 1 and every hit of
+    /// such a ray a tie), while 0.005 inside is.
+    #[test]
+    fn a_grazing_ray_s_reach_is_floored_at_a_sine_of_a_thousandth() {
+        let mut scene = Scene::new();
+        let mesh = crate::scene::Mesh {
+            positions: vec![
+                DVec3::ZERO,
+                DVec3::new(10.0, 0.0, 0.0),
+                DVec3::new(0.0, 10.0, 0.0),
+            ],
+            triangles: vec![[0, 1, 2]],
+        };
+        scene.add_mesh("face", mesh).unwrap();
+        let oracle = crate::check::oracle::OracleTriangles::new(&scene);
+        let dir = DVec3::new(1.0, 0.0, -1e-5);
+        for (inside, near) in [(0.5, false), (0.1, false), (0.005, true)] {
+            let at = DVec3::new(inside, 3.0, 0.0);
+            let ray = Ray::new(at - dir, dir);
+            let hits =
+                crate::check::oracle::all_hits(&scene, &oracle, &ray, crate::query::Cull::None);
+            assert_eq!(hits.len(), 1, "{hits:?}");
+            assert!((hits[0].t - 1.0).abs() < 1e-9 && (hits[0].u - inside / 10.0).abs() < 1e-9);
+            assert_eq!(
+                near_boundary(&scene, &ray, &hits[0]),
+                near,
+                "{inside} inside"
+            );
+        }
+    }
+
     /// An any-hit miss against a hit on an edge is a tie only when every hit of the ray lies at
     /// a boundary: here the face below is met well inside, so the miss is a mismatch.
     #[test]

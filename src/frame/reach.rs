@@ -413,40 +413,42 @@ mod tests {
         assert_eq!(Unresolved::of(0, point, DVec3::ZERO, f32_step), None);
     }
 
+    /// A 10 × 10 grid of unit cells in one object, its middle vertex raised to `spike`.
+    fn spiked_grid(spike: f64) -> Scene {
+        let positions = (0..121)
+            .map(|k| {
+                let z = if k == 60 { spike } else { 0.0 };
+                DVec3::new(f64::from(k % 11), f64::from(k / 11), z)
+            })
+            .collect();
+        let triangles = (0..100u32)
+            .flat_map(|c| {
+                let k = c / 10 * 11 + c % 10;
+                [[k, k + 1, k + 12], [k, k + 12, k + 11]]
+            })
+            .collect();
+        let mut scene = Scene::new();
+        let mesh = crate::scene::Mesh {
+            positions,
+            triangles,
+        };
+        scene.add_mesh("grid", mesh).unwrap();
+        scene
+    }
+
     /// A 10 × 10 grid of unit cells, resolved as an object with or without a spike of 10¹⁰ at
     /// one vertex; with it, the frame's centre lies 5 × 10⁹ above the ground (512-unit steps)
     /// and every cell not touching the spike is too small there. Objects with mask 0 are not
     /// counted.
     #[test]
     fn cells_of_a_grid_with_a_spike_are_unresolved_though_the_grid_is_not() {
-        let grid = |spike: f64| {
-            let positions = (0..121)
-                .map(|k| {
-                    let z = if k == 60 { spike } else { 0.0 };
-                    DVec3::new(f64::from(k % 11), f64::from(k / 11), z)
-                })
-                .collect();
-            let triangles = (0..100u32)
-                .flat_map(|c| {
-                    let k = c / 10 * 11 + c % 10;
-                    [[k, k + 1, k + 12], [k, k + 12, k + 11]]
-                })
-                .collect();
-            let mut scene = Scene::new();
-            let mesh = crate::scene::Mesh {
-                positions,
-                triangles,
-            };
-            scene.add_mesh("grid", mesh).unwrap();
-            scene
-        };
-        let plain = grid(0.0);
+        let plain = spiked_grid(0.0);
         assert_eq!(unresolved_objects(&plain, plain.origin()), vec![]);
         assert_eq!(
             unresolved_triangles(&plain, plain.origin()),
             UnresolvedTriangles::default()
         );
-        let mut spiked = grid(1e10);
+        let mut spiked = spiked_grid(1e10);
         assert_eq!(unresolved_objects(&spiked, spiked.origin()), vec![]);
         let small = unresolved_triangles(&spiked, spiked.origin());
         // The six triangles around the spike's vertex are 10¹⁰ tall.
@@ -461,5 +463,47 @@ mod tests {
         );
         spiked.set_object_mask(0, 0).unwrap();
         assert_eq!(unresolved_triangles(&spiked, spiked.origin()).count, 0);
+    }
+
+    /// The line itself: a box spanning fewer than [`RESOLVED_STEPS`] steps where it lies is
+    /// unresolved, one spanning more is not (the far-out cases above are hundreds of steps
+    /// under it, so a mutation round's threshold of one step passed them).
+    #[test]
+    fn a_part_is_resolved_from_sixteen_steps_on() {
+        // 1,024 to 2,048 units out, f32 values are 2⁻¹³ apart.
+        let step = f32_step(1024.0);
+        assert_eq!(step, 2f64.powi(-13));
+        let part = |steps: f64| {
+            let lo = DVec3::new(1024.0, 0.0, 0.0);
+            Unresolved::of(7, (lo, lo + DVec3::X * steps * step), DVec3::ZERO, f32_step)
+        };
+        for steps in [1.5, 2.0, 8.0, 15.0, 15.9] {
+            let u = part(steps).expect("under sixteen steps");
+            assert_eq!((u.part, u.step), (7, step));
+            assert!(
+                (u.size - steps * step).abs() < 1e-12,
+                "{steps} steps: {}",
+                u.size
+            );
+        }
+        for steps in [16.0, 16.1, 17.0, 1000.0] {
+            assert_eq!(part(steps), None, "{steps} steps");
+        }
+    }
+
+    /// A grid's cells against the same line, where the object's box is resolved: raised
+    /// 3 × 2²⁰ at its middle, the frame's centre lies 1.5 × 2²⁰ above the ground, where steps
+    /// are 1/8 and a unit cell spans 8 of them (unresolved); raised 3 × 2¹⁸, steps are 1/32 and a
+    /// cell spans 32 (resolved). The cheap pass that skips the exact test must not skip the
+    /// first.
+    #[test]
+    fn cells_a_few_steps_wide_are_unresolved_and_wider_ones_are_not() {
+        let coarse = spiked_grid(3.0 * 2f64.powi(20));
+        assert_eq!(unresolved_objects(&coarse, coarse.origin()), vec![]);
+        let small = unresolved_triangles(&coarse, coarse.origin());
+        assert_eq!(small.count, 200 - 6);
+        assert_eq!(small.first.unwrap().2.step, 0.125);
+        let fine = spiked_grid(3.0 * 2f64.powi(18));
+        assert_eq!(unresolved_triangles(&fine, fine.origin()).count, 0);
     }
 }

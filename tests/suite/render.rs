@@ -334,3 +334,50 @@ fn each_pixel_shows_its_own_rays_answer() {
         .collect();
     assert_eq!(ids, expected);
 }
+
+/// A marquee samples every `step`-th pixel from its first column and row up to its last,
+/// counted from the id buffer of the same view: a range of 7 pixels at step 2 samples 4 of
+/// them (a mutation round rounded the count down and no test saw it).
+#[test]
+fn a_marquee_counts_the_pixels_it_samples() {
+    use raypick::apps::select::{NO_OBJECT, Rect, marquee, object_id_buffer};
+    use std::collections::BTreeMap;
+    let (width, height) = (37, 23);
+    let camera = framing_camera(width, height);
+    let mut picker = cpu();
+    let ids = object_id_buffer(&mut picker, &camera, u32::MAX).expect("id buffer");
+    // How many of a rect's sampled pixels show an object, and how many of those lie in its last
+    // sampled column or row, which a count rounded down leaves out.
+    let mut in_last_lines = 0;
+    for (x0, x1, y0, y1, step) in [
+        (16, 19, 0, 23, 2),
+        (10, 17, 5, 18, 2),
+        (1, 37, 0, 23, 3),
+        (0, 37, 2, 21, 4),
+        (12, 25, 10, 11, 1),
+    ] {
+        let mut expected: BTreeMap<u32, u32> = BTreeMap::new();
+        for y in (y0..y1).step_by(step as usize) {
+            for x in (x0..x1).step_by(step as usize) {
+                let id = ids[(y * width + x) as usize];
+                if id != NO_OBJECT {
+                    *expected.entry(id).or_default() += 1;
+                    let last = |a: u32, a1: u32| a + step >= a1;
+                    in_last_lines += usize::from(last(x, x1) || last(y, y1));
+                }
+            }
+        }
+        let rect = Rect { x0, x1, y0, y1 };
+        let got: BTreeMap<u32, u32> = marquee(&mut picker, &camera, rect, step, u32::MAX)
+            .expect("marquee")
+            .into_iter()
+            .map(|s| (s.object, s.pixels))
+            .collect();
+        assert!(
+            !expected.is_empty(),
+            "{x0}..{x1} × {y0}..{y1} sees something"
+        );
+        assert_eq!(got, expected, "{x0}..{x1} × {y0}..{y1} step {step}");
+    }
+    assert!(in_last_lines > 0, "the last sampled lines show objects");
+}

@@ -637,6 +637,72 @@ fn a_summary_of_the_wrong_length_is_refused() {
     }
 }
 
+/// A mutation round found four checks no test needed: a resealed file whose one field breaks
+/// exactly one invariant must be refused by the check that owns it, in its own words. The
+/// masked file (objects grid, box, soup, thin; layer masks) and the lone grid (no masks).
+#[test]
+fn resealed_files_that_break_one_invariant_are_refused_by_its_check() {
+    let mut files = small_files("one-invariant");
+    let (_, grid, grid_bytes, _) = files.swap_remove(1);
+    let (_, masked, masked_bytes, _) = files.swap_remove(0);
+    let word = |b: &[u8], at: usize| u32::from_le_bytes(b[at..at + 4].try_into().unwrap());
+    let refused = |bytes: &[u8], at: usize, value: u32, says: &str| {
+        let mut changed = bytes.to_vec();
+        changed[at..at + 4].copy_from_slice(&value.to_le_bytes());
+        rpk::write::reseal(&mut changed);
+        let path = Path::new("one.rpk");
+        let e = rpk::from_bytes(path, &changed).expect_err(says);
+        assert_clean_error(path, &e, says);
+        assert!(e.to_string().contains(says), "expected “{says}”: {e}");
+    };
+
+    // A leaf-order triangle's mask that is not its object's.
+    let masks = section(&masked_bytes, b"MASK");
+    let ids = &masked.bvh.triangle_ids;
+    assert_eq!(masks.len(), 4 * ids.len(), "one mask per leaf triangle");
+    let first = word(&masked_bytes, masks.start);
+    refused(
+        &masked_bytes,
+        masks.start,
+        first ^ 16,
+        "leaf-order triangle 0's mask is not its object's",
+    );
+
+    // A triangle of the box (object 1) using a vertex of the grid (object 0).
+    let triangles = section(&masked_bytes, b"TRIS");
+    let box_first = masked.scene.objects()[1].first_triangle as usize;
+    assert!(word(&masked_bytes, triangles.start + 12 * box_first) >= 72);
+    refused(
+        &masked_bytes,
+        triangles.start + 12 * box_first,
+        0,
+        &format!("triangle {box_first} uses a vertex outside its object's"),
+    );
+
+    // A scene triangle in two leaves (the grid has no masks to disagree first).
+    let grid_ids = section(&grid_bytes, b"TIDS");
+    let id0 = word(&grid_bytes, grid_ids.start);
+    assert_eq!(id0, grid.bvh.triangle_ids[0]);
+    refused(
+        &grid_bytes,
+        grid_ids.start + 4,
+        id0,
+        &format!("scene triangle {id0} is in the tree twice"),
+    );
+
+    // A child whose parent link points elsewhere: node 1 (the root's left child) said to be
+    // node 2's, its kind kept.
+    let nodes = section(&grid_bytes, b"NODE");
+    let parent_kind = word(&grid_bytes, nodes.start + 32 + 12);
+    assert_eq!(parent_kind >> 5, 0, "node 1's parent is the root");
+    refused(
+        &grid_bytes,
+        nodes.start + 32 + 12,
+        (2 << 5) | (parent_kind & 31),
+        "node 1's parent link is 2, not 0",
+    );
+}
+
 /// Flips with the checksums made right again: only the structural checks stand between the
 /// bytes and the walks. Each is refused cleanly, or loads and picks without a panic, a hang or
 /// a traversal error on the CPU engine and the reference twin.
