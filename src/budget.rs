@@ -268,6 +268,11 @@ fn cap_arenas(_: u64) {}
 /// error, e.g. "the render's pixels".
 pub fn check(what: &str, count: u64, item_bytes: u64) -> Result<()> {
     let (limit, why) = limit_and_why();
+    check_against(what, count, item_bytes, limit, why)
+}
+
+/// [`check`] against a budget of `limit` bytes, set as `why` says.
+fn check_against(what: &str, count: u64, item_bytes: u64, limit: u64, why: &str) -> Result<()> {
     match count.checked_mul(item_bytes) {
         Some(bytes) if bytes <= limit => Ok(()),
         bytes => Err(Error::OverBudget(format!(
@@ -438,5 +443,18 @@ mod tests {
         );
         assert!(check("small", 10, 10).is_ok());
         assert_eq!(quote(&"x".repeat(1000)).chars().count(), 61);
+    }
+
+    /// A size of exactly the budget fits it, as the error's "over the memory budget" says; one
+    /// byte more does not, nor a product past u64.
+    #[test]
+    fn a_size_of_exactly_the_budget_fits_it() {
+        let budget = 3 << 30;
+        let fits = |count, item| check_against("items", count, item, budget, "a test").is_ok();
+        assert!(fits(budget, 1) && fits(1, budget) && fits(3, 1 << 30));
+        assert!(!fits(budget + 1, 1) && !fits(1, budget + 1));
+        assert!(!fits(u64::MAX, 2));
+        let e = check_against("items", 2, budget, budget, "a test").unwrap_err();
+        assert!(e.to_string().contains("over the memory budget of"), "{e}");
     }
 }

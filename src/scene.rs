@@ -756,4 +756,49 @@ mod tests {
         // Both answers occur often.
         assert!(zeros > 300 && zeros < checked - 300, "{zeros} of {checked}");
     }
+
+    /// A transform whose rows are all but parallel is refused as singular though its
+    /// determinant is not exactly 0 (rounding would decide whether it mirrors the object),
+    /// while one that only scales everything by 10⁻¹³ (rows at right angles) is taken.
+    #[test]
+    fn nearly_singular_transforms_are_refused_and_small_scales_are_not() {
+        let sheared = [
+            [1.0, 0.0, 0.0, 0.0],
+            [1.0, 1e-13, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+        ];
+        let e = check_transform(&sheared).unwrap_err();
+        assert!(e.contains("singular"), "{e}");
+        let small = [
+            [1e-13, 0.0, 0.0, 5.0],
+            [0.0, 1e-13, 0.0, 0.0],
+            [0.0, 0.0, 1e-13, 0.0],
+        ];
+        assert!(check_transform(&small).is_ok_and(|det| det > 0.0));
+    }
+
+    /// Mirrored twice, an object is not mirrored: its triangles are back in their first
+    /// winding and [`Object::mirrored`] is false again, so its hits' u and v are reported for
+    /// that winding as they were before either mirror.
+    #[test]
+    fn an_object_mirrored_twice_is_not_mirrored() {
+        let mut scene = Scene::new();
+        let mesh = Mesh {
+            positions: vec![DVec3::ZERO, DVec3::X, DVec3::Y],
+            triangles: vec![[0, 1, 2]],
+        };
+        scene.add_mesh("t", mesh).unwrap();
+        let mirror = [
+            [-1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+        ];
+        scene.transform_object(0, &mirror).unwrap();
+        assert!(scene.objects()[0].mirrored);
+        assert_eq!(scene.triangles(), [[0, 2, 1]]);
+        scene.transform_object(0, &mirror).unwrap();
+        assert!(!scene.objects()[0].mirrored);
+        assert_eq!(scene.triangles(), [[0, 1, 2]]);
+        assert_eq!(scene.positions(), [DVec3::ZERO, DVec3::X, DVec3::Y]);
+    }
 }

@@ -374,6 +374,26 @@ mod tests {
         };
         assert!(matches!(image.to_png(), Err(Error::Invalid(_))));
     }
+
+    /// A back face is lit as the front face would be (both faces are hit, and the shading turns
+    /// the normal towards the viewer): a ray seeing a face whose stored normal points away from
+    /// it gets the very pixel of the same face stored the other way round.
+    #[test]
+    fn back_faces_are_shaded_as_front_faces() {
+        let ray = Ray::new(DVec3::new(0.0, 0.0, 10.0), DVec3::new(0.3, -0.2, -1.0));
+        let hit = |normal: DVec3| Hit {
+            hit: true,
+            t: 10.0,
+            position: DVec3::ZERO,
+            normal,
+            ..Hit::MISS
+        };
+        let normal = DVec3::new(-0.2, 0.3, 1.0).normalize();
+        let front = shade_normal(&[ray], &[hit(normal)]);
+        let back = shade_normal(&[ray], &[hit(-normal)]);
+        assert_eq!(front, back);
+        assert_ne!(front, SKY);
+    }
 }
 
 crate::names::named!(Shade {

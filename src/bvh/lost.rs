@@ -288,4 +288,17 @@ mod tests {
         assert_eq!(built.set_positions(1, &near).unwrap(), Refit::Rebuilt);
         assert_eq!(built.lost_triangles(), Lost::default());
     }
+
+    /// An object with layer mask 0 is never traced, so none of its triangles is counted lost
+    /// or without area (the warnings would speak of triangles no ray is meant to hit), whether
+    /// the frame keeps them or not.
+    #[test]
+    fn a_hidden_object_s_triangles_are_neither_lost_nor_degenerate() {
+        for far in [10.0, 1e9] {
+            let mut scene = scene(far);
+            scene.set_object_mask(0, 0).unwrap();
+            let bvh = Bvh::build(&scene, &BuildOptions::default()).unwrap();
+            assert_eq!(lost_triangles(&scene, &bvh), Lost::default(), "{far}");
+        }
+    }
 }

@@ -1404,4 +1404,34 @@ mod tests {
         let result = read_geotiff(std::io::Cursor::new(bytes), "huge-tag.tif");
         assert!(result.is_err());
     }
+
+    /// A grid stored south-up (a ModelTransformationTag whose row step is positive) is refused
+    /// as a negative pixel scale is, not read upside down; a ModelTiepointTag of more than one
+    /// tiepoint's values but not whole tiepoints is refused, not read as its first six.
+    #[test]
+    fn south_up_matrices_and_ragged_tiepoints_are_refused() {
+        let d = [1u16, 2, 3, 4];
+        let file = |geo: &Geo| {
+            striped::<colortype::Gray16>(2, 2, &d, Compression::Uncompressed, None, geo)
+        };
+        let south_up = [
+            10.0, 0.0, 0.0, 1000.0, 0.0, 5.0, 0.0, 2000.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0,
+        ];
+        let e = err(&file(&Geo {
+            matrix: Some(&south_up),
+            ..Geo::default()
+        }));
+        assert!(
+            e.contains("must be positive") && e.contains("ModelTransformationTag (34264)"),
+            "{e}"
+        );
+        let e = err(&file(&Geo {
+            tie: Some(&[0.0, 0.0, 0.0, 1000.0, 2000.0, 0.0, 1.0]),
+            ..std_geo()
+        }));
+        assert_eq!(
+            e,
+            "t.tif: ModelTiepointTag (33922) holds 7 values; expected a multiple of 6"
+        );
+    }
 }

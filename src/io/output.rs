@@ -245,3 +245,86 @@ crate::names::named!(Format {
     Csv => ("csv", "Comma-separated values with a header line."),
     Json => ("json", "A JSON array with one object per ray."),
 });
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+
+    /// Four rays' answers: a hit, a miss, an invalid ray and a hit with a terrain cell; in
+    /// all-hits mode the first has two hits and the last overflowed.
+    fn answers(mode: Mode) -> Answers {
+        let hit = |t: f64, object: u32| Hit {
+            hit: true,
+            t,
+            object,
+            triangle: 3,
+            u: 0.25,
+            v: 0.5,
+            position: DVec3::new(1.0, 2.0, t),
+            normal: DVec3::Z,
+            ..Hit::MISS
+        };
+        let nearest = vec![
+            hit(1.5, 0),
+            Hit::MISS,
+            Hit::INVALID,
+            Hit {
+                cell: Some([4, 7]),
+                ..hit(2.5, 1)
+            },
+        ];
+        if mode != Mode::All {
+            return Answers {
+                nearest,
+                ..Answers::default()
+            };
+        }
+        Answers {
+            lists: vec![hit(1.5, 0), hit(3.0, 2), nearest[3]],
+            list_start: vec![0, 2, 2, 2, 3],
+            overflow: vec![false, false, false, true],
+            nearest,
+        }
+    }
+
+    /// Answers written chunk after chunk ([`AnswerWriter`], as `raypick pick` streams a large
+    /// ray file) are the very bytes written at once, in every format and mode: the rows and
+    /// records go on numbering the rays from the chunks before, and the JSON array has one comma
+    /// between records, so it still parses, one record per ray.
+    #[test]
+    fn answers_written_in_chunks_are_the_bytes_written_at_once() {
+        for format in [Format::Csv, Format::Json] {
+            for mode in [Mode::Closest, Mode::All] {
+                let options = OutputOptions {
+                    format,
+                    mode,
+                    cells: true,
+                };
+                let all = answers(mode);
+                let mut whole = Vec::new();
+                write_answers(&mut whole, &all, &options).unwrap();
+                for chunks in [[0..1, 1..4], [0..3, 3..4]] {
+                    let mut out = Vec::new();
+                    let mut writer = AnswerWriter::begin(&mut out, options).unwrap();
+                    for range in chunks {
+                        let idx: Vec<usize> = range.collect();
+                        writer.write(&mut out, &all.subset(&idx)).unwrap();
+                    }
+                    writer.finish(&mut out).unwrap();
+                    assert_eq!(
+                        String::from_utf8(out).unwrap(),
+                        String::from_utf8(whole.clone()).unwrap(),
+                        "{format:?} {mode:?}"
+                    );
+                }
+                if format == Format::Json {
+                    let parsed: Vec<serde_json::Value> = serde_json::from_slice(&whole).unwrap();
+                    let rays: Vec<u64> =
+                        parsed.iter().map(|r| r["ray"].as_u64().unwrap()).collect();
+                    assert_eq!(rays, [0, 1, 2, 3], "{mode:?}");
+                }
+            }
+        }
+    }
+}

@@ -110,3 +110,68 @@ proptest! {
         }
     }
 }
+
+/// With cycling axes every inner node splits on its depth's axis (x, y, z, x, …), in the
+/// parallel builder's top levels (a scene past its 8,192-triangle threshold) as in the
+/// sequential levels below them, on both sides of each split.
+#[test]
+fn cycling_axes_follow_the_depth_on_the_parallel_path_too() {
+    let s = scene(terrain(130, 130, 0.0, 0.0, 1.0, hills));
+    let bvh = Bvh::build(
+        &s,
+        &BuildOptions {
+            split_axis: SplitAxis::Cycle,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut pending = vec![(0usize, 0u32)];
+    let mut inner = 0;
+    while let Some((i, depth)) = pending.pop() {
+        let node = &bvh.nodes[i];
+        if node.is_leaf() {
+            continue;
+        }
+        inner += 1;
+        assert_eq!(
+            node.kind() - raypick::layout::KIND_INNER,
+            depth % 3,
+            "node {i} at depth {depth}"
+        );
+        pending.extend([(i + 1, depth + 1), (node.first as usize, depth + 1)]);
+    }
+    assert!(inner > 8192 / 8, "{inner} inner nodes");
+}
+
+/// `Bvh::validate` refuses a tree that breaks one of its invariants, saying which: a triangle
+/// that pokes out of its leaf's box past the box's high corner or its low one, and a triangle
+/// that no leaf holds.
+#[test]
+fn validate_names_a_triangle_outside_its_leaf_box_or_in_no_leaf() {
+    let bvh = Bvh::build(
+        &scene(triangle_soup(200, 10.0, 3)),
+        &BuildOptions::default(),
+    )
+    .unwrap();
+    bvh.validate().unwrap();
+    let leaf = bvh.nodes.iter().position(|n| n.is_leaf()).unwrap();
+    let (node, t) = (bvh.nodes[leaf], bvh.nodes[leaf].first as usize);
+    for (corner, x) in [("high", node.max[0] + 1.0), ("low", node.min[0] - 1.0)] {
+        let mut broken = bvh.clone();
+        broken.triangles.to_mut()[t].v0[0] = x;
+        assert_eq!(
+            broken.validate(),
+            Err(format!("triangle {t} pokes out of leaf {leaf}'s box")),
+            "past the {corner} corner"
+        );
+    }
+    let mut broken = bvh.clone();
+    let extra = broken.triangles[t];
+    broken.triangles.to_mut().push(extra);
+    broken.triangle_ids.to_mut().push(0);
+    let last = broken.triangles.len() - 1;
+    assert_eq!(
+        broken.validate(),
+        Err(format!("triangle {last} is in no leaf"))
+    );
+}

@@ -945,3 +945,22 @@ fn eyes_far_beyond_the_square_roots_reach_are_cameras() {
     ));
     assert!(e.contains("cannot be represented"), "{e}");
 }
+
+/// Of a list of pixel centres, `outside_image` counts those outside the image and names the
+/// first of them by its index (what the warning about a pixel file made for another image size
+/// says); points on the image's edges, its right and bottom ones included, are inside.
+#[test]
+fn pixel_centres_outside_the_image_are_counted_and_the_first_named() {
+    let camera = Camera::perspective(EYE, TARGET, DVec3::Z, 50.0, 4, 3).unwrap();
+    let edges = [(0.0, 0.0), (4.0, 3.0), (4.0, 0.0), (0.0, 3.0), (2.0, 1.5)];
+    assert_eq!(camera.outside_image(edges), None);
+    let centres = [
+        (2.0, 1.5),
+        (4.5, 1.0),
+        (0.5, 0.5),
+        (1.0, -0.5),
+        (1.0, 3.5),
+        (f64::NAN, 1.0),
+    ];
+    assert_eq!(camera.outside_image(centres), Some((4, 1)));
+}

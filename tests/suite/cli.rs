@@ -1093,6 +1093,19 @@ fn an_out_file_that_is_one_of_the_inputs_is_refused_and_left_as_it_was() {
             &["build", "--scene", "ex/tower.obj", "--out", "ex/tower.obj"],
             "(--scene ex/tower.obj)",
         ),
+        // Any of a repeated option's values, not only its first.
+        (
+            &[
+                "build",
+                "--scene",
+                "ex/tower.obj",
+                "--scene",
+                "ex/hall.obj",
+                "--out",
+                "ex/hall.obj",
+            ],
+            "(--scene ex/hall.obj)",
+        ),
         (
             &[
                 "build",

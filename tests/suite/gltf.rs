@@ -1398,3 +1398,45 @@ fn objects_placed_without_triangles_count_against_the_limits() {
     let (code, err) = run(&few, "64M");
     assert_eq!(code, Some(0), "{err}");
 }
+
+/// A strided buffer view needs room for its last element alone after the last stride, not for
+/// a whole stride: positions interleaved after normals (the accessor's byteOffset 12, ending
+/// with the view) and a view whose last stride's unused bytes are left off both load, with the
+/// positions they hold.
+#[test]
+fn a_strided_view_needs_room_for_its_last_element_only() {
+    let dir = TempDir::new();
+    for (offset, cut) in [(12usize, 0usize), (0, 12)] {
+        let mut asset = Asset::default();
+        let mut bytes = Vec::new();
+        for p in TRIANGLE {
+            let normal = [0.0f32, 0.0, 1.0];
+            let (first, second) = if offset == 0 {
+                (p, normal)
+            } else {
+                (normal, p)
+            };
+            for v in first.into_iter().chain(second) {
+                bytes.extend(f32::to_le_bytes(v));
+            }
+        }
+        bytes.truncate(bytes.len() - cut);
+        let view = asset.view(&bytes, Some(24));
+        let p = asset.accessor(json!({
+            "bufferView": view, "byteOffset": offset, "componentType": 5126, "count": 3,
+            "type": "VEC3", "min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 0.0]
+        }));
+        let doc = asset.gltf(json!({
+            "meshes": [{"primitives": [{"attributes": {"POSITION": p}}]}],
+            "nodes": [{"mesh": 0}],
+            "scenes": [{"nodes": [0]}]
+        }));
+        let file = dir.write_json(&format!("strided-{offset}.gltf"), &doc);
+        let objects = load_gltf(&file).unwrap_or_else(|e| panic!("offset {offset}: {e}"));
+        assert_eq!(
+            objects[0].1.positions,
+            TRIANGLE.map(dvec),
+            "offset {offset}"
+        );
+    }
+}

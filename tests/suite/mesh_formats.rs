@@ -1455,3 +1455,53 @@ fn child_loads_one_scene_file() {
         scene.triangle_count()
     );
 }
+
+/// A list whose count is negative is refused with a sentence naming its line, whether it is a
+/// face's index list or a list the reader skips: read as an empty list, a face lost its corners
+/// with only a warning, and a skipped list left the values after it read as the next item's.
+#[test]
+fn a_negative_list_count_is_refused_naming_the_line() {
+    let dir = TempDir::new("negative-count");
+    let header = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+                  property float z\n";
+    let cases = [
+        (
+            "face.ply",
+            format!(
+                "{header}element face 1\nproperty list char int vertex_indices\nend_header\n\
+                 0 0 0\n1 0 0\n0 1 0\n-3 0 1 2\n"
+            ),
+            13,
+        ),
+        (
+            "skipped.ply",
+            format!(
+                "{header}property list char int extra\nelement face 1\n\
+                 property list uchar int vertex_indices\nend_header\n0 0 0 0\n1 0 0 -1\n\
+                 0 1 0 0\n3 0 1 2\n"
+            ),
+            12,
+        ),
+    ];
+    for (name, text, line) in cases {
+        let file = dir.write(name, text.as_bytes());
+        let e = error_naming(load_ply(&file), &file, Some(line));
+        assert!(e.contains("negative"), "{e}");
+    }
+}
+
+/// An ascii STL whose `solid` comes after blank lines or spaces loads as the same file without
+/// them: the check that tells ascii from binary looks past leading white space.
+#[test]
+fn an_ascii_stl_may_begin_with_white_space() {
+    let dir = TempDir::new("stl-leading-space");
+    let text = "solid a\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n\
+                vertex 0 1 0\nendloop\nendfacet\nendsolid a\n";
+    let plain = load_stl(&dir.write("plain.stl", text.as_bytes())).unwrap();
+    assert_eq!(plain.triangles.len(), 1);
+    for lead in ["\n", "  \t", "\r\n\n  "] {
+        let file = dir.write("lead.stl", format!("{lead}{text}").as_bytes());
+        let mesh = load_stl(&file).unwrap_or_else(|e| panic!("{lead:?}: {e}"));
+        assert_eq!(bits(&mesh), bits(&plain), "{lead:?}");
+    }
+}
