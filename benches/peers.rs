@@ -20,10 +20,13 @@
 //! camera rays), medians of 3 runs (5 below 100k triangles); the agreement of its answers with
 //! raypick's reference traversal on each ray set (hit/miss and t within 1e-4), printed before that set
 //! counts; throughput on the 4,096 camera rays with criterion (group `peers-<scene>`, bench
-//! `camera-4096-<engine>-<threads>t`) and on the 1M sets as medians of 3 runs of our own
-//! (criterion's 10 samples would take too long there); single-ray latency (p50/p99 of 1,000
-//! `intersect` calls, scene resident). Then the scene's table, and at the end every table again
-//! and `peers-summary.csv` in the target directory (`peers/report.rs`).
+//! `camera-4096-<engine>-<threads>t`); single-ray latency (p50/p99 of 1,000 `intersect` calls,
+//! scene resident). Then, with every engine of the scene still built, the 1M sets as medians
+//! of interleaved rounds of our own (criterion's 10 samples would take too long there): each
+//! round times every engine and thread count once, in turn, 7 rounds (the twin and the GPU path
+//! 3), so that a slow spell of a shared machine falls on every engine alike. Then the scene's
+//! table, and at the end every table again and `peers-summary.csv` in the target directory
+//! (`peers/report.rs`).
 //!
 //! Run everything with `cargo bench --bench peers --features embree` (about 30 minutes on 2
 //! cores), or the scenes whose names contain a word with e.g. `cargo bench --bench peers -- bunny`.
@@ -58,7 +61,7 @@ mod scenes;
 use criterion::{Criterion, SamplingMode, Throughput};
 use engines::{Engine, Inputs, Kind};
 use glam::Vec3A;
-use measure::{latency_us, median, median_of_runs_ms, report_agreement};
+use measure::{latency_us, median, report_agreement, time_in_rounds};
 use obvhs::triangle::Triangle;
 use raypick::check::synthetic::{RayKind, rays};
 use raypick::frame::local_rays;
@@ -89,6 +92,10 @@ const LARGE_SET_TEST: usize = 16_384;
 const THREADS: [usize; 2] = [2, 1];
 /// Single-ray calls timed per engine for the latency percentiles.
 const LATENCY_PICKS: usize = 1000;
+/// Interleaved rounds on the 1M sets with `--bench` (every engine and thread count once per
+/// round), and the most the twin and the GPU path take part in.
+const ROUNDS: usize = 7;
+const SLOW_ROUNDS: usize = 3;
 /// Below this many triangles, builds are repeated 5 times instead of 3.
 const SMALL_SCENE: usize = 100_000;
 
@@ -99,8 +106,21 @@ struct Plan {
     /// Only scenes whose name contains this.
     filter: Option<String>,
     large_set: usize,
+    /// Timed runs of each engine on each 1M set, one per interleaved round.
     runs: usize,
     started: SystemTime,
+}
+
+impl Plan {
+    /// The rounds `kind` is timed in on a 1M set: every round for the engines the targets
+    /// compare, at most [`SLOW_ROUNDS`] for the twin and the GPU path (seconds a run on
+    /// lavapipe, and no target of theirs is a ratio here).
+    fn rounds(&self, kind: Kind) -> usize {
+        match kind {
+            Kind::RaypickReference | Kind::RaypickGpu => self.runs.min(SLOW_ROUNDS),
+            _ => self.runs,
+        }
+    }
 }
 
 /// One ray set: world rays (for raypick's end-to-end pick) and the same rays scene-local.
@@ -148,7 +168,7 @@ fn main() {
         benchmark,
         filter: args.iter().find(|a| !a.starts_with('-')).cloned(),
         large_set: if benchmark { LARGE_SET } else { LARGE_SET_TEST },
-        runs: if benchmark { 3 } else { 1 },
+        runs: if benchmark { ROUNDS } else { 1 },
         started: SystemTime::now(),
     };
     let mut criterion = Criterion::default().configure_from_args();
@@ -269,7 +289,12 @@ fn ray_sets(built: &BuiltScene, large: usize) -> Vec<RaySet> {
         .collect()
 }
 
-/// Measures every engine on one scene; each engine's structures are dropped before the next.
+/// Measures every engine on one scene. Each engine is built (its build and end-to-end
+/// figures), timed on the camera batch with criterion and for single-ray latency; then the 1M
+/// sets are timed in interleaved rounds, every engine and thread count once per round
+/// ([`time_in_rounds`]), so that a slow spell of a shared machine falls on all of them alike
+/// and the ratios in one round are taken at the same moment. All the scene's engines are kept
+/// built until its rounds are done.
 fn bench_scene(
     criterion: &mut Criterion,
     plan: &Plan,
@@ -308,9 +333,20 @@ fn bench_scene(
         embree: &shared.embree,
     };
     let mut reference: HashMap<&str, Vec<Option<f32>>> = HashMap::new();
+    let mut check =
+        |kind: Kind, set: &RaySet, answers: Vec<Option<f32>>| match reference.get(set.name) {
+            Some(expected) => report_agreement(name, kind.name(), set.name, expected, &answers),
+            None => {
+                reference.insert(set.name, answers);
+            }
+        };
+    // The rates by (engine, set, threads), reported in that order at the end.
+    let mut rates: HashMap<(&'static str, &'static str, usize), f64> = HashMap::new();
+    let mut engines: Vec<(Kind, Box<dyn Engine>)> = Vec::new();
+    let camera = &sets[0];
     for &kind in Kind::ALL {
         let Some((engine, cost)) =
-            build_and_pick(&scene, &inputs, &sets[0], kind, report.builds, shared)
+            build_and_pick(&scene, &inputs, camera, kind, report.builds, shared)
         else {
             continue;
         };
@@ -324,28 +360,46 @@ fn bench_scene(
             )),
             report.builds
         );
+        for threads in shared.threads(kind) {
+            let pool = shared.pool(threads);
+            check(kind, camera, pool.install(|| engine.trace(&camera.local)));
+            if let Some(median_ms) =
+                criterion_median_ms(criterion, plan, name, camera, kind, threads, &*engine, pool)
+            {
+                rates.insert((kind.name(), camera.name, threads), median_ms);
+            }
+        }
+        let (p50_us, p99_us) = latency_us(&*engine, &camera.local, LATENCY_PICKS);
+        report.costs.push(Cost {
+            p50_us,
+            p99_us,
+            ..cost
+        });
+        engines.push((kind, engine));
+    }
+    for set in &sets[1..] {
+        let rows: Vec<(usize, usize)> = engines
+            .iter()
+            .enumerate()
+            .flat_map(|(e, &(kind, _))| shared.threads(kind).into_iter().map(move |t| (e, t)))
+            .collect();
+        let run = |(e, threads): (usize, usize)| {
+            shared
+                .pool(threads)
+                .install(|| engines[e].1.trace(black_box(&set.local)))
+        };
+        let rounds = |(e, _): (usize, usize)| plan.rounds(engines[e].0);
+        let medians = time_in_rounds(&rows, run, rounds, |(e, _), answers| {
+            check(engines[e].0, set, answers)
+        });
+        for (&(e, threads), median_ms) in rows.iter().zip(medians) {
+            rates.insert((engines[e].0.name(), set.name, threads), median_ms);
+        }
+    }
+    for &(kind, _) in &engines {
         for set in &sets {
             for threads in shared.threads(kind) {
-                let pool = shared.pool(threads);
-                let mut check = |answers: Vec<Option<f32>>| match reference.get(set.name) {
-                    Some(expected) => {
-                        report_agreement(name, kind.name(), set.name, expected, &answers)
-                    }
-                    None => {
-                        reference.insert(set.name, answers);
-                    }
-                };
-                let median_ms = if set.name == RAY_SETS[0] {
-                    check(pool.install(|| engine.trace(&set.local)));
-                    criterion_median_ms(criterion, plan, name, set, kind, threads, &*engine, pool)
-                } else {
-                    Some(median_of_runs_ms(
-                        plan.runs,
-                        || pool.install(|| engine.trace(black_box(&set.local))),
-                        check,
-                    ))
-                };
-                if let Some(median_ms) = median_ms {
+                if let Some(&median_ms) = rates.get(&(kind.name(), set.name, threads)) {
                     report.rates.push(Rate {
                         rays: set.name,
                         ray_count: set.local.len(),
@@ -356,12 +410,6 @@ fn bench_scene(
                 }
             }
         }
-        let (p50_us, p99_us) = latency_us(&*engine, &sets[0].local, LATENCY_PICKS);
-        report.costs.push(Cost {
-            p50_us,
-            p99_us,
-            ..cost
-        });
     }
     report
 }

@@ -27,16 +27,32 @@ pub fn timed_ms<T>(f: impl FnOnce() -> T) -> (T, f64) {
     (value, start.elapsed().as_secs_f64() * 1e3)
 }
 
-/// Times `runs` runs of `run` and returns the median in milliseconds. The first run's output
-/// goes to `check` as soon as it exists, before the other runs.
-pub fn median_of_runs_ms<T>(runs: usize, mut run: impl FnMut() -> T, check: impl FnOnce(T)) -> f64 {
-    let (first, first_ms) = timed_ms(&mut run);
-    check(first);
-    let mut samples = vec![first_ms];
-    for _ in 1..runs {
-        samples.push(timed_ms(&mut run).1);
+/// Times each of `rows` in interleaved rounds and returns each row's median in milliseconds:
+/// round `k` runs, in turn, every row that takes part in at least `k + 1` rounds (`rounds`), so
+/// that the rows' samples are taken at the same moments of a noisy machine. Each row's first
+/// run's output goes to `check` before the next row runs (the agreement check; that run is
+/// timed too).
+pub fn time_in_rounds<R: Copy, T>(
+    rows: &[R],
+    mut run: impl FnMut(R) -> T,
+    rounds: impl Fn(R) -> usize,
+    mut check: impl FnMut(R, T),
+) -> Vec<f64> {
+    let mut samples: Vec<Vec<f64>> = vec![Vec::new(); rows.len()];
+    let most = rows.iter().map(|&r| rounds(r).max(1)).max().unwrap_or(0);
+    for round in 0..most {
+        for (&row, samples) in rows.iter().zip(&mut samples) {
+            if round >= rounds(row).max(1) {
+                continue;
+            }
+            let (out, ms) = timed_ms(|| run(row));
+            samples.push(ms);
+            if round == 0 {
+                check(row, out);
+            }
+        }
     }
-    median(samples)
+    samples.into_iter().map(median).collect()
 }
 
 /// Single-ray latency with the scene resident: p50 and p99 in microseconds over `picks` calls

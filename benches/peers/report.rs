@@ -123,7 +123,7 @@ pub fn print_scene(report: &SceneReport) {
     }
     print_rows(&rows);
     println!(
-        "(throughput: camera-4096 criterion medians, 1M sets medians of 3 runs; ours÷ = \
+        "(throughput: camera-4096 criterion medians, 1M sets medians of rounds that time every engine in turn; ours÷ = \
          raypick-cpu at 2 threads ÷ the row. build, build+4096 (build, then the engine's trace of \
          the scene-local rays at 2 threads) and build+pick (raypick: build, then Picker::pick of \
          the world rays: frame conversion, watertight test, f64 refinement): medians of {} runs)",
