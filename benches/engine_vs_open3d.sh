@@ -3,6 +3,9 @@
 # 1 and 2 threads, the reference twin at 2) against Open3D's RaycastingScene.cast_rays at 2
 # threads (benches/open3d_peer.py), on the same 1M camera and 1M incoherent rays
 # (benches/make_ray_sets.py) of each scene. Prints one table row per scene and ray set.
+# Each scene and set is timed in ROUNDS rounds (default 3), each round running the four
+# processes in turn, so that a slow spell of a shared machine falls on raypick and Open3D alike;
+# a row gives each column's median over the rounds and the range of the rounds' own cpu/o3d.
 #
 # Needs: a release build (`cargo build --release`), and a Python with open3d==0.20.0 and numpy:
 #   apt-get install -y libusb-1.0-0 libgomp1
@@ -20,10 +23,13 @@ dir="${2:-target/ray-sets}"
 data=../shared/data
 count="${COUNT:-1000000}"
 passes="${PASSES:-5}"
+rounds="${ROUNDS:-3}"
 mkdir -p "$dir"
 rate() { grep -o "$1=[0-9.]*" | tail -1 | cut -d= -f2; }
-printf '%-28s %-11s %12s %12s %12s %12s %9s %9s\n' scene rays "cpu 1t" "cpu 2t" "ref 2t" "open3d 2t" "cpu/o3d" "cpu/ref"
-echo '(M rays/s: raypick pick = bench --ray-file, best of passes; Open3D cast_rays, best of passes)'
+printf '%-28s %-11s %12s %12s %12s %12s %9s %9s  %s\n' scene rays "cpu 1t" "cpu 2t" "ref 2t" "open3d 2t" "cpu/o3d" "cpu/ref" "cpu/o3d by round"
+echo "(M rays/s: raypick pick = bench --ray-file, best of $passes passes; Open3D cast_rays, best of $passes passes; medians of $rounds rounds)"
+# The median of the numbers given.
+med() { printf '%s\n' "$@" | sort -g | awk '{ v[NR] = $1 } END { print (NR % 2) ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2 }'; }
 scenes="${SCENES:-$data/bunny.obj $data/dragon_res2.obj $data/jacksboro_fault_dem_utm.asc}"
 for scene in $scenes; do
     stem="$(basename "$scene")"
@@ -34,11 +40,15 @@ for scene in $scenes; do
     for set in camera incoherent; do
         rays="$dir/$stem-$set.txt"
         bench() { ./target/release/raypick bench --scene "$scene" --ray-file "$rays" --repeat "$passes" "$@" 2>/dev/null | rate pick_rays_per_s; }
-        cpu1=$(bench --backend cpu --threads 1)
-        cpu2=$(bench --backend cpu --threads 2)
-        ref2=$(bench --backend reference --threads 2)
-        o3d=$("$python" benches/open3d_peer.py --scene "$scene" --rays "$rays" --threads 2 --passes "$passes" | rate open3d_rays_per_s)
-        awk -v s="$stem" -v r="$set" -v c1="$cpu1" -v c2="$cpu2" -v f="$ref2" -v o="$o3d" 'BEGIN {
-            printf "%-28s %-11s %12.2f %12.2f %12.2f %12.2f %9.2f %9.2f\n", s, r, c1/1e6, c2/1e6, f/1e6, o/1e6, c2/o, c2/f }'
+        c1=() c2=() f2=() o=() ratios=()
+        for _ in $(seq "$rounds"); do
+            c1+=("$(bench --backend cpu --threads 1)")
+            c2+=("$(bench --backend cpu --threads 2)")
+            f2+=("$(bench --backend reference --threads 2)")
+            o+=("$("$python" benches/open3d_peer.py --scene "$scene" --rays "$rays" --threads 2 --passes "$passes" | rate open3d_rays_per_s)")
+            ratios+=("$(awk -v c="${c2[-1]}" -v o="${o[-1]}" 'BEGIN { printf "%.2f", c / o }')")
+        done
+        awk -v s="$stem" -v r="$set" -v c1="$(med "${c1[@]}")" -v c2="$(med "${c2[@]}")" -v f="$(med "${f2[@]}")" -v o="$(med "${o[@]}")" -v rs="${ratios[*]}" 'BEGIN {
+            printf "%-28s %-11s %12.2f %12.2f %12.2f %12.2f %9.2f %9.2f  %s\n", s, r, c1/1e6, c2/1e6, f/1e6, o/1e6, c2/o, c2/f, rs }'
     done
 done
