@@ -28,7 +28,7 @@
 //! table, and at the end every table again and `peers-summary.csv` in the target directory
 //! (`peers/report.rs`).
 //!
-//! Run everything with `cargo bench --bench peers --features embree` (about 30 minutes on 2
+//! Run everything with `cargo bench --bench peers --features embree` (12–13 minutes on 2
 //! cores), or the scenes whose names contain a word with e.g. `cargo bench --bench peers -- bunny`.
 //! Every engine runs under the `raypick` binary's allocator (`huge_pages::Allocator`).
 //!
