@@ -4,6 +4,9 @@
 //!   threads; its answers are the reference the others are checked against;
 //! - `raypick-cpu`: the CPU engine (`--backend cpu`: the tree collapsed 8-wide, SIMD walk,
 //!   packets for coherent groups) at 1 and 2 threads (dedicated rayon pools);
+//! - `raypick-pick` (the 1M sets only): the same engine's whole `Picker::pick` of the world
+//!   rays (frame conversion, trace, f64 refinement, the 104-byte answers), what issue 13's
+//!   targets time, at 1 and 2 threads;
 //! - `raypick-gpu`: the WGSL kernel through `GpuPicker::trace` (lavapipe on a machine without a
 //!   GPU; skipped, saying why, without an adapter);
 //! - `obvhs` 0.4 (CWBVH, `fast_build`), `bvh` 0.13 (svenstaro, `build_par`) and `parry3d` 0.31
@@ -92,6 +95,8 @@ const LARGE_SET_TEST: usize = 16_384;
 const THREADS: [usize; 2] = [2, 1];
 /// Single-ray calls timed per engine for the latency percentiles.
 const LATENCY_PICKS: usize = 1000;
+/// The rows of raypick's whole `Picker::pick` on the 1M sets.
+const PICK_ROWS: &str = "raypick-pick";
 /// Interleaved rounds on the 1M sets with `--bench` (every engine and thread count once per
 /// round), and the most the twin and the GPU path take part in.
 const ROUNDS: usize = 7;
@@ -278,12 +283,6 @@ fn ray_sets(built: &BuiltScene, large: usize) -> Vec<RaySet> {
             if tmin_max > 0.0 {
                 eprintln!("{name} rays have tmin up to {tmin_max} (parry3d ignores tmin)");
             }
-            // Only the camera batch's world rays are used (raypick's end-to-end pick).
-            let world = if name == RAY_SETS[0] {
-                world
-            } else {
-                Vec::new()
-            };
             RaySet { name, world, local }
         })
         .collect()
@@ -334,8 +333,8 @@ fn bench_scene(
     };
     let mut reference: HashMap<&str, Vec<Option<f32>>> = HashMap::new();
     let mut check =
-        |kind: Kind, set: &RaySet, answers: Vec<Option<f32>>| match reference.get(set.name) {
-            Some(expected) => report_agreement(name, kind.name(), set.name, expected, &answers),
+        |engine: &str, set: &RaySet, answers: Vec<Option<f32>>| match reference.get(set.name) {
+            Some(expected) => report_agreement(name, engine, set.name, expected, &answers),
             None => {
                 reference.insert(set.name, answers);
             }
@@ -362,7 +361,11 @@ fn bench_scene(
         );
         for threads in shared.threads(kind) {
             let pool = shared.pool(threads);
-            check(kind, camera, pool.install(|| engine.trace(&camera.local)));
+            check(
+                kind.name(),
+                camera,
+                pool.install(|| engine.trace(&camera.local)),
+            );
             if let Some(median_ms) =
                 criterion_median_ms(criterion, plan, name, camera, kind, threads, &*engine, pool)
             {
@@ -377,33 +380,63 @@ fn bench_scene(
         });
         engines.push((kind, engine));
     }
+    // The rows of the rounds: (engine, threads, whether it is raypick's whole pick).
+    let rows: Vec<(usize, usize, bool)> = engines
+        .iter()
+        .enumerate()
+        .flat_map(|(e, &(kind, _))| {
+            let picks: &[bool] = if kind == Kind::RaypickCpu {
+                &[false, true]
+            } else {
+                &[false]
+            };
+            picks
+                .iter()
+                .flat_map(move |&pick| shared.threads(kind).into_iter().map(move |t| (e, t, pick)))
+        })
+        .collect();
+    let row_name = |(e, _, pick): (usize, usize, bool)| {
+        if pick { PICK_ROWS } else { engines[e].0.name() }
+    };
     for set in &sets[1..] {
-        let rows: Vec<(usize, usize)> = engines
-            .iter()
-            .enumerate()
-            .flat_map(|(e, &(kind, _))| shared.threads(kind).into_iter().map(move |t| (e, t)))
-            .collect();
-        let run = |(e, threads): (usize, usize)| {
-            shared
-                .pool(threads)
-                .install(|| engines[e].1.trace(black_box(&set.local)))
+        let run = |(e, threads, pick): (usize, usize, bool)| {
+            let engine = &engines[e].1;
+            shared.pool(threads).install(|| {
+                if pick {
+                    engine
+                        .pick_answers(black_box(&set.world))
+                        .expect("raypick's engine picks")
+                } else {
+                    engine.trace(black_box(&set.local))
+                }
+            })
         };
-        let rounds = |(e, _): (usize, usize)| plan.rounds(engines[e].0);
-        let medians = time_in_rounds(&rows, run, rounds, |(e, _), answers| {
-            check(engines[e].0, set, answers)
+        let rounds = |(e, _, _): (usize, usize, bool)| plan.rounds(engines[e].0);
+        let medians = time_in_rounds(&rows, run, rounds, |row, answers| {
+            check(row_name(row), set, answers)
         });
-        for (&(e, threads), median_ms) in rows.iter().zip(medians) {
-            rates.insert((engines[e].0.name(), set.name, threads), median_ms);
+        for (&row, median_ms) in rows.iter().zip(medians) {
+            rates.insert((row_name(row), set.name, row.1), median_ms);
         }
     }
-    for &(kind, _) in &engines {
+    let mut names: Vec<&'static str> = Vec::new();
+    for &row in &rows {
+        if !names.contains(&row_name(row)) {
+            names.push(row_name(row));
+        }
+    }
+    let mut thread_counts = THREADS.to_vec();
+    if !thread_counts.contains(&shared.gpu_threads) {
+        thread_counts.push(shared.gpu_threads);
+    }
+    for name in names {
         for set in &sets {
-            for threads in shared.threads(kind) {
-                if let Some(&median_ms) = rates.get(&(kind.name(), set.name, threads)) {
+            for &threads in &thread_counts {
+                if let Some(&median_ms) = rates.get(&(name, set.name, threads)) {
                     report.rates.push(Rate {
                         rays: set.name,
                         ray_count: set.local.len(),
-                        engine: kind.name(),
+                        engine: name,
                         threads,
                         median_ms,
                     });

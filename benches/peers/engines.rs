@@ -45,6 +45,14 @@ pub trait Engine: Sync {
     fn api_pick(&self, _world: &[Ray]) -> bool {
         false
     }
+
+    /// raypick's whole `Picker::pick` of `world`, the world rays of a scene-local set (frame
+    /// conversion, watertight test, f64 refinement: what issue 13's targets time), each hit's t
+    /// in the scene-local ray's units (the world t times the direction's length); `None` for
+    /// the engines without such a path.
+    fn pick_answers(&self, _world: &[Ray]) -> Option<Vec<Option<f32>>> {
+        None
+    }
 }
 
 /// Which engine: the name is the summary's `engine` column.
@@ -207,6 +215,19 @@ impl Engine for RaypickCpu {
             .pick(world)
             .expect("raypick's CPU pick");
         true
+    }
+
+    fn pick_answers(&self, world: &[Ray]) -> Option<Vec<Option<f32>>> {
+        let hits = CpuPicker::new(self.built.clone())
+            .pick(world)
+            .expect("raypick's CPU pick");
+        // In parallel, as `trace` collects its answers.
+        Some(
+            hits.par_iter()
+                .zip(world.par_iter())
+                .map(|(hit, ray)| hit.hit.then(|| (hit.t * ray.dir.length()) as f32))
+                .collect(),
+        )
     }
 }
 
