@@ -95,8 +95,8 @@ const LARGE_SET_TEST: usize = 16_384;
 const THREADS: [usize; 2] = [2, 1];
 /// Single-ray calls timed per engine for the latency percentiles.
 const LATENCY_PICKS: usize = 1000;
-/// The rows of raypick's whole `Picker::pick` on the 1M sets.
-const PICK_ROWS: &str = "raypick-pick";
+/// The engine name of raypick's whole `Picker::pick` on the 1M sets.
+const PICK_ENGINE: &str = "raypick-pick";
 /// Interleaved rounds on the 1M sets with `--bench` (every engine and thread count once per
 /// round), and the most the twin and the GPU path take part in.
 const ROUNDS: usize = 7;
@@ -339,8 +339,6 @@ fn bench_scene(
                 reference.insert(set.name, answers);
             }
         };
-    // The rates by (engine, set, threads), reported in that order at the end.
-    let mut rates: HashMap<(&'static str, &'static str, usize), f64> = HashMap::new();
     let mut engines: Vec<(Kind, Box<dyn Engine>)> = Vec::new();
     let camera = &sets[0];
     for &kind in Kind::ALL {
@@ -369,7 +367,13 @@ fn bench_scene(
             if let Some(median_ms) =
                 criterion_median_ms(criterion, plan, name, camera, kind, threads, &*engine, pool)
             {
-                rates.insert((kind.name(), camera.name, threads), median_ms);
+                report.rates.push(Rate {
+                    rays: camera.name,
+                    ray_count: camera.local.len(),
+                    engine: kind.name(),
+                    threads,
+                    median_ms,
+                });
             }
         }
         let (p50_us, p99_us) = latency_us(&*engine, &camera.local, LATENCY_PICKS);
@@ -396,7 +400,11 @@ fn bench_scene(
         })
         .collect();
     let row_name = |(e, _, pick): (usize, usize, bool)| {
-        if pick { PICK_ROWS } else { engines[e].0.name() }
+        if pick {
+            PICK_ENGINE
+        } else {
+            engines[e].0.name()
+        }
     };
     for set in &sets[1..] {
         let run = |(e, threads, pick): (usize, usize, bool)| {
@@ -416,34 +424,20 @@ fn bench_scene(
             check(row_name(row), set, answers)
         });
         for (&row, median_ms) in rows.iter().zip(medians) {
-            rates.insert((row_name(row), set.name, row.1), median_ms);
+            report.rates.push(Rate {
+                rays: set.name,
+                ray_count: set.local.len(),
+                engine: row_name(row),
+                threads: row.1,
+                median_ms,
+            });
         }
     }
-    let mut names: Vec<&'static str> = Vec::new();
-    for &row in &rows {
-        if !names.contains(&row_name(row)) {
-            names.push(row_name(row));
-        }
-    }
-    let mut thread_counts = THREADS.to_vec();
-    if !thread_counts.contains(&shared.gpu_threads) {
-        thread_counts.push(shared.gpu_threads);
-    }
-    for name in names {
-        for set in &sets {
-            for &threads in &thread_counts {
-                if let Some(&median_ms) = rates.get(&(name, set.name, threads)) {
-                    report.rates.push(Rate {
-                        rays: set.name,
-                        ray_count: set.local.len(),
-                        engine: name,
-                        threads,
-                        median_ms,
-                    });
-                }
-            }
-        }
-    }
+    // Each engine's rows together, in the rounds' engine order (a stable sort: sets, then
+    // thread counts, in the order measured).
+    report
+        .rates
+        .sort_by_key(|r| rows.iter().position(|&row| row_name(row) == r.engine));
     report
 }
 
