@@ -12,6 +12,7 @@
 //! must not contain `..`, and must resolve, symbolic links followed, to a regular file inside
 //! that folder. So a scene file can only make raypick read files next to it or below it.
 
+pub mod csv_number;
 pub mod gltf;
 pub(crate) mod mapped;
 pub mod obj;

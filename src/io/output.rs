@@ -113,44 +113,19 @@ impl AnswerWriter {
     ) -> std::io::Result<()> {
         let options = self.options;
         let all = options.mode == Mode::All;
+        // CSV rows are made in `text` and written a block at a time.
+        let mut text = String::new();
         for (k, nearest) in answers.nearest.iter().enumerate() {
             let i = self.rays_written + k;
             let hits = answers.hits_of(k);
             let overflow = answers.overflow.get(k).copied().unwrap_or(false);
-            let flags = format!("{},{}", u8::from(nearest.invalid), u8::from(overflow));
+            let flags = (nearest.invalid, overflow);
             match options.format {
-                Format::Csv if hits.is_empty() => {
-                    let empty_cells = if options.cells { ",," } else { "" };
-                    let rank = if all { "," } else { "" };
-                    writeln!(out, "{i},{rank}0,,,,,,,,,,,{empty_cells},{flags}")?;
-                }
                 Format::Csv => {
-                    for (r, h) in hits.iter().enumerate() {
-                        let rank = if all { format!("{r},") } else { String::new() };
-                        let (p, n) = (h.position, h.normal);
-                        let f = CsvNumber;
-                        write!(
-                            out,
-                            "{i},{rank}1,{},{},{},{},{},{},{},{},{},{},{}",
-                            f(h.t),
-                            h.object,
-                            h.triangle,
-                            f(h.u),
-                            f(h.v),
-                            f(p.x),
-                            f(p.y),
-                            f(p.z),
-                            f(n.x),
-                            f(n.y),
-                            f(n.z)
-                        )?;
-                        if options.cells {
-                            match h.cell {
-                                Some([row, col]) => write!(out, ",{row},{col}")?,
-                                None => write!(out, ",,")?,
-                            }
-                        }
-                        writeln!(out, ",{flags}")?;
+                    csv_rows(&mut text, i, hits, all, options.cells, flags);
+                    if text.len() >= CSV_BLOCK {
+                        out.write_all(text.as_bytes())?;
+                        text.clear();
                     }
                 }
                 Format::Json => {
@@ -175,6 +150,7 @@ impl AnswerWriter {
                 }
             }
         }
+        out.write_all(text.as_bytes())?;
         self.rays_written += answers.nearest.len();
         Ok(())
     }
@@ -185,6 +161,77 @@ impl AnswerWriter {
             writeln!(out, "\n]")?;
         }
         Ok(())
+    }
+}
+
+/// Bytes of CSV rows made before they are written.
+const CSV_BLOCK: usize = 1 << 16;
+
+/// Appends ray `i`'s CSV rows to `text`: one per hit of `hits` (with its rank when `all`), or a
+/// row with `hit` 0 and empty fields when there is none; `row,col` when `cells`; the `invalid`
+/// and `overflow` flags last.
+fn csv_rows(
+    text: &mut String,
+    i: usize,
+    hits: &[Hit],
+    all: bool,
+    cells: bool,
+    (invalid, overflow): (bool, bool),
+) {
+    let mut int = itoa::Buffer::new();
+    let flags = match (invalid, overflow) {
+        (false, false) => "0,0",
+        (false, true) => "0,1",
+        (true, false) => "1,0",
+        (true, true) => "1,1",
+    };
+    if hits.is_empty() {
+        text.push_str(int.format(i));
+        text.push_str(if all {
+            ",,0,,,,,,,,,,,"
+        } else {
+            ",0,,,,,,,,,,,"
+        });
+        if cells {
+            text.push_str(",,");
+        }
+        text.push(',');
+        text.push_str(flags);
+        text.push('\n');
+        return;
+    }
+    for (r, h) in hits.iter().enumerate() {
+        text.push_str(int.format(i));
+        text.push(',');
+        if all {
+            text.push_str(int.format(r));
+            text.push(',');
+        }
+        text.push_str("1,");
+        push_csv_number(text, h.t);
+        text.push(',');
+        text.push_str(int.format(h.object));
+        text.push(',');
+        text.push_str(int.format(h.triangle));
+        let (p, n) = (h.position, h.normal);
+        for x in [h.u, h.v, p.x, p.y, p.z, n.x, n.y, n.z] {
+            text.push(',');
+            push_csv_number(text, x);
+        }
+        if cells {
+            match h.cell {
+                Some([row, col]) => {
+                    text.push(',');
+                    text.push_str(int.format(row));
+                    text.push(',');
+                    text.push_str(int.format(col));
+                }
+                None => text.push_str(",,"),
+            }
+        }
+        text.push(',');
+        text.push_str(flags);
+        text.push('\n');
     }
 }
 
@@ -218,28 +265,8 @@ fn json_number(x: f64) -> String {
     }
 }
 
-/// A CSV number: shortest round-trip digits, written out in full for 1e-7 <= |x| < 1e21 (as
-/// Rust's `{}` and JavaScript write them, so ordinary numbers print as they always have), and
-/// with an exponent outside that range, where it is shorter (`1e300`, not 301 digits).
-pub fn csv_number(x: f64) -> String {
-    CsvNumber(x).to_string()
-}
-
-/// [`csv_number`] without allocating, for `write!`.
-#[derive(Clone, Copy, Debug)]
-pub struct CsvNumber(pub f64);
-
-impl std::fmt::Display for CsvNumber {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let x = self.0;
-        let magnitude = x.abs();
-        if x == 0.0 || !x.is_finite() || (1e-7..1e21).contains(&magnitude) {
-            write!(f, "{x}")
-        } else {
-            write!(f, "{x:e}")
-        }
-    }
-}
+use super::csv_number::push_csv_number;
+pub use super::csv_number::{CsvNumber, csv_number};
 
 crate::names::named!(Format {
     Csv => ("csv", "Comma-separated values with a header line."),
