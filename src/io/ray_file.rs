@@ -132,7 +132,7 @@ fn parse_line(
         values: [0.0; Numbers::MOST],
         len: 0,
     };
-    for token in content.split_whitespace() {
+    let mut push = |token: &str| -> Result<(), Error> {
         let value = token
             .parse::<f64>()
             .map_err(|_| error(format!("'{}' is not a number", quote(token))))?;
@@ -140,6 +140,21 @@ fn parse_line(
             *slot = value;
         }
         numbers.len += 1;
+        Ok(())
+    };
+    if content.is_ascii() {
+        // The same tokens as `split_whitespace` (an ASCII character is white space exactly
+        // when it is one of these six), without decoding characters: that decoding was half
+        // of a ray file's parse.
+        let white = |b: &u8| matches!(b, b'\t' | b'\n' | b'\x0B' | b'\x0C' | b'\r' | b' ');
+        for token in content.as_bytes().split(white).filter(|t| !t.is_empty()) {
+            // SAFETY: a run of ASCII bytes is UTF-8.
+            push(unsafe { std::str::from_utf8_unchecked(token) })?;
+        }
+    } else {
+        for token in content.split_whitespace() {
+            push(token)?;
+        }
     }
     if numbers.len == 0 {
         return Ok(None);
@@ -541,6 +556,32 @@ mod tests {
         assert_eq!(message, "'x' is not a number");
         let (_, _, message) = parse_err(parse_rays("r.txt", "0 0 0 1 0 0 1,5\n"));
         assert_eq!(message, "'1,5' is not a number");
+    }
+
+    #[test]
+    fn ascii_lines_split_where_split_whitespace_splits() {
+        // Every ASCII byte between two numbers, and around them.
+        for b in 0u8..128 {
+            let c = b as char;
+            let line = format!("{c}1{c}2{c}3{c}4{c}5{c}6{c}");
+            let by_chars: Vec<&str> = line.split_whitespace().collect();
+            let parsed = parse_line("rays.txt", 1, &line, &[6, 7], "6 or 7 numbers");
+            match parsed {
+                Ok(Some(numbers)) => {
+                    assert_eq!(by_chars.len(), 6, "byte {b}");
+                    assert_eq!(numbers.values(), [1.0, 2.0, 3.0, 4.0, 5.0, 6.0], "byte {b}");
+                }
+                _ => assert!(by_chars.len() != 6 || c == '#', "byte {b}"),
+            }
+            assert_eq!(c.is_whitespace(), by_chars.len() == 6, "byte {b}");
+        }
+        // A line with other characters splits as before, at Unicode white space too.
+        let line = "1\u{a0}2\u{2003}3 4 5 6";
+        let numbers = parse_line("rays.txt", 1, line, &[6, 7], "6 or 7 numbers");
+        assert_eq!(
+            numbers.ok().flatten().map(|n| n.values().to_vec()),
+            Some(vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+        );
     }
 
     #[test]
