@@ -270,6 +270,17 @@ mod tests {
         }
     }
 
+    /// A fixed xorshift sequence from `seed` (not zero).
+    fn xorshift(seed: u64) -> impl FnMut() -> u64 {
+        let mut s = seed;
+        move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        }
+    }
+
     fn check(x: f64) {
         assert_eq!(csv_number(x), by_format(x), "bits {:#x}", x.to_bits());
         assert_eq!(
@@ -327,13 +338,7 @@ mod tests {
     fn random_values_are_written_as_format_writes_them() {
         // A fixed xorshift: every bit pattern's kind (subnormal, every exponent) and values
         // at map and unit scales.
-        let mut s = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            s
-        };
+        let mut next = xorshift(0x9e37_79b9_7f4a_7c15);
         for _ in 0..1_000_000 {
             let bits = next();
             check(f64::from_bits(bits));
@@ -349,13 +354,7 @@ mod tests {
         // m · 2^−j for odd m is (m · 5^j) · 10^−j exactly, its last digit a 5: where the
         // shortest digits are one shorter, it lies halfway between two of them (a tie, which
         // `format!` rounds up and ryu to even).
-        let mut s = 0x2545_f491_4f6c_dd1du64;
-        let mut next = || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            s
-        };
+        let mut next = xorshift(0x2545_f491_4f6c_dd1d);
         let mut ties = 0;
         for _ in 0..200_000 {
             let m = (next() >> 11) | 1;
