@@ -33,6 +33,7 @@ use super::grid::{ElevationGrid, alloc_heights, checked_sample_count};
 use super::{io_error, parse_error};
 use crate::budget::quote;
 use crate::error::Error;
+use crate::io::is_space;
 
 /// Header keys this loader understands (lower case).
 const KEYS: [&str; 10] = [
@@ -615,11 +616,6 @@ fn cell(value: f64, nodata: Option<f64>) -> Option<Option<f64>> {
     } else {
         None
     }
-}
-
-/// The whitespace `str::split_whitespace` splits ASCII text at.
-fn is_space(b: u8) -> bool {
-    matches!(b, b' ' | b'\n' | b'\t' | b'\r' | 0x0b | 0x0c)
 }
 
 /// Reads the values of an ASCII piece of text into `values`. A plain decimal (a sign, at most

@@ -14,12 +14,11 @@ const MOST: usize = 48;
 /// Appends `x` to `out` in CSV form (see the module's documentation).
 #[inline]
 pub fn push_csv_number(out: &mut String, x: f64) {
+    use std::fmt::Write;
     let mut buf = [0u8; MOST];
-    match layout(x, &mut buf) {
-        // SAFETY: `layout` writes ASCII bytes only (digits, '-', '.', 'e').
-        Some(n) => out.push_str(unsafe { std::str::from_utf8_unchecked(&buf[..n]) }),
+    match text(x, &mut buf) {
+        Some(text) => out.push_str(text),
         None => {
-            use std::fmt::Write;
             let _ = write!(out, "{x}");
         }
     }
@@ -39,12 +38,19 @@ pub struct CsvNumber(pub f64);
 impl std::fmt::Display for CsvNumber {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let mut buf = [0u8; MOST];
-        match layout(self.0, &mut buf) {
-            // SAFETY: `layout` writes ASCII bytes only.
-            Some(n) => f.write_str(unsafe { std::str::from_utf8_unchecked(&buf[..n]) }),
+        match text(self.0, &mut buf) {
+            Some(text) => f.write_str(text),
             None => write!(f, "{}", self.0),
         }
     }
+}
+
+/// `x`'s CSV text in `buf`; `None` where `{}` writes it as it is (zero, not finite).
+#[inline]
+fn text(x: f64, buf: &mut [u8; MOST]) -> Option<&str> {
+    let n = layout(x, buf)?;
+    // SAFETY: `layout` writes ASCII bytes only (digits, '-', '.', 'e').
+    Some(unsafe { std::str::from_utf8_unchecked(&buf[..n]) })
 }
 
 /// Whether `x` is written out in full rather than with an exponent.
@@ -64,7 +70,7 @@ fn layout(x: f64, buf: &mut [u8; MOST]) -> Option<usize> {
     let text = ryu.format_finite(x).as_bytes();
     // Most numbers: ryu writes 1e-5 <= |x| < 1e16 in full as `{}` does, but for the `.0` of a
     // whole number, unless it lies on a tie (below), which the general path sees to.
-    if (1e-5..1e16).contains(&x.abs()) && text.len() <= MOST {
+    if (1e-5..1e16).contains(&x.abs()) {
         let point = text.iter().position(|&b| b == b'.').unwrap_or(text.len());
         let fraction = &text[(point + 1).min(text.len())..];
         let whole = fraction == b"0";

@@ -30,6 +30,13 @@ use std::path::{Component, Path, PathBuf};
 
 use crate::error::Error;
 
+/// The ASCII bytes `str::split_whitespace` splits text at (an ASCII character is white space
+/// exactly when it is one of these six): what the readers of ASCII text split tokens at.
+#[inline(always)]
+pub(crate) fn is_space(b: u8) -> bool {
+    matches!(b, b' ' | b'\n' | b'\t' | b'\r' | 0x0b | 0x0c)
+}
+
 /// What kind of file `file_type` is, for "not a regular file" messages.
 fn kind_of(file_type: FileType) -> &'static str {
     #[cfg(unix)]

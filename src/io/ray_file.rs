@@ -143,11 +143,10 @@ fn parse_line(
         Ok(())
     };
     if content.is_ascii() {
-        // The same tokens as `split_whitespace` (an ASCII character is white space exactly
-        // when it is one of these six), without decoding characters: that decoding was half
-        // of a ray file's parse.
-        let white = |b: &u8| matches!(b, b'\t' | b'\n' | b'\x0B' | b'\x0C' | b'\r' | b' ');
-        for token in content.as_bytes().split(white).filter(|t| !t.is_empty()) {
+        // The same tokens as `split_whitespace`, without decoding characters: that decoding
+        // was a third of a ray file's parse.
+        let tokens = content.as_bytes().split(|&b| super::is_space(b));
+        for token in tokens.filter(|t| !t.is_empty()) {
             // SAFETY: a run of ASCII bytes is UTF-8.
             push(unsafe { std::str::from_utf8_unchecked(token) })?;
         }
