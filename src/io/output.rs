@@ -105,54 +105,74 @@ impl AnswerWriter {
         })
     }
 
-    /// Writes the answers of the next rays.
+    /// Writes the answers of the next rays. Their text is made on all cores, a window of
+    /// about [`WINDOW_ROWS`] rows at a time, and written in order.
     pub fn write(
         &mut self,
         out: &mut (impl Write + ?Sized),
         answers: &Answers,
     ) -> std::io::Result<()> {
+        use rayon::prelude::*;
+        let pieces = pieces(answers);
+        let mut texts = Vec::new();
+        for window in pieces.chunks(WINDOW_ROWS / PIECE_ROWS) {
+            window
+                .par_iter()
+                .map(|range| self.text(answers, range.clone()))
+                .collect_into_vec(&mut texts);
+            for text in &texts {
+                out.write_all(text.as_bytes())?;
+            }
+        }
+        self.rays_written += answers.nearest.len();
+        Ok(())
+    }
+
+    /// The CSV rows or JSON records of the rays at `range` of `answers`.
+    fn text(&self, answers: &Answers, range: std::ops::Range<usize>) -> String {
+        use std::fmt::Write;
         let options = self.options;
         let all = options.mode == Mode::All;
-        // CSV rows are made in `text` and written a block at a time.
-        let mut text = String::new();
-        for (k, nearest) in answers.nearest.iter().enumerate() {
+        // About what a hit's CSV row takes.
+        let mut text = String::with_capacity(range.len() * 256);
+        for k in range {
+            let nearest = &answers.nearest[k];
             let i = self.rays_written + k;
             let hits = answers.hits_of(k);
             let overflow = answers.overflow.get(k).copied().unwrap_or(false);
-            let flags = (nearest.invalid, overflow);
             match options.format {
-                Format::Csv => {
-                    csv_rows(&mut text, i, hits, all, options.cells, flags);
-                    if text.len() >= CSV_BLOCK {
-                        out.write_all(text.as_bytes())?;
-                        text.clear();
-                    }
-                }
+                Format::Csv => csv_rows(
+                    &mut text,
+                    i,
+                    hits,
+                    all,
+                    options.cells,
+                    (nearest.invalid, overflow),
+                ),
                 Format::Json => {
                     let sep = if i == 0 { "\n" } else { ",\n" };
-                    let record = if all {
+                    let _ = if all {
                         let hits: Vec<String> = hits.iter().map(json_hit).collect();
-                        format!(
-                            "{{\"ray\":{i},\"invalid\":{},\"overflow\":{},\"hits\":[{}]}}",
+                        write!(
+                            text,
+                            "{sep}  {{\"ray\":{i},\"invalid\":{},\"overflow\":{},\"hits\":[{}]}}",
                             nearest.invalid,
                             overflow,
                             hits.join(",")
                         )
                     } else if nearest.hit {
-                        format!("{{\"ray\":{i},{}", &json_hit(nearest)[1..])
+                        write!(text, "{sep}  {{\"ray\":{i},{}", &json_hit(nearest)[1..])
                     } else {
-                        format!(
-                            "{{\"ray\":{i},\"hit\":false,\"invalid\":{}}}",
+                        write!(
+                            text,
+                            "{sep}  {{\"ray\":{i},\"hit\":false,\"invalid\":{}}}",
                             nearest.invalid
                         )
                     };
-                    write!(out, "{sep}  {record}")?;
                 }
             }
         }
-        out.write_all(text.as_bytes())?;
-        self.rays_written += answers.nearest.len();
-        Ok(())
+        text
     }
 
     /// Closes the JSON array.
@@ -164,8 +184,36 @@ impl AnswerWriter {
     }
 }
 
-/// Bytes of CSV rows made before they are written.
-const CSV_BLOCK: usize = 1 << 16;
+/// Rows (hits, or a ray's one row without any) that one piece of work writes out as text.
+const PIECE_ROWS: usize = 2048;
+
+/// Rows made into text before they are written: their text is what the writer holds (CSV rows
+/// take up to about 350 bytes).
+pub const WINDOW_ROWS: usize = 1 << 15;
+
+/// `answers`' rays in ranges of about [`PIECE_ROWS`] rows (at least one ray each).
+fn pieces(answers: &Answers) -> Vec<std::ops::Range<usize>> {
+    let n = answers.nearest.len();
+    if answers.list_start.is_empty() {
+        return (0..n)
+            .step_by(PIECE_ROWS)
+            .map(|s| s..(s + PIECE_ROWS).min(n))
+            .collect();
+    }
+    let mut pieces = Vec::new();
+    let (mut start, mut rows) = (0, 0);
+    for k in 0..n {
+        rows += answers.hits_of(k).len().max(1);
+        if rows >= PIECE_ROWS {
+            pieces.push(start..k + 1);
+            (start, rows) = (k + 1, 0);
+        }
+    }
+    if start < n {
+        pieces.push(start..n);
+    }
+    pieces
+}
 
 /// Appends ray `i`'s CSV rows to `text`: one per hit of `hits` (with its rank when `all`), or a
 /// row with `hit` 0 and empty fields when there is none; `row,col` when `cells`; the `invalid`

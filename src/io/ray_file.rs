@@ -34,12 +34,7 @@ pub struct RayLine {
 /// A line with fewer than 6 or more than 7 numbers, or with a token that is
 /// not a number, is an [`Error::Parse`] naming `path` and the 1-based line.
 pub fn parse_rays(path: &str, text: &str) -> Result<Vec<RayLine>, Error> {
-    let lines = parse_number_lines(
-        path,
-        text,
-        &[6, 7],
-        "6 or 7 numbers (ox oy oz dx dy dz [tmax])",
-    )?;
+    let lines = parse_number_lines(path, text, &[6, 7], RAY_NUMBERS)?;
     Ok(lines
         .iter()
         .map(|(_, v)| RayLine {
@@ -122,6 +117,9 @@ fn parse_line(
     counts: &[usize],
     expected: &str,
 ) -> Result<Option<Numbers>, Error> {
+    if let Some(numbers) = plain_line(raw.as_bytes(), counts) {
+        return Ok(numbers);
+    }
     let error = |message: String| Error::Parse {
         path: path.to_owned(),
         line: Some(number),
@@ -162,6 +160,49 @@ fn parse_line(
         return Err(error(format!("expected {expected}, found {}", numbers.len)));
     }
     Ok(Some(numbers))
+}
+
+/// The numbers of a line whose tokens are all finite numbers that `fast-float2` reads whole,
+/// separated by ASCII white space, as many as one of `counts` (`Some(None)` for a blank or
+/// comment line); `None` sends the line to [`parse_line`]'s own reading, which reads every
+/// such token as the same number (`str::parse` and `fast-float2` both round correctly, and
+/// accept the same finite decimals: `fast_lines_read_what_str_parse_reads`) and says what is
+/// wrong with the rest.
+#[inline]
+fn plain_line(line: &[u8], counts: &[usize]) -> Option<Option<Numbers>> {
+    let mut numbers = Numbers {
+        values: [0.0; Numbers::MOST],
+        len: 0,
+    };
+    let ends = |b: u8| super::is_space(b) || b == b'#';
+    let mut p = 0;
+    loop {
+        while line.get(p).copied().is_some_and(super::is_space) {
+            p += 1;
+        }
+        if p == line.len() {
+            break;
+        }
+        if line[p] == b'#' {
+            // A comment's text must be UTF-8 too (else the line's error says it is not).
+            if std::str::from_utf8(&line[p..]).is_err() {
+                return None;
+            }
+            break;
+        }
+        let (value, used) = fast_float2::parse_partial::<f64, _>(&line[p..]).ok()?;
+        p += used;
+        if used == 0 || !value.is_finite() || !line.get(p).is_none_or(|&b| ends(b)) {
+            return None;
+        }
+        *numbers.values.get_mut(numbers.len)? = value;
+        numbers.len += 1;
+    }
+    match numbers.len {
+        0 => Some(None),
+        n if counts.contains(&n) => Some(Some(numbers)),
+        _ => None,
+    }
 }
 
 /// Reads and parses the ray file at `path` (see [`parse_rays`]).
@@ -283,7 +324,8 @@ pub(crate) fn read_text_within(
 pub const MAX_LINE_BYTES: usize = 1 << 20;
 
 /// Reads a ray file a chunk of rays at a time, so memory stays bounded whatever the number of
-/// rays: the reader holds one line, the caller one chunk.
+/// rays: the reader holds the lines of one block (about [`BLOCK_BYTES`], and at most one line
+/// more), the caller one chunk. A block's lines are parsed on all cores.
 ///
 /// It reads the format of [`parse_rays`], with the same errors (file, 1-based line, message),
 /// found in file order: an error on a later line is only reported when the reading gets there,
@@ -307,10 +349,23 @@ pub struct RayReader<R> {
     reader: R,
     /// Lines read so far (the number of the last line read).
     line: usize,
+    /// The bytes of the lines read and not yet parsed, one after another.
     buf: Vec<u8>,
+    /// Where each of those lines lies in `buf` (after a byte-order mark on line 1).
+    spans: Vec<(usize, usize)>,
     /// Set after the end of the input, or after an error (which ends the reading).
     done: bool,
 }
+
+/// The bytes of lines a [`RayReader`] reads before it parses them (it reads on to the end of
+/// the line that crosses this).
+pub const BLOCK_BYTES: usize = 8 << 20;
+
+/// Lines parsed as one piece of work: a block of fewer is parsed on the calling thread.
+const PIECE_LINES: usize = 4096;
+
+/// What a ray line must hold, as the errors say it.
+const RAY_NUMBERS: &str = "6 or 7 numbers (ox oy oz dx dy dz [tmax])";
 
 impl RayReader<std::io::BufReader<std::fs::File>> {
     /// Opens the ray file at `path` (a regular file, or a pipe such as `/dev/stdin`; a folder
@@ -344,6 +399,7 @@ impl<R: std::io::BufRead> RayReader<R> {
             reader,
             line: 0,
             buf: Vec::new(),
+            spans: Vec::new(),
             done: false,
         }
     }
@@ -355,39 +411,9 @@ impl<R: std::io::BufRead> RayReader<R> {
 
     /// The next ray, or `None` at the end of the file.
     pub fn next_ray(&mut self) -> Result<Option<RayLine>, Error> {
-        const EXPECTED: &str = "6 or 7 numbers (ox oy oz dx dy dz [tmax])";
-        while !self.done {
-            let result = self.next_line().and_then(|read| match read {
-                None => Ok(None),
-                Some(start) => match std::str::from_utf8(&self.buf[start..]) {
-                    Ok(text) => {
-                        parse_line(&self.name, self.line, text, &[6, 7], EXPECTED).map(Some)
-                    }
-                    Err(_) => Err(Error::Parse {
-                        path: self.name.clone(),
-                        line: Some(self.line),
-                        message: "the file is not valid UTF-8 text".to_owned(),
-                    }),
-                },
-            });
-            match result {
-                Ok(None) => self.done = true,
-                Ok(Some(None)) => {} // a blank or comment line
-                Ok(Some(Some(numbers))) => {
-                    let v = numbers.values();
-                    return Ok(Some(RayLine {
-                        origin: DVec3::new(v[0], v[1], v[2]),
-                        dir: DVec3::new(v[3], v[4], v[5]),
-                        tmax: v.get(6).copied(),
-                    }));
-                }
-                Err(e) => {
-                    self.done = true;
-                    return Err(e);
-                }
-            }
-        }
-        Ok(None)
+        let mut one = Vec::with_capacity(1);
+        self.read_chunk(&mut one, 1)?;
+        Ok(one.pop())
     }
 
     /// The next at most `max` rays (at least 1); an empty vector at the end of the file.
@@ -399,14 +425,37 @@ impl<R: std::io::BufRead> RayReader<R> {
 
     /// Replaces the content of `chunk` with the next at most `max` rays (at least 1), reusing
     /// its memory; returns how many were read (0 at the end of the file). On an error, `chunk`
-    /// holds the rays read before it.
+    /// holds the rays read before it. The reading stops at the line of the last ray returned.
     pub fn read_chunk(&mut self, chunk: &mut Vec<RayLine>, max: usize) -> Result<usize, Error> {
         chunk.clear();
         let max = max.max(1);
-        while chunk.len() < max {
-            match self.next_ray()? {
-                Some(ray) => chunk.push(ray),
-                None => break,
+        while chunk.len() < max && !self.done {
+            // At most one line for each ray still wanted (a line gives at most one), so the
+            // reading never passes the last ray returned; and about a block's bytes.
+            self.buf.clear();
+            self.spans.clear();
+            let mut failure = None;
+            while self.spans.len() < max - chunk.len() && self.buf.len() < BLOCK_BYTES {
+                match self.next_line() {
+                    Ok(Some(span)) => self.spans.push(span),
+                    Ok(None) => {
+                        self.done = true;
+                        break;
+                    }
+                    Err(e) => {
+                        failure = Some(e);
+                        break;
+                    }
+                }
+            }
+            let first = self.line + 1 - self.spans.len();
+            // An error on one of the lines read comes before the one that stopped the reading.
+            if let Err(e) = parse_lines(&self.name, &self.buf, &self.spans, first, chunk) {
+                failure = Some(e);
+            }
+            if let Some(e) = failure {
+                self.done = true;
+                return Err(e);
             }
         }
         Ok(chunk.len())
@@ -414,17 +463,19 @@ impl<R: std::io::BufRead> RayReader<R> {
 
     /// Reads the rest of the file, checking every line, and returns how many rays it holds.
     pub fn count_rest(&mut self) -> Result<u64, Error> {
-        let mut count = 0;
-        while self.next_ray()?.is_some() {
-            count += 1;
+        let (mut chunk, mut count) = (Vec::new(), 0);
+        loop {
+            match self.read_chunk(&mut chunk, 1 << 16)? {
+                0 => return Ok(count),
+                n => count += n as u64,
+            }
         }
-        Ok(count)
     }
 
-    /// Reads the next line into `buf` and returns where its text starts (after a byte-order
-    /// mark on line 1), or `None` at the end.
-    fn next_line(&mut self) -> Result<Option<usize>, Error> {
-        self.buf.clear();
+    /// Reads the next line onto the end of `buf` and returns where its text lies there (after
+    /// a byte-order mark on line 1), or `None` at the end.
+    fn next_line(&mut self) -> Result<Option<(usize, usize)>, Error> {
+        let start = self.buf.len();
         let io = |source| Error::Io {
             path: self.name.clone(),
             source,
@@ -436,18 +487,18 @@ impl<R: std::io::BufRead> RayReader<R> {
                 Err(e) => return Err(io(e)),
             };
             if available.is_empty() {
-                if self.buf.is_empty() {
+                if self.buf.len() == start {
                     return Ok(None);
                 }
                 break;
             }
-            let (take, complete) = match available.iter().position(|&b| b == b'\n') {
+            let (take, complete) = match memchr::memchr(b'\n', available) {
                 Some(i) => (i + 1, true),
                 None => (available.len(), false),
             };
             self.buf.extend_from_slice(&available[..take]);
             self.reader.consume(take);
-            if self.buf.len() > MAX_LINE_BYTES + 1 {
+            if self.buf.len() - start > MAX_LINE_BYTES + 1 {
                 return Err(Error::Parse {
                     path: self.name.clone(),
                     line: Some(self.line + 1),
@@ -462,9 +513,91 @@ impl<R: std::io::BufRead> RayReader<R> {
             }
         }
         self.line += 1;
-        let bom = self.line == 1 && self.buf.starts_with(b"\xEF\xBB\xBF");
-        Ok(Some(if bom { 3 } else { 0 }))
+        let bom = self.line == 1 && self.buf[start..].starts_with(b"\xEF\xBB\xBF");
+        Ok(Some((if bom { start + 3 } else { start }, self.buf.len())))
     }
+}
+
+/// Parses the lines at `spans` of `buf`, numbered from `first`, onto the end of `chunk`: their
+/// rays in order, up to the first error, which is returned. Pieces of [`PIECE_LINES`] lines
+/// are parsed in parallel, each into its own stretch of `chunk`, then closed up.
+fn parse_lines(
+    name: &str,
+    buf: &[u8],
+    spans: &[(usize, usize)],
+    first: usize,
+    chunk: &mut Vec<RayLine>,
+) -> Result<(), Error> {
+    use rayon::prelude::*;
+    let parse = |line: usize, (start, end): (usize, usize)| -> Result<Option<RayLine>, Error> {
+        let bytes = &buf[start..end];
+        // A plain line is ASCII but for a comment it checks: valid UTF-8.
+        let numbers = match plain_line(bytes, &[6, 7]) {
+            Some(numbers) => numbers,
+            None => {
+                let text = std::str::from_utf8(bytes).map_err(|_| Error::Parse {
+                    path: name.to_owned(),
+                    line: Some(line),
+                    message: "the file is not valid UTF-8 text".to_owned(),
+                })?;
+                parse_line(name, line, text, &[6, 7], RAY_NUMBERS)?
+            }
+        };
+        Ok(numbers.map(|numbers| {
+            let v = numbers.values();
+            RayLine {
+                origin: DVec3::new(v[0], v[1], v[2]),
+                dir: DVec3::new(v[3], v[4], v[5]),
+                tmax: v.get(6).copied(),
+            }
+        }))
+    };
+    // Piece `p`'s rays into `slots`: how many, and the error that ended it.
+    let piece = |p: usize, slots: &mut [RayLine], spans: &[(usize, usize)]| {
+        let mut n = 0;
+        for (k, &span) in spans.iter().enumerate() {
+            match parse(first + p * PIECE_LINES + k, span) {
+                Ok(Some(ray)) => {
+                    slots[n] = ray;
+                    n += 1;
+                }
+                Ok(None) => {}
+                Err(e) => return (n, Some(e)),
+            }
+        }
+        (n, None)
+    };
+    let base = chunk.len();
+    let blank = RayLine {
+        origin: DVec3::ZERO,
+        dir: DVec3::ZERO,
+        tmax: None,
+    };
+    chunk.resize(base + spans.len(), blank);
+    let pieces: Vec<(usize, Option<Error>)> = if spans.len() <= PIECE_LINES {
+        vec![piece(0, &mut chunk[base..], spans)]
+    } else {
+        chunk[base..]
+            .par_chunks_mut(PIECE_LINES)
+            .zip(spans.par_chunks(PIECE_LINES))
+            .enumerate()
+            .map(|(p, (slots, spans))| piece(p, slots, spans))
+            .collect()
+    };
+    let mut len = base;
+    for (p, (n, error)) in pieces.into_iter().enumerate() {
+        let from = base + p * PIECE_LINES;
+        if from != len {
+            chunk.copy_within(from..from + n, len);
+        }
+        len += n;
+        if let Some(e) = error {
+            chunk.truncate(len);
+            return Err(e);
+        }
+    }
+    chunk.truncate(len);
+    Ok(())
 }
 
 /// Checks every line of the ray file at `path` and returns how many rays it holds, holding one
@@ -583,6 +716,73 @@ mod tests {
         );
     }
 
+    /// Every token of up to six characters from digits, points, exponents, signs and a
+    /// letter, alone on a line or between numbers: the fast reading takes a line only where
+    /// `str::parse` reads each token as the same bits.
+    #[test]
+    fn fast_lines_read_what_str_parse_reads() {
+        const ALPHABET: &[u8] = b"09.eE+-n";
+        let mut token = Vec::new();
+        let mut checked = 0usize;
+        for len in 1..=6u32 {
+            for mut code in 0..ALPHABET.len().pow(len) {
+                token.clear();
+                for _ in 0..len {
+                    token.push(ALPHABET[code % ALPHABET.len()]);
+                    code /= ALPHABET.len();
+                }
+                for line in [
+                    token.clone(),
+                    [b"1 ".as_slice(), &token, b"\t2\r\n"].concat(),
+                ] {
+                    let Some(fast) = plain_line(&line, &[1, 3]) else {
+                        continue;
+                    };
+                    let text = std::str::from_utf8(&line).unwrap();
+                    let expected: Vec<f64> = text
+                        .split_whitespace()
+                        .map(|t| t.parse::<f64>().unwrap_or_else(|_| panic!("{text:?}")))
+                        .collect();
+                    let got = fast.map_or(Vec::new(), |n| n.values().to_vec());
+                    assert_eq!(got.len(), expected.len(), "{text:?}");
+                    for (a, b) in got.iter().zip(&expected) {
+                        assert_eq!(a.to_bits(), b.to_bits(), "{text:?}");
+                    }
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > 5_000, "{checked}");
+        // Long and extreme decimals: the same bits.
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        for _ in 0..200_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let digits = format!("{}{:019}", x % 1000, x >> 3);
+            let exponent = (x % 700) as i64 - 350;
+            let (point, sign) = (
+                (x >> 40) as usize % digits.len(),
+                ["", "-", "+"][(x >> 50) as usize % 3],
+            );
+            for text in [
+                format!("{sign}{}.{}e{exponent}", &digits[..point], &digits[point..]),
+                format!("{sign}{digits}"),
+                format!("{sign}0.{digits}"),
+            ] {
+                let line = format!("{text} {text} {text}");
+                let expected = text.parse::<f64>().unwrap();
+                match plain_line(line.as_bytes(), &[3]) {
+                    Some(Some(n)) => assert!(
+                        n.values().iter().all(|v| v.to_bits() == expected.to_bits()),
+                        "{text}"
+                    ),
+                    other => assert!(!expected.is_finite(), "{text}: {}", other.is_some()),
+                }
+            }
+        }
+    }
+
     #[test]
     fn nan_and_inf_are_accepted() {
         let rays = parse_rays(
@@ -672,6 +872,12 @@ mod tests {
     fn streaming_names_the_line_of_bad_utf8_and_of_overlong_lines() {
         let e = streamed(b"0 0 0 1 0 0\n0 0 0 1 0 0 \xff\n", 1).unwrap_err();
         assert_eq!(e.to_string(), "r.txt:2: the file is not valid UTF-8 text");
+        let e = streamed(b"0 0 0 1 0 0 # \xc3\n", 1).unwrap_err();
+        assert_eq!(e.to_string(), "r.txt:1: the file is not valid UTF-8 text");
+        assert_eq!(
+            streamed("0 0 0 1 0 0 # é\n".as_bytes(), 1).unwrap().len(),
+            1
+        );
         let mut long = b"0 0 0 1 0 0\n".to_vec();
         long.extend(std::iter::repeat_n(b' ', MAX_LINE_BYTES + 10));
         long.extend(b"\n0 0 0 1 0 0\n");
