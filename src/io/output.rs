@@ -82,6 +82,8 @@ pub fn write_answers(
 pub struct AnswerWriter {
     options: OutputOptions,
     rays_written: usize,
+    /// The text of each piece of a window, kept for the next.
+    texts: Vec<String>,
 }
 
 impl AnswerWriter {
@@ -102,6 +104,7 @@ impl AnswerWriter {
         Ok(Self {
             options,
             rays_written: 0,
+            texts: Vec::new(),
         })
     }
 
@@ -114,27 +117,31 @@ impl AnswerWriter {
     ) -> std::io::Result<()> {
         use rayon::prelude::*;
         let pieces = pieces(answers);
-        let mut texts = Vec::new();
-        for window in pieces.chunks(WINDOW_ROWS / PIECE_ROWS) {
-            window
-                .par_iter()
-                .map(|range| self.text(answers, range.clone()))
-                .collect_into_vec(&mut texts);
-            for text in &texts {
+        let window = WINDOW_ROWS / PIECE_ROWS;
+        // Each piece's text is made in a buffer kept from one window to the next (fresh memory
+        // for every piece cost more than the text).
+        let mut texts = std::mem::take(&mut self.texts);
+        texts.resize_with(window.min(pieces.len()), String::new);
+        for ranges in pieces.chunks(window) {
+            texts
+                .par_iter_mut()
+                .zip(ranges)
+                .for_each(|(text, range)| self.text(text, answers, range.clone()));
+            for text in &texts[..ranges.len()] {
                 out.write_all(text.as_bytes())?;
             }
         }
+        self.texts = texts;
         self.rays_written += answers.nearest.len();
         Ok(())
     }
 
-    /// The CSV rows or JSON records of the rays at `range` of `answers`.
-    fn text(&self, answers: &Answers, range: std::ops::Range<usize>) -> String {
+    /// Replaces `text` with the CSV rows or JSON records of the rays at `range` of `answers`.
+    fn text(&self, text: &mut String, answers: &Answers, range: std::ops::Range<usize>) {
         use std::fmt::Write;
         let options = self.options;
         let all = options.mode == Mode::All;
-        // About what a hit's CSV row takes.
-        let mut text = String::with_capacity(range.len() * 256);
+        text.clear();
         for k in range {
             let nearest = &answers.nearest[k];
             let i = self.rays_written + k;
@@ -142,7 +149,7 @@ impl AnswerWriter {
             let overflow = answers.overflow.get(k).copied().unwrap_or(false);
             match options.format {
                 Format::Csv => csv_rows(
-                    &mut text,
+                    text,
                     i,
                     hits,
                     all,
@@ -172,7 +179,6 @@ impl AnswerWriter {
                 }
             }
         }
-        text
     }
 
     /// Closes the JSON array.
@@ -360,6 +366,65 @@ mod tests {
             list_start: vec![0, 2, 2, 2, 3],
             overflow: vec![false, false, false, true],
             nearest,
+        }
+    }
+
+    /// A batch of many pieces and windows (rays with 0 to 3 hits each in all-hits mode) is
+    /// written as the rays' rows made one after another on one thread, in every format and
+    /// mode, whole or in two chunks.
+    #[test]
+    fn pieces_made_in_parallel_are_the_rows_made_in_order() {
+        let n = 3 * WINDOW_ROWS + 123;
+        let hit = |k: usize, r: usize| Hit {
+            hit: true,
+            t: k as f64 + r as f64 / 8.0,
+            object: (k % 5) as u32,
+            triangle: k as u32,
+            position: DVec3::new(k as f64 * 0.1, 1e-9 * r as f64, 3e20),
+            normal: DVec3::Z,
+            ..Hit::MISS
+        };
+        let mut all = Answers {
+            list_start: vec![0],
+            ..Answers::default()
+        };
+        for k in 0..n {
+            let count = k % 4;
+            all.lists.extend((0..count).map(|r| hit(k, r)));
+            all.list_start.push(all.lists.len());
+            all.overflow.push(k % 7 == 0);
+            all.nearest
+                .push(if count > 0 { hit(k, 0) } else { Hit::MISS });
+        }
+        let nearest = Answers {
+            nearest: all.nearest.clone(),
+            ..Answers::default()
+        };
+        for format in [Format::Csv, Format::Json] {
+            for (mode, answers) in [(Mode::Closest, &nearest), (Mode::All, &all)] {
+                let options = OutputOptions {
+                    format,
+                    mode,
+                    cells: false,
+                };
+                let mut expected = Vec::new();
+                let writer = AnswerWriter::begin(&mut expected, options).unwrap();
+                let mut text = String::new();
+                writer.text(&mut text, answers, 0..n);
+                expected.extend_from_slice(text.as_bytes());
+                writer.finish(&mut expected).unwrap();
+                let mut whole = Vec::new();
+                write_answers(&mut whole, answers, &options).unwrap();
+                assert!(whole == expected, "{format:?} {mode:?}");
+                let mut chunked = Vec::new();
+                let mut writer = AnswerWriter::begin(&mut chunked, options).unwrap();
+                for range in [0..n / 3, n / 3..n] {
+                    let idx: Vec<usize> = range.collect();
+                    writer.write(&mut chunked, &answers.subset(&idx)).unwrap();
+                }
+                writer.finish(&mut chunked).unwrap();
+                assert!(chunked == expected, "{format:?} {mode:?} in chunks");
+            }
         }
     }
 
