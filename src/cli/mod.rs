@@ -34,7 +34,7 @@ pub mod threads;
 pub mod verify;
 
 use raypick::io::output::Format;
-use raypick::io::ray_file::load_rays;
+use raypick::io::ray_file::load_rays_as;
 use raypick::{Backend, BuiltScene, Error, Picker, Query, Ray};
 use std::io::Write;
 use std::path::Path;
@@ -100,14 +100,11 @@ pub fn show_notes(picker: &mut dyn Picker) {
 
 /// Reads a ray file; rays get `tmin`, `mask`, and `tmax` unless the line gives one.
 pub fn read_rays(path: &Path, tmin: f64, tmax: f64, mask: u32) -> Result<Vec<Ray>, Error> {
-    Ok(load_rays(path)?
-        .into_iter()
-        .map(|r| {
-            Ray::new(r.origin, r.dir)
-                .with_range(tmin, r.tmax.unwrap_or(tmax))
-                .with_mask(mask)
-        })
-        .collect())
+    load_rays_as(path, |r| {
+        Ray::new(r.origin, r.dir)
+            .with_range(tmin, r.tmax.unwrap_or(tmax))
+            .with_mask(mask)
+    })
 }
 
 /// Whether `path`'s extension is `extension` (ASCII case ignored).

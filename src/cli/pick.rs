@@ -52,10 +52,17 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let built = Arc::new(args.scene.build_instanced(matches, false)?.0);
     // A large ray file is read in chunks while answers are written (memory bounded whatever its
     // length); it is first checked whole, line by line in constant memory, so that a bad line is
-    // reported before any output. A small one is read whole and parsed once, before any output
-    // too. Camera pixels and the default camera grid are small.
+    // reported before any output. One whose rays surely fit (a regular file of at most
+    // `WHOLE_RAY_FILE` bytes, its most rays within a quarter of the memory budget) is read
+    // whole and parsed once, before any output too. Camera pixels and the default camera grid
+    // are small.
     let small_file = args.rays.as_ref().filter(|path| {
-        std::fs::metadata(path).is_ok_and(|m| m.is_file() && m.len() <= SMALL_RAY_FILE)
+        std::fs::metadata(path).is_ok_and(|m| {
+            let most_rays = m.len() / MIN_RAY_LINE + 1;
+            m.is_file()
+                && m.len() <= WHOLE_RAY_FILE
+                && most_rays * size_of::<Ray>() as u64 <= raypick::budget::limit() / 4
+        })
     });
     let rays: Vec<Ray> = match (&args.rays, &args.camera, &args.pixels) {
         (Some(_), _, _) => match small_file {
@@ -110,8 +117,10 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let (mut invalid, mut answered, mut hit) = (0, 0u64, 0u64);
     let mut failure = None;
     // Large batches stream: answers are written chunk by chunk, so memory stays bounded. In
-    // all-hits mode the chunk shrinks so that its lists fit the memory budget.
-    let chunk = stream_chunk_rays(&query);
+    // all-hits mode the chunk shrinks so that its lists fit the memory budget. Chunks stay
+    // small enough to keep a pick of millions of rays in a few hundred MB (a chunk's rays,
+    // scene-frame rays and answers).
+    let chunk = stream_chunk_rays(&query).min(1 << 18);
     let total = match &reader {
         Some((_, total)) => total.unwrap_or(0),
         None => rays.len() as u64,
@@ -134,9 +143,6 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         let result = match reader.as_mut() {
             Some((reader, _)) => {
                 let (mut lines, mut batch) = (Vec::new(), Vec::new());
-                // Ray-file chunks stay small enough to keep a pick of millions of rays in
-                // a few hundred MB (a chunk's rays, scene-frame rays and answers).
-                let chunk = chunk.min(1 << 18);
                 (|| {
                     while reader.read_chunk(&mut lines, chunk)? > 0 {
                         batch.clear();
@@ -184,9 +190,12 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Ray files of at most this many bytes are read whole (at most 87,382 rays: a ray line takes
-/// at least 12 bytes); larger ones are checked line by line, then streamed in chunks.
-const SMALL_RAY_FILE: u64 = 1 << 20;
+/// Ray files of at most this many bytes may be read whole (at most 16.8M rays, 1.2 GB of them);
+/// larger ones are checked line by line, then streamed in chunks.
+const WHOLE_RAY_FILE: u64 = 192 << 20;
+
+/// The fewest bytes a ray line takes (`0 0 0 1 0 0` and its line break).
+const MIN_RAY_LINE: u64 = 12;
 
 /// Rays per side of the default camera grid.
 const GRID_SIDE: u32 = 8;

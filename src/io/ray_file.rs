@@ -205,10 +205,31 @@ fn plain_line(line: &[u8], counts: &[usize]) -> Option<Option<Numbers>> {
     }
 }
 
-/// Reads and parses the ray file at `path` (see [`parse_rays`]).
+/// Reads and parses the ray file at `path` (see [`parse_rays`]; read as [`RayReader`] reads,
+/// a block at a time on all cores).
 pub fn load_rays(path: &Path) -> Result<Vec<RayLine>, Error> {
-    let name = path.display().to_string();
-    parse_rays(&name, &read_text(path)?)
+    load_rays_as(path, |ray| *ray)
+}
+
+/// [`load_rays`], each ray made into what `make` makes of it as it is read (the file's rays
+/// are never all held twice). What they take is checked against the memory budget as they
+/// come.
+pub fn load_rays_as<T: Send>(
+    path: &Path,
+    make: impl Fn(&RayLine) -> T + Sync,
+) -> Result<Vec<T>, Error> {
+    use rayon::prelude::*;
+    let mut reader = RayReader::open(path)?;
+    let (mut all, mut chunk) = (Vec::new(), Vec::new());
+    while reader.read_chunk(&mut chunk, 1 << 18)? > 0 {
+        crate::budget::check(
+            &format!("the rays of {}", path.display()),
+            (all.len() + chunk.len()) as u64,
+            size_of::<T>() as u64,
+        )?;
+        all.par_extend(chunk.par_iter().with_min_len(4096).map(&make));
+    }
+    Ok(all)
 }
 
 /// Reads and parses the point file at `path` (see [`parse_points`]).
