@@ -109,7 +109,7 @@ impl AnswerWriter {
     }
 
     /// Writes the answers of the next rays. Their text is made on all cores, a window of
-    /// about [`WINDOW_ROWS`] rows at a time, and written in order.
+    /// about 32,768 rows at a time, and written in order.
     pub fn write(
         &mut self,
         out: &mut (impl Write + ?Sized),
@@ -195,7 +195,7 @@ const PIECE_ROWS: usize = 2048;
 
 /// Rows made into text before they are written: their text is what the writer holds (CSV rows
 /// take up to about 350 bytes).
-pub const WINDOW_ROWS: usize = 1 << 15;
+const WINDOW_ROWS: usize = 1 << 15;
 
 /// `answers`' rays in ranges of about [`PIECE_ROWS`] rows (at least one ray each).
 fn pieces(answers: &Answers) -> Vec<std::ops::Range<usize>> {

@@ -622,7 +622,7 @@ fn parse_lines(
 }
 
 /// Checks every line of the ray file at `path` and returns how many rays it holds, holding one
-/// line in memory (see [`RayReader`]).
+/// block of lines and their rays in memory (see [`RayReader`]).
 pub fn count_rays(path: &Path) -> Result<u64, Error> {
     RayReader::open(path)?.count_rest()
 }
