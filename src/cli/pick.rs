@@ -2,15 +2,13 @@
 
 use super::query_args::QueryArgs;
 use super::scene_args::SceneArgs;
-use super::{
-    make_picker, output_format, progress, read_rays, show_notes, stream_chunk_rays, write_output,
-};
+use super::{make_picker, output_format, progress, show_notes, stream_chunk_rays, write_output};
 use clap::{ArgMatches, Args};
 use glam::DVec3;
 use raypick::apps::camera::Camera;
 use raypick::io::output::{AnswerWriter, Format, OutputOptions, csv_number};
 use raypick::io::pixel_file::load_pixel_indices_as_centers;
-use raypick::io::ray_file::{RayReader, count_rays};
+use raypick::io::ray_file::{RayLine, RayReader, count_rays, load_ray_chunks};
 use raypick::{Answers, Backend, BuiltScene, Error, Ray};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -61,14 +59,11 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             let most_rays = m.len() / MIN_RAY_LINE + 1;
             m.is_file()
                 && m.len() <= WHOLE_RAY_FILE
-                && most_rays * size_of::<Ray>() as u64 <= raypick::budget::limit() / 4
+                && most_rays * size_of::<RayLine>() as u64 <= raypick::budget::limit() / 4
         })
     });
     let rays: Vec<Ray> = match (&args.rays, &args.camera, &args.pixels) {
-        (Some(_), _, _) => match small_file {
-            Some(path) => read_rays(path, q.tmin, q.tmax, q.ray_mask)?,
-            None => Vec::new(),
-        },
+        (Some(_), _, _) => Vec::new(),
         (None, Some(camera), Some(pixels)) => {
             let camera = Camera::from_json_file(camera)?;
             let pixels_read = load_pixel_indices_as_centers(pixels)?;
@@ -96,16 +91,26 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
                 .collect()
         }
     };
+    // Large batches stream: answers are written chunk by chunk, so memory stays bounded. In
+    // all-hits mode the chunk shrinks so that its lists fit the memory budget. Chunks stay
+    // small enough to keep a pick of millions of rays in a few hundred MB (a chunk's rays,
+    // scene-frame rays and answers).
+    let chunk = stream_chunk_rays(&query).min(RAY_CHUNK);
     let mut reader = match &args.rays {
-        Some(path) if small_file.is_none() => {
+        Some(path) if small_file.is_some() => {
+            let chunks = load_ray_chunks(path, chunk)?;
+            let total = chunks.iter().map(|c| c.len() as u64).sum();
+            Some((RayChunks::Read(chunks.into_iter()), Some(total)))
+        }
+        Some(path) => {
             let total = if std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
                 Some(count_rays(path)?)
             } else {
                 None
             };
-            Some((RayReader::open(path)?, total))
+            Some((RayChunks::Streamed(RayReader::open(path)?), total))
         }
-        _ => None,
+        None => None,
     };
     let options = OutputOptions {
         format: output_format(args.format, args.out.as_deref()),
@@ -116,11 +121,6 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     let mut picker = make_picker(args.backend, built)?;
     let (mut invalid, mut answered, mut hit) = (0, 0u64, 0u64);
     let mut failure = None;
-    // Large batches stream: answers are written chunk by chunk, so memory stays bounded. In
-    // all-hits mode the chunk shrinks so that its lists fit the memory budget. Chunks stay
-    // small enough to keep a pick of millions of rays in a few hundred MB (a chunk's rays,
-    // scene-frame rays and answers).
-    let chunk = stream_chunk_rays(&query).min(1 << 18);
     let total = match &reader {
         Some((_, total)) => total.unwrap_or(0),
         None => rays.len() as u64,
@@ -144,7 +144,7 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             Some((reader, _)) => {
                 let (mut lines, mut batch) = (Vec::new(), Vec::new());
                 (|| {
-                    while reader.read_chunk(&mut lines, chunk)? > 0 {
+                    while reader.next(&mut lines, chunk)? > 0 {
                         batch.clear();
                         batch.extend(lines.iter().map(|r| {
                             Ray::new(r.origin, r.dir)
@@ -190,7 +190,31 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Ray files of at most this many bytes may be read whole (at most 16.8M rays, 1.2 GB of them);
+/// The most rays of a chunk of a ray file, read, answered and written at a time.
+const RAY_CHUNK: usize = 1 << 18;
+
+/// A ray file's rays, chunk by chunk: read whole before (in chunks of the pick's), or read as
+/// they are answered.
+enum RayChunks {
+    Read(std::vec::IntoIter<Vec<RayLine>>),
+    Streamed(RayReader<std::io::BufReader<std::fs::File>>),
+}
+
+impl RayChunks {
+    /// Replaces `lines` with the next at most `max` rays (at least 1; a file read whole comes in
+    /// the chunks it was read in, of the same `max`); how many, 0 at the end.
+    fn next(&mut self, lines: &mut Vec<RayLine>, max: usize) -> Result<usize, Error> {
+        match self {
+            RayChunks::Streamed(reader) => reader.read_chunk(lines, max),
+            RayChunks::Read(chunks) => {
+                *lines = chunks.next().unwrap_or_default();
+                Ok(lines.len())
+            }
+        }
+    }
+}
+
+/// Ray files of at most this many bytes may be read whole (at most 16.8M rays, 1.1 GB of them);
 /// larger ones are checked line by line, then streamed in chunks.
 const WHOLE_RAY_FILE: u64 = 192 << 20;
 
