@@ -211,23 +211,22 @@ pub fn load_rays(path: &Path) -> Result<Vec<RayLine>, Error> {
     load_rays_as(path, |ray| *ray)
 }
 
-/// [`load_rays`], each ray made into what `make` makes of it (the file's rays are never all
-/// held twice: they are read in chunks, [`load_ray_chunks`], and each chunk is made into its
-/// place in the result and dropped).
+/// [`load_rays`], each ray made into what `make` makes of it as it is read (the file's rays
+/// are never all held twice). What they take is checked against the memory budget as they
+/// come.
 pub fn load_rays_as<T: Send>(
     path: &Path,
     make: impl Fn(&RayLine) -> T + Sync,
 ) -> Result<Vec<T>, Error> {
     use rayon::prelude::*;
-    let chunks = load_ray_chunks(path, 1 << 18)?;
-    let total = chunks.iter().map(Vec::len).sum::<usize>();
-    crate::budget::check(
-        &format!("the rays of {}", path.display()),
-        total as u64,
-        size_of::<T>() as u64,
-    )?;
-    let mut all = Vec::with_capacity(total);
-    for chunk in chunks {
+    let mut reader = RayReader::open(path)?;
+    let (mut all, mut chunk) = (Vec::new(), Vec::new());
+    while reader.read_chunk(&mut chunk, 1 << 18)? > 0 {
+        crate::budget::check(
+            &format!("the rays of {}", path.display()),
+            (all.len() + chunk.len()) as u64,
+            size_of::<T>() as u64,
+        )?;
         all.par_extend(chunk.par_iter().with_min_len(4096).map(&make));
     }
     Ok(all)
@@ -239,9 +238,16 @@ pub fn load_rays_as<T: Send>(
 pub fn load_ray_chunks(path: &Path, max: usize) -> Result<Vec<Vec<RayLine>>, Error> {
     let max = max.max(1);
     let mut reader = RayReader::open(path)?;
+    // A regular file holds at most a ray for every 12 bytes (`0 0 0 1 0 0` and a line break).
+    let most = std::fs::metadata(path)
+        .ok()
+        .filter(|m| m.is_file())
+        .map_or(usize::MAX, |m| {
+            usize::try_from(m.len() / 12 + 1).unwrap_or(usize::MAX)
+        });
     let (mut chunks, mut total) = (Vec::new(), 0usize);
     loop {
-        let mut chunk = Vec::with_capacity(max);
+        let mut chunk = Vec::with_capacity(max.min(most.saturating_sub(total).max(1)));
         if reader.read_chunk(&mut chunk, max)? == 0 {
             return Ok(chunks);
         }
