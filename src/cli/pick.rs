@@ -8,7 +8,7 @@ use glam::DVec3;
 use raypick::apps::camera::Camera;
 use raypick::io::output::{AnswerWriter, Format, OutputOptions, csv_number};
 use raypick::io::pixel_file::load_pixel_indices_as_centers;
-use raypick::io::ray_file::{RayLine, RayReader, count_rays, load_ray_chunks};
+use raypick::io::ray_file::{MIN_RAY_LINE, RayLine, RayReader, count_rays, load_ray_chunks};
 use raypick::{Answers, Backend, BuiltScene, Error, Ray};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -54,7 +54,7 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     // `WHOLE_RAY_FILE` bytes, its most rays within a quarter of the memory budget) is read
     // whole and parsed once, before any output too. Camera pixels and the default camera grid
     // are small.
-    let small_file = args.rays.as_ref().filter(|path| {
+    let whole_file = args.rays.as_ref().filter(|path| {
         std::fs::metadata(path).is_ok_and(|m| {
             let most_rays = m.len() / MIN_RAY_LINE + 1;
             m.is_file()
@@ -97,7 +97,7 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     // scene-frame rays and answers).
     let chunk = stream_chunk_rays(&query).min(RAY_CHUNK);
     let mut reader = match &args.rays {
-        Some(path) if small_file.is_some() => {
+        Some(path) if whole_file.is_some() => {
             let chunks = load_ray_chunks(path, chunk)?;
             let total = chunks.iter().map(|c| c.len() as u64).sum();
             Some((RayChunks::Read(chunks.into_iter()), Some(total)))
@@ -217,9 +217,6 @@ impl RayChunks {
 /// Ray files of at most this many bytes may be read whole (at most 16.8M rays, 1.1 GB of them);
 /// larger ones are checked line by line, then streamed in chunks.
 const WHOLE_RAY_FILE: u64 = 192 << 20;
-
-/// The fewest bytes a ray line takes (`0 0 0 1 0 0` and its line break).
-const MIN_RAY_LINE: u64 = 12;
 
 /// Rays per side of the default camera grid.
 const GRID_SIDE: u32 = 8;

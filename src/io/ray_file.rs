@@ -87,7 +87,7 @@ pub(crate) fn parse_number_lines(
     )?;
     let mut lines = Vec::new();
     for (i, raw) in text.lines().enumerate() {
-        if let Some(numbers) = parse_line(path, i + 1, raw, counts, expected)? {
+        if let Some(numbers) = parse_line(path, i + 1, raw.as_bytes(), counts, expected)? {
             lines.push((i + 1, numbers.values().to_vec()));
         }
     }
@@ -109,15 +109,17 @@ impl Numbers {
 }
 
 /// Parses line `number` (1-based) of a number file: `None` when it is blank or a comment,
-/// otherwise its numbers, which must be one of `counts` (each at most [`Numbers::MOST`]).
+/// otherwise its numbers, which must be one of `counts` (each at most [`Numbers::MOST`]). A
+/// line that is not valid UTF-8 is an error.
 fn parse_line(
     path: &str,
     number: usize,
-    raw: &str,
+    raw: &[u8],
     counts: &[usize],
     expected: &str,
 ) -> Result<Option<Numbers>, Error> {
-    if let Some(numbers) = plain_line(raw.as_bytes(), counts) {
+    // A plain line is ASCII but for a comment, which it checks: valid UTF-8.
+    if let Some(numbers) = plain_line(raw, counts) {
         return Ok(numbers);
     }
     let error = |message: String| Error::Parse {
@@ -125,6 +127,8 @@ fn parse_line(
         line: Some(number),
         message,
     };
+    let raw = std::str::from_utf8(raw)
+        .map_err(|_| error("the file is not valid UTF-8 text".to_owned()))?;
     let content = raw.split('#').next().unwrap_or_default();
     let mut numbers = Numbers {
         values: [0.0; Numbers::MOST],
@@ -238,12 +242,11 @@ pub fn load_rays_as<T: Send>(
 pub fn load_ray_chunks(path: &Path, max: usize) -> Result<Vec<Vec<RayLine>>, Error> {
     let max = max.max(1);
     let mut reader = RayReader::open(path)?;
-    // A regular file holds at most a ray for every 12 bytes (`0 0 0 1 0 0` and a line break).
     let most = std::fs::metadata(path)
         .ok()
         .filter(|m| m.is_file())
         .map_or(usize::MAX, |m| {
-            usize::try_from(m.len() / 12 + 1).unwrap_or(usize::MAX)
+            usize::try_from(m.len() / MIN_RAY_LINE + 1).unwrap_or(usize::MAX)
         });
     let (mut chunks, mut total) = (Vec::new(), 0usize);
     loop {
@@ -414,6 +417,10 @@ pub const BLOCK_BYTES: usize = 8 << 20;
 /// Lines parsed as one piece of work: a block of fewer is parsed on the calling thread.
 const PIECE_LINES: usize = 4096;
 
+/// The fewest bytes a ray line takes (`0 0 0 1 0 0` and its line break): a file holds at most
+/// one ray for each.
+pub const MIN_RAY_LINE: u64 = 12;
+
 /// What a ray line must hold, as the errors say it.
 const RAY_NUMBERS: &str = "6 or 7 numbers (ox oy oz dx dy dz [tmax])";
 
@@ -580,19 +587,7 @@ fn parse_lines(
 ) -> Result<(), Error> {
     use rayon::prelude::*;
     let parse = |line: usize, (start, end): (usize, usize)| -> Result<Option<RayLine>, Error> {
-        let bytes = &buf[start..end];
-        // A plain line is ASCII but for a comment it checks: valid UTF-8.
-        let numbers = match plain_line(bytes, &[6, 7]) {
-            Some(numbers) => numbers,
-            None => {
-                let text = std::str::from_utf8(bytes).map_err(|_| Error::Parse {
-                    path: name.to_owned(),
-                    line: Some(line),
-                    message: "the file is not valid UTF-8 text".to_owned(),
-                })?;
-                parse_line(name, line, text, &[6, 7], RAY_NUMBERS)?
-            }
-        };
+        let numbers = parse_line(name, line, &buf[start..end], &[6, 7], RAY_NUMBERS)?;
         Ok(numbers.map(|numbers| {
             let v = numbers.values();
             RayLine {
@@ -747,7 +742,7 @@ mod tests {
             let c = b as char;
             let line = format!("{c}1{c}2{c}3{c}4{c}5{c}6{c}");
             let by_chars: Vec<&str> = line.split_whitespace().collect();
-            let parsed = parse_line("rays.txt", 1, &line, &[6, 7], "6 or 7 numbers");
+            let parsed = parse_line("rays.txt", 1, line.as_bytes(), &[6, 7], "6 or 7 numbers");
             match parsed {
                 Ok(Some(numbers)) => {
                     assert_eq!(by_chars.len(), 6, "byte {b}");
@@ -759,7 +754,7 @@ mod tests {
         }
         // A line with other characters splits as before, at Unicode white space too.
         let line = "1\u{a0}2\u{2003}3 4 5 6";
-        let numbers = parse_line("rays.txt", 1, line, &[6, 7], "6 or 7 numbers");
+        let numbers = parse_line("rays.txt", 1, line.as_bytes(), &[6, 7], "6 or 7 numbers");
         assert_eq!(
             numbers.ok().flatten().map(|n| n.values().to_vec()),
             Some(vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
