@@ -310,6 +310,13 @@ pub(crate) fn read_text_within(
             crate::budget::human(most)
         ))
     };
+    let overlong = |line: usize, longest: usize| Error::Parse {
+        path: name.clone(),
+        line: Some(line),
+        message: format!(
+            "the line is longer than {longest} bytes; a line of this file holds a few numbers"
+        ),
+    };
     let mut file = std::fs::File::open(path).map_err(io)?;
     // A regular file's length is known: refused before reading, read without regrowing.
     let length = file
@@ -335,29 +342,23 @@ pub(crate) fn read_text_within(
         let base = bytes.len();
         bytes.extend_from_slice(&block[..n]);
         if let Some(longest) = longest_line {
-            // Each line ended in this block, then the one it leaves open, by its length
-            // without the line break (as `RayReader` counts).
-            let ends = block[..n]
-                .iter()
-                .enumerate()
-                .filter(|&(_, &b)| b == b'\n')
-                .map(|(k, _)| base + k);
-            for end in ends.chain(std::iter::once(bytes.len())) {
-                if end - line_start > longest {
-                    return Err(Error::Parse {
-                        path: name,
-                        line: Some(lines),
-                        message: format!(
-                            "the line is longer than {longest} bytes; a line of this file holds \
-                             a few numbers"
-                        ),
-                    });
+            // Each line ended in this block, then the one it leaves open, by the length of its
+            // text ([`text_bytes`], as `RayReader` counts).
+            let ends = memchr::memchr_iter(b'\n', &block[..n]).map(|k| (base + k + 1, true));
+            for (end, ended) in ends.chain(std::iter::once((bytes.len(), false))) {
+                if text_bytes(&bytes[line_start..end], ended, true) > longest {
+                    return Err(overlong(lines, longest));
                 }
-                if end < bytes.len() {
-                    (line_start, lines) = (end + 1, lines + 1);
+                if ended {
+                    (line_start, lines) = (end, lines + 1);
                 }
             }
         }
+    }
+    if let Some(longest) = longest_line
+        && text_bytes(&bytes[line_start..], false, false) > longest
+    {
+        return Err(overlong(lines, longest));
     }
     String::from_utf8(bytes).map_err(|e| {
         let bytes = e.as_bytes();
@@ -374,7 +375,24 @@ pub(crate) fn read_text_within(
 
 /// The longest line a [`RayReader`] accepts, in bytes: a ray line holds 6 or 7 numbers, so a
 /// longer line is not a ray file, and refusing it keeps the reader's memory bounded.
+/// A line's length is its text's, without its break (`\n` or `\r\n`), however the line ends
+/// ([`text_bytes`]).
 pub const MAX_LINE_BYTES: usize = 1 << 20;
+
+/// The bytes of `line`'s text: without its break (`\n` or `\r\n`) when `ended`. While a line
+/// is still being read (`ended` false, more may follow), a last `\r` may be the start of its
+/// break: `open` counts it out, so the length is the least the text can be.
+fn text_bytes(line: &[u8], ended: bool, open: bool) -> usize {
+    let line = if ended {
+        let line = line.strip_suffix(b"\n").unwrap_or(line);
+        line.strip_suffix(b"\r").unwrap_or(line)
+    } else if open {
+        line.strip_suffix(b"\r").unwrap_or(line)
+    } else {
+        line
+    };
+    line.len()
+}
 
 /// Reads a ray file a chunk of rays at a time, so memory stays bounded whatever the number of
 /// rays: the reader holds the lines of one block (about [`BLOCK_BYTES`], and at most one line
@@ -547,6 +565,10 @@ impl<R: std::io::BufRead> RayReader<R> {
                 if self.buf.len() == start {
                     return Ok(None);
                 }
+                // The last line, with no break after it: all of it is text.
+                if text_bytes(&self.buf[start..], false, false) > MAX_LINE_BYTES {
+                    return Err(self.overlong());
+                }
                 break;
             }
             let (take, complete) = match memchr::memchr(b'\n', available) {
@@ -555,15 +577,8 @@ impl<R: std::io::BufRead> RayReader<R> {
             };
             self.buf.extend_from_slice(&available[..take]);
             self.reader.consume(take);
-            if self.buf.len() - start > MAX_LINE_BYTES + 1 {
-                return Err(Error::Parse {
-                    path: self.name.clone(),
-                    line: Some(self.line + 1),
-                    message: format!(
-                        "the line is longer than {MAX_LINE_BYTES} bytes; a ray line holds 6 or \
-                         7 numbers"
-                    ),
-                });
+            if text_bytes(&self.buf[start..], complete, true) > MAX_LINE_BYTES {
+                return Err(self.overlong());
             }
             if complete {
                 break;
@@ -572,6 +587,17 @@ impl<R: std::io::BufRead> RayReader<R> {
         self.line += 1;
         let bom = self.line == 1 && self.buf[start..].starts_with(b"\xEF\xBB\xBF");
         Ok(Some((if bom { start + 3 } else { start }, self.buf.len())))
+    }
+
+    /// The error for the next line: longer than [`MAX_LINE_BYTES`].
+    fn overlong(&self) -> Error {
+        Error::Parse {
+            path: self.name.clone(),
+            line: Some(self.line + 1),
+            message: format!(
+                "the line is longer than {MAX_LINE_BYTES} bytes; a ray line holds 6 or 7 numbers"
+            ),
+        }
     }
 }
 
@@ -936,6 +962,47 @@ mod tests {
         let mut edge = vec![b' '; MAX_LINE_BYTES - 12];
         edge.extend(b"0 0 0 1 0 0\n");
         assert_eq!(streamed(&edge, 4).unwrap().len(), 1);
+    }
+
+    /// A line's text of the limit, and one byte more, after a line and before one, with each
+    /// break and as the last line with none: both readers take the first and refuse the second,
+    /// naming its line, however the line ends.
+    #[test]
+    fn the_line_limit_counts_text_not_its_break() {
+        let dir = std::env::temp_dir().join(format!("raypick-limit-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for (text_len, fits) in [(MAX_LINE_BYTES, true), (MAX_LINE_BYTES + 1, false)] {
+            let mut line = vec![b' '; text_len - 11];
+            line.extend(b"0 0 0 1 0 0");
+            for end in [&b"\n"[..], b"\r\n", b""] {
+                let mut file = b"1 0 0 1 0 0\n".to_vec();
+                file.extend(&line);
+                file.extend(end);
+                if !end.is_empty() {
+                    file.extend(b"2 0 0 1 0 0\n");
+                }
+                let path = dir.join("r.txt");
+                std::fs::write(&path, &file).unwrap();
+                let whole = read_text_within(&path, u64::MAX, "", Some(MAX_LINE_BYTES));
+                for (reader, result) in [
+                    ("stream", streamed(&file, 3).map(|r| r.len())),
+                    ("whole", whole.map(|t| t.len())),
+                ] {
+                    let case = format!("{reader}, {text_len} bytes, break {end:?}");
+                    match result {
+                        Ok(_) => assert!(fits, "{case}: taken"),
+                        Err(e) => {
+                            assert!(!fits, "{case}: {e}");
+                            assert!(
+                                e.to_string().contains(":2: the line is longer"),
+                                "{case}: {e}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
