@@ -35,7 +35,7 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Time the in-process `pick` (closest hit, f64 refinement included) of your own ray file
-    /// instead of the tables: load and build once, then the best of `--repeat` passes. Ends with
+    /// (`-`: standard input) instead of the tables: load and build once, then the best of `--repeat` passes. Ends with
     /// one machine-readable line, `pick_rays_per_s=<number>`.
     #[arg(long)]
     pub ray_file: Option<std::path::PathBuf>,
@@ -54,15 +54,15 @@ fn run_ray_file(
     matches: &ArgMatches,
 ) -> Result<ExitCode, Error> {
     let rays = super::read_rays(path, 0.0, f64::INFINITY, u32::MAX)?;
+    let name = super::ray_file_name(path);
     super::check_rays(
-        &format!("the {} rays of {}", rays.len(), path.display()),
+        &format!("the {} rays of {name}", rays.len()),
         rays.len() as u64,
         &raypick::Query::default(),
     )?;
     if rays.is_empty() {
         return Err(Error::Invalid(format!(
-            "{}: no rays to time (the file holds no ray lines)",
-            path.display()
+            "{name}: no rays to time (the file holds no ray lines)"
         )));
     }
     let (built, load_s, build_s) = args.scene.build_timed(matches)?;
@@ -77,7 +77,7 @@ fn run_ray_file(
     let mut picker = raypick::make_picker(args.backend, built.clone())?;
     // Again with what a GPU's driver left (under `ulimit -v` its mappings count).
     super::check_rays(
-        &format!("the {} rays of {}", rays.len(), path.display()),
+        &format!("the {} rays of {name}", rays.len()),
         rays.len() as u64,
         &raypick::Query::default(),
     )?;
@@ -91,7 +91,7 @@ fn run_ray_file(
         load_s * 1e3,
         build_s * 1e3,
         rays.len(),
-        path.display(),
+        name,
     )?;
     let mut best = f64::INFINITY;
     let mut hits = 0;

@@ -34,7 +34,7 @@ pub mod threads;
 pub mod verify;
 
 use raypick::io::output::Format;
-use raypick::io::ray_file::load_rays_as;
+use raypick::io::ray_file::{RayLine, RayReader, STDIN_NAME, load_rays_as, read_rays_as};
 use raypick::{Backend, BuiltScene, Error, Picker, Query, Ray};
 use std::io::Write;
 use std::path::Path;
@@ -98,13 +98,33 @@ pub fn show_notes(picker: &mut dyn Picker) {
     }
 }
 
-/// Reads a ray file; rays get `tmin`, `mask`, and `tmax` unless the line gives one.
+/// Whether a ray file argument is `-`: standard input.
+pub fn is_stdin(path: &Path) -> bool {
+    path.as_os_str() == "-"
+}
+
+/// What messages call the ray file `path`: its path, or [`STDIN_NAME`] for `-`.
+pub fn ray_file_name(path: &Path) -> String {
+    if is_stdin(path) {
+        STDIN_NAME.to_owned()
+    } else {
+        path.display().to_string()
+    }
+}
+
+/// Reads a ray file (`-`: standard input); rays get `tmin`, `mask`, and `tmax` unless the line
+/// gives one.
 pub fn read_rays(path: &Path, tmin: f64, tmax: f64, mask: u32) -> Result<Vec<Ray>, Error> {
-    load_rays_as(path, |r| {
+    let make = |r: &RayLine| {
         Ray::new(r.origin, r.dir)
             .with_range(tmin, r.tmax.unwrap_or(tmax))
             .with_mask(mask)
-    })
+    };
+    if is_stdin(path) {
+        read_rays_as(RayReader::stdin(), make)
+    } else {
+        load_rays_as(path, make)
+    }
 }
 
 /// Whether `path`'s extension is `extension` (ASCII case ignored).

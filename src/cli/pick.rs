@@ -18,8 +18,8 @@ use std::sync::Arc;
 pub struct PickArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
-    /// Ray file: one ray per line, `ox oy oz dx dy dz [tmax]`, `#` starts a comment. Default
-    /// (without --camera): an 8 × 8 grid of camera rays looking straight down on the scene,
+    /// Ray file: one ray per line, `ox oy oz dx dy dz [tmax]`, `#` starts a comment; `-` reads
+    /// standard input. Default (without --camera): an 8 × 8 grid of camera rays looking straight down on the scene,
     /// north up; ray i is pixel (i mod 8, i div 8), row 0 north.
     #[arg(long, conflicts_with = "camera")]
     pub rays: Option<PathBuf>,
@@ -55,12 +55,13 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
     // whole and parsed once, before any output too. Camera pixels and the default camera grid
     // are small.
     let whole_file = args.rays.as_ref().filter(|path| {
-        std::fs::metadata(path).is_ok_and(|m| {
-            let most_rays = m.len() / MIN_RAY_LINE + 1;
-            m.is_file()
-                && m.len() <= WHOLE_RAY_FILE
-                && most_rays * size_of::<RayLine>() as u64 <= raypick::budget::limit() / 4
-        })
+        !super::is_stdin(path)
+            && std::fs::metadata(path).is_ok_and(|m| {
+                let most_rays = m.len() / MIN_RAY_LINE + 1;
+                m.is_file()
+                    && m.len() <= WHOLE_RAY_FILE
+                    && most_rays * size_of::<RayLine>() as u64 <= raypick::budget::limit() / 4
+            })
     });
     let rays: Vec<Ray> = match (&args.rays, &args.camera, &args.pixels) {
         (Some(_), _, _) => Vec::new(),
@@ -102,6 +103,9 @@ pub fn run(args: PickArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
             let total = chunks.iter().map(|c| c.len() as u64).sum();
             Some((RayChunks::Read(chunks.into_iter()), Some(total)))
         }
+        // Standard input is read once, as the answers are written (a bad line ends the
+        // output there, with exit code 2).
+        Some(path) if super::is_stdin(path) => Some((RayChunks::Stdin(RayReader::stdin()), None)),
         Some(path) => {
             let total = if std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
                 Some(count_rays(path)?)
@@ -198,6 +202,8 @@ const RAY_CHUNK: usize = 1 << 18;
 enum RayChunks {
     Read(std::vec::IntoIter<Vec<RayLine>>),
     Streamed(RayReader<std::io::BufReader<std::fs::File>>),
+    /// Standard input (`--rays -`), read as answered.
+    Stdin(RayReader<std::io::StdinLock<'static>>),
 }
 
 impl RayChunks {
@@ -206,6 +212,7 @@ impl RayChunks {
     fn next(&mut self, lines: &mut Vec<RayLine>, max: usize) -> Result<usize, Error> {
         match self {
             RayChunks::Streamed(reader) => reader.read_chunk(lines, max),
+            RayChunks::Stdin(reader) => reader.read_chunk(lines, max),
             RayChunks::Read(chunks) => {
                 *lines = chunks.next().unwrap_or_default();
                 Ok(lines.len())

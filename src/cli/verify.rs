@@ -22,7 +22,7 @@ use std::time::Instant;
 pub struct VerifyArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
-    /// Ray file to check (reported as one ray kind, "file").
+    /// Ray file to check (reported as one ray kind, "file"; `-`: standard input).
     #[arg(long, conflicts_with = "random")]
     pub rays: Option<PathBuf>,
     /// Number of synthetic rays, spread over every ray kind (camera, random, vertex,
@@ -108,7 +108,7 @@ pub fn run(args: VerifyArgs, matches: &ArgMatches) -> Result<ExitCode, Error> {
         Some(path) => {
             let rays = read_rays(path, q.tmin, q.tmax, q.ray_mask)?;
             super::check_rays(
-                &format!("the {} rays of {}", rays.len(), path.display()),
+                &format!("the {} rays of {}", rays.len(), super::ray_file_name(path)),
                 rays.len() as u64,
                 &query,
             )?;

@@ -222,12 +222,20 @@ pub fn load_rays_as<T: Send>(
     path: &Path,
     make: impl Fn(&RayLine) -> T + Sync,
 ) -> Result<Vec<T>, Error> {
+    read_rays_as(RayReader::open(path)?, make)
+}
+
+/// [`load_rays_as`] from `reader` (a file opened by [`RayReader::open`], standard input by
+/// [`RayReader::stdin`]), to its end.
+pub fn read_rays_as<T: Send, R: std::io::BufRead>(
+    mut reader: RayReader<R>,
+    make: impl Fn(&RayLine) -> T + Sync,
+) -> Result<Vec<T>, Error> {
     use rayon::prelude::*;
-    let mut reader = RayReader::open(path)?;
     let (mut all, mut chunk) = (Vec::new(), Vec::new());
     while reader.read_chunk(&mut chunk, 1 << 18)? > 0 {
         crate::budget::check(
-            &format!("the rays of {}", path.display()),
+            &format!("the rays of {}", reader.name),
             (all.len() + chunk.len()) as u64,
             size_of::<T>() as u64,
         )?;
@@ -463,6 +471,17 @@ impl RayReader<std::io::BufReader<std::fs::File>> {
             name,
             std::io::BufReader::with_capacity(1 << 16, file),
         ))
+    }
+}
+
+/// What errors call standard input, read as a ray file ([`RayReader::stdin`]).
+pub const STDIN_NAME: &str = "standard input";
+
+impl RayReader<std::io::StdinLock<'static>> {
+    /// A reader of the rays on standard input, named [`STDIN_NAME`] in errors (the command
+    /// line's `-` for a ray file).
+    pub fn stdin() -> Self {
+        Self::new(STDIN_NAME, std::io::stdin().lock())
     }
 }
 

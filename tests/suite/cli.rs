@@ -1170,6 +1170,95 @@ fn an_out_file_that_is_one_of_the_inputs_is_refused_and_left_as_it_was() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `raypick` run in `dir` with `input` on its standard input.
+fn run_with_input(dir: &std::path::Path, args: &[&str], input: &str) -> std::process::Output {
+    use std::io::Write as _;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_raypick"))
+        .args(args)
+        .current_dir(dir)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run raypick");
+    let mut stdin = child.stdin.take().unwrap();
+    let input = input.to_owned();
+    let feeding = std::thread::spawn(move || {
+        let _ = stdin.write_all(input.as_bytes());
+    });
+    let out = child.wait_with_output().unwrap();
+    feeding.join().unwrap();
+    out
+}
+
+/// `--rays -` (and `bench --ray-file -`) reads standard input, as `--out -` writes standard
+/// output: the answers of the same rays in a file, a bad line named "standard input", and a
+/// file named `-` never read in its place.
+#[test]
+fn rays_dash_is_standard_input() {
+    let dir = std::env::temp_dir().join(format!("raypick-cli-stdin-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // Rays over the built-in scene's 1 km square, hits and misses, past one 262,144-ray chunk.
+    let rays: String = (0..300_000)
+        .map(|k| {
+            let (x, y) = ((k % 613) as f64 * 1.7, (k / 613) as f64 * 2.1);
+            format!("{x} {y} 600 0.{} 0 -1\n", k % 7)
+        })
+        .collect();
+    std::fs::write(dir.join("rays.txt"), &rays).unwrap();
+    std::fs::write(dir.join("-"), "not a ray file\n").unwrap();
+    let few: String = rays.lines().take(100).map(|l| format!("{l}\n")).collect();
+    let pick = ["pick", "-q", "--backend", "cpu", "--rays"];
+    let from_file = stdout_in(&dir, &[&pick[..], &["rays.txt"]].concat());
+    let out = run_with_input(&dir, &[&pick[..], &["-"]].concat(), &rays);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(from_file.len() > 300_000 * 20);
+    assert!(out.stdout == from_file, "the answers differ");
+    let out = run_with_input(&dir, &["verify", "--rays", "-"], &few);
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(said.contains(" 0 mismatches"), "{said}");
+    let out = run_with_input(
+        &dir,
+        &[
+            "bench",
+            "--ray-file",
+            "-",
+            "--repeat",
+            "1",
+            "--backend",
+            "cpu",
+        ],
+        &few,
+    );
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(said.contains("pick_rays_per_s="), "{said}");
+    for args in [&pick[..], &["verify", "--rays"], &["bench", "--ray-file"]] {
+        let out = run_with_input(&dir, &[args, &["-"]].concat(), "0 0 600 0 0 -1\nbad\n");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            err.contains("standard input:2: 'bad' is not a number"),
+            "{args:?}: {err}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// Found by a sweep of hostile arguments: a ray file read from a pipe is checked as it streams,
 /// so a bad line after the first chunk ended the pick with exit 2 and the answers so far in
 /// `--out`, the file that was there replaced. The output is now written beside it and renamed
