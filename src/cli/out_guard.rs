@@ -20,7 +20,12 @@ fn existing_out(matches: &ArgMatches) -> Option<(&PathBuf, FileId)> {
     Some((out, FileId::of(out)?))
 }
 
-/// Refuses `--out` when it is the same file as any other path-valued argument of `matches`.
+/// The arguments whose `-` is standard input (`pick --rays`, `verify --rays`, `bench
+/// --ray-file`).
+const STDIN_ARGS: [&str; 2] = ["rays", "ray_file"];
+
+/// Refuses `--out` when it is the same file as any other path-valued argument of `matches`
+/// (for a ray file given as `-`, the file standard input reads, if it is one).
 pub fn refuse_inputs(matches: &ArgMatches) -> Result<(), Error> {
     let Some((out, id)) = existing_out(matches) else {
         return Ok(());
@@ -30,9 +35,17 @@ pub fn refuse_inputs(matches: &ArgMatches) -> Result<(), Error> {
             continue;
         };
         for value in values {
-            if FileId::of(value).as_ref() == Some(&id) {
+            // `-` of a ray file is standard input: the file redirected there, if any.
+            let stdin = STDIN_ARGS.contains(&arg.as_str()) && super::is_stdin(value);
+            let input = if stdin {
+                FileId::of_stdin()
+            } else {
+                FileId::of(value)
+            };
+            if input.as_ref() == Some(&id) {
                 let flag = format!("--{}", arg.as_str().replace('_', "-"));
-                return Err(refusal(out, &format!("{flag} {}", value.display())));
+                let what = if stdin { ", standard input" } else { "" };
+                return Err(refusal(out, &format!("{flag} {}{what}", value.display())));
             }
         }
     }
@@ -95,6 +108,22 @@ fn refusal(out: &Path, input: &str) -> Error {
 struct FileId(#[cfg(unix)] (u64, u64), #[cfg(not(unix))] PathBuf);
 
 impl FileId {
+    /// The file on standard input (a pipe or a terminal is no file an `--out` can name).
+    fn of_stdin() -> Option<Self> {
+        #[cfg(unix)]
+        {
+            use std::os::fd::AsFd;
+            use std::os::unix::fs::MetadataExt;
+            let fd = std::io::stdin().as_fd().try_clone_to_owned().ok()?;
+            let meta = std::fs::File::from(fd).metadata().ok()?;
+            Some(FileId((meta.dev(), meta.ino())))
+        }
+        #[cfg(not(unix))]
+        {
+            None
+        }
+    }
+
     fn of(path: &Path) -> Option<Self> {
         #[cfg(unix)]
         {

@@ -1247,6 +1247,32 @@ fn rays_dash_is_standard_input() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(said.contains("pick_rays_per_s="), "{said}");
+    // `--out` naming the file redirected to standard input is refused, the file kept; a file
+    // named `-` is no input then.
+    let out = Command::new(env!("CARGO_BIN_EXE_raypick"))
+        .args([&pick[..], &["-", "--out", "rays.txt"]].concat())
+        .current_dir(&dir)
+        .stdin(std::fs::File::open(dir.join("rays.txt")).unwrap())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("is also an input (--rays -, standard input)"),
+        "{err}"
+    );
+    assert!(std::fs::read_to_string(dir.join("rays.txt")).unwrap() == rays);
+    let out = run_with_input(&dir, &[&pick[..], &["-", "--out", "./-"]].concat(), &few);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        std::fs::read_to_string(dir.join("-"))
+            .unwrap()
+            .starts_with("ray,hit,")
+    );
     for args in [&pick[..], &["verify", "--rays"], &["bench", "--ray-file"]] {
         let out = run_with_input(&dir, &[args, &["-"]].concat(), "0 0 600 0 0 -1\nbad\n");
         let err = String::from_utf8_lossy(&out.stderr);
