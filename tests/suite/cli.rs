@@ -1291,12 +1291,14 @@ fn rays_dash_is_standard_input() {
 /// over it only when the pick succeeds.
 #[test]
 fn a_pick_that_fails_part_way_leaves_the_out_file_as_it_was() {
-    use std::io::Write as _;
     let dir = std::env::temp_dir().join(format!("raypick-cli-partial-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     std::fs::write(dir.join("hits.csv"), "precious\n").unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_raypick"))
-        .args([
+    let mut rays = "10 10 500 0 0 -1\n".repeat(270_000);
+    rays.push_str("bad\n");
+    let out = run_with_input(
+        &dir,
+        &[
             "pick",
             "-q",
             "--backend",
@@ -1305,21 +1307,9 @@ fn a_pick_that_fails_part_way_leaves_the_out_file_as_it_was() {
             "/dev/stdin",
             "--out",
             "hits.csv",
-        ])
-        .current_dir(&dir)
-        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-        .stdin(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut rays = "10 10 500 0 0 -1\n".repeat(270_000);
-    rays.push_str("bad\n");
-    let mut stdin = child.stdin.take().unwrap();
-    let feeding = std::thread::spawn(move || {
-        let _ = stdin.write_all(rays.as_bytes());
-    });
-    let out = child.wait_with_output().unwrap();
-    feeding.join().unwrap();
+        ],
+        &rays,
+    );
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(
