@@ -35,8 +35,8 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Time the in-process `pick` (closest hit, f64 refinement included) of your own ray file
-    /// (`-`: standard input) instead of the tables: load and build once, then the best of `--repeat` passes. Ends with
-    /// one machine-readable line, `pick_rays_per_s=<number>`.
+    /// (`-`: standard input) instead of the tables: load and build once, then the best of
+    /// `--repeat` passes. Ends with one machine-readable line, `pick_rays_per_s=<number>`.
     #[arg(long)]
     pub ray_file: Option<std::path::PathBuf>,
     /// With `--ray-file`: CPU threads (default: all cores).

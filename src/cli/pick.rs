@@ -19,8 +19,8 @@ pub struct PickArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
     /// Ray file: one ray per line, `ox oy oz dx dy dz [tmax]`, `#` starts a comment; `-` reads
-    /// standard input. Default (without --camera): an 8 × 8 grid of camera rays looking straight down on the scene,
-    /// north up; ray i is pixel (i mod 8, i div 8), row 0 north.
+    /// standard input. Default (without --camera): an 8 × 8 grid of camera rays looking
+    /// straight down on the scene, north up; ray i is pixel (i mod 8, i div 8), row 0 north.
     #[arg(long, conflicts_with = "camera")]
     pub rays: Option<PathBuf>,
     /// Camera file (JSON: perspective, orthographic or matrices); pick its pixels.

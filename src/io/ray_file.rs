@@ -352,19 +352,20 @@ pub(crate) fn read_text_within(
         if let Some(longest) = longest_line {
             // Each line ended in this block, then the one it leaves open, by the length of its
             // text ([`text_bytes`], as `RayReader` counts).
-            let ends = memchr::memchr_iter(b'\n', &block[..n]).map(|k| (base + k + 1, true));
-            for (end, ended) in ends.chain(std::iter::once((bytes.len(), false))) {
-                if text_bytes(&bytes[line_start..end], ended, true) > longest {
+            let ends =
+                memchr::memchr_iter(b'\n', &block[..n]).map(|k| (base + k + 1, LineEnd::Break));
+            for (end, how) in ends.chain(std::iter::once((bytes.len(), LineEnd::Open))) {
+                if text_bytes(&bytes[line_start..end], how) > longest {
                     return Err(overlong(lines, longest));
                 }
-                if ended {
+                if matches!(how, LineEnd::Break) {
                     (line_start, lines) = (end, lines + 1);
                 }
             }
         }
     }
     if let Some(longest) = longest_line
-        && text_bytes(&bytes[line_start..], false, false) > longest
+        && text_bytes(&bytes[line_start..], LineEnd::Last) > longest
     {
         return Err(overlong(lines, longest));
     }
@@ -387,19 +388,26 @@ pub(crate) fn read_text_within(
 /// ([`text_bytes`]); line 1's byte-order mark, if any, counts.
 pub const MAX_LINE_BYTES: usize = 1 << 20;
 
-/// The bytes of `line`'s text: without its break (`\n` or `\r\n`) when `ended`. While a line
-/// is still being read (`ended` false, more may follow), a last `\r` may be the start of its
-/// break: `open` counts it out, so the length is the least the text can be.
-fn text_bytes(line: &[u8], ended: bool, open: bool) -> usize {
-    let line = if ended {
-        let line = line.strip_suffix(b"\n").unwrap_or(line);
-        line.strip_suffix(b"\r").unwrap_or(line)
-    } else if open {
-        line.strip_suffix(b"\r").unwrap_or(line)
-    } else {
-        line
+/// How a line read so far ends, for [`text_bytes`].
+#[derive(Clone, Copy)]
+enum LineEnd {
+    /// With its break (`\n` or `\r\n`).
+    Break,
+    /// Not yet: more may follow, and a last `\r` may be the start of its break.
+    Open,
+    /// At the end of the file, with no break: all of it is text.
+    Last,
+}
+
+/// The bytes of `line`'s text, without its break; for a line still [`LineEnd::Open`], the least
+/// its text can be.
+fn text_bytes(line: &[u8], end: LineEnd) -> usize {
+    let line = match end {
+        LineEnd::Break => line.strip_suffix(b"\n").unwrap_or(line),
+        LineEnd::Open => line,
+        LineEnd::Last => return line.len(),
     };
-    line.len()
+    line.strip_suffix(b"\r").unwrap_or(line).len()
 }
 
 /// Reads a ray file a chunk of rays at a time, so memory stays bounded whatever the number of
@@ -584,8 +592,7 @@ impl<R: std::io::BufRead> RayReader<R> {
                 if self.buf.len() == start {
                     return Ok(None);
                 }
-                // The last line, with no break after it: all of it is text.
-                if text_bytes(&self.buf[start..], false, false) > MAX_LINE_BYTES {
+                if text_bytes(&self.buf[start..], LineEnd::Last) > MAX_LINE_BYTES {
                     return Err(self.overlong());
                 }
                 break;
@@ -596,7 +603,12 @@ impl<R: std::io::BufRead> RayReader<R> {
             };
             self.buf.extend_from_slice(&available[..take]);
             self.reader.consume(take);
-            if text_bytes(&self.buf[start..], complete, true) > MAX_LINE_BYTES {
+            let end = if complete {
+                LineEnd::Break
+            } else {
+                LineEnd::Open
+            };
+            if text_bytes(&self.buf[start..], end) > MAX_LINE_BYTES {
                 return Err(self.overlong());
             }
             if complete {
